@@ -1,0 +1,39 @@
+"""Dynamic movement primitives: the pure maths of Sections III-IV of Pahič et al. (2018).
+
+No I/O and no plotting here. The public surface:
+
+- :class:`DMPConfig` - constants (alpha_z, beta_z, alpha_x, N, d, scaling)
+- :class:`DMPParams` - w, tau, g, y0 and their flat 55-number vector
+- :func:`phase`, :func:`kernel_centres`, :func:`kernel_widths`, :func:`basis_functions`,
+  :func:`forcing_term` - eqs. (5)-(7)
+- :func:`fit_dmp` - parameters from demonstrations
+- :func:`rollout` - fast batched differentiable y(t) (cost 10)
+- :func:`rollout_sensitivity`, :func:`sensitivity_rollout` - the paper's gradient, eqs. (11)-(27)
+- :class:`DMPIntegrator`, :func:`integrate` - step-by-step reference integrator
+"""
+
+from .basis import basis_functions, forcing_term, kernel_centres, kernel_widths, phase
+from .config import DMPConfig
+from .fit import FitResult, fit_dmp
+from .integrate import DMPIntegrator, integrate
+from .params import DMPParams
+from .rollout import rollout, unit_responses
+from .sensitivity import rollout_sensitivity, sensitivity_rollout
+
+__all__ = [
+    "DMPConfig",
+    "DMPIntegrator",
+    "DMPParams",
+    "FitResult",
+    "basis_functions",
+    "fit_dmp",
+    "forcing_term",
+    "integrate",
+    "kernel_centres",
+    "kernel_widths",
+    "phase",
+    "rollout",
+    "rollout_sensitivity",
+    "sensitivity_rollout",
+    "unit_responses",
+]

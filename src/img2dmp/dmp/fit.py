@@ -1,0 +1,145 @@
+"""Fitting DMP parameters to demonstrated trajectories.
+
+``tau``, ``g`` and ``y0`` are read off the demonstration (its duration, last and first
+point). Because the DMP's solution is affine in the weights (see :mod:`.rollout`), the
+weights are then found by linear least squares **on the positions themselves**::
+
+    min_w  mean_t || y_demo(t) - y_dmp(t; w) ||^2  +  ridge * mean_eig * ||w||^2
+
+This needs no numerical differentiation of the demonstration (the classical regression
+on ``tau^2 y''`` amplifies sampling noise and gaps), works at arbitrary, uneven time
+stamps, and minimises exactly the error that evaluation and cost (10) measure.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .config import DMPConfig
+from .params import DMPParams
+from .rollout import check_time_stamps, unit_responses
+
+
+@dataclass
+class FitResult:
+    """Outcome of :func:`fit_dmp`.
+
+    Attributes
+    ----------
+    params : DMPParams
+        Fitted parameters, batch shape ``[*batch]``, same array kind as the input.
+    error_px : array [*batch]
+        Mean Euclidean distance between the demonstration and the fitted DMP's rollout at
+        the demonstration's time stamps (units of the input, e.g. pixels).
+    max_error_px : array [*batch]
+        Largest such distance.
+    """
+
+    params: DMPParams
+    error_px: object
+    max_error_px: object
+
+
+def fit_dmp(
+    t,
+    y,
+    config: DMPConfig | None = None,
+    *,
+    ridge: float = 1e-9,
+    chunk_size: int = 4096,
+) -> FitResult:
+    """Fit DMPs to a batch of demonstrations by least squares in trajectory space.
+
+    Parameters
+    ----------
+    t : array [*batch, T] or [T]
+        Time stamps in seconds, strictly increasing; need not be evenly spaced and need
+        not start at 0 (the movement is taken to start at ``t[..., 0]``).
+    y : array [*batch, T, d]
+        Demonstrated positions.
+    config : DMPConfig
+        Constants; its ``n_dims`` must equal d.
+    ridge : float
+        Tikhonov regularisation, relative to the mean eigenvalue of the normal
+        equations (scale-free). The small default only guards against singular systems;
+        raise it (e.g. 1e-4) to keep weights small where ``g - y0`` is near zero.
+    chunk_size : int
+        Demonstrations solved at once when every sample has its own time stamps.
+
+    Returns
+    -------
+    FitResult
+        NumPy in, NumPy out; torch in, torch out (float64 inside).
+    """
+    config = config or DMPConfig()
+    as_numpy = not isinstance(y, torch.Tensor)
+    y = torch.as_tensor(np.asarray(y) if as_numpy else y).to(torch.float64)
+    t = torch.as_tensor(np.asarray(t) if not isinstance(t, torch.Tensor) else t)
+    t = t.to(torch.float64)
+    if not np.isfinite(ridge) or ridge < 0:
+        raise ValueError(f"ridge must be a finite number >= 0, got {ridge!r}")
+    if y.ndim < 2:
+        raise ValueError(f"y must have shape [*batch, T, d], got {tuple(y.shape)}")
+    if y.shape[-2] < 2:
+        raise ValueError(
+            f"a trajectory needs at least 2 points to fit a DMP, got {y.shape[-2]} (empty?)"
+        )
+    if y.shape[-1] != config.n_dims:
+        raise ValueError(f"y has d={y.shape[-1]} dimensions, the config expects {config.n_dims}")
+    if not bool(torch.isfinite(y).all()):
+        raise ValueError("y contains NaN or inf")
+    check_time_stamps(t)
+    if t.shape[-1] != y.shape[-2]:
+        raise ValueError(f"t has {t.shape[-1]} time stamps but y has {y.shape[-2]} points")
+    batch = tuple(y.shape[:-2])
+    if t.ndim > 1 and tuple(t.shape[:-1]) != batch:
+        raise ValueError(f"t has batch shape {tuple(t.shape[:-1])}, y has {batch}")
+
+    yf = y.reshape(-1, *y.shape[-2:])  # [B, T, d]
+    shared = t.ndim == 1
+    tf = t[None] if shared else t.reshape(-1, t.shape[-1])  # [1 or B, T]
+    outs = []
+    step = yf.shape[0] if shared else chunk_size
+    for lo in range(0, yf.shape[0], max(step, 1)):
+        tc = tf if shared else tf[lo : lo + step]
+        outs.append(_fit_chunk(tc, yf[lo : lo + step], config, ridge))
+    w, tau, g, y0, err, emax = (torch.cat(parts) for parts in zip(*outs, strict=True))
+    params = DMPParams(
+        w=w.reshape(*batch, *w.shape[1:]),
+        tau=tau.reshape(batch),
+        g=g.reshape(*batch, -1),
+        y0=y0.reshape(*batch, -1),
+    )
+    err, emax = err.reshape(batch), emax.reshape(batch)
+    if as_numpy:
+        return FitResult(params.to_numpy(), err.numpy(), emax.numpy())
+    return FitResult(params, err, emax)
+
+
+def _fit_chunk(t: torch.Tensor, y: torch.Tensor, config: DMPConfig, ridge: float):
+    # t: [1 or B, T], y: [B, T, d]
+    rel = t - t[:, :1]
+    tau = rel[:, -1]  # [1 or B]
+    s = rel / tau[:, None]
+    a, r = unit_responses(s, config)  # [1|B, T], [1|B, T, N]
+    n_t = y.shape[1]
+    y0, g = y[:, 0], y[:, -1]  # [B, d]
+    resid = y - g[:, None] - (y0 - g)[:, None] * a[..., None]  # [B, T, d]
+    scale = (g - y0) if config.scaling == "goal-start" else torch.ones_like(g)  # [B, d]
+    gram = r.transpose(1, 2) @ r / n_t  # [1|B, N, N]
+    rhs = r.transpose(1, 2) @ resid / n_t  # [B, N, d]
+    n = config.n_kernels
+    eye = torch.eye(n, dtype=y.dtype)
+    lam = ridge * torch.diagonal(gram, dim1=1, dim2=2).mean(-1)  # [1|B]
+    w = torch.empty_like(rhs)
+    for j in range(y.shape[-1]):
+        sj = scale[:, j]
+        lhs = sj[:, None, None] ** 2 * gram + (lam[:, None, None] + 1e-300) * eye
+        w[..., j] = torch.linalg.solve(lhs, sj[:, None] * rhs[..., j])
+    fitted = g[:, None] + (y0 - g)[:, None] * a[..., None] + scale[:, None] * (r @ w)
+    dist = torch.linalg.vector_norm(fitted - y, dim=-1)  # [B, T]
+    tau_b = tau.expand(y.shape[0])
+    return w, tau_b, g, y0, dist.mean(-1), dist.amax(-1)

@@ -1,0 +1,175 @@
+"""Fast, batched, differentiable DMP rollout (the core of cost (10)).
+
+With tau fixed, the transformation system (eqs. 3-4) is linear and time-invariant in the
+normalised time ``s = t / tau``::
+
+    y'' = alpha_z * (beta_z * (g - y) - y') + S * F(x(s)),   x(s) = exp(-alpha_x s)
+
+with ``y(0) = y0, y'(0) = 0`` and ``S = g - y0`` (or 1). Its solution is therefore an
+affine function of ``y0``, ``g`` and the weights::
+
+    y(s) = g + (y0 - g) * a(s) + S * sum_k w_k R_k(s)
+
+where ``a`` is the free response to a unit initial offset and ``R_k`` the response to the
+k-th normalised kernel ``phi_k(x(s))`` (see :func:`basis.basis_functions`). These N + 1
+scalar functions depend only on the DMP constants, so they are solved once, to 1e-12
+relative accuracy, on a fine grid and interpolated with cubic Hermite polynomials (values
+and exact derivatives at the nodes). A batch rollout is then a gather and a small matrix
+product, and autograd gives exact derivatives of it for w, g, y0 and tau; tau enters only
+through ``s = t / tau``, so ``dy/dtau = -(t / tau^2) y'(s)``.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+import torch
+from scipy.integrate import solve_ivp
+
+from .basis import basis_functions, kernel_centres, kernel_widths
+from .config import DMPConfig
+from .params import DMPParams
+
+# Nodes per shortest time scale of the responses; cubic Hermite error then ~1e-10 relative.
+_NODES_PER_SCALE = 64
+# The table ends where the phase and the free response have decayed below this.
+_TAIL = 1e-10
+
+
+@functools.lru_cache(maxsize=16)
+def _response_table_f64(config: DMPConfig) -> tuple[float, float, np.ndarray]:
+    """Solve the N + 1 unit responses on a uniform grid of s.
+
+    Returns ``(h, s_max, table)`` where ``table`` is ``[G, 2, N + 1]``: values and
+    s-derivatives of ``[a, R_1, ..., R_N]`` at ``s = 0, h, 2h, ...``.
+    """
+    n, az, bz, ax = config.n_kernels, config.alpha_z, config.beta, config.alpha_x
+    c, hw = kernel_centres(config), kernel_widths(config)
+    scale = min(1.0 / (n - 1), 1.0 / math.sqrt(az * bz), 2.0 / az)
+    h = scale / _NODES_PER_SCALE
+    # Slowest decay of the free response: the real part of the slower characteristic root.
+    disc = az * az - 4 * az * bz
+    slow = az / 2 - (math.sqrt(disc) / 2 if disc > 0 else 0.0)
+    s_max = max(-math.log(_TAIL) / ax, (-math.log(_TAIL) + 5.0) / slow, 1.0)
+    g = int(math.ceil(s_max / h)) + 1
+    s_grid = np.arange(g) * h
+    s_max = float(s_grid[-1])
+
+    def rhs(s, u):
+        y, yd = u[: n + 1], u[n + 1 :]
+        drive = np.zeros(n + 1)
+        drive[1:] = basis_functions(np.exp(np.array(-ax * s)), c, hw)
+        return np.concatenate([yd, -az * bz * y - az * yd + drive])
+
+    u0 = np.zeros(2 * (n + 1))
+    u0[0] = 1.0  # a(0) = 1: unit initial offset; every R_k starts at rest
+    sol = solve_ivp(
+        rhs, (0.0, s_max), u0, method="DOP853", t_eval=s_grid, rtol=1e-12, atol=1e-16
+    )
+    if not sol.success:  # pragma: no cover - depends on scipy internals
+        raise RuntimeError(f"could not tabulate DMP responses: {sol.message}")
+    table = np.stack([sol.y[: n + 1].T, sol.y[n + 1 :].T], axis=1)  # [G, 2, N+1]
+    return h, s_max, table
+
+
+@functools.lru_cache(maxsize=32)
+def _response_table(config: DMPConfig, dtype: torch.dtype, device: str):
+    h, s_max, table = _response_table_f64(config)
+    t = torch.as_tensor(table, dtype=dtype, device=device)
+    # [G, 2(N+1)]: values, then h * derivatives, as the Hermite basis wants them.
+    packed = torch.cat([t[:, 0], h * t[:, 1]], dim=-1).contiguous()
+    return h, s_max, packed
+
+
+def unit_responses(s: torch.Tensor, config: DMPConfig) -> tuple[torch.Tensor, torch.Tensor]:
+    """Free response ``a(s)`` and kernel responses ``R_k(s)`` at normalised times ``s``.
+
+    Parameters
+    ----------
+    s : tensor [*batch, T]
+        Normalised time ``t / tau`` (>= 0). Beyond the end of the table (where every
+        response has settled to 1e-10) the last value is used.
+
+    Returns
+    -------
+    a : tensor [*batch, T]
+    R : tensor [*batch, T, N]
+        Differentiable in ``s``.
+    """
+    h, s_max, packed = _response_table(config, s.dtype, str(s.device))
+    c = config.n_kernels + 1
+    q = s.clamp(0.0, s_max) / h
+    i = q.detach().floor().clamp(max=packed.shape[0] - 2).long()
+    u = (q - i)[..., None]
+    lo, hi = packed[i], packed[i + 1]  # [*batch, T, 2c]
+    u2 = u * u
+    h00 = 1 - 3 * u2 + 2 * u2 * u
+    h10 = u - 2 * u2 + u2 * u
+    h01 = 3 * u2 - 2 * u2 * u
+    h11 = u2 * u - u2
+    val = h00 * lo[..., :c] + h10 * lo[..., c:] + h01 * hi[..., :c] + h11 * hi[..., c:]
+    return val[..., 0], val[..., 1:]
+
+
+def check_time_stamps(t, name: str = "t") -> None:
+    """Raise ``ValueError`` unless ``t`` is finite, non-empty, >= 0 and strictly increasing."""
+    t = torch.as_tensor(t)
+    if t.numel() == 0 or t.shape[-1] == 0:
+        raise ValueError(f"{name} is empty: a trajectory needs at least one time stamp")
+    if not bool(torch.isfinite(t).all()):
+        raise ValueError(f"{name} contains NaN or inf")
+    if t.shape[-1] > 1 and not bool((t[..., 1:] > t[..., :-1]).all()):
+        raise ValueError(f"{name} must be strictly increasing along its last axis")
+
+
+def rollout(
+    params: DMPParams,
+    t: torch.Tensor,
+    config: DMPConfig | None = None,
+    *,
+    validate: bool = True,
+) -> torch.Tensor:
+    """Positions ``y(t)`` of a batch of DMPs at arbitrary per-sample time stamps.
+
+    Exact solution of the DMP ODE (eqs. 3-7) up to ~1e-9 relative, differentiable by
+    autograd in every field of ``params`` (w, tau, g, y0). Time runs from the start of
+    the movement: ``t = 0`` is ``y0``.
+
+    Parameters
+    ----------
+    params : DMPParams
+        Torch tensors, batch shape ``[*batch]``.
+    t : tensor [*batch, T] or [T]
+        Time stamps in seconds, strictly increasing along the last axis.
+    config : DMPConfig
+        DMP constants; default ``DMPConfig()``.
+    validate : bool
+        Check inputs (costs a few host syncs; turn off in a hot training loop only once
+        the inputs are known to be good).
+
+    Returns
+    -------
+    tensor [*batch, T, d]
+    """
+    config = config or DMPConfig()
+    w, tau, g, y0 = params.w, params.tau, params.g, params.y0
+    t = torch.as_tensor(t, dtype=w.dtype, device=w.device)
+    if validate:
+        params.validate(config)
+        check_time_stamps(t)
+        if bool((t < 0).any()):
+            raise ValueError("t must be >= 0 (seconds since the start of the movement)")
+    batch = params.batch_shape
+    if t.ndim == 1:
+        t = t.expand(*batch, t.shape[0])
+    elif tuple(t.shape[:-1]) != batch:
+        raise ValueError(
+            f"t has batch shape {tuple(t.shape[:-1])}, the parameters have {batch}"
+        )
+    s = t / tau[..., None]  # [*batch, T]
+    a, r = unit_responses(s, config)  # [*batch, T], [*batch, T, N]
+    scale = (g - y0) if config.scaling == "goal-start" else torch.ones_like(g)
+    forced = torch.matmul(r, w)  # [*batch, T, d]
+    return g[..., None, :] + (y0 - g)[..., None, :] * a[..., None] + scale[..., None, :] * forced

@@ -1,0 +1,170 @@
+"""The paper's gradient: sensitivity equations integrated alongside the DMP.
+
+Section IV of Pahič et al. (eqs. 11-27) obtains the gradient of cost (10) by
+differentiating the DMP's differential equations with respect to each parameter and
+integrating the resulting *sensitivity* equations together with the DMP. In physical
+time, with ``S = g - y0`` (or 1 for ``scaling="none"``), ``F = sum_k w_k phi_k(x)`` and
+``f = alpha_z (beta_z (g - y) - z) + S F``::
+
+    DMP             tau y' = z                 tau z' = f                       y(0)=y0, z(0)=0
+    d/dw_kj         tau Yw' = Zw               tau Zw' = -a_z(b_z Yw + Zw) + S_j phi_k(x)
+    d/dg            tau Yg' = Zg               tau Zg' =  a_z(b_z(1 - Yg) - Zg) + F   [F if scaled]
+    d/dy0           tau Yy' = Zy               tau Zy' = -a_z(b_z Yy + Zy) - F        Yy(0)=1
+    d/dtau          tau Yt' = Zt - z/tau       tau Zt' = -a_z(b_z Yt + Zt) + S F'(x) X - f/tau
+                    X = dx/dtau = x alpha_x t / tau^2      (closed form of the phase's sensitivity)
+
+All other initial values are 0. Each weight affects only its own dimension, so
+``dy_j/dw_kj`` is stored as ``[N, d]`` per time stamp. The system is integrated with
+classical RK4, ``substeps`` steps between consecutive time stamps; the chain rule then
+gives the gradient of any loss of the positions. This module is the paper's method, kept
+as an independent check of :mod:`.rollout` (which is much faster) and for users who want
+to see it.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from .basis import basis_functions_and_derivative, kernel_centres, kernel_widths
+from .config import DMPConfig
+from .params import DMPParams
+from .rollout import check_time_stamps
+
+
+def sensitivity_rollout(
+    params: DMPParams, t: torch.Tensor, config: DMPConfig | None = None, *, substeps: int = 4
+) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """Integrate a batch of DMPs and their parameter sensitivities.
+
+    Parameters
+    ----------
+    params : DMPParams
+        Torch tensors with batch shape ``[B]``.
+    t : tensor [B, T] or [T]
+        Time stamps (s), strictly increasing, >= 0.
+    substeps : int
+        RK4 steps between two consecutive time stamps.
+
+    Returns
+    -------
+    y : tensor [B, T, d]
+    jac : dict
+        ``"w"``: ``dy_j/dw_kj`` ``[B, T, N, d]``; ``"g"``, ``"y0"``: ``dy_j/dg_j``,
+        ``dy_j/dy0_j`` ``[B, T, d]``; ``"tau"``: ``dy/dtau`` ``[B, T, d]``.
+    """
+    config = config or DMPConfig()
+    if not isinstance(substeps, int) or substeps < 1:
+        raise ValueError(f"substeps must be an integer >= 1, got {substeps!r}")
+    params.validate(config)
+    w, tau, g, y0 = (a.detach() for a in (params.w, params.tau, params.g, params.y0))
+    if w.ndim != 3:
+        raise ValueError(f"sensitivity_rollout takes a batch [B]; w has shape {tuple(w.shape)}")
+    t = torch.as_tensor(t, dtype=w.dtype, device=w.device)
+    check_time_stamps(t)
+    if bool((t < 0).any()):
+        raise ValueError("t must be >= 0 (seconds since the start of the movement)")
+    b, n, d = w.shape
+    if t.ndim == 1:
+        t = t.expand(b, t.shape[0])
+    if t.shape[0] != b:
+        raise ValueError(f"t has batch size {t.shape[0]}, the parameters have {b}")
+
+    az, bz, ax = config.alpha_z, config.beta, config.alpha_x
+    scaled = config.scaling == "goal-start"
+    c = kernel_centres(config)
+    hw = kernel_widths(config)
+    scale = (g - y0) if scaled else torch.ones_like(g)  # [B, d]
+    tau_ = tau[:, None]  # [B, 1]
+
+    def deriv(tt, st):
+        y, z, yw, zw, yg, zg, yy, zy, yt, zt = st
+        x = torch.exp(-ax * tt / tau)  # [B]
+        phi, dphi = basis_functions_and_derivative(x, c, hw)  # [B, N]
+        f_x = torch.einsum("bn,bnd->bd", phi, w)
+        df_x = torch.einsum("bn,bnd->bd", dphi, w)
+        xt = (x * ax * tt / tau**2)[:, None]  # dx/dtau
+        f = az * (bz * (g - y) - z) + scale * f_x
+        f_g = f_x if scaled else 0.0
+        return (
+            z / tau_,
+            f / tau_,
+            zw / tau[:, None, None],
+            (-az * (bz * yw + zw) + scale[:, None, :] * phi[..., None]) / tau[:, None, None],
+            zg / tau_,
+            (az * (bz * (1 - yg) - zg) + f_g) / tau_,
+            zy / tau_,
+            (-az * (bz * yy + zy) - f_g) / tau_,
+            (zt - z / tau_) / tau_,
+            (-az * (bz * yt + zt) + scale * df_x * xt - f / tau_) / tau_,
+        )
+
+    zeros = torch.zeros_like(g)
+    wzeros = torch.zeros_like(w)
+    state = [y0.clone(), zeros, wzeros, wzeros, zeros, zeros, torch.ones_like(g), zeros, zeros, zeros]
+    out_y = torch.empty(b, t.shape[1], d, dtype=w.dtype, device=w.device)
+    out = {
+        "w": torch.empty(b, t.shape[1], n, d, dtype=w.dtype, device=w.device),
+        "g": torch.empty_like(out_y),
+        "y0": torch.empty_like(out_y),
+        "tau": torch.empty_like(out_y),
+    }
+    t_now = torch.zeros(b, dtype=w.dtype, device=w.device)
+    for j in range(t.shape[1]):
+        h = (t[:, j] - t_now) / substeps  # [B]
+        if bool((h > 0).any()):
+            for _ in range(substeps):
+                state = _rk4(deriv, t_now, state, h)
+                t_now = t_now + h
+        t_now = t[:, j].clone()
+        out_y[:, j] = state[0]
+        out["w"][:, j] = state[2]
+        out["g"][:, j] = state[4]
+        out["y0"][:, j] = state[6]
+        out["tau"][:, j] = state[8]
+    return out_y, out
+
+
+def _rk4(deriv, t, state, h):
+    def axpy(k, a):
+        return [s + (a * h).reshape(-1, *([1] * (s.ndim - 1))) * ki for s, ki in zip(state, k, strict=True)]
+
+    k1 = deriv(t, state)
+    k2 = deriv(t + h / 2, axpy(k1, 0.5))
+    k3 = deriv(t + h / 2, axpy(k2, 0.5))
+    k4 = deriv(t + h, axpy(k3, 1.0))
+    hb = [h.reshape(-1, *([1] * (s.ndim - 1))) for s in state]
+    return [
+        s + hh / 6 * (a + 2 * bb + 2 * cc + dd)
+        for s, hh, a, bb, cc, dd in zip(state, hb, k1, k2, k3, k4, strict=True)
+    ]
+
+
+class _SensitivityRollout(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, w, tau, g, y0, t, config, substeps):
+        y, jac = sensitivity_rollout(DMPParams(w, tau, g, y0), t, config, substeps=substeps)
+        ctx.save_for_backward(jac["w"], jac["g"], jac["y0"], jac["tau"])
+        return y
+
+    @staticmethod
+    def backward(ctx, gy):  # gy: [B, T, d]
+        jw, jg, jy0, jtau = ctx.saved_tensors
+        grad_w = torch.einsum("btd,btnd->bnd", gy, jw)
+        grad_g = (gy * jg).sum(1)
+        grad_y0 = (gy * jy0).sum(1)
+        grad_tau = (gy * jtau).sum((1, 2))
+        return grad_w, grad_tau, grad_g, grad_y0, None, None, None
+
+
+def rollout_sensitivity(
+    params: DMPParams, t: torch.Tensor, config: DMPConfig | None = None, *, substeps: int = 4
+) -> torch.Tensor:
+    """Like :func:`img2dmp.dmp.rollout`, but differentiated by the sensitivity equations.
+
+    Returns ``y [B, T, d]``; ``backward()`` through it uses the integrated sensitivities
+    (the paper's eqs. 11-27) instead of autograd.
+    """
+    config = config or DMPConfig()
+    return _SensitivityRollout.apply(
+        params.w, params.tau, params.g, params.y0, t, config, substeps
+    )
