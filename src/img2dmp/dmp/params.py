@@ -62,6 +62,12 @@ class DMPParams:
     y0: object
 
     def __post_init__(self) -> None:
+        # NumPy scalars and Python numbers (e.g. from indexing one sample) become 0-d arrays.
+        if not any(_is_torch(getattr(self, k)) for k in ("w", "tau", "g", "y0")):
+            for k in ("w", "tau", "g", "y0"):
+                v = getattr(self, k)
+                if isinstance(v, (np.generic, int, float, list, tuple)):
+                    setattr(self, k, np.asarray(v, dtype=np.float64))
         self.validate()
 
     def validate(self, config: DMPConfig | None = None) -> DMPParams:

@@ -65,9 +65,7 @@ def _response_table_f64(config: DMPConfig) -> tuple[float, float, np.ndarray]:
 
     u0 = np.zeros(2 * (n + 1))
     u0[0] = 1.0  # a(0) = 1: unit initial offset; every R_k starts at rest
-    sol = solve_ivp(
-        rhs, (0.0, s_max), u0, method="DOP853", t_eval=s_grid, rtol=1e-12, atol=1e-16
-    )
+    sol = solve_ivp(rhs, (0.0, s_max), u0, method="DOP853", t_eval=s_grid, rtol=1e-12, atol=1e-16)
     if not sol.success:  # pragma: no cover - depends on scipy internals
         raise RuntimeError(f"could not tabulate DMP responses: {sol.message}")
     table = np.stack([sol.y[: n + 1].T, sol.y[n + 1 :].T], axis=1)  # [G, 2, N+1]
@@ -76,11 +74,31 @@ def _response_table_f64(config: DMPConfig) -> tuple[float, float, np.ndarray]:
 
 @functools.lru_cache(maxsize=32)
 def _response_table(config: DMPConfig, dtype: torch.dtype, device: str):
+    """Cubic Hermite pieces of the unit responses, as polynomial coefficients.
+
+    Returns ``(h, s_max, poly)`` with ``poly`` of shape ``[C, G - 1, 4]`` (C = N + 1
+    columns ``[a, R_1..R_N]``): on ``[s_i, s_i + h]`` column c is
+    ``sum_k poly[c, i, k] * u**k`` with ``u = (s - s_i) / h``. The pieces match the
+    tabulated values and derivatives at both ends, so the interpolant is C^1.
+    """
     h, s_max, table = _response_table_f64(config)
-    t = torch.as_tensor(table, dtype=dtype, device=device)
-    # [G, 2(N+1)]: values, then h * derivatives, as the Hermite basis wants them.
-    packed = torch.cat([t[:, 0], h * t[:, 1]], dim=-1).contiguous()
-    return h, s_max, packed
+    v, dv = table[:, 0], h * table[:, 1]  # [G, C]
+    v0, v1, d0, d1 = v[:-1], v[1:], dv[:-1], dv[1:]
+    poly = np.stack([v0, d0, 3 * (v1 - v0) - 2 * d0 - d1, 2 * (v0 - v1) + d0 + d1], -1)
+    poly = torch.as_tensor(poly.transpose(1, 0, 2), dtype=dtype, device=device)
+    return h, s_max, poly.contiguous()  # [C, G-1, 4]
+
+
+def _locate(s: torch.Tensor, h: float, s_max: float, n_pieces: int):
+    """Piece index ``i`` (no gradient) and local coordinate ``u`` in [0, 1] (differentiable)."""
+    q = s.clamp(0.0, s_max) / h
+    i = q.detach().floor().clamp(max=n_pieces - 1).long()
+    return i, q - i
+
+
+def _horner(c: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+    # c: [..., 4] cubic coefficients, u: [...]
+    return ((c[..., 3] * u + c[..., 2]) * u + c[..., 1]) * u + c[..., 0]
 
 
 def unit_responses(s: torch.Tensor, config: DMPConfig) -> tuple[torch.Tensor, torch.Tensor]:
@@ -98,18 +116,9 @@ def unit_responses(s: torch.Tensor, config: DMPConfig) -> tuple[torch.Tensor, to
     R : tensor [*batch, T, N]
         Differentiable in ``s``.
     """
-    h, s_max, packed = _response_table(config, s.dtype, str(s.device))
-    c = config.n_kernels + 1
-    q = s.clamp(0.0, s_max) / h
-    i = q.detach().floor().clamp(max=packed.shape[0] - 2).long()
-    u = (q - i)[..., None]
-    lo, hi = packed[i], packed[i + 1]  # [*batch, T, 2c]
-    u2 = u * u
-    h00 = 1 - 3 * u2 + 2 * u2 * u
-    h10 = u - 2 * u2 + u2 * u
-    h01 = 3 * u2 - 2 * u2 * u
-    h11 = u2 * u - u2
-    val = h00 * lo[..., :c] + h10 * lo[..., c:] + h01 * hi[..., :c] + h11 * hi[..., c:]
+    h, s_max, poly = _response_table(config, s.dtype, str(s.device))
+    i, u = _locate(s, h, s_max, poly.shape[1])
+    val = _horner(poly[:, i].movedim(0, -2), u[..., None])  # [*batch, T, C]
     return val[..., 0], val[..., 1:]
 
 
@@ -165,11 +174,34 @@ def rollout(
     if t.ndim == 1:
         t = t.expand(*batch, t.shape[0])
     elif tuple(t.shape[:-1]) != batch:
-        raise ValueError(
-            f"t has batch shape {tuple(t.shape[:-1])}, the parameters have {batch}"
-        )
-    s = t / tau[..., None]  # [*batch, T]
-    a, r = unit_responses(s, config)  # [*batch, T], [*batch, T, N]
+        raise ValueError(f"t has batch shape {tuple(t.shape[:-1])}, the parameters have {batch}")
+    s = (t / tau[..., None]).reshape(-1, t.shape[-1])  # [B, T]
     scale = (g - y0) if config.scaling == "goal-start" else torch.ones_like(g)
-    forced = torch.matmul(r, w)  # [*batch, T, d]
-    return g[..., None, :] + (y0 - g)[..., None, :] * a[..., None] + scale[..., None, :] * forced
+    # y = g + sum_c coef_c * column_c(s) with columns [a, R_1..R_N] of the response table.
+    coef = torch.cat([(y0 - g)[..., None, :], scale[..., None, :] * w], dim=-2)
+    coef = coef.reshape(-1, *coef.shape[-2:])  # [B, N+1, d]
+    y = _combine_responses(s, coef, config) + g.reshape(-1, 1, g.shape[-1])
+    return y.reshape(*batch, *y.shape[-2:])
+
+
+def _combine_responses(s: torch.Tensor, coef: torch.Tensor, config: DMPConfig) -> torch.Tensor:
+    """``sum_c coef[b, c, :] * column_c(s[b, t])`` over the response table's columns.
+
+    Combining the columns' polynomial pieces with each sample's coefficients first (one
+    GEMM over the pieces the batch reaches) and evaluating after touches 4 numbers per
+    time stamp and dimension instead of 4 (N + 1): this is what makes the rollout and its
+    backward pass cheap.
+
+    s: [B, T], coef: [B, C, d] -> [B, T, d]
+    """
+    h, s_max, poly = _response_table(config, s.dtype, str(s.device))
+    b, c, d = coef.shape
+    i, u = _locate(s, h, s_max, poly.shape[1])  # [B, T]
+    pieces = int(i.max()) + 1
+    table = poly[:, :pieces].reshape(c, pieces * 4)  # [C, G'*4]
+    coef_t = coef.transpose(1, 2).reshape(b * d, c)  # [B*d, C]
+    traj = (coef_t @ table).view(b * d, pieces, 4)  # [B*d, G', 4]: each sample's pieces
+    idx = i[:, None, :, None].expand(b, d, i.shape[-1], 4).reshape(b * d, -1, 4)
+    local = traj.gather(1, idx)  # [B*d, T, 4]
+    u = u[:, None, :].expand(b, d, u.shape[-1]).reshape(b * d, -1)  # [B*d, T]
+    return _horner(local, u).view(b, d, -1).transpose(1, 2)  # [B, T, d]

@@ -15,7 +15,8 @@ time, with ``S = g - y0`` (or 1 for ``scaling="none"``), ``F = sum_k w_k phi_k(x
 
 All other initial values are 0. Each weight affects only its own dimension, so
 ``dy_j/dw_kj`` is stored as ``[N, d]`` per time stamp. The system is integrated with
-classical RK4, ``substeps`` steps between consecutive time stamps; the chain rule then
+classical RK4 with steps of at most ``max_step`` in normalised time ``t / tau`` (each
+interval between consecutive time stamps is split evenly); the chain rule then
 gives the gradient of any loss of the positions. This module is the paper's method, kept
 as an independent check of :mod:`.rollout` (which is much faster) and for users who want
 to see it.
@@ -32,7 +33,11 @@ from .rollout import check_time_stamps
 
 
 def sensitivity_rollout(
-    params: DMPParams, t: torch.Tensor, config: DMPConfig | None = None, *, substeps: int = 4
+    params: DMPParams,
+    t: torch.Tensor,
+    config: DMPConfig | None = None,
+    *,
+    max_step: float = 0.005,
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Integrate a batch of DMPs and their parameter sensitivities.
 
@@ -42,8 +47,9 @@ def sensitivity_rollout(
         Torch tensors with batch shape ``[B]``.
     t : tensor [B, T] or [T]
         Time stamps (s), strictly increasing, >= 0.
-    substeps : int
-        RK4 steps between two consecutive time stamps.
+    max_step : float
+        Longest RK4 step in normalised time ``t / tau``. The default (1/200 of the
+        movement) keeps the error near 1e-6 px on a 40 px digit; smaller is more exact.
 
     Returns
     -------
@@ -53,8 +59,8 @@ def sensitivity_rollout(
         ``dy_j/dy0_j`` ``[B, T, d]``; ``"tau"``: ``dy/dtau`` ``[B, T, d]``.
     """
     config = config or DMPConfig()
-    if not isinstance(substeps, int) or substeps < 1:
-        raise ValueError(f"substeps must be an integer >= 1, got {substeps!r}")
+    if not (isinstance(max_step, (int, float)) and 0 < max_step <= 1):
+        raise ValueError(f"max_step must be in (0, 1], got {max_step!r}")
     params.validate(config)
     w, tau, g, y0 = (a.detach() for a in (params.w, params.tau, params.g, params.y0))
     if w.ndim != 3:
@@ -100,7 +106,18 @@ def sensitivity_rollout(
 
     zeros = torch.zeros_like(g)
     wzeros = torch.zeros_like(w)
-    state = [y0.clone(), zeros, wzeros, wzeros, zeros, zeros, torch.ones_like(g), zeros, zeros, zeros]
+    state = [
+        y0.clone(),
+        zeros,
+        wzeros,
+        wzeros,
+        zeros,
+        zeros,
+        torch.ones_like(g),
+        zeros,
+        zeros,
+        zeros,
+    ]
     out_y = torch.empty(b, t.shape[1], d, dtype=w.dtype, device=w.device)
     out = {
         "w": torch.empty(b, t.shape[1], n, d, dtype=w.dtype, device=w.device),
@@ -108,11 +125,14 @@ def sensitivity_rollout(
         "y0": torch.empty_like(out_y),
         "tau": torch.empty_like(out_y),
     }
+    # RK4 steps per interval: enough for the sample that needs most, planned up front.
+    dt = torch.diff(t, dim=1, prepend=torch.zeros_like(t[:, :1]))  # [B, T]
+    n_steps = torch.ceil((dt / tau[:, None]).amax(0) / max_step).long().tolist()
     t_now = torch.zeros(b, dtype=w.dtype, device=w.device)
     for j in range(t.shape[1]):
-        h = (t[:, j] - t_now) / substeps  # [B]
-        if bool((h > 0).any()):
-            for _ in range(substeps):
+        if n_steps[j] > 0:
+            h = dt[:, j] / n_steps[j]  # [B]
+            for _ in range(n_steps[j]):
                 state = _rk4(deriv, t_now, state, h)
                 t_now = t_now + h
         t_now = t[:, j].clone()
@@ -125,14 +145,16 @@ def sensitivity_rollout(
 
 
 def _rk4(deriv, t, state, h):
-    def axpy(k, a):
-        return [s + (a * h).reshape(-1, *([1] * (s.ndim - 1))) * ki for s, ki in zip(state, k, strict=True)]
+    """One classical Runge-Kutta step of size ``h [B]`` for a list of ``[B, ...]`` tensors."""
+    hb = [h.reshape(-1, *([1] * (s.ndim - 1))) for s in state]  # h broadcast per tensor
+
+    def shifted(k, a):
+        return [s + a * hh * ki for s, hh, ki in zip(state, hb, k, strict=True)]
 
     k1 = deriv(t, state)
-    k2 = deriv(t + h / 2, axpy(k1, 0.5))
-    k3 = deriv(t + h / 2, axpy(k2, 0.5))
-    k4 = deriv(t + h, axpy(k3, 1.0))
-    hb = [h.reshape(-1, *([1] * (s.ndim - 1))) for s in state]
+    k2 = deriv(t + h / 2, shifted(k1, 0.5))
+    k3 = deriv(t + h / 2, shifted(k2, 0.5))
+    k4 = deriv(t + h, shifted(k3, 1.0))
     return [
         s + hh / 6 * (a + 2 * bb + 2 * cc + dd)
         for s, hh, a, bb, cc, dd in zip(state, hb, k1, k2, k3, k4, strict=True)
@@ -141,8 +163,8 @@ def _rk4(deriv, t, state, h):
 
 class _SensitivityRollout(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, w, tau, g, y0, t, config, substeps):
-        y, jac = sensitivity_rollout(DMPParams(w, tau, g, y0), t, config, substeps=substeps)
+    def forward(ctx, w, tau, g, y0, t, config, max_step):
+        y, jac = sensitivity_rollout(DMPParams(w, tau, g, y0), t, config, max_step=max_step)
         ctx.save_for_backward(jac["w"], jac["g"], jac["y0"], jac["tau"])
         return y
 
@@ -157,7 +179,11 @@ class _SensitivityRollout(torch.autograd.Function):
 
 
 def rollout_sensitivity(
-    params: DMPParams, t: torch.Tensor, config: DMPConfig | None = None, *, substeps: int = 4
+    params: DMPParams,
+    t: torch.Tensor,
+    config: DMPConfig | None = None,
+    *,
+    max_step: float = 0.005,
 ) -> torch.Tensor:
     """Like :func:`img2dmp.dmp.rollout`, but differentiated by the sensitivity equations.
 
@@ -165,6 +191,4 @@ def rollout_sensitivity(
     (the paper's eqs. 11-27) instead of autograd.
     """
     config = config or DMPConfig()
-    return _SensitivityRollout.apply(
-        params.w, params.tau, params.g, params.y0, t, config, substeps
-    )
+    return _SensitivityRollout.apply(params.w, params.tau, params.g, params.y0, t, config, max_step)

@@ -1,0 +1,175 @@
+"""Forward + backward time of four ways to roll out a batch of DMPs, side by side.
+
+Same batch for all: B = 128 DMPs, d = 2, N = 25 kernels, 301 time stamps per sample over
+its own duration (tau in [2.5, 3.5] s), loss = sum of squared positions.
+
+1. ``img2dmp.dmp.rollout`` - precomputed unit responses, autograd through a gather.
+2. Autograd through an explicit Euler loop in torch, one step per time stamp (how Neural
+   Dynamic Policies integrates its DMP layer).
+3. ``img2dmp.dmp.rollout_sensitivity`` - the paper's sensitivity equations (RK4).
+4. ``img2dmp.dmp.DMPIntegrator`` - the float64 step-by-step reference integrator, one
+   trajectory at a time, forward only (it computes no gradient).
+
+Each method's largest deviation from a scipy ``solve_ivp`` solution (rtol 1e-10) of the
+first 4 samples is printed too: speed is only worth comparing at equal accuracy.
+
+Run: ``.venv/bin/python benchmarks/bench_rollout.py [--repeats 5]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+import torch
+from scipy.integrate import solve_ivp
+
+from img2dmp.dmp import (
+    DMPConfig,
+    DMPIntegrator,
+    DMPParams,
+    forcing_term,
+    kernel_centres,
+    kernel_widths,
+    rollout,
+    rollout_sensitivity,
+)
+
+
+def make_batch(b=128, n=25, t_count=301, seed=0):
+    rng = np.random.default_rng(seed)
+    cfg = DMPConfig(n_kernels=n)
+    tau = rng.uniform(2.5, 3.5, b)
+    p = DMPParams(
+        w=rng.normal(0, 10, (b, n, 2)),
+        tau=tau,
+        g=rng.uniform(0, 40, (b, 2)),
+        y0=rng.uniform(0, 40, (b, 2)),
+    )
+    t = np.linspace(0, 1, t_count)[None] * tau[:, None]
+    return cfg, p, t
+
+
+def euler_rollout(p: DMPParams, t: torch.Tensor, cfg: DMPConfig) -> torch.Tensor:
+    """Explicit Euler on (y, z, x), one step per time stamp, differentiated by autograd."""
+    c = torch.as_tensor(kernel_centres(cfg), dtype=t.dtype)
+    h = torch.as_tensor(kernel_widths(cfg), dtype=t.dtype)
+    y, z = p.y0, torch.zeros_like(p.y0)
+    x = torch.ones_like(p.tau)
+    tau = p.tau[:, None]
+    out = [y]
+    for j in range(1, t.shape[1]):
+        dt = (t[:, j] - t[:, j - 1])[:, None]
+        psi = torch.exp(-h * (x[:, None] - c) ** 2)
+        f = torch.einsum("bn,bnd->bd", psi * x[:, None] / psi.sum(-1, keepdim=True), p.w)
+        dz = cfg.alpha_z * (cfg.beta * (p.g - y) - z) + (p.g - p.y0) * f
+        y, z = y + dt * z / tau, z + dt * dz / tau
+        x = x - dt[:, 0] * cfg.alpha_x * x / p.tau
+        out.append(y)
+    return torch.stack(out, 1)
+
+
+def reference(p: DMPParams, t: np.ndarray, cfg: DMPConfig) -> np.ndarray:
+    c, h = kernel_centres(cfg), kernel_widths(cfg)
+    tau = float(p.tau)
+
+    def rhs(tt, u):
+        x = np.exp(-cfg.alpha_x * tt / tau)
+        f = forcing_term(np.array(x), p.w, c, h)
+        dz = cfg.alpha_z * (cfg.beta * (p.g - u[:2]) - u[2:]) + (p.g - p.y0) * f
+        return np.concatenate([u[2:] / tau, dz / tau])
+
+    u0 = np.concatenate([p.y0, [0.0, 0.0]])
+    sol = solve_ivp(rhs, (0, t[-1]), u0, t_eval=t, rtol=1e-10, atol=1e-10, method="DOP853")
+    return sol.y[:2].T
+
+
+def timed(fn, repeats):
+    fn()  # warm-up (builds cached tables)
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), out
+
+
+def forward_backward(roll, p, t):
+    def run():
+        leaves = [a.clone().requires_grad_(True) for a in (p.w, p.tau, p.g, p.y0)]
+        y = roll(DMPParams(*leaves), t)
+        (y**2).sum().backward()
+        return y.detach()
+
+    return run
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument(
+        "--reference-samples",
+        type=int,
+        default=8,
+        help="trajectories the (slow, forward-only) reference integrator runs; "
+        "its time is scaled to the batch",
+    )
+    args = ap.parse_args()
+    torch.manual_seed(0)
+    cfg, p_np, t_np = make_batch()
+    b = t_np.shape[0]
+    rows = []
+    for dtype in (torch.float32, torch.float64):
+        p, t = p_np.to_torch(dtype), torch.as_tensor(t_np, dtype=dtype)
+        name = "float32" if dtype == torch.float32 else "float64"
+        rows.append(
+            (
+                f"fast rollout ({name})",
+                *timed(forward_backward(lambda q, tt: rollout(q, tt, cfg), p, t), args.repeats),
+            )
+        )
+    p, t = p_np.to_torch(torch.float64), torch.as_tensor(t_np)
+    rows.append(
+        (
+            "Euler loop + autograd (float64)",
+            *timed(
+                forward_backward(lambda q, tt: euler_rollout(q, tt, cfg), p, t),
+                max(1, args.repeats // 2),
+            ),
+        )
+    )
+    rows.append(
+        (
+            "sensitivity equations, RK4 (float64)",
+            *timed(forward_backward(lambda q, tt: rollout_sensitivity(q, tt, cfg), p, t), 1),
+        )
+    )
+    k = args.reference_samples
+
+    def ref_run():
+        return np.stack([DMPIntegrator(p_np[i], cfg).run(t_np[i]) for i in range(k)])
+
+    sec, out = timed(ref_run, 1)
+    rows.append((f"reference integrator, forward only (x{b}/{k})", sec * b / k, out))
+
+    refs = np.stack([reference(p_np[i], t_np[i], cfg) for i in range(4)])
+    base = rows[0][1]
+    euler = rows[2][1]
+    print(
+        f"B={b}, d=2, N=25, T={t_np.shape[1]}, forward + backward, median of runs, "
+        f"torch threads={torch.get_num_threads()}"
+    )
+    print(f"{'method':44s} {'time (ms)':>10s} {'vs fast':>9s} {'vs Euler':>9s} {'max err px':>11s}")
+    for name, sec, out in rows:
+        err = np.abs(np.asarray(out[:4], dtype=np.float64) - refs[: len(out)]).max()
+        print(f"{name:44s} {sec * 1e3:10.2f} {sec / base:8.1f}x {sec / euler:8.3f}x {err:11.2e}")
+    print(
+        f"\nspeed-up of the fast rollout (float32) over the Euler-loop autograd: "
+        f"{euler / base:.0f}x (target >= 100x)"
+    )
+
+
+if __name__ == "__main__":
+    main()

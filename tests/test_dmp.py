@@ -1,0 +1,269 @@
+"""The DMP core against independent references: solve_ivp, finite differences, geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from scipy.integrate import solve_ivp
+
+from img2dmp.dmp import (
+    DMPConfig,
+    DMPIntegrator,
+    DMPParams,
+    fit_dmp,
+    forcing_term,
+    integrate,
+    kernel_centres,
+    kernel_widths,
+    rollout,
+    rollout_sensitivity,
+    sensitivity_rollout,
+)
+
+
+def _random_params(rng, batch, config, span=40.0, tau_range=(0.5, 5.0), w_scale=None):
+    n, d = config.n_kernels, config.n_dims
+    y0 = rng.uniform(0, span, (batch, d))
+    g = rng.uniform(0, span, (batch, d))
+    if w_scale is None:
+        w_scale = 1.0 if config.scaling == "goal-start" else 30.0
+    w = rng.normal(0, w_scale, (batch, n, d)) * config.alpha_z * config.beta / 50
+    tau = rng.uniform(*tau_range, batch)
+    return DMPParams(w=w, tau=tau, g=g, y0=y0)
+
+
+def _solve_ivp_reference(p: DMPParams, t: np.ndarray, config: DMPConfig) -> np.ndarray:
+    """The continuous ODE of eqs. (3)-(5), state (y, z, x), by scipy at rtol 1e-9."""
+    c, h = kernel_centres(config), kernel_widths(config)
+    tau = float(p.tau)
+    scale = (p.g - p.y0) if config.scaling == "goal-start" else 1.0
+    d = p.g.shape[-1]
+
+    def rhs(_, u):
+        y, z, x = u[:d], u[d : 2 * d], u[2 * d]
+        f = forcing_term(np.array(x), p.w, c, h)
+        dz = config.alpha_z * (config.beta * (p.g - y) - z) + scale * f
+        return np.concatenate([z / tau, dz / tau, [-config.alpha_x * x / tau]])
+
+    u0 = np.concatenate([p.y0, np.zeros(d), [1.0]])
+    sol = solve_ivp(rhs, (0, t[-1]), u0, t_eval=t, rtol=1e-9, atol=1e-10, method="DOP853")
+    assert sol.success
+    return sol.y[:d].T
+
+
+@pytest.mark.parametrize("scaling", ["goal-start", "none"])
+def test_fast_rollout_matches_solve_ivp(scaling):
+    cfg = DMPConfig(scaling=scaling)
+    rng = np.random.default_rng(1)
+    p = _random_params(rng, 6, cfg)
+    worst = 0.0
+    for b in range(6):
+        pb = p[b]
+        # uneven stamps, past the nominal duration, as a demonstration's would be
+        t = np.sort(rng.uniform(0, 1.3 * pb.tau, 120))
+        t[0] = 0.0
+        ref = _solve_ivp_reference(pb, t, cfg)
+        fast = rollout(pb.to_torch(), torch.tensor(t), cfg).numpy()
+        assert np.ptp(ref) > 5  # a real movement, not a constant
+        worst = max(worst, np.abs(fast - ref).max())
+    assert worst < 0.01, f"fast rollout deviates from solve_ivp by {worst:.2e} px"
+
+
+def test_fast_rollout_batched_equals_single_and_per_sample_times():
+    cfg = DMPConfig()
+    rng = np.random.default_rng(2)
+    p = _random_params(rng, 4, cfg).to_torch()
+    t = torch.sort(torch.rand(4, 50, dtype=torch.float64) * 3, dim=-1).values
+    batched = rollout(p, t, cfg)
+    for b in range(4):
+        single = rollout(p[b], t[b], cfg)
+        torch.testing.assert_close(batched[b], single, rtol=0, atol=1e-12)
+    # arbitrary leading batch dimensions
+    p2 = DMPParams(
+        p.w.reshape(2, 2, 25, 2), p.tau.reshape(2, 2), p.g.reshape(2, 2, 2), p.y0.reshape(2, 2, 2)
+    )
+    torch.testing.assert_close(rollout(p2, t.reshape(2, 2, 50), cfg).reshape(4, 50, 2), batched)
+
+
+def test_rollout_starts_at_y0_and_converges_to_goal():
+    cfg = DMPConfig()
+    p = _random_params(np.random.default_rng(3), 5, cfg).to_torch()
+    t = torch.linspace(0, 1, 11, dtype=torch.float64)
+    y = rollout(p, t[None].expand(5, -1) * p.tau[:, None] * 6, cfg)
+    torch.testing.assert_close(y[:, 0], p.y0, rtol=0, atol=1e-12)
+    torch.testing.assert_close(y[:, -1], p.g, rtol=0, atol=1e-3)
+
+
+def test_reference_integrator_matches_ode_at_any_controller_rate():
+    cfg = DMPConfig()
+    p = _random_params(np.random.default_rng(4), 1, cfg)[0]
+    t = np.linspace(0, float(p.tau) * 1.2, 200)
+    ref = _solve_ivp_reference(p, t, cfg)
+    assert np.abs(integrate(p, t, cfg) - ref).max() < 1e-6
+    for rate_hz in (240.0, 1000.0):
+        dmp = DMPIntegrator(p, cfg)
+        n = int(round(t[-1] * rate_hz))
+        ys = np.array([dmp.step(1.0 / rate_hz) for _ in range(n)])
+        tt = np.arange(1, n + 1) / rate_hz
+        ref_r = _solve_ivp_reference(p, np.concatenate([[0], tt]), cfg)[1:]
+        assert np.abs(ys - ref_r).max() < 1e-6
+
+
+def _small_batch(seed=5, b=3, t_count=25):
+    cfg = DMPConfig(n_kernels=6)
+    rng = np.random.default_rng(seed)
+    p = _random_params(rng, b, cfg, tau_range=(0.6, 2.0), w_scale=2.0)
+    t = torch.tensor(np.sort(rng.uniform(0.01, 2.0, (b, t_count)), axis=-1))
+    return cfg, p.to_torch(), t
+
+
+def test_gradcheck_fast_rollout():
+    cfg, p, t = _small_batch()
+    leaves = [a.clone().requires_grad_(True) for a in (p.w, p.tau, p.g, p.y0)]
+
+    def fn(w, tau, g, y0):
+        return rollout(DMPParams(w, tau, g, y0), t, cfg)
+
+    assert torch.autograd.gradcheck(fn, leaves, eps=1e-6, atol=1e-6, rtol=1e-5)
+
+
+def _grads(fn, p, t, cfg, weights):
+    leaves = [a.clone().requires_grad_(True) for a in (p.w, p.tau, p.g, p.y0)]
+    y = fn(DMPParams(*leaves), t, cfg)
+    (y * weights).sum().backward()
+    return [leaf.grad for leaf in leaves]
+
+
+def test_sensitivity_equations_agree_with_autograd_and_finite_differences():
+    cfg, p, t = _small_batch(b=2, t_count=15)
+    weights = torch.randn(2, 15, 2, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    fast = _grads(rollout, p, t, cfg, weights)
+    sens = _grads(lambda q, tt, c: rollout_sensitivity(q, tt, c, max_step=5e-4), p, t, cfg, weights)
+    for name, a, b in zip(("w", "tau", "g", "y0"), fast, sens, strict=True):
+        rel = (a - b).norm() / a.norm()
+        assert rel < 1e-5, f"d/d{name}: sensitivity vs autograd relative error {rel:.2e}"
+
+    # central finite differences of the exact ODE solution (solve_ivp), for tau and w[3, 1]
+    def loss(q: DMPParams) -> float:
+        tot = 0.0
+        for b in range(2):
+            y = _solve_ivp_reference(q.to_numpy()[b], np.concatenate([[0], t[b].numpy()]), cfg)
+            tot += float((y[1:] * weights[b].numpy()).sum())
+        return tot
+
+    eps = 1e-5
+    for name, idx in (("tau", (0,)), ("w", (1, 3, 1)), ("g", (0, 1)), ("y0", (1, 0))):
+        plus, minus = (DMPParams(*(a.clone() for a in (p.w, p.tau, p.g, p.y0))) for _ in range(2))
+        getattr(plus, name)[idx] += eps
+        getattr(minus, name)[idx] -= eps
+        fd = (loss(plus) - loss(minus)) / (2 * eps)
+        got = float(sens[("w", "tau", "g", "y0").index(name)][idx])
+        assert abs(got - fd) <= 1e-5 * max(1.0, abs(fd)), f"d/d{name}{idx}: {got} vs FD {fd}"
+
+
+def test_sensitivity_forward_matches_fast_rollout():
+    cfg, p, t = _small_batch()
+    y_s, jac = sensitivity_rollout(p, t, cfg, max_step=2e-3)
+    assert set(jac) == {"w", "g", "y0", "tau"}
+    assert jac["w"].shape == (3, t.shape[1], 6, 2)
+    torch.testing.assert_close(y_s, rollout(p, t, cfg), rtol=0, atol=1e-6)
+
+
+def _arc(t, cx, cy, r, a0, a1):
+    s = 10 * t**3 - 15 * t**4 + 6 * t**5  # minimum-jerk progress
+    a = a0 + (a1 - a0) * s
+    return np.stack([cx + r * np.cos(a), cy + r * np.sin(a)], -1)
+
+
+@pytest.mark.parametrize(
+    "shape",
+    ["line", "arc", "figure8"],
+)
+def test_fit_then_rollout_reproduces_smooth_paths(shape):
+    t = np.linspace(0, 3, 301)
+    u = t / 3
+    if shape == "line":
+        s = 10 * u**3 - 15 * u**4 + 6 * u**5
+        y = np.stack([5 + 30 * s, 35 - 28 * s], -1)
+    elif shape == "arc":
+        y = _arc(u, 20, 20, 15, -0.3, 3.6)
+    else:  # figure eight, 40 px tall, ending 3 px from its start
+        a = 2 * np.pi * (10 * u**3 - 15 * u**4 + 6 * u**5) * 0.97
+        y = np.stack([20 + 10 * np.sin(2 * a), 20 - 18 * np.sin(a + np.pi / 2) + 2], -1)
+        y[:, 1] += 0.0
+    cfg = DMPConfig(scaling="none") if shape == "figure8" else DMPConfig()
+    res = fit_dmp(t, y, cfg)
+    assert res.params.w.shape == (25, 2)
+    assert float(res.params.tau) == pytest.approx(3.0)
+    y_fit = rollout(res.params.to_torch(), torch.tensor(t), cfg).numpy()
+    err = np.linalg.norm(y_fit - y, axis=-1).mean()
+    assert err < 0.05, f"{shape}: mean fit error {err:.3f} px"
+    assert float(res.error_px) == pytest.approx(err, rel=1e-6)
+    # After the demonstration ends, the DMP settles on its goal.
+    late = integrate(res.params, np.array([3.0, 15.0]), cfg)
+    np.testing.assert_allclose(late[-1], y[-1], atol=1e-3)
+
+
+def test_fit_uneven_time_stamps_and_batches():
+    rng = np.random.default_rng(7)
+    t = np.sort(rng.uniform(0.2, 2.2, (4, 80)), axis=-1)
+    u = (t - t[:, :1]) / (t[:, -1:] - t[:, :1])
+    y = np.stack([_arc(ui, 20, 20, 12, 0.1 * i, 3 + 0.2 * i) for i, ui in enumerate(u)])
+    res = fit_dmp(t, y)
+    assert res.params.batch_shape == (4,)
+    np.testing.assert_allclose(res.params.tau, t[:, -1] - t[:, 0])
+    y_fit = rollout(res.params.to_torch(), torch.tensor(t - t[:, :1]), DMPConfig()).numpy()
+    assert np.linalg.norm(y_fit - y, axis=-1).mean() < 0.05
+
+
+def test_flat_vector_order_and_round_trip():
+    cfg = DMPConfig()
+    assert cfg.n_params == 55
+    p = _random_params(np.random.default_rng(8), 3, cfg)
+    v = p.to_vector()
+    assert v.shape == (3, 55)
+    np.testing.assert_array_equal(v[:, :25], p.w[:, :, 0])
+    np.testing.assert_array_equal(v[:, 25:50], p.w[:, :, 1])
+    np.testing.assert_array_equal(v[:, 50], p.tau)
+    np.testing.assert_array_equal(v[:, 51:53], p.g)
+    np.testing.assert_array_equal(v[:, 53:55], p.y0)
+    back = DMPParams.from_vector(torch.tensor(v), 25, 2)
+    np.testing.assert_array_equal(back.w.numpy(), p.w)
+    np.testing.assert_array_equal(DMPParams.from_dict(p.to_dict()).to_vector(), v)
+
+
+def test_bad_input_raises_clear_errors():
+    cfg = DMPConfig()
+    p = _random_params(np.random.default_rng(9), 1, cfg)[0]
+    t = np.linspace(0, 1, 10)
+    with pytest.raises(ValueError, match="tau must be > 0"):
+        DMPParams(p.w, np.array(-1.0), p.g, p.y0)
+    with pytest.raises(ValueError, match="w contains NaN"):
+        DMPParams(np.full_like(p.w, np.nan), p.tau, p.g, p.y0)
+    with pytest.raises(ValueError, match="g has shape"):
+        DMPParams(p.w, p.tau, np.zeros(3), p.y0)
+    with pytest.raises(ValueError, match="n_kernels must be an integer >= 2"):
+        DMPConfig(n_kernels=1)
+    with pytest.raises(ValueError, match="strictly increasing"):
+        rollout(p.to_torch(), torch.tensor([0.0, 0.5, 0.4]), cfg)
+    with pytest.raises(ValueError, match="NaN or inf"):
+        rollout(p.to_torch(), torch.tensor([0.0, np.inf]), cfg)
+    with pytest.raises(ValueError, match="empty"):
+        rollout(p.to_torch(), torch.zeros(0), cfg)
+    with pytest.raises(ValueError, match="at least 2 points"):
+        fit_dmp(np.zeros(0), np.zeros((0, 2)))
+    with pytest.raises(ValueError, match="strictly increasing"):
+        fit_dmp(np.array([0.0, 1.0, 1.0]), np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="NaN or inf"):
+        fit_dmp(t, np.full((10, 2), np.nan))
+    with pytest.raises(ValueError, match="time stamps but y has"):
+        fit_dmp(t[:5], np.zeros((10, 2)))
+    with pytest.raises(ValueError, match="d=3 dimensions"):
+        fit_dmp(t, np.zeros((10, 3)))
+    with pytest.raises(ValueError, match="expected N\\*d"):
+        DMPParams.from_vector(np.zeros(54), 25, 2)
+    with pytest.raises(ValueError, match="dt must be"):
+        DMPIntegrator(p, cfg).step(0.0)
+    with pytest.raises(ValueError, match="config expects N=10"):
+        rollout(p.to_torch(), torch.tensor(t), DMPConfig(n_kernels=10))
