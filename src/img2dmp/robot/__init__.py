@@ -1,0 +1,47 @@
+"""Writing with a robot arm: a simulated KUKA LBR iiwa executes a DMP with a pen.
+
+Needs the optional dependency pybullet (``pip install img2dmp[robot]``); importing a
+name that needs it without pybullet raises ``ImportError`` saying how to install it.
+The DMP file format (:mod:`.dmpfile`) works without pybullet. See ``docs/ROBOT.md``.
+
+- :func:`write_dmp` - plan, check, simulate, measure one DMP (:mod:`.writing`)
+- :class:`PaperMapping` - image pixels to metres on the paper
+- :class:`SceneConfig`, :class:`WritingScene` - the cell (:mod:`.scene`)
+- :class:`ControllerConfig`, :class:`WritingController` - admittance + IK + computed
+  torque (:mod:`.controller`)
+- :func:`load_dmp_json`, :func:`save_dmp_json` - one DMP in a JSON file
+- :func:`save_log_csv`, :func:`plot_writing`, :func:`save_render`, :func:`save_video`
+  - the outputs (:mod:`.outputs`)
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from ._pybullet import INSTALL_HINT, available
+from .dmpfile import load_dmp_json, save_dmp_json
+
+_LAZY = {
+    "write_dmp": ".writing",
+    "PaperMapping": ".writing",
+    "WritingResult": ".writing",
+    "writing_metrics": ".writing",
+    "plan_path": ".writing",
+    "check_path": ".writing",
+    "SceneConfig": ".scene",
+    "WritingScene": ".scene",
+    "ControllerConfig": ".controller",
+    "WritingController": ".controller",
+    "save_log_csv": ".outputs",
+    "plot_writing": ".outputs",
+    "save_render": ".outputs",
+    "save_video": ".outputs",
+}
+
+__all__ = ["INSTALL_HINT", "available", "load_dmp_json", "save_dmp_json", *_LAZY]
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name], __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

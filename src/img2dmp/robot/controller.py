@@ -1,0 +1,160 @@
+"""The writing controller: joint-torque tracking of an IK reference plus an admittance
+loop along the pen axis.
+
+Per control step (one physics step of ``dt``):
+
+1. **Admittance along the pen** (the z axis of the world; the pen is held vertical). The
+   commanded tip height ``z_c`` obeys the first-order admittance law
+
+       d_a * dz_c/dt = -(F_set - F_meas)          (pen down)
+
+   i.e. the pen sinks while it presses less than ``F_set`` and rises while it presses
+   more, at a speed limited to ``max_axis_speed_m_s``. Without contact ``F_meas = 0``,
+   so the same law is the final approach: the tip descends at ``F_set / d_a`` (capped)
+   until it touches. ``F_meas`` is the tip-paper normal force, low-pass filtered. Higher
+   than ``approach_clearance_m`` above the paper the pen travels at ``travel_speed_m_s``
+   instead (the paper's height is known; only the last millimetre is felt for). When the
+   pen is up, ``z_c`` moves at ``travel_speed_m_s`` to ``lift_height_m`` above the paper.
+2. **Inverse kinematics**: the tip target ``(x_c, y_c, z_c)`` with the pen vertical is
+   turned into joint angles ``q_d`` by damped least squares on a kinematic twin
+   (:meth:`WritingScene.solve_ik`), warm-started from the previous ``q_d``.
+3. **Joint-torque control** (computed torque): with ``qd_d`` and ``qdd_d`` from finite
+   differences of ``q_d``,
+
+       tau = M(q) (qdd_d + K_p (q_d - q) + K_d (qd_d - qd)) + C(q, qd) qd + g(q)
+
+   evaluated by pybullet's recursive Newton-Euler inverse dynamics, with
+   ``K_p = omega^2``, ``K_d = 2 zeta omega`` and ``omega = 2 pi joint_bandwidth_hz``, so
+   every joint error decays like a critically damped second-order system. pybullet's
+   position servo is not used; the torques go to ``TORQUE_CONTROL``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """Gains and set points of :class:`WritingController`.
+
+    Parameters
+    ----------
+    force_set_n : float
+        Contact force along the pen held while writing, newtons.
+    admittance_damping_n_s_per_m : float
+        ``d_a`` of the admittance law: newtons of force error per m/s of pen-axis speed.
+    max_axis_speed_m_s : float
+        Cap on the pen-axis speed under the admittance law (final approach, force
+        correction).
+    travel_speed_m_s : float
+        Pen-axis speed when lifting and when lowering down to ``approach_clearance_m``.
+    approach_clearance_m : float
+        Height above the paper below which the admittance law takes over the descent.
+    force_filter_hz : float
+        Cut-off of the first-order low-pass filter on the measured force.
+    joint_bandwidth_hz : float
+        Natural frequency of the joint-space error dynamics.
+    damping_ratio : float
+        Damping ratio of the joint-space error dynamics.
+    lift_height_m : float
+        Height of the tip above the paper when the pen is up.
+    """
+
+    force_set_n: float = 5.0
+    admittance_damping_n_s_per_m: float = 400.0
+    max_axis_speed_m_s: float = 0.03
+    travel_speed_m_s: float = 0.1
+    approach_clearance_m: float = 0.001
+    force_filter_hz: float = 40.0
+    joint_bandwidth_hz: float = 12.0
+    damping_ratio: float = 1.0
+    lift_height_m: float = 0.006
+
+    def __post_init__(self) -> None:
+        for name in (
+            "force_set_n",
+            "admittance_damping_n_s_per_m",
+            "max_axis_speed_m_s",
+            "travel_speed_m_s",
+            "approach_clearance_m",
+            "force_filter_hz",
+            "joint_bandwidth_hz",
+            "damping_ratio",
+            "lift_height_m",
+        ):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+
+
+class WritingController:
+    """Admittance along the pen + IK + computed-torque joint control (see module docstring).
+
+    Parameters
+    ----------
+    scene : WritingScene
+        The simulated cell; the controller reads its state and applies torques.
+    config : ControllerConfig
+    rotation : ndarray [3, 3]
+        Desired orientation of the tip frame (pen axis = its z column, pointing down).
+    q_start_rad : ndarray [7]
+        Joint angles at the start (the first IK seed and the first ``q_d``).
+    z_start_m : float
+        Commanded tip height at the start.
+    """
+
+    def __init__(self, scene, config: ControllerConfig, rotation, q_start_rad, z_start_m: float):
+        self.scene = scene
+        self.config = config
+        self.rotation = np.asarray(rotation, dtype=float)
+        self.dt = scene.time_step_s
+        omega = 2.0 * math.pi * config.joint_bandwidth_hz
+        if omega * self.dt > 0.5:
+            raise ValueError(
+                f"joint_bandwidth_hz={config.joint_bandwidth_hz} is too high for a control "
+                f"step of {self.dt:.4g} s (needs 2 pi f dt <= 0.5)"
+            )
+        self.kp = omega**2
+        self.kd = 2.0 * config.damping_ratio * omega
+        self.q_d = np.asarray(q_start_rad, dtype=float).copy()
+        self.qd_d = np.zeros(7)
+        self.qdd_d = np.zeros(7)
+        self.z_c = float(z_start_m)
+        self.force_filtered_n = 0.0
+        self._alpha = 1.0 - math.exp(-2.0 * math.pi * config.force_filter_hz * self.dt)
+        self.last_ik_residual_m = 0.0
+
+    def update_axis(self, pen_down: bool, force_n: float, surface_z_m: float) -> float:
+        """Advance the pen-axis admittance by one step; return the commanded tip height."""
+        cfg = self.config
+        self.force_filtered_n += self._alpha * (force_n - self.force_filtered_n)
+        above = surface_z_m + cfg.approach_clearance_m
+        if pen_down and self.z_c > above and force_n <= 0.0:
+            self.z_c = max(above, self.z_c - cfg.travel_speed_m_s * self.dt)
+        elif pen_down:
+            speed = -(cfg.force_set_n - self.force_filtered_n) / cfg.admittance_damping_n_s_per_m
+            limit = cfg.max_axis_speed_m_s
+            self.z_c += float(np.clip(speed, -limit, limit)) * self.dt
+        else:
+            step = surface_z_m + cfg.lift_height_m - self.z_c
+            limit = cfg.travel_speed_m_s * self.dt
+            self.z_c += float(np.clip(step, -limit, limit))
+        return self.z_c
+
+    def torques(self, xy_m, q, qd) -> np.ndarray:
+        """Joint torques (N m) that track the tip target ``(xy_m, z_c)``; updates ``q_d``."""
+        target = np.array([xy_m[0], xy_m[1], self.z_c])
+        q_new, self.last_ik_residual_m = self.scene.solve_ik(
+            target, self.rotation, self.q_d, max_iterations=10
+        )
+        qd_new = (q_new - self.q_d) / self.dt
+        self.qdd_d = (qd_new - self.qd_d) / self.dt
+        self.q_d, self.qd_d = q_new, qd_new
+        acc = self.qdd_d + self.kp * (self.q_d - q) + self.kd * (self.qd_d - qd)
+        tau = self.scene.inverse_dynamics(q, qd, acc)
+        limit = self.scene.max_torque_nm
+        return np.clip(tau, -limit, limit)

@@ -1,0 +1,307 @@
+"""The simulated KUKA writes DMPs: tracking, contact force, pen lifts, checks, files.
+
+Needs pybullet (``pip install img2dmp[robot]``); those tests are skipped without it.
+DMPs are fitted to synthetic pen paths in the pixels of a 28 x 28 image.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from img2dmp.dmp import DMPConfig, fit_dmp
+from img2dmp.robot import available, load_dmp_json, save_dmp_json
+
+needs_pybullet = pytest.mark.skipif(
+    not available(), reason="pybullet is not installed (pip install img2dmp[robot])"
+)
+
+DURATION_S = 3.0
+IMAGE_SIZE = (28, 28)
+
+
+def _min_jerk(n: int) -> np.ndarray:
+    u = np.linspace(0.0, 1.0, n)
+    return 10 * u**3 - 15 * u**4 + 6 * u**5
+
+
+def _resample(points: np.ndarray, n: int = 300) -> np.ndarray:
+    """Points along a polyline at min-jerk arc-length spacing (starts and ends at rest)."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    u = _min_jerk(n) * s[-1]
+    return np.stack([np.interp(u, s, points[:, 0]), np.interp(u, s, points[:, 1])], axis=-1)
+
+
+def circle_path() -> np.ndarray:
+    a = np.linspace(0.0, 1.9 * np.pi, 200)
+    return _resample(np.stack([14 + 8 * np.cos(a), 14 + 8 * np.sin(a)], axis=-1))
+
+
+def two_path() -> np.ndarray:
+    """A "2": an arc over the top, a diagonal to the bottom left, a base line."""
+    a = np.linspace(np.radians(160), np.radians(-40), 120)
+    arc = np.stack([14 + 6 * np.cos(a), 11 - 6 * np.sin(a)], axis=-1)  # rows grow down
+    corner, end = np.array([8.0, 22.0]), np.array([21.0, 22.0])
+    diag = arc[-1] + (corner - arc[-1]) * np.linspace(0, 1, 80)[1:, None]
+    base = corner + (end - corner) * np.linspace(0, 1, 60)[1:, None]
+    return _resample(np.concatenate([arc, diag, base]))
+
+
+def plus_path() -> np.ndarray:
+    """Two strokes (down, then across) joined by a pen-up travel: [T, 3] with a pen channel."""
+    segments = [((14, 6), (14, 22), 1.0), ((14, 22), (7, 14), 0.0), ((7, 14), (21, 14), 1.0)]
+    parts = []
+    for a, b, pen in segments:
+        a, b = np.array(a, float), np.array(b, float)
+        xy = a + (b - a) * _min_jerk(100)[:, None]
+        parts.append(np.concatenate([xy, np.full((100, 1), pen)], axis=1))
+    return np.concatenate(parts)
+
+
+def fitted(y: np.ndarray, n_kernels: int = 25):
+    config = DMPConfig(n_kernels=n_kernels, n_dims=y.shape[1], scaling="none")
+    t = np.linspace(0.0, DURATION_S, len(y))
+    fit = fit_dmp(t, y, config)
+    assert float(fit.error_px) < 0.3
+    return fit.params, config
+
+
+# -- file format (no pybullet needed) ------------------------------------------------------
+
+
+def test_dmp_json_round_trip(tmp_path):
+    params, config = fitted(circle_path())
+    path = tmp_path / "circle.json"
+    save_dmp_json(path, params, config, IMAGE_SIZE, label="circle")
+    p2, c2, size = load_dmp_json(path)
+    assert c2 == config and size == IMAGE_SIZE
+    np.testing.assert_allclose(p2.to_vector(), params.to_vector())
+    assert json.loads(path.read_text())["label"] == "circle"
+
+
+@pytest.mark.parametrize(
+    "mutate, field",
+    [
+        (lambda d: d.pop("image_size"), "image_size"),
+        (lambda d: d.update(image_size=[28]), "image_size"),
+        (lambda d: d["params"].pop("tau"), "params"),
+        (lambda d: d["params"].update(tau=-1.0), "params"),
+        (lambda d: d["params"].update(w=[[[0.0] * 2] * 25]), "params"),
+        (lambda d: d["dmp_config"].update(n_kernels=1), "dmp_config"),
+        (lambda d: d["dmp_config"].update(n_dims=3), "params"),
+    ],
+)
+def test_dmp_json_errors_name_file_and_field(tmp_path, mutate, field):
+    params, config = fitted(circle_path())
+    path = tmp_path / "bad.json"
+    save_dmp_json(path, params, config, IMAGE_SIZE)
+    doc = json.loads(path.read_text())
+    mutate(doc)
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=rf"bad\.json: field '{field}'"):
+        load_dmp_json(path)
+
+
+# -- pixels to paper ----------------------------------------------------------------------
+
+
+@needs_pybullet
+def test_paper_mapping_by_hand():
+    from img2dmp.robot import PaperMapping
+
+    m = PaperMapping((28, 28), writing_height_mm=28.0, center_m=(0.5, 0.1))
+    # 1 mm per pixel; centre of a 28-pixel image is pixel 13.5.
+    np.testing.assert_allclose(m.to_table([13.5, 13.5]), [0.5, 0.1])
+    # One column right -> writer's right (-y); one row down -> towards the robot (-x).
+    np.testing.assert_allclose(m.to_table([14.5, 13.5]), [0.5, 0.099])
+    np.testing.assert_allclose(m.to_table([13.5, 14.5]), [0.499, 0.1])
+    xy = np.array([[3.0, 7.0], [20.0, 1.0]])
+    np.testing.assert_allclose(m.to_pixels(m.to_table(xy)), xy)
+    with pytest.raises(ValueError, match="writing_height_mm"):
+        PaperMapping((28, 28), writing_height_mm=0.0)
+
+
+@needs_pybullet
+def test_ik_puts_the_tip_frame_at_the_pen_tip():
+    from img2dmp.robot import WritingScene
+    from img2dmp.robot.scene import HOME_JOINTS_RAD
+    from img2dmp.robot.writing import PEN_DOWN_ROTATION
+
+    with WritingScene() as scene:
+        q = np.array(HOME_JOINTS_RAD)
+        for target in ([0.55, 0.0, 0.001], [0.50, -0.04, 0.02], [0.60, 0.05, 0.001]):
+            q, residual = scene.solve_ik(target, PEN_DOWN_ROTATION, q, max_iterations=200)
+            assert residual < 1e-6
+            # Independent check on the simulated robot, not the IK twin.
+            scene.reset_joints(q)
+            tip, axis = scene.tip_pose()
+            np.testing.assert_allclose(tip, target, atol=1e-6)
+            np.testing.assert_allclose(axis, [0, 0, -1], atol=1e-5)
+
+
+# -- writing ------------------------------------------------------------------------------
+
+
+def _assert_wrote_well(result, force_set_n=5.0):
+    m = result.metrics
+    assert m["tracking_error_mean_mm"] < 1.0, m
+    assert m["force_in_band_share"] >= 0.95, m
+    assert m["contact_share"] >= 0.95, m
+    assert abs(m["force_mean_n"] - force_set_n) < 0.2 * force_set_n, m
+    log = result.log
+    write = (log["phase"] == 1) & log["pen_down"]
+    # The force comes from physics: in contact the tip is pressed into the paper by about
+    # F / contact stiffness, which the admittance loop must have found on its own.
+    surface = result.scene_config.paper_top_z
+    depth_m = surface - log["tip_m"][write, 2]
+    expected_m = force_set_n / result.scene_config.contact_stiffness_n_per_m
+    assert abs(float(np.median(depth_m)) - expected_m) < 0.3 * expected_m
+    # The torques are the controller's, within the iiwa's limits and holding up the arm.
+    tau = log["torque_nm"]
+    assert np.all(np.abs(tau) <= 300.0)
+    assert np.abs(tau[:, 1]).mean() > 1.0  # the shoulder carries the arm's weight
+
+
+@needs_pybullet
+@pytest.mark.parametrize("rate_hz", [240.0, 1000.0])
+def test_circle_is_written(rate_hz):
+    from img2dmp.robot import write_dmp
+
+    params, config = fitted(circle_path())
+    result = write_dmp(params, config, IMAGE_SIZE, control_rate_hz=rate_hz, render_size_px=None)
+    _assert_wrote_well(result)
+    # The ink lies on the circle of radius 8 px around (14, 14) and goes most of the way
+    # round (1.9 pi of 2 pi).
+    ink_px = result.mapping.to_pixels(result.log["tip_m"][result.log["force_n"] > 0, :2])
+    rel = ink_px - [14.0, 14.0]
+    np.testing.assert_allclose(np.linalg.norm(rel, axis=1), 8.0, atol=0.15)
+    angles = np.unique(np.floor(np.degrees(np.arctan2(rel[:, 1], rel[:, 0])) / 10))
+    assert len(angles) >= 34
+
+
+@needs_pybullet
+def test_digit_two_is_written():
+    from img2dmp.robot import write_dmp
+
+    params, config = fitted(two_path())
+    result = write_dmp(params, config, IMAGE_SIZE, render_size_px=None)
+    _assert_wrote_well(result)
+    # The ink follows the whole "2": every point of the DMP's path has ink within 0.1 px
+    # (0.14 mm); the DMP itself is up to half a pixel off the drawn "2" at the corner.
+    ink_px = result.mapping.to_pixels(result.log["tip_m"][result.log["force_n"] > 0, :2])
+    path = result.plan.xy_px
+    dist = np.linalg.norm(path[:, None, :] - ink_px[None, :, :], axis=2).min(axis=1)
+    assert dist.max() < 0.1
+
+
+@needs_pybullet
+def test_pen_lifts_between_strokes():
+    from img2dmp.robot import write_dmp
+
+    params, config = fitted(plus_path(), n_kernels=40)
+    result = write_dmp(params, config, IMAGE_SIZE, render_size_px=None)
+    log, plan = result.log, result.plan
+    write = log["phase"] == 1
+    up = write & ~log["pen_down"]
+    assert up.sum() * (1 / 240) > 0.5  # the DMP's pen channel asks for a lift
+    surface = result.scene_config.paper_top_z
+    # Mid-travel the pen is in the air, well clear of the paper, and leaves no ink.
+    mid_up = up & (np.cumsum(up) > 30) & (np.cumsum(up) < up.sum() - 30)
+    assert np.all(log["force_n"][mid_up] == 0.0)
+    assert np.all(log["tip_m"][mid_up, 2] > surface + 0.004)
+    # Both strokes are inked: contact near each stroke's midpoint.
+    ink_px = result.mapping.to_pixels(log["tip_m"][log["force_n"] > 0, :2])
+    for mid in ([14.0, 14.0 - 4.0], [17.5, 14.0]):
+        assert np.min(np.linalg.norm(ink_px - mid, axis=1)) < 0.3
+    # And nothing on the pen-up diagonal from (14, 22) to (7, 14).
+    assert np.min(np.linalg.norm(ink_px - [10.5, 18.0], axis=1)) > 2.0
+    assert plan.pen_down.any() and not plan.pen_down.all()
+    assert result.metrics["tracking_error_mean_mm"] < 1.0
+
+
+@needs_pybullet
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"writing_height_mm": 400.0}, "leaves the paper"),
+        ({"scene_config": "far"}, "cannot reach"),
+    ],
+)
+def test_bad_path_fails_before_the_arm_moves(monkeypatch, kwargs, message):
+    from img2dmp.robot import SceneConfig, WritingScene, write_dmp
+
+    if kwargs.get("scene_config") == "far":
+        kwargs = {"scene_config": SceneConfig(paper_center_m=(1.3, 0.0))}
+    steps = []
+    monkeypatch.setattr(WritingScene, "step", lambda self, tau: steps.append(tau))
+    params, config = fitted(two_path())
+    with pytest.raises(ValueError, match=message):
+        write_dmp(params, config, IMAGE_SIZE, render_size_px=None, **kwargs)
+    assert steps == []
+
+
+@needs_pybullet
+def test_invalid_settings_are_named():
+    from img2dmp.robot import ControllerConfig, SceneConfig, write_dmp
+
+    with pytest.raises(ValueError, match="force_set_n"):
+        ControllerConfig(force_set_n=-1.0)
+    with pytest.raises(ValueError, match="paper_size_m"):
+        SceneConfig(paper_size_m=(0.1, 0.0))
+    params, config = fitted(circle_path())
+    with pytest.raises(ValueError, match="control_rate_hz"):
+        write_dmp(params, config, IMAGE_SIZE, control_rate_hz=10.0)
+    with pytest.raises(ValueError, match="joint_bandwidth_hz"):
+        write_dmp(
+            params,
+            config,
+            IMAGE_SIZE,
+            controller_config=ControllerConfig(joint_bandwidth_hz=60.0),
+            render_size_px=None,
+        )
+
+
+# -- command line -------------------------------------------------------------------------
+
+
+@needs_pybullet
+def test_write_command_with_dmp_file(tmp_path, capsys):
+    from PIL import Image
+
+    from img2dmp.cli import main
+
+    params, config = fitted(two_path())
+    dmp = tmp_path / "two.json"
+    save_dmp_json(dmp, params, config, IMAGE_SIZE)
+    out = tmp_path / "out"
+    code = main(["write", "--dmp", str(dmp), "--out-dir", str(out), "--no-progress"])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "tracking error" in printed and "x real time" in printed
+    with open(out / "two_log.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert {"time_s", "cmd_x_m", "tip_x_m", "force_n", "torque_7_nm"} <= set(rows[0])
+    forces = np.array([float(r["force_n"]) for r in rows if r["phase"] == "write"])
+    assert np.mean(np.abs(forces - 5.0) <= 1.0) >= 0.95
+    for name in ("two_paper.png", "two_render.png"):
+        with Image.open(out / name) as im:
+            assert im.size[0] > 300 and im.size[1] > 200
+    with Image.open(out / "two_render.png") as im:
+        rgb = np.asarray(im.convert("RGB"), dtype=float)
+    # The paper close-up (right half) shows dark ink on the light sheet.
+    paper = rgb[:, rgb.shape[1] // 2 :]
+    assert (paper.mean(axis=2) < 60).sum() > 200
+
+
+def test_write_command_rejects_image_without_model(tmp_path, capsys):
+    from img2dmp.cli import main
+
+    image = tmp_path / "x.png"
+    image.write_bytes(b"")
+    code = main(["write", str(image), "--out-dir", str(tmp_path), "--no-progress"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "--model" in err or "pybullet" in err
