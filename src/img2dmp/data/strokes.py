@@ -105,7 +105,7 @@ class SpeedProfile:
 
     pen_speed_px_s: float = 51.0
     min_stroke_s: float = 0.1
-    pen_up_s: float = 0.25
+    pen_up_s: float = 0.2
 
     def __post_init__(self) -> None:
         for name, v in asdict(self).items():
