@@ -305,3 +305,27 @@ def test_write_command_rejects_image_without_model(tmp_path, capsys):
     assert code == 2
     err = capsys.readouterr().err
     assert "--model" in err or "pybullet" in err
+
+
+def test_missing_pybullet_gives_install_hint(monkeypatch):
+    import sys
+
+    from img2dmp.robot import _pybullet
+
+    monkeypatch.setitem(sys.modules, "pybullet", None)  # makes `import pybullet` fail
+    assert not _pybullet.available()
+    with pytest.raises(ImportError, match=r"pip install img2dmp\[robot\]"):
+        _pybullet.require()
+
+
+def test_write_command_without_pybullet_says_how_to_install(monkeypatch, tmp_path, capsys):
+    import sys
+
+    from img2dmp.cli import main
+
+    params, config = fitted(circle_path())
+    dmp = tmp_path / "c.json"
+    save_dmp_json(dmp, params, config, IMAGE_SIZE)
+    monkeypatch.setitem(sys.modules, "pybullet", None)
+    assert main(["write", "--dmp", str(dmp), "--out-dir", str(tmp_path), "--no-progress"]) == 2
+    assert "pip install img2dmp[robot]" in capsys.readouterr().err
