@@ -1,0 +1,30 @@
+"""Run the whole chain on a small built-in example: generate a synthetic data set, train
+a small network briefly, evaluate it and draw the pictures (a few minutes on 2 cores).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+HELP = "generate -> train -> evaluate -> pictures, on a small built-in example"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", default="runs/demo", help="output directory")
+    p.add_argument("--samples-per-digit", type=int, default=200, help="size of the data set")
+    p.add_argument("--epochs", type=int, default=30, help="training epochs")
+    p.add_argument("--cost", default="trajectory", help="parameter (eq. 9) or trajectory (eq. 10)")
+    p.add_argument("--seed", type=int, default=0)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..pipeline import run_demo
+
+    run_demo(
+        args.out,
+        samples_per_digit=args.samples_per_digit,
+        epochs=args.epochs,
+        cost=args.cost,
+        seed=args.seed,
+    )
+    return 0

@@ -1,0 +1,45 @@
+"""Predict the DMP that writes the digit in each image (PNG/JPEG of any size).
+
+Each image is brought to the model's input as the training images were made (polarity
+from the border, crop to the ink, pad to square, resize, ink = 1). Without --out the
+predictions are printed as JSON; with --out each image gets NAME_dmp.json (parameters and
+sampled trajectory), NAME_trajectory.csv and, with --overlay, NAME_overlay.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+HELP = "DMP parameters and trajectory for image files"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("images", nargs="+", metavar="IMAGE", help="PNG or JPEG files")
+    p.add_argument("--model", required=True, help="run directory or checkpoint")
+    p.add_argument("--out", help="write JSON/CSV (and PNG) files here instead of printing")
+    p.add_argument("--overlay", action="store_true", help="also draw NAME_overlay.png")
+    p.add_argument("--points", type=int, default=100, help="trajectory samples over [0, tau]")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..predict import Predictor, prediction_record, write_prediction
+
+    if args.points < 2:
+        raise ValueError(f"--points must be >= 2, got {args.points}")
+    predictor = Predictor.load(args.model)
+    results = predictor.predict_paths(args.images)
+    records = []
+    for path, (params, image) in zip(args.images, results, strict=True):
+        t, y = predictor.trajectories(params, n_points=args.points)
+        rec = prediction_record(params, t, y, str(path))
+        records.append(rec)
+        if args.out:
+            files = write_prediction(
+                args.out, Path(path).stem, rec, image if args.overlay else None
+            )
+            print(f"{path}: tau = {float(params.tau):.3f} s -> " + ", ".join(str(f) for f in files))
+    if not args.out:
+        print(json.dumps(records if len(records) > 1 else records[0], indent=1))
+    return 0

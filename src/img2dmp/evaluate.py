@@ -1,0 +1,184 @@
+"""Evaluating a trained network the way Table I of Pahič et al. (ICRA 2018) does.
+
+For every test sample the network's DMP is rolled out at the demonstration's own time
+stamps and the Euclidean distances (px, on x and y) to the demonstrated points are
+averaged: one error per sample. Over samples we report the mean and standard deviation
+(Table I's two numbers; population standard deviation, ``ddof = 0``), the median and the
+95th percentile, overall and per digit. :func:`evaluate` writes them as JSON and a text
+table and draws Fig.-4-style pictures: image, demonstrated path in blue, DMP path in red.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .checkpoint import atomic_write_bytes, atomic_write_text, file_digest
+from .data.store import SPLITS, load_dataset
+from .predict import Predictor
+
+
+def error_statistics(errors_px) -> dict:
+    """``n``, ``mean``, ``std`` (ddof 0), ``median``, ``p95`` and ``max`` of per-sample errors."""
+    e = np.asarray(errors_px, dtype=np.float64)
+    if e.size == 0:
+        return {"n": 0, "mean": None, "std": None, "median": None, "p95": None, "max": None}
+    return {
+        "n": int(e.size),
+        "mean": float(e.mean()),
+        "std": float(e.std()),
+        "median": float(np.median(e)),
+        "p95": float(np.percentile(e, 95)),
+        "max": float(e.max()),
+    }
+
+
+def summarise(errors_px, labels) -> dict:
+    """Statistics overall and per digit label (keys ``"0"`` .. ``"9"`` present in ``labels``)."""
+    e = np.asarray(errors_px, dtype=np.float64)
+    lab = np.asarray(labels)
+    per = {str(int(d)): error_statistics(e[lab == d]) for d in np.unique(lab)}
+    return {"overall": error_statistics(e), "per_digit": per}
+
+
+def format_table(summary: dict, title: str = "trajectory error (px)") -> str:
+    """A plain-text table of :func:`summarise`'s output."""
+    head = f"{'digit':>7} {'n':>6} {'mean':>8} {'std':>8} {'median':>8} {'p95':>8} {'max':>8}"
+    lines = [title, head, "-" * len(head)]
+
+    def row(name, s):
+        if not s["n"]:
+            return f"{name:>7} {0:>6}"
+        return (
+            f"{name:>7} {s['n']:>6} {s['mean']:>8.4f} {s['std']:>8.4f} {s['median']:>8.4f} "
+            f"{s['p95']:>8.4f} {s['max']:>8.4f}"
+        )
+
+    for d, s in summary["per_digit"].items():
+        lines.append(row(d, s))
+    lines.append("-" * len(head))
+    lines.append(row("all", summary["overall"]))
+    return "\n".join(lines)
+
+
+def overlay_figure(
+    path: str | os.PathLike,
+    images: np.ndarray,  # [K, H, W]
+    demo_paths: np.ndarray | None,  # [K, T, d] or None
+    dmp_paths: np.ndarray | None,  # [K, T', d] or None
+    titles: list[str] | None = None,
+    ncols: int = 4,
+) -> Path:
+    """Fig.-4-style grid: each image with the demonstrated path (blue) and the DMP path
+    (red) drawn over it (:func:`img2dmp.data.plotting.plot_grid`), written atomically."""
+    import matplotlib.pyplot as plt
+
+    from .data.plotting import plot_grid
+
+    fig = plot_grid(images, demo_paths, dmp_paths, titles=titles, ncols=ncols, cell_inches=1.8)
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, format="png", dpi=100)
+    finally:
+        plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+    return Path(path)
+
+
+def _pick_split(data, split: str):
+    if split == "all":
+        return data
+    if split == "auto":
+        return data.select_split("test") if (data.split == SPLITS["test"]).any() else data
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {sorted(SPLITS)}, 'all' or 'auto', got {split!r}")
+    return data.select_split(split)
+
+
+def evaluate(
+    model_path: str | os.PathLike,
+    dataset_path: str | os.PathLike,
+    *,
+    split: str = "auto",
+    out_dir: str | os.PathLike | None = None,
+    n_figures: int = 16,
+    digits: list[int] | None = None,
+    batch_size: int = 2048,
+    seed: int = 0,
+) -> dict:
+    """Table I's statistics of a trained network on a stored data set.
+
+    Parameters
+    ----------
+    model_path : path
+        Run directory or checkpoint file.
+    dataset_path : path
+        A data set (``img2dmp.data.store`` format).
+    split : {"auto", "all", "train", "validation", "test"}
+        Samples to evaluate; ``"auto"`` = the test split if the file has one, else all.
+    out_dir : path, optional
+        Where to write ``evaluation.json``, ``evaluation.txt`` and ``examples.png``.
+    n_figures : int
+        Samples drawn in ``examples.png`` (chosen at random with ``seed``; 0 = none).
+    digits : list of int, optional
+        Keep only these labels.
+
+    Returns
+    -------
+    dict
+        ``overall`` and ``per_digit`` statistics plus ``errors_px`` (per sample) and a
+        description of the model and data.
+    """
+    t0 = time.perf_counter()
+    predictor = Predictor.load(model_path)
+    data = _pick_split(load_dataset(dataset_path), split)
+    if digits is not None:
+        data = data.subset(np.isin(data.labels, np.asarray(digits)))
+    if len(data) == 0:
+        raise ValueError(
+            f"data set {dataset_path} has no samples in split {split!r}"
+            + (f" with labels {digits}" if digits is not None else "")
+        )
+    if tuple(data.image_size) != predictor.image_size:
+        raise ValueError(
+            f"data set {dataset_path} has {data.image_size} images, the model expects "
+            f"{predictor.image_size}"
+        )
+    if data.dmp_config.n_dims != predictor.dmp_config.n_dims:
+        raise ValueError(
+            f"data set {dataset_path} has d={data.dmp_config.n_dims} dimensions, the model "
+            f"d={predictor.dmp_config.n_dims}"
+        )
+    y = predictor.trajectories_for_images(data.images, data.times, batch_size)  # [M, T, d]
+    errors = np.linalg.norm(y[..., :2] - data.trajectories[..., :2], axis=-1).mean(-1)  # [M]
+    result = summarise(errors, data.labels)
+    result.update(
+        model=str(model_path),
+        dataset=str(dataset_path),
+        dataset_sha256=file_digest(dataset_path),
+        split=split,
+        digits=digits,
+        trained_on=predictor.meta.get("dataset"),
+        cost=predictor.meta.get("train_config", {}).get("cost", {}).get("name"),
+        fit_error_px=error_statistics(data.fit_error_px),
+        wall_s=time.perf_counter() - t0,
+        errors_px=errors.tolist(),
+    )
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(out / "evaluation.json", json.dumps(result, indent=1) + "\n")
+        atomic_write_text(out / "evaluation.txt", format_table(result) + "\n")
+        if n_figures > 0:
+            rng = np.random.default_rng(seed)
+            pick = np.sort(rng.choice(len(data), size=min(n_figures, len(data)), replace=False))
+            titles = [f"{int(data.labels[i])}: {errors[i]:.3f} px" for i in pick]
+            overlay_figure(
+                out / "examples.png", data.images[pick], data.trajectories[pick], y[pick], titles
+            )
+    return result

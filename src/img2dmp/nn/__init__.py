@@ -1,0 +1,40 @@
+"""The encoder-decoder network and its two cost functions (Section V of Pahič et al.).
+
+- :class:`ModelConfig`, :func:`build_model`, :class:`EncoderDecoder`,
+  :class:`FullyConnectedEncoder`, :class:`ConvEncoder` - the network
+- :class:`ParamNormaliser` - per-unit scaling of the DMP vector (eq. 8)
+- :func:`parameter_cost` (eq. 9), :func:`trajectory_cost` (eq. 10), :class:`Cost`
+- :func:`trajectory_error_px` - Table I's metric
+"""
+
+from .costs import (
+    COST_NAMES,
+    Cost,
+    dmp_trajectory,
+    parameter_cost,
+    trajectory_cost,
+    trajectory_error_px,
+)
+from .model import (
+    ConvEncoder,
+    EncoderDecoder,
+    FullyConnectedEncoder,
+    ModelConfig,
+    build_model,
+)
+from .normalise import ParamNormaliser
+
+__all__ = [
+    "COST_NAMES",
+    "ConvEncoder",
+    "Cost",
+    "EncoderDecoder",
+    "FullyConnectedEncoder",
+    "ModelConfig",
+    "ParamNormaliser",
+    "build_model",
+    "dmp_trajectory",
+    "parameter_cost",
+    "trajectory_cost",
+    "trajectory_error_px",
+]

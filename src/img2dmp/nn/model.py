@@ -1,0 +1,208 @@
+"""The encoder-decoder network of Pahič et al. (ICRA 2018), Section V.
+
+An image goes through an *encoder* to a small latent code and a *decoder* maps that code
+to the normalised DMP parameter vector (eq. 8, scaled by
+:class:`~img2dmp.nn.normalise.ParamNormaliser`). The paper's network is fully connected::
+
+    1600 -> 1500 -> 1300 -> 1000 -> 600 -> 200 -> 20  (encoder)  -> 35 -> 55  (decoder)
+
+Encoders are interchangeable: anything with ``in_shape`` ``(H, W)``, ``out_features`` and
+``forward(images [B, H, W]) -> [B, out_features]`` can be plugged into
+:class:`EncoderDecoder`. :class:`FullyConnectedEncoder` is the paper's;
+:class:`ConvEncoder` is a small convolutional alternative (the paper's stated next step).
+:func:`build_model` makes either from a :class:`ModelConfig`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import torch
+from torch import nn
+
+ACTIVATIONS = {
+    "relu": nn.ReLU,
+    "tanh": nn.Tanh,
+    "elu": nn.ELU,
+    "gelu": nn.GELU,
+    "leaky_relu": nn.LeakyReLU,
+    "sigmoid": nn.Sigmoid,
+}
+ENCODERS = ("fc", "conv")
+
+
+def _activation(name: str) -> nn.Module:
+    if name not in ACTIVATIONS:
+        raise ValueError(f"model.activation must be one of {sorted(ACTIVATIONS)}, got {name!r}")
+    return ACTIVATIONS[name]()
+
+
+def _mlp(sizes: list[int], activation: str, last_activation: bool) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i in range(len(sizes) - 1):
+        layers.append(nn.Linear(sizes[i], sizes[i + 1]))
+        if i < len(sizes) - 2 or last_activation:
+            layers.append(_activation(activation))
+    return nn.Sequential(*layers)
+
+
+@dataclass
+class ModelConfig:
+    """Architecture of an :class:`EncoderDecoder`.
+
+    Parameters
+    ----------
+    encoder : {"fc", "conv"}
+        ``"fc"``: the paper's fully connected encoder; ``"conv"``: :class:`ConvEncoder`.
+    image_size : [H, W]
+        Input image size in pixels (the paper: 40 x 40 = 1600 inputs).
+    encoder_layers : list of int
+        Widths of the fully connected encoder's layers, the last being the latent code
+        (paper: 1500, 1300, 1000, 600, 200, 20). For ``"conv"`` only the last entry
+        (the latent size) is used.
+    conv_channels : list of int
+        Channels of the convolutional encoder's stride-2 3x3 convolutions.
+    decoder_layers : list of int
+        Hidden widths of the decoder between the latent code and the output (paper: 35).
+    activation : str
+        One of :data:`ACTIVATIONS`, after every hidden layer.
+    n_outputs : int
+        Length P of the DMP vector (55 for N = 25, d = 2); set from the data.
+    """
+
+    encoder: str = "fc"
+    image_size: list[int] = field(default_factory=lambda: [40, 40])
+    encoder_layers: list[int] = field(default_factory=lambda: [1500, 1300, 1000, 600, 200, 20])
+    conv_channels: list[int] = field(default_factory=lambda: [16, 32, 64])
+    decoder_layers: list[int] = field(default_factory=lambda: [35])
+    activation: str = "relu"
+    n_outputs: int = 55
+
+    def __post_init__(self) -> None:
+        if self.encoder not in ENCODERS:
+            raise ValueError(f"model.encoder must be one of {ENCODERS}, got {self.encoder!r}")
+        self.image_size = [int(s) for s in self.image_size]
+        if len(self.image_size) != 2 or min(self.image_size) < 4:
+            raise ValueError(f"model.image_size must be [H, W] >= 4, got {self.image_size!r}")
+        for name in ("encoder_layers", "conv_channels", "decoder_layers"):
+            vals = [int(v) for v in getattr(self, name)]
+            if any(v < 1 for v in vals):
+                raise ValueError(f"model.{name} must hold positive widths, got {vals!r}")
+            setattr(self, name, vals)
+        if not self.encoder_layers:
+            raise ValueError("model.encoder_layers must name at least the latent size")
+        if self.encoder == "conv" and not self.conv_channels:
+            raise ValueError("model.conv_channels must not be empty for a conv encoder")
+        if self.activation not in ACTIVATIONS:
+            raise ValueError(
+                f"model.activation must be one of {sorted(ACTIVATIONS)}, got {self.activation!r}"
+            )
+        if int(self.n_outputs) < 1:
+            raise ValueError(f"model.n_outputs must be >= 1, got {self.n_outputs!r}")
+        self.n_outputs = int(self.n_outputs)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ModelConfig:
+        unknown = set(d) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"unknown model config field(s): {sorted(unknown)}")
+        return cls(**d)
+
+
+class FullyConnectedEncoder(nn.Module):
+    """The paper's encoder: the flattened image through fully connected layers.
+
+    ``H*W -> encoder_layers[0] -> ... -> encoder_layers[-1]``, activation after each.
+    """
+
+    def __init__(self, image_size: list[int], layers: list[int], activation: str = "relu"):
+        super().__init__()
+        self.in_shape = tuple(image_size)
+        self.out_features = layers[-1]
+        self.net = _mlp([image_size[0] * image_size[1], *layers], activation, True)
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:  # [B, H, W] -> [B, latent]
+        return self.net(images.flatten(1))
+
+
+class ConvEncoder(nn.Module):
+    """A small convolutional encoder: stride-2 3x3 convolutions, then one linear layer.
+
+    Each convolution halves the image (40 -> 20 -> 10 -> 5 for three layers); the feature
+    map is flattened and mapped to ``latent`` features.
+    """
+
+    def __init__(
+        self, image_size: list[int], channels: list[int], latent: int, activation: str = "relu"
+    ):
+        super().__init__()
+        self.in_shape = tuple(image_size)
+        self.out_features = latent
+        layers: list[nn.Module] = []
+        c_in, h, w = 1, image_size[0], image_size[1]
+        for c in channels:
+            layers += [nn.Conv2d(c_in, c, 3, stride=2, padding=1), _activation(activation)]
+            c_in, h, w = c, (h + 1) // 2, (w + 1) // 2
+        self.conv = nn.Sequential(*layers)
+        self.head = nn.Sequential(nn.Linear(c_in * h * w, latent), _activation(activation))
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:  # [B, H, W] -> [B, latent]
+        return self.head(self.conv(images[:, None]).flatten(1))
+
+
+class EncoderDecoder(nn.Module):
+    """Image to normalised DMP vector: ``decoder(encoder(image))``.
+
+    Parameters
+    ----------
+    encoder : nn.Module
+        Has ``in_shape`` (H, W), ``out_features`` and maps ``[B, H, W] -> [B, out_features]``.
+    decoder_layers : list of int
+        Hidden widths between the code and the output.
+    n_outputs : int
+        Output size P (normalised DMP vector, eq. 8).
+    """
+
+    def __init__(
+        self, encoder: nn.Module, decoder_layers: list[int], n_outputs: int, activation: str
+    ):
+        super().__init__()
+        self.encoder = encoder
+        self.decoder = _mlp([encoder.out_features, *decoder_layers, n_outputs], activation, False)
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        return tuple(self.encoder.in_shape)
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:  # [B, H, W] -> [B, P]
+        if images.shape[-2:] != self.encoder.in_shape:
+            raise ValueError(
+                f"images are {tuple(images.shape[-2:])} pixels, the model expects "
+                f"{self.encoder.in_shape}"
+            )
+        return self.decoder(self.encoder(images))
+
+
+def build_model(config: ModelConfig, seed: int | None = None) -> EncoderDecoder:
+    """Make the network described by ``config`` (weights from torch's default init).
+
+    ``seed`` makes the initial weights reproducible without touching the global RNG.
+    """
+    fork = torch.random.fork_rng(enabled=seed is not None)
+    with fork:
+        if seed is not None:
+            torch.manual_seed(seed)
+        if config.encoder == "fc":
+            enc = FullyConnectedEncoder(config.image_size, config.encoder_layers, config.activation)
+        else:
+            enc = ConvEncoder(
+                config.image_size,
+                config.conv_channels,
+                config.encoder_layers[-1],
+                config.activation,
+            )
+        model = EncoderDecoder(enc, config.decoder_layers, config.n_outputs, config.activation)
+    return model

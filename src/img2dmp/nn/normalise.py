@@ -1,0 +1,171 @@
+"""Per-unit scaling of the network's output, the flat DMP vector of eq. (8).
+
+The raw parameters live on very different scales: weights of a few hundred (and, with the
+paper's goal-start scaling, of thousands where ``g ~ y0`` in one dimension), a duration
+of about one second, goal and start positions of tens of pixels. Cost (9) compares them
+unit by unit, so every unit is mapped to a comparable scale first::
+
+    u_j = log(tau)  if j is the tau unit,  v_j otherwise        (tau > 0 by construction)
+    z_j = (u_j - centre_j) / scale_j
+
+``centre`` is the per-unit median of the training set and ``scale`` the per-unit
+interquartile range divided by 1.349 (the standard deviation of a Gaussian with that
+IQR). Median and IQR are robust: the few huge goal-start weights of closed shapes do not
+shrink every other sample's values to zero. ``scale`` is floored at ``1e-3`` times its
+median over units (and at an absolute ``1e-6``), so a constant unit cannot divide by zero.
+
+The inverse (:meth:`ParamNormaliser.denormalise`) maps the network's output ``z`` back to a
+:class:`~img2dmp.dmp.DMPParams`; tau comes out as ``exp(.)`` and is therefore always
+positive, which is what the rollout of cost (10) needs. It is differentiable.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..dmp import DMPConfig, DMPParams
+
+_IQR_TO_STD = 1.3489795
+
+
+@dataclass
+class ParamNormaliser:
+    """Robust per-unit affine map between the flat DMP vector and the network's output.
+
+    Attributes
+    ----------
+    centre : ndarray [P]
+        Per-unit median of the (log-tau) parameter vector over the training set.
+    scale : ndarray [P]
+        Per-unit robust standard deviation (IQR / 1.349), floored.
+    n_kernels, n_dims : int
+        Shape of the DMP the vector encodes (``P = N*d + 1 + 2d``).
+    """
+
+    centre: np.ndarray
+    scale: np.ndarray
+    n_kernels: int
+    n_dims: int
+
+    def __post_init__(self) -> None:
+        self.centre = np.asarray(self.centre, dtype=np.float64)
+        self.scale = np.asarray(self.scale, dtype=np.float64)
+        p = self.n_kernels * self.n_dims + 1 + 2 * self.n_dims
+        for name in ("centre", "scale"):
+            a = getattr(self, name)
+            if a.shape != (p,):
+                raise ValueError(
+                    f"ParamNormaliser.{name} has shape {a.shape}, expected ({p},) for "
+                    f"N={self.n_kernels}, d={self.n_dims}"
+                )
+            if not np.isfinite(a).all():
+                raise ValueError(f"ParamNormaliser.{name} contains NaN or inf")
+        if not (self.scale > 0).all():
+            raise ValueError("ParamNormaliser.scale must be > 0 in every unit")
+        self._cache: dict = {}
+
+    @property
+    def n_params(self) -> int:
+        return int(self.centre.shape[0])
+
+    @property
+    def tau_index(self) -> int:
+        """Position of tau in the flat vector (right after the N*d weights)."""
+        return self.n_kernels * self.n_dims
+
+    @classmethod
+    def fit(cls, params: np.ndarray, config: DMPConfig) -> ParamNormaliser:
+        """Robust centre and scale of a training set's flat parameter vectors.
+
+        Parameters
+        ----------
+        params : ndarray [M, P]
+            Fitted DMPs (``DMPParams.to_vector``), tau > 0.
+        config : DMPConfig
+            Their constants.
+        """
+        v = np.asarray(params, dtype=np.float64)
+        if v.ndim != 2 or v.shape[1] != config.n_params or v.shape[0] < 2:
+            raise ValueError(
+                f"need at least 2 parameter vectors of length {config.n_params} to fit the "
+                f"normalisation, got shape {v.shape}"
+            )
+        if not np.isfinite(v).all():
+            raise ValueError("training parameter vectors contain NaN or inf")
+        ti = config.n_kernels * config.n_dims
+        if not (v[:, ti] > 0).all():
+            raise ValueError("training parameter vectors have tau <= 0")
+        u = v.copy()
+        u[:, ti] = np.log(u[:, ti])
+        q1, med, q3 = np.percentile(u, [25.0, 50.0, 75.0], axis=0)
+        scale = (q3 - q1) / _IQR_TO_STD
+        # A unit with (almost) no spread would otherwise blow up its normalised error.
+        floor = max(1e-3 * float(np.median(scale)), 1e-6)
+        scale = np.maximum(scale, floor)
+        return cls(med, scale, config.n_kernels, config.n_dims)
+
+    def _tensors(self, like: torch.Tensor):
+        key = (like.dtype, like.device)
+        if key not in self._cache:
+            c = torch.as_tensor(self.centre, dtype=like.dtype, device=like.device)
+            s = torch.as_tensor(self.scale, dtype=like.dtype, device=like.device)
+            self._cache[key] = (c, s)
+        return self._cache[key]
+
+    def normalise(self, v: torch.Tensor) -> torch.Tensor:
+        """Flat parameter vectors ``[*batch, P]`` (tau > 0) to normalised units ``[*batch, P]``."""
+        c, s = self._tensors(v)
+        ti = self.tau_index
+        u = torch.cat([v[..., :ti], torch.log(v[..., ti : ti + 1]), v[..., ti + 1 :]], dim=-1)
+        return (u - c) / s
+
+    def denormalise_vector(self, z: torch.Tensor) -> torch.Tensor:
+        """Normalised units ``[*batch, P]`` to flat parameter vectors (tau = exp(.) > 0)."""
+        c, s = self._tensors(z)
+        u = z * s + c
+        ti = self.tau_index
+        return torch.cat([u[..., :ti], torch.exp(u[..., ti : ti + 1]), u[..., ti + 1 :]], dim=-1)
+
+    def denormalise(self, z: torch.Tensor) -> DMPParams:
+        """Normalised network output ``[*batch, P]`` to :class:`DMPParams` (torch, differentiable).
+
+        No validation is done (this sits in the training loop); tau is positive by
+        construction, and finite as long as the output is.
+        """
+        v = self.denormalise_vector(z)
+        n, d = self.n_kernels, self.n_dims
+        batch = tuple(v.shape[:-1])
+        w = v[..., : n * d].reshape(*batch, d, n).transpose(-1, -2)
+        tau = v[..., n * d]
+        g = v[..., n * d + 1 : n * d + 1 + d]
+        y0 = v[..., n * d + 1 + d :]
+        # object.__new__ skips DMPParams' validation (host syncs) in the hot loop.
+        p = object.__new__(DMPParams)
+        p.w, p.tau, p.g, p.y0 = w, tau, g, y0
+        return p
+
+    def to_dict(self) -> dict:
+        return {
+            "kind": "robust-median-iqr-logtau",
+            "centre": self.centre.tolist(),
+            "scale": self.scale.tolist(),
+            "n_kernels": self.n_kernels,
+            "n_dims": self.n_dims,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ParamNormaliser:
+        missing = [k for k in ("centre", "scale", "n_kernels", "n_dims") if k not in d]
+        if missing:
+            raise ValueError(f"normalisation record is missing field(s) {missing}")
+        if d.get("kind", "robust-median-iqr-logtau") != "robust-median-iqr-logtau":
+            raise ValueError(f"unknown normalisation kind {d.get('kind')!r}")
+        return cls(
+            np.asarray(d["centre"], dtype=np.float64),
+            np.asarray(d["scale"], dtype=np.float64),
+            int(d["n_kernels"]),
+            int(d["n_dims"]),
+        )

@@ -1,0 +1,194 @@
+"""The network, the output normalisation and the two costs (eqs. 9 and 10)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from img2dmp.data.render import render_paths
+from img2dmp.data.store import DigitData, save_dataset
+from img2dmp.dmp import DMPConfig, DMPParams, fit_dmp, integrate, rollout
+from img2dmp.nn import (
+    Cost,
+    ModelConfig,
+    ParamNormaliser,
+    build_model,
+    parameter_cost,
+    trajectory_cost,
+    trajectory_error_px,
+)
+
+TINY = {"encoder_layers": [64, 16], "decoder_layers": [16], "image_size": [16, 16]}
+
+
+def toy_paths(n: int, seed: int = 0, n_points: int = 60):
+    """Simple pen paths (a few smooth families, one per label) with random size/offset."""
+    rng = np.random.default_rng(seed)
+    labels = rng.integers(0, 3, n)
+    s = np.linspace(0.0, 1.0, n_points)
+    paths = np.empty((n, n_points, 2))
+    for i, lab in enumerate(labels):
+        a = rng.uniform(0.7, 1.0)
+        if lab == 0:  # arc
+            th = np.pi * (0.2 + 1.4 * s)
+            p = np.stack([np.cos(th), np.sin(th)], -1)
+        elif lab == 1:  # diagonal stroke with a bend
+            p = np.stack([-0.8 + 1.6 * s, -0.8 + 1.6 * s**1.5], -1)
+        else:  # zig
+            p = np.stack([-0.8 + 1.6 * s, 0.6 * np.sin(2 * np.pi * s)], -1)
+        paths[i] = a * p + rng.normal(0, 0.05, 2)
+    return paths, labels
+
+
+def make_toy_dataset(path, n: int = 300, size: int = 16, seed: int = 0, config=None):
+    """A small data set in the store format, made without the synthetic generator."""
+    config = config or DMPConfig()
+    paths, labels = toy_paths(n, seed)
+    px = (paths * 0.4 + 0.5) * (size - 1)  # [M, T, 2] in pixels
+    t = np.linspace(0, 1.0, px.shape[1])[None].repeat(n, 0) * np.random.default_rng(seed).uniform(
+        0.8, 1.2, (n, 1)
+    )
+    fit = fit_dmp(t, px, config)
+    split = np.zeros(n, np.uint8)
+    split[int(0.8 * n) : int(0.9 * n)] = 1
+    split[int(0.9 * n) :] = 2
+    data = DigitData(
+        images=render_paths(px, size, 1.5).numpy(),
+        trajectories=px.astype(np.float32),
+        times=t.astype(np.float32),
+        labels=labels.astype(np.int64),
+        params=fit.params.to_vector().astype(np.float32),
+        fit_error_px=fit.error_px.astype(np.float32),
+        split=split,
+        meta={"dmp_config": config.to_dict(), "source": {"kind": "toy"}, "seed": seed},
+    )
+    return save_dataset(path, data)
+
+
+def _random_params(n: int, config: DMPConfig, seed: int = 0) -> np.ndarray:
+    paths, _ = toy_paths(n, seed)
+    t = np.linspace(0, 1.0, paths.shape[1])
+    return fit_dmp(t, paths * 15 + 20, config).params.to_vector()  # [n, P]
+
+
+def test_normaliser_round_trip_and_positive_tau():
+    config = DMPConfig()
+    v = _random_params(200, config)
+    norm = ParamNormaliser.fit(v, config)
+    vt = torch.as_tensor(v)
+    z = norm.normalise(vt)
+    assert torch.allclose(norm.denormalise_vector(z), vt, rtol=1e-10, atol=1e-9)
+    # Gaussian units with wildly different scales (and a log-normal tau) come out as
+    # standard normal: about half of every unit lies within +-0.6745, whatever outliers.
+    rng = np.random.default_rng(1)
+    g = rng.normal(0, 1, (4000, config.n_params)) * np.logspace(-2, 3, config.n_params) + 7
+    g[:, norm.tau_index] = np.exp(rng.normal(0.5, 0.2, 4000))
+    g[:40, 3] = 1e6  # a few huge outliers in one unit
+    zg = ParamNormaliser.fit(g, config).normalise(torch.as_tensor(g))
+    inside = (zg.abs() < 0.6745).double().mean(0)
+    assert float(inside.min()) > 0.45 and float(inside.max()) < 0.55
+    # any output, however wild, gives a positive tau
+    p = norm.denormalise(torch.randn(7, config.n_params) * 30)
+    assert bool((p.tau > 0).all())
+    p.validate(config)
+    # the unflattening agrees with DMPParams.from_vector
+    ref = DMPParams.from_vector(vt[:3], config.n_kernels, config.n_dims)
+    got = norm.denormalise(z[:3])
+    for k in ("w", "tau", "g", "y0"):
+        assert torch.allclose(getattr(got, k), getattr(ref, k), atol=1e-9)
+    back = ParamNormaliser.from_dict(norm.to_dict())
+    assert np.array_equal(back.scale, norm.scale)
+
+
+def test_normaliser_rejects_bad_input():
+    config = DMPConfig()
+    v = _random_params(10, config)
+    v[3, config.n_kernels * 2] = -1.0  # tau <= 0
+    with pytest.raises(ValueError, match="tau"):
+        ParamNormaliser.fit(v, config)
+    with pytest.raises(ValueError, match="length 55"):
+        ParamNormaliser.fit(v[:, :10], config)
+
+
+def test_paper_architecture_and_conv_encoder():
+    model = build_model(ModelConfig())
+    sizes = [m.out_features for m in model.modules() if isinstance(m, torch.nn.Linear)]
+    first = next(m for m in model.modules() if isinstance(m, torch.nn.Linear))
+    assert first.in_features == 1600
+    assert sizes == [1500, 1300, 1000, 600, 200, 20, 35, 55]
+    x = torch.rand(3, 40, 40)
+    assert model(x).shape == (3, 55)
+    conv = build_model(ModelConfig(encoder="conv", encoder_layers=[32], decoder_layers=[16]))
+    assert conv(x).shape == (3, 55)
+    with pytest.raises(ValueError, match="expects"):
+        model(torch.rand(2, 28, 28))
+    with pytest.raises(ValueError, match="activation"):
+        ModelConfig(activation="swishy")
+    # seeded initialisation is reproducible
+    a, b = build_model(ModelConfig(**TINY), seed=3), build_model(ModelConfig(**TINY), seed=3)
+    assert all(torch.equal(p, q) for p, q in zip(a.parameters(), b.parameters(), strict=True))
+
+
+def test_parameter_cost_by_hand():
+    zp = torch.tensor([[1.0, 2.0], [0.0, 0.0]])
+    zt = torch.tensor([[0.0, 0.0], [0.0, 3.0]])
+    # (1 + 4 + 0 + 9) / 4 entries
+    assert float(parameter_cost(zp, zt)) == pytest.approx(3.5)
+
+
+def test_trajectory_cost_matches_reference_integrator():
+    """Cost (10) against a step-by-step integration of the DMP ODE (independent code)."""
+    config = DMPConfig()
+    v = _random_params(50, config)
+    norm = ParamNormaliser.fit(v, config)
+    z = norm.normalise(torch.as_tensor(v[:3]))
+    t = torch.linspace(0.0, 1.0, 40, dtype=torch.float64).expand(3, 40)
+    demo = torch.zeros(3, 40, 2, dtype=torch.float64) + 5.0
+    got = trajectory_cost(z, t, demo, norm, config)
+    ref = []
+    for b in range(3):
+        p = DMPParams.from_vector(v[b], config.n_kernels, config.n_dims)
+        y = integrate(p, t[b].numpy(), config, max_step=1e-4)
+        ref.append(((y - 5.0) ** 2).sum(-1).mean())
+    assert float(got) == pytest.approx(float(np.mean(ref)), rel=1e-5)
+
+
+def test_trajectory_cost_gradient_matches_finite_differences():
+    config = DMPConfig(n_kernels=6)
+    v = _random_params(30, config)
+    norm = ParamNormaliser.fit(v, config)
+    z = norm.normalise(torch.as_tensor(v[:2])) + 0.1
+    t = torch.linspace(0.0, 0.9, 25, dtype=torch.float64).expand(2, 25)
+    demo = rollout(DMPParams.from_vector(torch.as_tensor(v[2:4]), 6, 2), t, config)
+    z.requires_grad_(True)
+    c = trajectory_cost(z, t, demo, norm, config)
+    (g,) = torch.autograd.grad(c, z)
+    eps = 1e-6
+    for j in (0, 7, 12, 13, 15):  # a weight of each dim, tau, goal, start
+        dz = torch.zeros_like(z)
+        dz[1, j] = eps
+        with torch.no_grad():
+            fd = (
+                trajectory_cost(z + dz, t, demo, norm, config)
+                - trajectory_cost(z - dz, t, demo, norm, config)
+            ) / (2 * eps)
+        assert float(g[1, j]) == pytest.approx(float(fd), rel=1e-4, abs=1e-7)
+    assert float(g[1, 12].abs()) > 0  # tau receives a gradient
+
+
+def test_cost_selection_and_zero_at_the_fit():
+    config = DMPConfig()
+    v = _random_params(20, config)
+    norm = ParamNormaliser.fit(v, config)
+    z = norm.normalise(torch.as_tensor(v))
+    t = torch.linspace(0.0, 1.0, 30, dtype=torch.float64).expand(20, 30)
+    demo = rollout(DMPParams.from_vector(torch.as_tensor(v), 25, 2), t, config)
+    for name in ("9", "10", "parameter", "trajectory", "combined"):
+        c, y = Cost(name, norm, config)(z, z, t, demo)
+        assert float(c) == pytest.approx(0.0, abs=1e-12)
+    _, y = Cost("10", norm, config)(z, z, t, demo)
+    assert float(trajectory_error_px(y, demo).max()) < 1e-9
+    assert Cost("parameter", norm, config)(z, z, t, demo)[1] is None
+    with pytest.raises(ValueError, match="cost.name"):
+        Cost("11", norm, config)

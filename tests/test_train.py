@@ -1,0 +1,311 @@
+"""Training: learning, checkpoints, resume after kill -9, configs, torchrun, the demo."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from img2dmp import cli
+from img2dmp.checkpoint import (
+    CheckpointError,
+    load_checkpoint,
+    load_weights_into,
+    read_checkpoint_meta,
+)
+from img2dmp.data.store import load_dataset, save_dataset
+from img2dmp.data.synthetic import generate_dataset
+from img2dmp.evaluate import evaluate
+from img2dmp.nn import ModelConfig, ParamNormaliser, build_model
+from img2dmp.predict import Predictor
+from img2dmp.train import (
+    TrainConfig,
+    load_config,
+    read_metrics_csv,
+    train,
+    trajectory_errors,
+)
+
+TINY_MODEL = {"encoder_layers": [64, 20], "decoder_layers": [35], "image_size": [40, 40]}
+
+
+def tiny_config(data_path, **optim) -> TrainConfig:
+    o = {"epochs": 4, "batch_size": 16, "lr": 2e-3, "schedule": "none", "patience": 0}
+    o.update(optim)
+    return TrainConfig.from_dict(
+        {
+            "model": dict(TINY_MODEL),
+            "data": {"path": str(data_path)},
+            "optim": o,
+            "cost": {"name": "trajectory"},
+            "threads": 1,
+            "progress": False,
+        }
+    )
+
+
+@pytest.fixture(scope="module")
+def small_data(tmp_path_factory) -> Path:
+    """240 synthetic digits (200 train, 20 validation, 20 test) from the project's generator."""
+    path = tmp_path_factory.mktemp("data") / "small.safetensors"
+    save_dataset(path, generate_dataset(24, seed=0, progress=False))
+    return path
+
+
+@pytest.fixture(scope="module")
+def trained(small_data, tmp_path_factory):
+    run = tmp_path_factory.mktemp("runs") / "learn"
+    cfg = tiny_config(small_data, epochs=25, schedule="cosine")
+    return cfg, run, train(cfg, run)
+
+
+def test_training_lowers_validation_error(small_data, trained):
+    cfg, run, res = trained
+    assert res.history[-1]["step"] >= 300  # "a few hundred steps"
+    data = load_dataset(small_data).select_split("validation")
+    norm = ParamNormaliser.fit(
+        load_dataset(small_data).select_split("train").params, data.dmp_config
+    )
+    untrained = build_model(ModelConfig(**TINY_MODEL), seed=cfg.seed)
+    before = trajectory_errors(
+        untrained,
+        norm,
+        data.dmp_config,
+        torch.as_tensor(data.images),
+        torch.as_tensor(data.times),
+        torch.as_tensor(data.trajectories),
+    ).mean()
+    assert res.best_val_error_px < 0.6 * before
+    for name in (
+        "config.yaml",
+        "metrics.csv",
+        "training_curve.png",
+        "checkpoints/best.safetensors",
+        "checkpoints/best.json",
+        "checkpoints/last.safetensors",
+        "checkpoints/last.json",
+    ):
+        assert (run / name).is_file(), name
+    rows = read_metrics_csv(run / "metrics.csv")
+    assert [r["epoch"] for r in rows] == list(range(25))
+    assert min(r["val_error_px"] for r in rows) == pytest.approx(res.best_val_error_px)
+
+
+def test_saved_model_predicts_the_same_numbers(small_data, trained):
+    _, run, res = trained
+    pred = Predictor.load(run)
+    # The reloaded best model reproduces the validation error measured during training.
+    ev = evaluate(run, small_data, split="validation")
+    assert ev["overall"]["mean"] == pytest.approx(res.best_val_error_px, rel=1e-6)
+    # Same weights in a fresh network give the same outputs; the JSON beside agrees.
+    ckpt = load_checkpoint(run / "checkpoints" / "best.safetensors")
+    fresh = build_model(ModelConfig.from_dict(ckpt.meta["model"]))
+    load_weights_into(fresh, ckpt)
+    x = torch.as_tensor(load_dataset(small_data).images[:8])
+    with torch.no_grad():
+        assert torch.equal(fresh.eval()(x), pred.predict_normalised(x))
+    side = json.loads((run / "checkpoints" / "best.json").read_text())
+    assert side == ckpt.meta == read_checkpoint_meta(run)
+    p = pred.predict_images(x.numpy())
+    assert p.batch_shape == (8,) and isinstance(p.w, np.ndarray) and (p.tau > 0).all()
+    assert pred.image_size == (40, 40) and pred.dmp_config.n_params == 55
+
+
+def test_bad_checkpoints_give_clear_errors(trained, tmp_path):
+    _, run, _ = trained
+    good = (run / "checkpoints" / "best.safetensors").read_bytes()
+    trunc = tmp_path / "truncated.safetensors"
+    trunc.write_bytes(good[: len(good) // 2])
+    with pytest.raises(CheckpointError, match="corrupt or truncated"):
+        Predictor.load(trunc)
+    flipped = bytearray(good)
+    flipped[-100] ^= 0xFF  # a weight's byte, not the header
+    bad = tmp_path / "flipped.safetensors"
+    bad.write_bytes(bytes(flipped))
+    with pytest.raises(CheckpointError, match="SHA-256"):
+        Predictor.load(bad)
+    junk = tmp_path / "junk.safetensors"
+    junk.write_bytes(b"not a checkpoint at all")
+    with pytest.raises(CheckpointError, match=str(junk.name)):
+        Predictor.load(junk)
+    with pytest.raises(FileNotFoundError):
+        Predictor.load(tmp_path / "nothing.safetensors")
+    other = build_model(ModelConfig(encoder_layers=[32, 20], decoder_layers=[35]))
+    with pytest.raises(CheckpointError, match="another architecture"):
+        load_weights_into(other, load_checkpoint(run))
+    # and through the CLI: one line on stderr, exit code 2, no traceback
+    assert cli.main(["predict", "--model", str(trunc), str(tmp_path / "x.png")]) == 2
+
+
+def test_resume_after_kill_reproduces_history(small_data, tmp_path):
+    """kill -9 in mid-epoch, --resume: the metrics equal those of an uninterrupted run."""
+    args = [
+        "--data",
+        str(small_data),
+        "--epochs",
+        "8",
+        "--no-progress",
+        "--set",
+        "threads=1",
+        "optim.batch_size=4",
+        "optim.schedule=cosine",
+        "optim.patience=0",
+        f"model.encoder_layers={TINY_MODEL['encoder_layers']}",
+        f"model.decoder_layers={TINY_MODEL['decoder_layers']}",
+    ]
+    ref_dir, run_dir = tmp_path / "ref", tmp_path / "killed"
+    assert cli.main(["train", "--run-dir", str(ref_dir), *args]) == 0
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "img2dmp.cli", "train", "--run-dir", str(run_dir), *args],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    metrics = run_dir / "metrics.csv"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if metrics.is_file() and len(metrics.read_text().splitlines()) >= 3:  # 2 epochs done
+            time.sleep(0.05)  # into the third epoch
+            proc.send_signal(signal.SIGKILL)
+            break
+        time.sleep(0.01)
+    rc = proc.wait()
+    if rc == 0:
+        pytest.skip("the run finished before it could be killed")
+    assert rc == -signal.SIGKILL
+    done = len(read_metrics_csv(metrics))
+    assert 2 <= done < 8
+    assert cli.main(["train", "--run-dir", str(run_dir), "--resume", *args]) == 0
+    ref, got = read_metrics_csv(ref_dir / "metrics.csv"), read_metrics_csv(metrics)
+    assert len(got) == len(ref) == 8
+    for a, b in zip(ref, got, strict=True):
+        for k in a:
+            if k != "epoch_time_s":
+                assert b[k] == pytest.approx(a[k], rel=1e-6, abs=1e-9), (a["epoch"], k)
+    # a run directory is never silently overwritten
+    with pytest.raises(FileExistsError, match="--resume"):
+        train(load_config(None, [f"data.path={small_data}", "progress=false"]), run_dir)
+
+
+def test_configs_from_yaml_and_toml(tmp_path, small_data):
+    (tmp_path / "c.yaml").write_text("optim:\n  lr: 0.01\ncost:\n  name: '9'\n")
+    (tmp_path / "c.toml").write_text('[optim]\nlr = 0.02\n[model]\nactivation = "tanh"\n')
+    cfg = load_config(tmp_path / "c.yaml", ["optim.batch_size=7", "data.digits=[2, 3]"])
+    assert (cfg.optim.lr, cfg.optim.batch_size, cfg.cost.name) == (0.01, 7, "parameter")
+    assert cfg.data.digits == [2, 3]
+    cfg = load_config(tmp_path / "c.toml", ["optim.lr=0.5"])
+    assert (cfg.optim.lr, cfg.model.activation) == (0.5, "tanh")
+    with pytest.raises(ValueError, match="optim"):
+        load_config(tmp_path / "c.yaml", ["optim.learning_rate=1"])
+    with pytest.raises(ValueError, match="schedule"):
+        load_config(None, ["optim.schedule=sometimes"])
+    (tmp_path / "bad.yaml").write_text("optim: [1, 2\n")
+    with pytest.raises(ValueError, match="bad.yaml"):
+        load_config(tmp_path / "bad.yaml")
+    with pytest.raises(ValueError, match="image"):  # model input does not fit the data
+        cfg = load_config(
+            None, [f"data.path={small_data}", "model.image_size=[28, 28]", "progress=false"]
+        )
+        train(cfg, tmp_path / "r")
+
+
+def test_other_costs_encoders_and_generator_mode(small_data, tmp_path):
+    for name, enc in (("parameter", "fc"), ("combined", "conv")):
+        cfg = tiny_config(small_data, epochs=2)
+        cfg.cost.name = name
+        cfg.model.encoder = enc
+        cfg.model.conv_channels = [4, 8]
+        res = train(cfg, tmp_path / name)
+        assert np.isfinite(res.best_val_error_px)
+    cfg = TrainConfig.from_dict(
+        {
+            "model": dict(TINY_MODEL),
+            "data": {
+                "generator": {"noise_amount": 0.0},
+                "digits": [1, 7],
+                "samples_per_epoch": 48,
+                "val_samples": 16,
+            },
+            "optim": {"epochs": 2, "batch_size": 16},
+            "threads": 1,
+            "progress": False,
+        }
+    )
+    res = train(cfg, tmp_path / "gen")
+    assert len(res.history) == 2 and np.isfinite(res.best_val_error_px)
+
+
+def test_torchrun_two_processes_match_one(small_data, tmp_path):
+    """DistributedDataParallel on 2 gloo processes = one process with the same global batch."""
+    over = [
+        "threads=1",
+        "optim.batch_size=20",
+        "optim.schedule=none",
+        "optim.patience=0",
+        f"model.encoder_layers={TINY_MODEL['encoder_layers']}",
+    ]
+    args = ["train", "--data", str(small_data), "--epochs", "2", "--no-progress", "--set", *over]
+    env = dict(
+        os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"), OMP_NUM_THREADS="1"
+    )
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--standalone",
+            "--nproc_per_node",
+            "2",
+            "-m",
+            "img2dmp.cli",
+            *args,
+            "--run-dir",
+            str(tmp_path / "ddp"),
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert cli.main([*args, "--run-dir", str(tmp_path / "one")]) == 0
+    ddp = read_metrics_csv(tmp_path / "ddp" / "metrics.csv")
+    one = read_metrics_csv(tmp_path / "one" / "metrics.csv")
+    assert len(ddp) == len(one) == 2
+    for a, b in zip(one, ddp, strict=True):
+        assert a["step"] == b["step"]
+        for k in ("train_cost", "train_error_px", "val_error_px"):
+            assert b[k] == pytest.approx(a[k], rel=1e-4), k
+
+
+def test_demo_runs_the_whole_chain(tmp_path):
+    from img2dmp.pipeline import run_demo
+
+    s = run_demo(
+        tmp_path / "demo",
+        samples_per_digit=10,
+        epochs=2,
+        progress=False,
+        overrides={"model": {"encoder_layers": [64, 20]}},
+    )
+    for f in (
+        "data.safetensors",
+        "run/metrics.csv",
+        "run/training_curve.png",
+        "run/checkpoints/best.safetensors",
+        "evaluation/evaluation.json",
+        "evaluation/evaluation.txt",
+        "evaluation/examples.png",
+        "summary.json",
+    ):
+        assert (tmp_path / "demo" / f).is_file(), f
+    assert s["epochs_run"] == 2 and np.isfinite(s["test_error_px"]["mean"])
