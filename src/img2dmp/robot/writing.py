@@ -287,9 +287,11 @@ def write_dmp(
     settle_s : float
         Time the force must stay within 5 % of the set point before writing starts.
     frame_interval_s : float or None
-        If given, keep a camera frame every so many simulated seconds (for a video).
+        If given, keep a camera frame every so many simulated seconds (for a video):
+        the arm and a close-up of the pen on the paper, side by side.
     frame_size_px, render_size_px : tuple (w, h)
-        Sizes of the video frames and of the final render (``None``: no final render).
+        Size of each half of a video frame and of the final render (arm | paper);
+        ``render_size_px=None``: no final render.
     progress : callable or None
         Called as ``progress(n_steps)`` after each batch of simulated steps.
 
@@ -385,7 +387,15 @@ def _simulate(
             ink_pending.append(np.array([tip[0], tip[1], surface + 0.0002]))
         if frame_interval_s is not None and t_sim >= next_frame_s:
             _flush_ink(scene, ink_pending)
-            frames.append(scene.render(*frame_size_px, **_VIDEO_VIEW))
+            frames.append(
+                np.concatenate(
+                    [
+                        scene.render(*frame_size_px, **_VIDEO_VIEW),
+                        scene.render(*frame_size_px, shadow=False, **_pen_view(mapping)),
+                    ],
+                    axis=1,
+                )
+            )
             next_frame_s += frame_interval_s
         n_since_progress += 1
         if progress is not None and n_since_progress >= 24:
@@ -484,9 +494,19 @@ def _paper_view(mapping: PaperMapping) -> dict:
     height_m = mapping.writing_height_mm * 1e-3
     return {
         "target_m": (mapping.center_m[0], mapping.center_m[1], 0.0),
-        "distance_m": max(0.08, 2.2 * height_m / (2 * math.tan(math.radians(22.5)))),
+        "distance_m": max(0.05, 1.5 * height_m / (2 * math.tan(math.radians(22.5)))),
         "yaw_deg": -90.0,
         "pitch_deg": -89.9,
+    }
+
+
+def _pen_view(mapping: PaperMapping) -> dict:
+    """Close-up of the writing area from behind the pen (robot side), digit upright."""
+    return {
+        "target_m": (mapping.center_m[0], mapping.center_m[1], 0.0),
+        "distance_m": max(0.05, 3.0 * mapping.writing_height_mm * 1e-3),
+        "yaw_deg": -90.0,
+        "pitch_deg": -50.0,
     }
 
 
