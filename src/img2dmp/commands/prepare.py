@@ -30,7 +30,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--digits", type=_digits, default=tuple(range(10)), help='labels to keep, e.g. "3,5"'
     )
-    parser.add_argument("--out", "-o", required=True, help="output .safetensors file")
+    parser.add_argument(
+        "--out", "-o", help="output .safetensors file (required unless --check-frames)"
+    )
+    parser.add_argument(
+        "--check-frames",
+        action="store_true",
+        help="only measure how well each source's paths lie on the ink of their images "
+        "under trial shifts of the frame, and print it (docs/MNIST.md)",
+    )
     parser.add_argument(
         "--data", default=str(DEFAULT_DATA_DIR), help="root of the real data (see docs/MNIST.md)"
     )
@@ -82,11 +90,39 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
+def _check_frames(args: argparse.Namespace) -> int:
+    from img2dmp.data.prepare import frame_alignment
+
+    report = frame_alignment(
+        args.data,
+        mnist_dir=args.mnist,
+        recorded_path=args.recorded,
+        strokes_dir=args.strokes,
+        progress=not args.no_progress,
+    )
+    print("share of path points on ink (bilinear intensity > 0.5), mean over digits")
+    print(
+        f"{'source':16s} {'digits':>6s} {'raw':>6s} {'chosen':>7s} {'offset':>7s} "
+        f"{'transp.':>7s}  best shift (dx,dy)"
+    )
+    for name, r in report.items():
+        print(
+            f"{name:16s} {r['n_digits']:6d} {r['share_raw']:6.3f} {r['share_chosen']:7.3f} "
+            f"{r['chosen_offset_px']:+7.1f} {r['share_transposed']:7.3f}  "
+            f"{r['best_shift']} -> {r['best_share']:.3f}"
+        )
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from img2dmp.data.prepare import PrepareOptions, prepare_dataset
     from img2dmp.data.store import save_dataset
     from img2dmp.data.strokes import SpeedProfile
 
+    if args.check_frames:
+        return _check_frames(args)
+    if not args.out:
+        raise ValueError("--out is required (the data-set file to write)")
     options = PrepareOptions(
         source=args.source,
         digits=args.digits,

@@ -526,3 +526,86 @@ def prepare_dataset(
         split=split.astype(np.uint8),
         meta=meta,
     )
+
+
+# --- frame check ------------------------------------------------------------------------
+
+
+def frame_alignment(
+    data_dir: str | os.PathLike = DEFAULT_DATA_DIR,
+    *,
+    mnist_dir: str | os.PathLike | None = None,
+    recorded_path: str | os.PathLike | None = None,
+    strokes_dir: str | os.PathLike | None = None,
+    stroke_step: int = 20,
+    shifts: tuple[float, ...] = (-1.5, -1.0, -0.5, 0.0, 0.5),
+    progress: bool = False,
+) -> dict:
+    """Share of path points on ink for each source under trial shifts of its raw frame.
+
+    For every source, the raw coordinates (as in the files) are shifted by ``(dx, dy)``
+    for all pairs of ``shifts`` (and also transposed, x <-> y) and the mean over digits of
+    :func:`.recorded.share_on_ink` is reported. The loaders' ``FRAME_OFFSET_PX`` is the
+    best shift found this way (docs/MNIST.md).
+
+    Returns
+    -------
+    dict
+        ``{source: {"n_digits", "chosen_offset_px", "share_chosen", "share_raw",
+        "share_transposed", "best_shift", "best_share", "grid": {"dx,dy": share}}}``.
+    """
+    import warnings
+
+    from .recorded import share_on_ink
+
+    data_dir = Path(data_dir)
+    mnist_dir = Path(mnist_dir) if mnist_dir else data_dir / "mnist"
+    recorded_path = (
+        Path(recorded_path)
+        if recorded_path
+        else data_dir / "ijs-mnist-trajectories" / "trajectories.tar.gz"
+    )
+    strokes_dir = Path(strokes_dir) if strokes_dir else data_dir / "mnist-stroke-sequences"
+    report = {}
+    sets = []
+    if recorded_path.exists():
+        images, _ = load_mnist(mnist_dir, "train")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            recs = load_recorded(recorded_path, progress=progress)
+        raw = [(images[r.image_index], r.xy - RECORDED_OFFSET_PX) for r in recs]
+        sets.append(("recorded", RECORDED_OFFSET_PX, raw))
+    if strokes_dir.exists():
+        for ms in ("train", "test"):
+            images, _ = load_mnist(mnist_dir, ms)
+            n = len(images)
+            digits = load_strokes(strokes_dir, ms, indices=range(0, n, stroke_step))
+            raw = [(images[s.index], s.points() - STROKES_OFFSET_PX) for s in digits]
+            sets.append((f"strokes-{ms}", STROKES_OFFSET_PX, raw))
+    for name, chosen, raw in sets:
+
+        def share(shift_xy, pairs=raw, transpose=False):
+            return float(
+                np.mean(
+                    [
+                        share_on_ink(im, (p[:, ::-1] if transpose else p) + shift_xy)
+                        for im, p in pairs
+                    ]
+                )
+            )
+
+        grid = {f"{dx:+.1f},{dy:+.1f}": share(np.array([dx, dy])) for dx in shifts for dy in shifts}
+        best = max(grid, key=grid.get)
+        report[name] = {
+            "n_digits": len(raw),
+            "chosen_offset_px": chosen,
+            "share_chosen": share(np.array([chosen, chosen])),
+            "share_raw": share(np.zeros(2)),
+            "share_transposed": share(np.array([chosen, chosen]), transpose=True),
+            "best_shift": best,
+            "best_share": grid[best],
+            "grid": grid,
+        }
+    if not report:
+        raise FileNotFoundError(f"no recorded paths or stroke sequences under {data_dir}")
+    return report

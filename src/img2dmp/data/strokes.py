@@ -13,12 +13,13 @@ with MNIST image i of the same split. Columns are ``dx, dy, eos, eod``:
 
 Frame
     The cumulative positions are one pixel too far right and down: ``(x - 1, y - 1)``
-    lands on ink (MNIST intensity > 0.5, nearest pixel) for 99.4 % of the points of
-    every 30th training digit, against 71 % without the shift and at most 88 % for any
-    other whole or half-pixel shift. :data:`FRAME_OFFSET_PX` is that shift; the returned
-    strokes are in the centre convention of docs/CONTRACTS.md.
+    lies on ink (bilinear MNIST intensity > 0.5) for 99.4 % of the points of every 20th
+    training digit, against 71 % without the shift; it is the best of all half-pixel
+    shifts from -1.5 to +0.5 (``img2dmp prepare --check-frames``). :data:`FRAME_OFFSET_PX`
+    is that shift; the returned strokes are in the centre convention of
+    docs/CONTRACTS.md.
 Single-point strokes
-    About a third of the digits hold a "stroke" that is one point (a skeleton spur the
+    0.7 % of the training digits hold a "stroke" that is one point (a skeleton spur the
     tracer visited and left). It carries no movement; :func:`parse_sequence` drops it and
     counts it in :attr:`StrokeDigit.dropped_strokes`.
 
