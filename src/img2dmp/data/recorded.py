@@ -15,8 +15,9 @@ Frame
     The recorded x, y put pixel ``[i, j]`` on the square ``[j, j+1) x [i, i+1)`` (corner
     convention): shifting every point by ``-0.5`` in x and y raises the share of points
     on ink (bilinear intensity > 0.5) from 0.795 to 0.887 over all 4,204 paths, the best
-    of all half-pixel shifts from -1.5 to +0.5 (``img2dmp prepare --check-frames``). :data:`FRAME_OFFSET_PX` is that shift; the returned paths
-    are in the project's centre convention (pixel ``[i, j]`` centred at ``(x=j, y=i)``).
+    of all half-pixel shifts from -1.5 to +0.5 (``img2dmp prepare --check-frames``).
+    :data:`FRAME_OFFSET_PX` is that shift; the returned paths are in the project's
+    centre convention (pixel ``[i, j]`` centred at ``(x=j, y=i)``).
 Time glitches
     Two of the 4,204 files (``image_30508``, ``image_30740``) hold a time stamp that
     jumps backwards while the points move on smoothly (a clock reset). A step
