@@ -29,10 +29,27 @@ from .nn import ModelConfig, ParamNormaliser, build_model
 from .nn.costs import dmp_trajectory
 
 # How a prepared image frames the ink: the ink's bounding box, padded to a square, fills
-# the image except for this share of the side on each border (see prepare_image).
-DEFAULT_MARGIN = 0.1
+# the image except for this share of the side on each border (see prepare_image). A model
+# stores the median framing of its training images (ink_margin); this is the fallback,
+# that of the synthetic digits at their default size.
+DEFAULT_MARGIN = 0.175
 # A pixel counts as ink for the bounding box when it is above this share of the range.
 INK_THRESHOLD = 0.2
+
+
+def ink_margin(images: np.ndarray) -> float:
+    """Median share of the side left empty around the ink (its bounding box's longer side)
+    in prepared images ``[M, H, W]``; what :func:`prepare_image` reproduces."""
+    margins = []
+    for a in np.asarray(images):
+        rows, cols = np.nonzero(a > INK_THRESHOLD)
+        if rows.size == 0:
+            continue
+        side = max(
+            (rows.max() - rows.min() + 1) / a.shape[0], (cols.max() - cols.min() + 1) / a.shape[1]
+        )
+        margins.append((1.0 - side) / 2.0)
+    return float(np.clip(np.median(margins), 0.0, 0.45)) if margins else DEFAULT_MARGIN
 
 
 def _decode(path: Path) -> np.ndarray:
@@ -187,7 +204,7 @@ class Predictor:
     @property
     def margin(self) -> float:
         """Framing of the training images, used by :func:`prepare_image`."""
-        return float(self.meta.get("image_margin", DEFAULT_MARGIN))
+        return float(self.meta.get("ink_margin", DEFAULT_MARGIN))
 
     def _check_images(self, images) -> torch.Tensor:
         x = torch.as_tensor(np.asarray(images, dtype=np.float32))

@@ -53,6 +53,7 @@ from .data.store import DigitData, load_dataset
 from .dmp import DMPConfig
 from .nn import Cost, ModelConfig, ParamNormaliser, build_model, trajectory_error_px
 from .nn.costs import canonical_cost_name, dmp_trajectory
+from .predict import ink_margin
 
 PLOT_EVERY_S = 20.0
 SCHEDULES = ("none", "cosine", "step", "plateau")
@@ -424,6 +425,8 @@ class _Data:
             self.normaliser = normaliser or ParamNormaliser.fit(first.params, self.dmp_config)
             self.val = _to_split(val, np.arange(len(val.labels)), self.normaliser)
             self._first = first
+        # How the training images frame the ink, for preparing other images alike.
+        self.ink_margin = ink_margin(self.val.images[:500].numpy())
         if self.image_size != list(cfg.model.image_size):
             raise ValueError(
                 f"the data's images are {self.image_size} pixels but model.image_size is "
@@ -466,6 +469,7 @@ def _checkpoint_meta(cfg, data, epoch, history, best, extra=None) -> dict:
         "train_config": cfg.to_dict(),
         "dataset": {"path": cfg.data.path, "sha256": data.dataset_sha256},
         "image_size": list(cfg.model.image_size),
+        "ink_margin": data.ink_margin,
         "epoch": epoch,
         "val_error_px": history[-1]["val_error_px"] if history else None,
         "best_val_error_px": best["error"],

@@ -1,0 +1,123 @@
+"""Speed of one training step with cost (9) vs cost (10), and of batch inference.
+
+In one run, on the same batch and the same network (the paper's fully connected
+encoder-decoder unless --config says otherwise), one Adam step with cost (9) and one with
+cost (10) are timed alternately; the ratio of their medians is printed (target <= 1.10:
+the trajectory cost rides on the fast rollout, so it should be almost free). Then the
+throughput of batch inference (images -> DMP parameters) in images per second (target
+>= 5,000 / s on the 2-core development machine), and with the trajectory rollout added.
+
+Usage::
+
+    python benchmarks/bench_train.py [--batch 128] [--repeats 30] [--threads 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+
+import numpy as np
+import torch
+
+from img2dmp.data.synthetic import generate
+from img2dmp.dmp import DMPConfig
+from img2dmp.nn import Cost, ModelConfig, ParamNormaliser, build_model
+from img2dmp.nn.costs import dmp_trajectory
+from img2dmp.train import load_config
+
+
+def _median_time(fn, repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--config", help="training config whose model to time (default: the paper's)")
+    p.add_argument("--batch", type=int, default=128, help="training batch size")
+    p.add_argument("--repeats", type=int, default=30, help="timed steps per cost")
+    p.add_argument("--infer-batch", type=int, default=4096, help="inference batch size")
+    p.add_argument("--threads", type=int, default=torch.get_num_threads())
+    args = p.parse_args(argv)
+    torch.set_num_threads(args.threads)
+
+    mcfg = load_config(args.config).model if args.config else ModelConfig()
+    dmp = DMPConfig()
+    rng = np.random.default_rng(0)
+    data = generate(rng.integers(0, 10, max(args.batch, 256)), rng=rng, dmp_config=dmp)
+    norm = ParamNormaliser.fit(data.params, dmp)
+    b = slice(0, args.batch)
+    images = torch.as_tensor(data.images[b])  # [B, H, W]
+    times = torch.as_tensor(data.times[b])  # [B, T]
+    traj = torch.as_tensor(data.trajectories[b])  # [B, T, 2]
+    z_t = norm.normalise(torch.as_tensor(data.params[b], dtype=torch.float64)).float()
+
+    model = build_model(mcfg, seed=0)
+    opt = torch.optim.Adam(model.parameters(), lr=1e-6)  # tiny lr: the weights barely move
+    costs = {name: Cost(name, norm, dmp) for name in ("parameter", "trajectory")}
+
+    def step(name):
+        def run():
+            z = model(images)  # [B, P]
+            loss, _ = costs[name](z, z_t, times, traj)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+
+        return run
+
+    for _ in range(5):  # warm-up (allocator, response table)
+        step("parameter")()
+        step("trajectory")()
+    t9, t10 = [], []
+    for _ in range(args.repeats):  # alternate so that load changes hit both alike
+        t9.append(_median_time(step("parameter"), 1))
+        t10.append(_median_time(step("trajectory"), 1))
+    m9, m10 = statistics.median(t9), statistics.median(t10)
+    n_weights = sum(q.numel() for q in model.parameters())
+    print(
+        f"model: {mcfg.encoder} encoder {mcfg.encoder_layers} decoder {mcfg.decoder_layers}, "
+        f"{n_weights / 1e6:.2f} M weights; batch {args.batch} x {tuple(images.shape[1:])}, "
+        f"T = {times.shape[1]} time stamps; threads {args.threads}"
+    )
+    print(f"training step, cost (9):  {m9 * 1e3:8.2f} ms (median of {args.repeats})")
+    print(f"training step, cost (10): {m10 * 1e3:8.2f} ms (median of {args.repeats})")
+    print(f"ratio cost (10) / cost (9): {m10 / m9:.3f}   (target <= 1.10)")
+
+    model.eval()
+    big = torch.as_tensor(data.images).repeat(
+        (args.infer_batch + len(data.images) - 1) // len(data.images), 1, 1
+    )[: args.infer_batch]  # [Bi, H, W]
+    big_t = torch.as_tensor(data.times[:1]).expand(args.infer_batch, -1)  # [Bi, T]
+
+    def infer():
+        with torch.inference_mode():
+            norm.denormalise(model(big))
+
+    def infer_traj():
+        with torch.inference_mode():
+            dmp_trajectory(model(big), big_t, norm, dmp)
+
+    infer()
+    ti = _median_time(infer, 5)
+    tt = _median_time(infer_traj, 5)
+    print(
+        f"batch inference (batch {args.infer_batch}): {args.infer_batch / ti:,.0f} images/s "
+        f"(target >= 5,000 / s)"
+    )
+    print(
+        f"  with the trajectory at {big_t.shape[1]} time stamps: "
+        f"{args.infer_batch / tt:,.0f} images/s"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,153 @@
+"""Evaluation statistics (Table I), Fig.-4 pictures, prediction from image files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from img2dmp import cli
+from img2dmp.data.render import render_paths
+from img2dmp.data.store import load_dataset, save_dataset
+from img2dmp.data.synthetic import generate_dataset
+from img2dmp.dmp import rollout
+from img2dmp.evaluate import error_statistics, evaluate, format_table, summarise
+from img2dmp.predict import DEFAULT_MARGIN, Predictor, ink_margin, prepare_image
+from img2dmp.train import TrainConfig, train
+
+
+@pytest.fixture(scope="module")
+def model_and_data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("evp")
+    data = root / "d.safetensors"
+    save_dataset(data, generate_dataset(12, seed=5, progress=False))
+    cfg = TrainConfig.from_dict(
+        {
+            "model": {"encoder_layers": [48, 20], "decoder_layers": [35]},
+            "data": {"path": str(data)},
+            "optim": {"epochs": 3, "batch_size": 16},
+            "threads": 1,
+            "progress": False,
+        }
+    )
+    train(cfg, root / "run")
+    return root / "run", data
+
+
+def test_statistics_by_hand():
+    e = np.array([1.0, 2.0, 3.0, 4.0, 10.0])
+    s = error_statistics(e)
+    assert (s["n"], s["mean"], s["median"], s["max"]) == (5, 4.0, 3.0, 10.0)
+    assert s["std"] == pytest.approx(np.sqrt((9 + 4 + 1 + 0 + 36) / 5))  # ddof 0
+    assert s["p95"] == pytest.approx(4.0 + 0.8 * 6.0)  # linear interpolation, rank 3.8
+    summ = summarise(e, np.array([1, 1, 2, 2, 2]))
+    assert summ["per_digit"]["1"]["mean"] == 1.5 and summ["per_digit"]["2"]["n"] == 3
+    assert "all" in format_table(summ) and error_statistics([])["n"] == 0
+
+
+def test_evaluate_matches_an_independent_rollout(model_and_data, tmp_path):
+    run, data_path = model_and_data
+    res = evaluate(run, data_path, split="test", out_dir=tmp_path, n_figures=6)
+    data = load_dataset(data_path).select_split("test")
+    pred = Predictor.load(run)
+    params = pred.predict_images(data.images).to_torch()
+    y = rollout(params, data.times.astype(np.float64), pred.dmp_config).numpy()  # [M, T, 2]
+    err = np.linalg.norm(y - data.trajectories, axis=-1).mean(-1)  # [M]
+    assert np.allclose(res["errors_px"], err, rtol=1e-4, atol=1e-4)
+    assert res["overall"]["mean"] == pytest.approx(err.mean(), rel=1e-4)
+    assert res["overall"]["n"] == len(data)
+    saved = json.loads((tmp_path / "evaluation.json").read_text())
+    assert saved["overall"] == res["overall"] and set(saved["per_digit"]) == set(
+        str(d) for d in np.unique(data.labels)
+    )
+    assert (tmp_path / "evaluation.txt").read_text().startswith("trajectory error")
+    with Image.open(tmp_path / "examples.png") as im:
+        assert im.size[0] > 200
+    res2 = evaluate(run, data_path, split="all", digits=[3])
+    assert set(res2["per_digit"]) == {"3"}
+    with pytest.raises(ValueError, match="split"):
+        evaluate(run, data_path, split="dev")
+
+
+def _save(path: Path, grey: np.ndarray) -> Path:
+    Image.fromarray(np.clip(grey * 255, 0, 255).astype(np.uint8)).save(path)
+    return path
+
+
+def test_prepare_image_polarity_size_and_framing(tmp_path):
+    # A '7'-like stroke drawn small, off-centre, in a large non-square canvas.
+    pts = np.array([[30.0, 40.0], [90.0, 40.0], [55.0, 140.0]])
+    dense = np.concatenate([np.linspace(pts[i], pts[i + 1], 40) for i in range(2)])
+    ink = render_paths(dense, (200, 300), 6.0).numpy()
+    light_on_dark = prepare_image(_save(tmp_path / "a.png", ink), (40, 40))
+    dark_on_light = prepare_image(_save(tmp_path / "b.jpg", 1.0 - ink), (40, 40))
+    assert light_on_dark.shape == (40, 40) and light_on_dark.dtype == np.float32
+    assert light_on_dark.max() == pytest.approx(1.0) and light_on_dark.min() >= 0
+    assert np.abs(light_on_dark - dark_on_light).mean() < 0.02  # JPEG artefacts only
+    rows, cols = np.nonzero(light_on_dark > 0.2)
+    # the ink's taller side fills the image but for the margins, centred
+    assert abs(rows.max() - rows.min() + 1 - 40 * (1 - 2 * DEFAULT_MARGIN)) <= 2.5
+    assert abs((rows.max() + rows.min()) / 2 - 19.5) <= 1.5
+    assert abs((cols.max() + cols.min()) / 2 - 19.5) <= 1.5
+    # prepared like the training images: the framing measured on them is reproduced
+    data = generate_dataset(3, seed=1, progress=False)
+    m = ink_margin(data.images)
+    again = np.stack([prepare_image(a, (40, 40), margin=m) for a in data.images])
+    assert ink_margin(again) == pytest.approx(m, abs=0.02)
+    rgba = np.zeros((60, 50, 4), np.uint8)
+    rgba[10:50, 20:26, 3] = 255  # black ink on a transparent background
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "t.png")
+    assert prepare_image(tmp_path / "t.png", (40, 40)).max() == pytest.approx(1.0)
+
+
+def test_bad_images_give_clear_errors(tmp_path, model_and_data):
+    (tmp_path / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n this is not a PNG")
+    with pytest.raises(ValueError, match="cannot decode image file .*broken.png"):
+        prepare_image(tmp_path / "broken.png")
+    with pytest.raises(ValueError, match="no ink"):
+        prepare_image(_save(tmp_path / "blank.png", np.full((30, 30), 0.8)))
+    with pytest.raises(FileNotFoundError):
+        prepare_image(tmp_path / "missing.png")
+    run, _ = model_and_data
+    pred = Predictor.load(run)
+    with pytest.raises(ValueError, match="shape"):
+        pred.predict_images(np.zeros((2, 28, 28), np.float32))
+    assert cli.main(["predict", "--model", str(run), str(tmp_path / "broken.png")]) == 2
+
+
+def test_predict_paths_and_cli(model_and_data, tmp_path, capsys):
+    run, data_path = model_and_data
+    data = load_dataset(data_path)
+    files = [_save(tmp_path / f"d{i}.png", 1.0 - data.images[i]) for i in range(2)]
+    pred = Predictor.load(run)
+    out = pred.predict_paths(files)
+    assert len(out) == 2 and out[0][1].shape == (40, 40)
+    assert out[0][0].batch_shape == () and float(out[0][0].tau) > 0
+    assert cli.main(["predict", "--model", str(run), str(files[0]), "--points", "50"]) == 0
+    rec = json.loads(capsys.readouterr().out)
+    assert len(rec["trajectory"]["t"]) == 50 and len(rec["vector"]) == 55
+    assert np.allclose(rec["vector"], out[0][0].to_vector())
+    assert (
+        cli.main(
+            [
+                "predict",
+                "--model",
+                str(run),
+                *map(str, files),
+                "--out",
+                str(tmp_path / "o"),
+                "--overlay",
+            ]
+        )
+        == 0
+    )
+    for stem in ("d0", "d1"):
+        for suffix in ("_dmp.json", "_trajectory.csv", "_overlay.png"):
+            assert (tmp_path / "o" / f"{stem}{suffix}").is_file()
+    csv = (tmp_path / "o" / "d0_trajectory.csv").read_text().splitlines()
+    assert csv[0] == "t_s,x_px,y_px" and len(csv) == 101
+    assert cli.main(["evaluate", str(run), str(data_path), "--out", str(tmp_path / "e")]) == 0
+    assert (tmp_path / "e" / "examples.png").is_file()
