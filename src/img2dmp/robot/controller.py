@@ -9,12 +9,17 @@ Per control step (one physics step of ``dt``):
        d_a * dz_c/dt = -(F_set - F_meas)          (pen down)
 
    i.e. the pen sinks while it presses less than ``F_set`` and rises while it presses
-   more, at a speed limited to ``max_axis_speed_m_s``. Without contact ``F_meas = 0``,
-   so the same law is the final approach: the tip descends at ``F_set / d_a`` (capped)
-   until it touches. ``F_meas`` is the tip-paper normal force, low-pass filtered. Higher
-   than ``approach_clearance_m`` above the paper the pen travels at ``travel_speed_m_s``
-   instead (the paper's height is known; only the last millimetre is felt for). When the
-   pen is up, ``z_c`` moves at ``travel_speed_m_s`` to ``lift_height_m`` above the paper.
+   more, at a speed limited to ``max_axis_speed_m_s``. ``F_meas`` is the tip-paper
+   normal force, low-pass filtered. Without contact the pen is lowered: at
+   ``travel_speed_m_s`` down to ``approach_clearance_m`` above the paper (its height
+   is known), then at ``approach_speed_m_s`` until it touches, so the admittance law
+   only ever acts in contact. When the pen is up, ``z_c`` moves at ``travel_speed_m_s``
+   to ``lift_height_m`` above the paper.
+
+   The loop is a first-order one with time constant ``d_a / k`` for a contact
+   stiffness ``k`` (pen, paper and arm in series); sampled at ``dt`` it needs
+   ``k dt / d_a`` well below 1 (the defaults give 0.2). A stiffer surface or a slower
+   controller needs a larger ``d_a``.
 2. **Inverse kinematics**: the tip target ``(x_c, y_c, z_c)`` with the pen vertical is
    turned into joint angles ``q_d`` by damped least squares on a kinematic twin
    (:meth:`WritingScene.solve_ik`), warm-started from the previous ``q_d``.
@@ -36,6 +41,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ._checks import check_positive
+
 
 @dataclass(frozen=True)
 class ControllerConfig:
@@ -52,6 +59,8 @@ class ControllerConfig:
         correction).
     travel_speed_m_s : float
         Pen-axis speed when lifting and when lowering down to ``approach_clearance_m``.
+    approach_speed_m_s : float
+        Pen-axis speed below ``approach_clearance_m`` until the tip touches.
     approach_clearance_m : float
         Height above the paper below which the admittance law takes over the descent.
     force_filter_hz : float
@@ -68,6 +77,7 @@ class ControllerConfig:
     admittance_damping_n_s_per_m: float = 400.0
     max_axis_speed_m_s: float = 0.03
     travel_speed_m_s: float = 0.1
+    approach_speed_m_s: float = 0.01
     approach_clearance_m: float = 0.001
     force_filter_hz: float = 40.0
     joint_bandwidth_hz: float = 12.0
@@ -75,20 +85,21 @@ class ControllerConfig:
     lift_height_m: float = 0.006
 
     def __post_init__(self) -> None:
-        for name in (
-            "force_set_n",
-            "admittance_damping_n_s_per_m",
-            "max_axis_speed_m_s",
-            "travel_speed_m_s",
-            "approach_clearance_m",
-            "force_filter_hz",
-            "joint_bandwidth_hz",
-            "damping_ratio",
-            "lift_height_m",
-        ):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+        check_positive(
+            self,
+            (
+                "force_set_n",
+                "admittance_damping_n_s_per_m",
+                "max_axis_speed_m_s",
+                "travel_speed_m_s",
+                "approach_speed_m_s",
+                "approach_clearance_m",
+                "force_filter_hz",
+                "joint_bandwidth_hz",
+                "damping_ratio",
+                "lift_height_m",
+            ),
+        )
 
 
 class WritingController:
@@ -133,8 +144,11 @@ class WritingController:
         cfg = self.config
         self.force_filtered_n += self._alpha * (force_n - self.force_filtered_n)
         above = surface_z_m + cfg.approach_clearance_m
-        if pen_down and self.z_c > above and force_n <= 0.0:
-            self.z_c = max(above, self.z_c - cfg.travel_speed_m_s * self.dt)
+        if pen_down and force_n <= 0.0:
+            if self.z_c > above:
+                self.z_c = max(above, self.z_c - cfg.travel_speed_m_s * self.dt)
+            else:
+                self.z_c -= cfg.approach_speed_m_s * self.dt
         elif pen_down:
             speed = -(cfg.force_set_n - self.force_filtered_n) / cfg.admittance_damping_n_s_per_m
             limit = cfg.max_axis_speed_m_s

@@ -20,10 +20,10 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 
 import numpy as np
 
+from ..checkpoint import atomic_write_text
 from ..dmp import DMPConfig, DMPParams
 
 
@@ -113,17 +113,4 @@ def save_dmp_json(path, params: DMPParams, config: DMPConfig, image_size, **extr
         doc[k] = v
     if not all(math.isfinite(float(x)) for x in np.ravel(p.to_vector())):
         raise ValueError("params contain NaN or inf")
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".tmp-", suffix=".json")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            json.dump(doc, f, indent=1)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write_text(path, json.dumps(doc, indent=1))

@@ -1,36 +1,16 @@
 """Files written after a writing run: CSV log, the paper next to the commanded path and
 the input image, camera renders and an animated GIF. Every file is written atomically
-(temporary file in the same directory, then ``os.replace``)."""
+(:func:`img2dmp.checkpoint.atomic_write_bytes`: temporary file, then ``os.replace``)."""
 
 from __future__ import annotations
 
 import csv
-import os
-import tempfile
-from contextlib import contextmanager
+import io
 
 import numpy as np
 
+from ..checkpoint import atomic_write_bytes, atomic_write_text
 from .writing import PHASES, WritingResult
-
-
-@contextmanager
-def _atomic(path, suffix: str, mode: str = "wb"):
-    path = os.fspath(path)
-    directory = os.path.dirname(os.path.abspath(path))
-    os.makedirs(directory, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".tmp-", suffix=suffix)
-    try:
-        with os.fdopen(fd, mode, **({"newline": ""} if "b" not in mode else {})) as f:
-            yield f
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
 
 
 def save_log_csv(result: WritingResult, path) -> None:
@@ -45,22 +25,23 @@ def save_log_csv(result: WritingResult, path) -> None:
         "cmd_x_m", "cmd_y_m", "cmd_z_m", "tip_x_m", "tip_y_m", "tip_z_m", "force_n",
         *[f"torque_{j}_nm" for j in range(1, 8)],
     ]  # fmt: skip
-    with _atomic(path, ".csv", "w") as f:
-        w = csv.writer(f)
-        w.writerow(header)
-        for i in range(len(log["time_s"])):
-            w.writerow(
-                [
-                    f"{log['time_s'][i]:.5f}",
-                    PHASES[log["phase"][i]],
-                    f"{log['dmp_time_s'][i]:.5f}",
-                    int(log["pen_down"][i]),
-                    *(f"{v:.6f}" for v in log["cmd_m"][i]),
-                    *(f"{v:.6f}" for v in log["tip_m"][i]),
-                    f"{log['force_n'][i]:.4f}",
-                    *(f"{v:.4f}" for v in log["torque_nm"][i]),
-                ]
-            )
+    f = io.StringIO(newline="")
+    w = csv.writer(f)
+    w.writerow(header)
+    for i in range(len(log["time_s"])):
+        w.writerow(
+            [
+                f"{log['time_s'][i]:.5f}",
+                PHASES[log["phase"][i]],
+                f"{log['dmp_time_s'][i]:.5f}",
+                int(log["pen_down"][i]),
+                *(f"{v:.6f}" for v in log["cmd_m"][i]),
+                *(f"{v:.6f}" for v in log["tip_m"][i]),
+                f"{log['force_n'][i]:.4f}",
+                *(f"{v:.4f}" for v in log["torque_nm"][i]),
+            ]
+        )
+    atomic_write_text(path, f.getvalue())
 
 
 def _paper_mm(result: WritingResult, xy_m: np.ndarray) -> np.ndarray:
@@ -69,9 +50,14 @@ def _paper_mm(result: WritingResult, xy_m: np.ndarray) -> np.ndarray:
     return np.stack([-(xy_m[..., 1] - cy) * 1e3, (xy_m[..., 0] - cx) * 1e3], axis=-1)
 
 
+def _png_bytes(save) -> bytes:
+    buf = io.BytesIO()
+    save(buf)
+    return buf.getvalue()
+
+
 def _save_figure(fig, path) -> None:
-    with _atomic(path, ".png") as f:
-        fig.savefig(f, format="png", dpi=110)
+    atomic_write_bytes(path, _png_bytes(lambda b: fig.savefig(b, format="png", dpi=110)))
 
 
 def plot_writing(result: WritingResult, path, image: np.ndarray | None = None, title=None):
@@ -177,8 +163,8 @@ def save_render(result: WritingResult, path) -> None:
 
     if result.render is None:
         raise ValueError("this result has no render (write_dmp(render_size_px=None))")
-    with _atomic(path, ".png") as f:
-        Image.fromarray(result.render).save(f, format="PNG")
+    image = Image.fromarray(result.render)
+    atomic_write_bytes(path, _png_bytes(lambda b: image.save(b, format="PNG")))
 
 
 def save_video(result: WritingResult, path, frame_interval_s: float) -> None:
@@ -188,12 +174,13 @@ def save_video(result: WritingResult, path, frame_interval_s: float) -> None:
     if not result.frames:
         raise ValueError("this result has no frames (write_dmp(frame_interval_s=...))")
     images = [Image.fromarray(fr) for fr in result.frames]
-    with _atomic(path, ".gif") as f:
-        images[0].save(
-            f,
-            format="GIF",
-            save_all=True,
-            append_images=images[1:],
-            duration=int(round(frame_interval_s * 1000)),
-            loop=0,
-        )
+    buf = io.BytesIO()
+    images[0].save(
+        buf,
+        format="GIF",
+        save_all=True,
+        append_images=images[1:],
+        duration=int(round(frame_interval_s * 1000)),
+        loop=0,
+    )
+    atomic_write_bytes(path, buf.getvalue())
