@@ -27,8 +27,8 @@ import torch
 
 # Floats per rendering chunk (bounds the [chunk, T, H + W] footprint tensors).
 _MAX_ELEMENTS = 1 << 20
-# Points along a segment are at most this many sigmas apart (ripple of the sum < 1e-3).
-_MAX_SPACING_SIGMAS = 1.5
+# Points along a segment are at most this many sigmas apart (ripple of the sum ~1e-8).
+_MAX_SPACING_SIGMAS = 1.0
 
 
 def _size2(size) -> tuple[int, int]:
@@ -53,7 +53,7 @@ def render_paths(
     pen_width_px: float = 2.4,
     pen_down=None,
     *,
-    edge_sigma_px: float = 0.5,
+    edge_sigma_px: float = 0.7,
 ) -> torch.Tensor:
     """Render a batch of pen paths as anti-aliased strokes (see the module docstring).
 
@@ -108,8 +108,8 @@ def render_paths(
     pen = pen.reshape(-1, pen.shape[-1])  # [B, T]
     sigma = max(float(edge_sigma_px), pen_width_px / 8.0)
     gain = 0.5 * math.exp(pen_width_px**2 / (8.0 * sigma**2))  # A: half ink at r = w / 2
-    drawn = pen[:, 1:] & pen[:, :-1]  # [B, T-1] segments on paper
     seg_len = torch.linalg.vector_norm(pts[:, 1:] - pts[:, :-1], dim=-1)  # [B, T-1]
+    drawn = pen[:, 1:] & pen[:, :-1] & (seg_len > 0)  # [B, T-1] segments on paper
     longest = float(seg_len[drawn].max()) if bool(drawn.any()) else 0.0
     # Beyond this distance A * exp(-r^2 / (2 sigma^2)) < 1e-3: footprints are cut there.
     reach = sigma * math.sqrt(2.0 * math.log(1000.0 * max(gain, 1.0)))
@@ -166,7 +166,10 @@ def _footprints(pts, pen, drawn, seg_len, n_sub, sigma):
     has_seg = torch.zeros_like(pen)
     has_seg[:, 1:] |= drawn
     has_seg[:, :-1] |= drawn
-    dot = (pen & ~has_seg).to(torch.float32) * (math.sqrt(2.0 * math.pi) * sigma)  # [b, T]
+    # Repeats of a pen-down point (zero-length segments) make one dot, not several.
+    repeat = torch.zeros_like(pen)
+    repeat[:, 1:] = pen[:, 1:] & pen[:, :-1] & (seg_len == 0)
+    dot = (pen & ~has_seg & ~repeat).to(torch.float32) * (math.sqrt(2.0 * math.pi) * sigma)
     wt[:, ::n_sub] += dot
     return q, wt
 

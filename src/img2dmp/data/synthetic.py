@@ -34,7 +34,7 @@ Because the DMP's forcing term is scaled by ``g - y0`` (the paper's scaling), a 
 whose start and end nearly coincide in x or y needs huge weights. The templates start and
 end apart, like real writing, and a drawn sample whose start and end are closer than
 ``min_start_goal_rel * image size`` in x or in y (after the affine transform) is drawn
-again.
+again, and so is one whose pen would leave the image (before or after the transform).
 """
 
 from __future__ import annotations
@@ -116,7 +116,7 @@ DIGIT_TEMPLATES: dict[int, DigitTemplate] = {
     # Down, across, up to the top of the stem (the joining stroke), down the stem.
     4: DigitTemplate(
         start=(-0.35, -1.0),
-        elements=(Line(1.4, 100.0), Line(1.0, 0.0), Line(1.384, -94.6), Line(2.0, 91.0)),
+        elements=(Line(1.4, 100.0), Line(1.0, 0.0), Line(1.28, -94.9), Line(1.9, 91.0)),
     ),
     # Top bar leftwards, down, then the bowl.
     5: DigitTemplate(
@@ -141,10 +141,10 @@ DIGIT_TEMPLATES: dict[int, DigitTemplate] = {
             Arc(0.4, 0.47, 0.0, 30.0, -100.0),
         ),
     ),
-    # Loop anticlockwise from the top, then the stem down.
+    # Closed loop anticlockwise from its upper right, then the stem down.
     9: DigitTemplate(
         centre=(0.0, -0.45),
-        elements=(Arc(0.45, 0.5, 8.0, -110.0, -400.0), Line(1.6, 97.0)),
+        elements=(Arc(0.45, 0.5, 8.0, -30.0, -380.0), Line(1.6, 100.0)),
     ),
 }
 
@@ -190,7 +190,7 @@ class SyntheticConfig:
     duration_s, dt_s : float
         Movement duration tau and sampling step; default 3 s every 0.01 s (301 points).
     digit_height_rel : float
-        Height of the template's unit-frame span [-1, 1]; default 0.6 (24 px).
+        Height of the template's unit-frame span [-1, 1]; default 0.55 (22 px).
     line_length_rel, line_angle_deg, arc_axis_rel, arc_tilt_deg, arc_angle_deg, start_shift
         Half-widths of the uniform ranges around each element's nominal parameters
         (see the module docstring). Defaults 0.15, 8 deg, 0.15, 8 deg, 12 deg, 0.08 units.
@@ -215,7 +215,7 @@ class SyntheticConfig:
     image_size: tuple[int, int] = (40, 40)
     duration_s: float = 3.0
     dt_s: float = 0.01
-    digit_height_rel: float = 0.6
+    digit_height_rel: float = 0.55
     line_length_rel: float = 0.15
     line_angle_deg: float = 8.0
     arc_axis_rel: float = 0.15
@@ -447,6 +447,13 @@ def sample_unit_paths(
 # Samples
 
 
+def _inside(paths: np.ndarray, h: int, w: int, margin: float) -> np.ndarray:
+    # [n, T, 2] -> [n]: every point at least `margin` px inside the image's pixel centres.
+    lo = paths.min(1)  # [n, 2]
+    hi = paths.max(1)
+    return (lo >= margin).all(-1) & (hi[:, 0] <= w - 1 - margin) & (hi[:, 1] <= h - 1 - margin)
+
+
 def _paths_and_transforms(labels: np.ndarray, config: SyntheticConfig, rng: np.random.Generator):
     # Pixel paths before [M, T, 2] and after [M, T, 2] the affine transform, and its matrices.
     h, w = config.image_size
@@ -456,6 +463,7 @@ def _paths_and_transforms(labels: np.ndarray, config: SyntheticConfig, rng: np.r
     mats = np.zeros((m, 2, 3))
     todo = np.arange(m)
     min_gap = config.min_start_goal_rel * h
+    margin = 0.5 * config.pen_width_rel * h + 0.5
     for _ in range(100):
         for digit in np.unique(labels[todo]):
             idx = todo[labels[todo] == digit]
@@ -464,13 +472,15 @@ def _paths_and_transforms(labels: np.ndarray, config: SyntheticConfig, rng: np.r
         mats[todo] = sample_affine(rng, todo.size, (h, w), config.affine)
         moved = warp_points(raw[todo], mats[todo])
         gap = np.abs(moved[:, -1] - moved[:, 0]).min(-1)  # [len(todo)]
-        todo = todo[gap < min_gap]
+        inside = _inside(raw[todo], h, w, margin) & _inside(moved, h, w, margin)
+        todo = todo[(gap < min_gap) | ~inside]
         if todo.size == 0:
             break
     else:
         raise ValueError(
             f"could not draw samples whose start and end differ by {min_gap:.2f} px in x and "
-            "y; lower min_start_goal_rel or widen the ranges"
+            f"y and whose pen stays {margin:.2f} px inside the image; lower "
+            "min_start_goal_rel, digit_height_rel or the affine ranges"
         )
     return raw, warp_points(raw, mats), mats
 
@@ -611,7 +621,7 @@ def generate_dataset(
     ]
     parts = []
     with tqdm(total=labels.size, desc="generate", unit="sample", disable=not progress) as bar:
-        if workers <= 1 or n_chunks == 1:
+        if workers <= 1 or n_chunks < 2 * workers:  # starting processes costs seconds
             results = map(_generate_chunk, jobs)
             pool = None
         else:
