@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
         data.trajectories[idx],
         second,
         titles=[str(v) for v in data.labels[idx]],
-        ncols=len(digits),
+        ncols=len(digits) if len(digits) > 1 else min(idx.size, 10),
         cell_inches=args.cell_inches,
         dpi=args.dpi,
     )

@@ -102,7 +102,7 @@ DIGIT_TEMPLATES: dict[int, DigitTemplate] = {
     # One loop, anticlockwise from the top, ending past its start on the left.
     0: DigitTemplate(centre=(0.0, 0.0), elements=(Arc(0.6, 0.95, 8.0, -100.0, -520.0),)),
     # Up-stroke (the flag), then straight down.
-    1: DigitTemplate(start=(-0.55, -0.5), elements=(Line(0.7, -45.0), Line(2.0, 95.0))),
+    1: DigitTemplate(start=(-0.7, -0.45), elements=(Line(0.8, -42.0), Line(2.0, 94.0))),
     # Hook over the top, diagonal down to the left, base to the right.
     2: DigitTemplate(
         centre=(0.0, -0.45),
@@ -111,12 +111,12 @@ DIGIT_TEMPLATES: dict[int, DigitTemplate] = {
     # Two bowls joined at a cusp in the middle.
     3: DigitTemplate(
         centre=(0.0, -0.5),
-        elements=(Arc(0.42, 0.45, 0.0, -120.0, 90.0), Arc(0.5, 0.52, 0.0, -90.0, 155.0)),
+        elements=(Arc(0.42, 0.45, 0.0, -100.0, 90.0), Arc(0.5, 0.52, 0.0, -90.0, 165.0)),
     ),
     # Down, across, up to the top of the stem (the joining stroke), down the stem.
     4: DigitTemplate(
         start=(-0.35, -1.0),
-        elements=(Line(1.4, 100.0), Line(1.0, 0.0), Line(1.28, -94.9), Line(1.9, 91.0)),
+        elements=(Line(1.32, 100.0), Line(1.0, 0.0), Line(1.206, -95.7), Line(1.95, 91.0)),
     ),
     # Top bar leftwards, down, then the bowl.
     5: DigitTemplate(
@@ -129,7 +129,7 @@ DIGIT_TEMPLATES: dict[int, DigitTemplate] = {
         elements=(Arc(0.85, 1.3, 0.0, -80.0, -180.0), Arc(0.5, 0.6, 0.0, 180.0, -170.0)),
     ),
     # Top bar, then the long diagonal.
-    7: DigitTemplate(start=(-0.6, -0.9), elements=(Line(1.2, -5.0), Line(2.1, 110.0))),
+    7: DigitTemplate(start=(-0.6, -0.9), elements=(Line(1.2, -5.0), Line(2.05, 105.0))),
     # Upper loop anticlockwise, cross, lower loop clockwise, cross back, over the top.
     8: DigitTemplate(
         centre=(0.0, -0.5),
@@ -144,7 +144,7 @@ DIGIT_TEMPLATES: dict[int, DigitTemplate] = {
     # Closed loop anticlockwise from its upper right, then the stem down.
     9: DigitTemplate(
         centre=(0.0, -0.45),
-        elements=(Arc(0.45, 0.5, 8.0, -30.0, -380.0), Line(1.6, 100.0)),
+        elements=(Arc(0.45, 0.5, 8.0, -30.0, -380.0), Line(1.6, 103.0)),
     ),
 }
 
