@@ -20,7 +20,7 @@ HELP = "write a digit with a simulated KUKA arm (pybullet) and measure how well 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("images", nargs="*", metavar="IMAGE", help="image(s) of a digit")
-    parser.add_argument("--model", help="trained model checkpoint (with IMAGE)")
+    parser.add_argument("--model", help="trained model: run directory or checkpoint (with IMAGE)")
     parser.add_argument("--dmp", metavar="JSON", help="one DMP to write (instead of IMAGE)")
     parser.add_argument(
         "--image", metavar="PNG", help="with --dmp: an image to show next to the result"
@@ -126,17 +126,21 @@ def run(args) -> int:
         with tqdm(
             total=est_steps, unit="step", desc=f"writing {name}", disable=args.no_progress
         ) as bar:
-            result = write_dmp(
-                params,
-                config,
-                size,
-                writing_height_mm=args.writing_height_mm,
-                control_rate_hz=args.rate_hz,
-                scene_config=scene_cfg,
-                controller_config=ctl_cfg,
-                frame_interval_s=args.frame_interval_s if args.video else None,
-                progress=bar.update,
-            )
+            try:
+                result = write_dmp(
+                    params,
+                    config,
+                    size,
+                    writing_height_mm=args.writing_height_mm,
+                    control_rate_hz=args.rate_hz,
+                    scene_config=scene_cfg,
+                    controller_config=ctl_cfg,
+                    frame_interval_s=args.frame_interval_s if args.video else None,
+                    progress=bar.update,
+                )
+            except RuntimeError as e:  # the simulated arm failed (e.g. never settled)
+                print(f"img2dmp write: {name}: simulation failed: {e}", file=sys.stderr)
+                return 1
             bar.total = bar.n
         base = os.path.join(args.out_dir, name)
         plot_writing(result, base + "_paper.png", image=image, title=f"{name}: KUKA iiwa writes")

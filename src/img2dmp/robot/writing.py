@@ -403,11 +403,12 @@ def _simulate(
             n_since_progress = 0
         return force_after
 
-    # Approach: lower the pen at the first point until the force has settled.
+    # Approach: lower the pen at the first point until the force has settled (unless
+    # the DMP starts with the pen up).
     start_xy = plan.xy_m[0]
     settled_steps, needed = 0, max(1, int(round(settle_s / dt)))
     t_approach = 0.0
-    while settled_steps < needed:
+    while plan.pen_down[0] and settled_steps < needed:
         force = control_step(0, start_xy, True, 0.0)
         t_approach += dt
         ok = abs(force - ctl_cfg.force_set_n) <= 0.05 * ctl_cfg.force_set_n
@@ -417,9 +418,6 @@ def _simulate(
                 f"the pen did not settle at {ctl_cfg.force_set_n} N within "
                 f"{approach_timeout_s} s of approach (last force {force:.2f} N)"
             )
-    if not plan.pen_down[0]:
-        pass  # the write loop lifts it at once
-
     # Write: the DMP runs online at the control rate.
     n_write = len(plan.time_s) - 1
     for _ in range(n_write):
