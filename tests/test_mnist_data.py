@@ -89,14 +89,12 @@ def _tar_gz(path: Path, members: dict[str, bytes]) -> Path:
     return path
 
 
-@pytest.fixture()
-def fake_data(tmp_path) -> Path:
+def _make_fake_data(root: Path, ink_radius: float = 1.3) -> Path:
     """A small data root: 12 MNIST-like images with ink on known paths + recorded JSONs."""
-    root = tmp_path / "data"
     (root / "mnist").mkdir(parents=True)
     (root / "ijs-mnist-trajectories").mkdir()
     paths = [_zigzag(k) for k in range(12)]
-    images = np.stack([_draw(p) for p in paths])
+    images = np.stack([_draw(p, radius=ink_radius) for p in paths])
     labels = np.array([3, 5] * 6, np.uint8)
     write_idx(root / "mnist" / "train-images-idx3-ubyte.gz", images)
     write_idx(root / "mnist" / "train-labels-idx1-ubyte.gz", labels)
@@ -106,6 +104,11 @@ def fake_data(tmp_path) -> Path:
     }
     _tar_gz(root / "ijs-mnist-trajectories" / "trajectories.tar.gz", members)
     return root
+
+
+@pytest.fixture()
+def fake_data(tmp_path) -> Path:
+    return _make_fake_data(tmp_path / "data")
 
 
 # --- MNIST IDX ------------------------------------------------------------------------
@@ -563,3 +566,18 @@ def test_idx_gzip_detected_by_content(tmp_path):
     (tmp_path / "zipped").write_bytes(gzip.compress(raw))
     for name in ("raw.gz", "zipped"):
         assert read_idx(tmp_path / name, 2049).tolist() == [1, 2]
+
+
+def test_check_frames_finds_the_corner_convention(tmp_path, capsys):
+    from img2dmp.cli import main
+    from img2dmp.data.prepare import frame_alignment
+
+    # Thin ink, so that only the right shift puts every point on it.
+    fake_data = _make_fake_data(tmp_path / "data", ink_radius=0.75)
+    r = frame_alignment(fake_data)["recorded"]
+    assert r["best_shift"] == "-0.5,-0.5"
+    assert r["share_chosen"] == r["best_share"] > 0.95
+    assert max(v for k, v in r["grid"].items() if k != "-0.5,-0.5") < 0.96
+    assert r["share_raw"] < r["share_chosen"] - 0.1
+    assert main(["prepare", "--check-frames", "--data", str(fake_data), "--no-progress"]) == 0
+    assert "recorded" in capsys.readouterr().out
