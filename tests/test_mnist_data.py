@@ -581,3 +581,12 @@ def test_check_frames_finds_the_corner_convention(tmp_path, capsys):
     assert r["share_raw"] < r["share_chosen"] - 0.1
     assert main(["prepare", "--check-frames", "--data", str(fake_data), "--no-progress"]) == 0
     assert "recorded" in capsys.readouterr().out
+
+
+def test_cli_choices_match_the_library():
+    from img2dmp.commands import prepare as command
+    from img2dmp.data import prepare as library
+
+    assert command.SOURCES == library.SOURCES
+    assert command.RESIZE_MODES == library.RESIZE_MODES
+    assert Path(command.DEFAULT_DATA_DIR) == library.DEFAULT_DATA_DIR

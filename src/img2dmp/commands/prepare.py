@@ -23,9 +23,14 @@ def _digits(text: str) -> tuple[int, ...]:
     return out
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from img2dmp.data.prepare import DEFAULT_DATA_DIR, RESIZE_MODES, SOURCES
+# Literal copies of img2dmp.data.prepare's SOURCES, RESIZE_MODES and DEFAULT_DATA_DIR, so
+# that building the CLI parser does not import torch; PrepareOptions validates them again.
+SOURCES = ("recorded", "strokes")
+RESIZE_MODES = ("scale", "pad")
+DEFAULT_DATA_DIR = "../shared/data"
 
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--source", choices=SOURCES, default="recorded", help="pen paths to use")
     parser.add_argument(
         "--digits", type=_digits, default=tuple(range(10)), help='labels to keep, e.g. "3,5"'
@@ -40,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "under trial shifts of the frame, and print it (docs/MNIST.md)",
     )
     parser.add_argument(
-        "--data", default=str(DEFAULT_DATA_DIR), help="root of the real data (see docs/MNIST.md)"
+        "--data", default=DEFAULT_DATA_DIR, help="root of the real data (see docs/MNIST.md)"
     )
     parser.add_argument("--mnist", help="folder of the MNIST IDX files (default DATA/mnist)")
     parser.add_argument(
