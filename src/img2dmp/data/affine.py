@@ -28,6 +28,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from .render import _tensor
+
 
 def _check_range(name: str, r, lo_limit: float = -math.inf, hi_limit: float = math.inf):
     try:
@@ -146,8 +148,7 @@ def sample_affine(
 
 
 def _as_matrices(matrix, batch: tuple, dtype) -> torch.Tensor:
-    m = torch.as_tensor(np.asarray(matrix) if not torch.is_tensor(matrix) else matrix)
-    m = m.to(dtype)
+    m = _tensor(matrix).to(dtype)
     if m.shape[-2:] != (2, 3):
         raise ValueError(f"affine matrix must have shape [*batch, 2, 3], got {tuple(m.shape)}")
     if m.ndim == 2:
@@ -174,7 +175,7 @@ def warp_points(points, matrix):
     Same kind as ``points`` (NumPy in, NumPy out), same dtype and shape.
     """
     as_numpy = not torch.is_tensor(points)
-    p = torch.as_tensor(np.asarray(points)) if as_numpy else points
+    p = _tensor(points)
     if p.ndim < 2 or p.shape[-1] < 2:
         raise ValueError(f"points must have shape [*batch, T, d >= 2], got {tuple(p.shape)}")
     m = _as_matrices(matrix, tuple(p.shape[:-2]), torch.float64)
@@ -196,8 +197,7 @@ def warp_images(images, matrix) -> torch.Tensor:
     -------
     tensor float32 [*batch, H, W]
     """
-    x = torch.as_tensor(np.asarray(images) if not torch.is_tensor(images) else images)
-    x = x.to(torch.float32)
+    x = _tensor(images).to(torch.float32)
     if x.ndim < 2:
         raise ValueError(f"images must have shape [*batch, H, W], got {tuple(x.shape)}")
     shape = x.shape

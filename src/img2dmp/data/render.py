@@ -44,7 +44,11 @@ def _size2(size) -> tuple[int, int]:
 
 
 def _tensor(a) -> torch.Tensor:
-    return a if torch.is_tensor(a) else torch.as_tensor(np.asarray(a))
+    """A tensor view of ``a`` (read-only arrays, e.g. broadcasts, are copied)."""
+    if torch.is_tensor(a):
+        return a
+    a = np.asarray(a)
+    return torch.from_numpy(a if a.flags.writeable else a.copy())
 
 
 def render_paths(

@@ -559,7 +559,7 @@ def generate(
 
 
 def _split_counts(n: int, fractions) -> list[int]:
-    counts = [int(math.floor(n * f)) for f in fractions]
+    counts = [int(math.floor(n * f + 1e-9)) for f in fractions]  # 0.9 * 10 is 9, not 8
     counts[0] += n - sum(counts)
     return counts
 
