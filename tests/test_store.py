@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -60,16 +61,18 @@ def test_write_is_atomic_and_leaves_no_temp_files(tmp_path, monkeypatch):
     save_dataset(target, _data(seed=1))
     before = target.read_bytes()
 
-    import img2dmp.data.store as store
-
     def boom(*args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr(store.os, "replace", boom)
+    monkeypatch.setattr(os, "replace", boom)
     with pytest.raises(OSError, match="disk full"):
         save_dataset(target, _data(seed=2))
     assert target.read_bytes() == before  # the old file is untouched
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.safetensors"]
+    # Written like any file: readable by others as the umask allows, not 0600.
+    umask = os.umask(0)
+    os.umask(umask)
+    assert target.stat().st_mode & 0o777 == 0o666 & ~umask
 
 
 def test_overwrite_false_refuses(tmp_path):

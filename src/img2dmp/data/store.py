@@ -23,7 +23,6 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,6 +30,7 @@ import numpy as np
 from safetensors import SafetensorError, safe_open
 from safetensors.numpy import save as _st_save
 
+from ..checkpoint import atomic_write_bytes
 from ..dmp import DMPConfig
 
 FORMAT = "img2dmp-dataset"
@@ -225,17 +225,7 @@ def save_dataset(path: str | os.PathLike, data: DigitData, *, overwrite: bool = 
         {k: np.ascontiguousarray(v) for k, v in data.arrays().items()},
         metadata={META_KEY: header},
     )
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(blob)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    atomic_write_bytes(path, blob)
     return path
 
 
