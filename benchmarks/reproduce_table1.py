@@ -80,7 +80,7 @@ def run_row(name: str, out: Path, train_path: Path, eval_path: Path, args) -> di
     cfg = TrainConfig.from_dict(apply_overrides(base, over))
     resume = (run_dir / "checkpoints" / "last.safetensors").is_file()
     t0 = time.perf_counter()
-    res = train(cfg, run_dir, resume=resume)
+    res = train(cfg, run_dir, resume=resume, epochs=epochs)
     ev = evaluate(run_dir, eval_path, split="all", digits=digits, out_dir=run_dir / "evaluation")
     print(format_table(ev, f"{name}: trajectory error (px) on the evaluation set"))
     prev = sum(h["epoch_time_s"] for h in res.history)

@@ -191,7 +191,23 @@ def test_resume_after_kill_reproduces_history(small_data, tmp_path):
         for k in a:
             if k != "epoch_time_s":
                 assert b[k] == pytest.approx(a[k], rel=1e-6, abs=1e-9), (a["epoch"], k)
-    # a run directory is never silently overwritten
+    # a finished run can be trained on, and a run directory is never silently overwritten
+    assert (
+        cli.main(
+            [
+                "train",
+                "--run-dir",
+                str(run_dir),
+                "--resume",
+                *args[:2],
+                "--epochs",
+                "9",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
+    assert [r["epoch"] for r in read_metrics_csv(metrics)] == list(range(9))
     with pytest.raises(FileExistsError, match="--resume"):
         train(load_config(None, [f"data.path={small_data}", "progress=false"]), run_dir)
 

@@ -33,7 +33,7 @@ DEMO_CONFIG = {
         "decoder_layers": [35],
         "activation": "relu",
     },
-    "optim": {"lr": 1e-3, "batch_size": 64, "epochs": 30, "patience": 10, "schedule": "cosine"},
+    "optim": {"lr": 1e-3, "batch_size": 64, "epochs": 60, "patience": 15, "schedule": "cosine"},
     "cost": {"name": "trajectory"},
     "threads": 1,
 }
@@ -42,8 +42,8 @@ DEMO_CONFIG = {
 def run_demo(
     out_dir: str | os.PathLike,
     *,
-    samples_per_digit: int = 200,
-    epochs: int = 30,
+    samples_per_digit: int = 300,
+    epochs: int = 60,
     cost: str = "trajectory",
     seed: int = 0,
     progress: bool = True,

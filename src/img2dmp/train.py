@@ -56,6 +56,7 @@ from .nn.costs import canonical_cost_name, dmp_trajectory
 from .predict import ink_margin
 
 PLOT_EVERY_S = 20.0
+_COST_EQ = {"parameter": "(9)", "trajectory": "(10)", "combined": "(9) + (10)"}
 SCHEDULES = ("none", "cosine", "step", "plateau")
 METRIC_FIELDS = (
     "epoch",
@@ -316,12 +317,15 @@ def plot_training_curve(path: Path, history: list[dict], title: str = "") -> Non
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     ep = [r["epoch"] for r in history]
     fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
     ax.plot(ep, [r["train_error_px"] for r in history], label="train", color="tab:blue")
     ax.plot(ep, [r["val_error_px"] for r in history], label="validation", color="tab:red")
     ax.set_yscale("log")
+    ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+    ax.yaxis.set_minor_formatter(matplotlib.ticker.FormatStrFormatter("%.2g"))
     ax.set_xlabel("epoch")
     ax.set_ylabel("mean trajectory error (px)")
     ax.grid(True, which="both", alpha=0.3)
@@ -486,6 +490,7 @@ def train(
     *,
     resume: bool = False,
     overwrite: bool = False,
+    epochs: int | None = None,
 ) -> TrainResult:
     """Train the encoder-decoder network (Sec. V) with cost (9) or (10).
 
@@ -493,14 +498,17 @@ def train(
     ----------
     config : TrainConfig
         Model, data, optimiser, cost. With ``resume`` the configuration stored in the run
-        directory's last checkpoint is used instead, except ``optim.epochs`` and
-        ``progress``, which may be raised to continue further.
+        directory's last checkpoint is used instead (only ``progress`` is taken from
+        ``config``).
     run_dir : path
         Output directory (see the module docstring).
     resume : bool
         Continue from ``run_dir/checkpoints/last.safetensors``.
     overwrite : bool
         Start afresh in a run directory that already holds a run.
+    epochs : int, optional
+        Overrides ``optim.epochs``; with ``resume`` this is the way to train a finished or
+        interrupted run further (a cosine schedule is stretched to the new end).
 
     Returns
     -------
@@ -510,13 +518,13 @@ def train(
     created_pg = _maybe_init_distributed()
     rank, world = _dist_info()
     try:
-        return _train(config, Path(run_dir), resume, overwrite, rank, world, t_start)
+        return _train(config, Path(run_dir), resume, overwrite, epochs, rank, world, t_start)
     finally:
         if created_pg:
             torch.distributed.destroy_process_group()
 
 
-def _train(cfg, run_dir, resume, overwrite, rank, world, t_start) -> TrainResult:
+def _train(cfg, run_dir, resume, overwrite, epochs, rank, world, t_start) -> TrainResult:
     ckpt_dir = run_dir / CHECKPOINT_DIR
     last_path = ckpt_dir / "last.safetensors"
     best_path = ckpt_dir / "best.safetensors"
@@ -526,13 +534,23 @@ def _train(cfg, run_dir, resume, overwrite, rank, world, t_start) -> TrainResult
             raise FileNotFoundError(f"cannot resume: {last_path} does not exist")
         state = load_checkpoint(last_path)
         stored = TrainConfig.from_dict(state.meta["train_config"])
-        stored.optim.epochs = max(stored.optim.epochs, cfg.optim.epochs)
+        if epochs is not None:
+            stored.optim.epochs = int(epochs)
         stored.progress = cfg.progress
         cfg = stored
-    elif last_path.is_file() and not overwrite:
-        raise FileExistsError(
-            f"{run_dir} already holds a run; pass --resume to continue it or --overwrite"
-        )
+        if cfg.optim.epochs <= state.meta["epoch"] + 1 and epochs is not None:
+            raise ValueError(
+                f"cannot resume to {epochs} epochs: the run in {run_dir} has already done "
+                f"{state.meta['epoch'] + 1}"
+            )
+    else:
+        if last_path.is_file() and not overwrite:
+            raise FileExistsError(
+                f"{run_dir} already holds a run; pass --resume to continue it or --overwrite"
+            )
+        if epochs is not None:
+            cfg = copy.deepcopy(cfg)
+            cfg.optim.epochs = int(epochs)
     if cfg.threads:
         torch.set_num_threads(int(cfg.threads))
 
@@ -555,6 +573,9 @@ def _train(cfg, run_dir, resume, overwrite, rank, world, t_start) -> TrainResult
         opt.load_state_dict(optimizer_from_tensors(state.extra, state.meta["optimizer"]))
         if sched is not None and state.meta.get("scheduler"):
             sched.load_state_dict(state.meta["scheduler"])
+            if isinstance(sched, torch.optim.lr_scheduler.CosineAnnealingLR):
+                # Resumed with more epochs: the cosine now ends at the new last epoch.
+                sched.T_max = cfg.optim.epochs
         history = state.meta["history"]
         best = {"error": state.meta["best_val_error_px"], "epoch": state.meta["best_epoch"]}
         bad_epochs = state.meta["bad_epochs"]
@@ -700,7 +721,9 @@ def _train(cfg, run_dir, resume, overwrite, rank, world, t_start) -> TrainResult
             # The picture costs ~0.3 s; redraw it at most every PLOT_EVERY_S seconds.
             if final or time.perf_counter() - last_plot >= PLOT_EVERY_S:
                 plot_training_curve(
-                    run_dir / "training_curve.png", history, f"cost {cfg.cost.name}, {run_dir.name}"
+                    run_dir / "training_curve.png",
+                    history,
+                    f"{run_dir.name}: cost {_COST_EQ[cfg.cost.name]}, {cfg.model.encoder} encoder",
                 )
                 last_plot = time.perf_counter()
         if world > 1:

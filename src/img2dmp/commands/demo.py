@@ -11,8 +11,8 @@ HELP = "generate -> train -> evaluate -> pictures, on a small built-in example"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="runs/demo", help="output directory")
-    p.add_argument("--samples-per-digit", type=int, default=200, help="size of the data set")
-    p.add_argument("--epochs", type=int, default=30, help="training epochs")
+    p.add_argument("--samples-per-digit", type=int, default=300, help="size of the data set")
+    p.add_argument("--epochs", type=int, default=60, help="training epochs")
     p.add_argument("--cost", default="trajectory", help="parameter (eq. 9) or trajectory (eq. 10)")
     p.add_argument("--seed", type=int, default=0)
 

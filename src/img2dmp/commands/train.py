@@ -18,7 +18,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data", help="data-set file (.safetensors); omit to use the generator")
     p.add_argument("--run-dir", default="runs/train", help="output directory")
     p.add_argument("--cost", help="parameter (eq. 9), trajectory (eq. 10) or combined")
-    p.add_argument("--epochs", type=int, help="number of epochs")
+    p.add_argument(
+        "--epochs", type=int, help="number of epochs (with --resume: train the run on to this many)"
+    )
     p.add_argument("--seed", type=int, help="random seed")
     p.add_argument(
         "--set",
@@ -43,7 +45,6 @@ def run(args: argparse.Namespace) -> int:
     for key, value in (
         ("data.path", args.data),
         ("cost.name", args.cost),
-        ("optim.epochs", args.epochs),
         ("seed", args.seed),
     ):
         if value is not None:
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     if args.no_progress:
         over.append("progress=false")
     cfg = load_config(args.config, over)
-    res = train(cfg, args.run_dir, resume=args.resume, overwrite=args.overwrite)
+    res = train(cfg, args.run_dir, resume=args.resume, overwrite=args.overwrite, epochs=args.epochs)
     print(
         f"{res.epochs_run} epochs in {res.wall_s:.1f} s; best validation trajectory error "
         f"{res.best_val_error_px:.4f} px (epoch {res.best_epoch}); run in {res.run_dir}"
