@@ -91,6 +91,30 @@ def main() -> None:
         f"after {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores"
     )
     print(f"  DMP fit error: mean {err.mean():.4f} px, max {err.max():.4f} px")
+    weight_table(data)
+
+
+def weight_table(data) -> None:
+    """Per digit: DMP weight magnitudes, the smallest start-goal gap and the fit error.
+
+    With the paper's scaling ``S = g - y0`` the weights grow like ``1 / (g - y0)``, so
+    their tails follow the smallest gaps.
+    """
+    cfg = data.dmp_config
+    n_w = cfg.n_kernels * cfg.n_dims
+    print(
+        "digit |   |w| median      p95      p99      max | min |g-y0| px | fit error mean / max px"
+    )
+    for d in np.unique(data.labels):
+        m = data.labels == d
+        w = np.abs(data.params[m, :n_w])
+        gap = np.abs(data.trajectories[m, -1, :2] - data.trajectories[m, 0, :2]).min(-1)
+        e = data.fit_error_px[m]
+        q = np.percentile(w, [50, 95, 99])
+        print(
+            f"{d:5d} | {q[0]:12.0f} {q[1]:8.0f} {q[2]:8.0f} {w.max():8.0f} | {gap.min():13.2f} | "
+            f"{e.mean():.3f} / {e.max():.3f}"
+        )
 
 
 if __name__ == "__main__":

@@ -109,7 +109,7 @@ def test_zero_ranges_give_one_fixed_path_per_digit():
     rel = (data.trajectories[0] - 19.5) / cfg.unit_px
     tilt = np.radians(arc.tilt_deg)
     u = rel @ np.array([[np.cos(tilt), -np.sin(tilt)], [np.sin(tilt), np.cos(tilt)]])
-    np.testing.assert_allclose((u[:, 0] / arc.a) ** 2 + (u[:, 1] / arc.b) ** 2, 1.0, atol=1e-3)
+    np.testing.assert_allclose((u[:, 0] / arc.a) ** 2 + (u[:, 1] / arc.b) ** 2, 1.0, atol=3e-3)
 
 
 def test_other_image_sizes_scale_the_digit():

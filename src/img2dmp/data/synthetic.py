@@ -148,9 +148,10 @@ DIGIT_TEMPLATES: dict[int, DigitTemplate] = {
     ),
 }
 
-# Dense points per element before resampling by arc length (chord error < 0.02 px).
-_LINE_POINTS = 8
-_ARC_POINTS_PER_TURN = 128
+# Dense points per element before resampling by arc length (chord error < 0.03 px at
+# 40 x 40; lines are exact with their two ends).
+_LINE_POINTS = 2
+_ARC_POINTS_PER_TURN = 64
 # Generation happens in chunks with their own seeds, so results do not depend on the
 # progress bar or the machine; changing this changes every data set.
 CHUNK = 1000
@@ -449,8 +450,7 @@ def sample_unit_paths(
 
 def _inside(paths: np.ndarray, h: int, w: int, margin: float) -> np.ndarray:
     # [n, T, 2] -> [n]: every point at least `margin` px inside the image's pixel centres.
-    lo = paths.min(1)  # [n, 2]
-    hi = paths.max(1)
+    lo, hi = (v.numpy() for v in torch.aminmax(torch.from_numpy(paths), dim=1))  # [n, 2] each
     return (lo >= margin).all(-1) & (hi[:, 0] <= w - 1 - margin) & (hi[:, 1] <= h - 1 - margin)
 
 
