@@ -342,19 +342,34 @@ def plot_training_curve(path: Path, history: list[dict], title: str = "") -> Non
 
 
 # --------------------------------------------------------------------------- data
-def generate_arrays(options: dict, n: int, seed: int) -> DigitData:
-    """``n`` fresh synthetic samples (:func:`img2dmp.data.synthetic.generate`), labels drawn
-    uniformly from the configured digits; ``options`` are
-    :class:`~img2dmp.data.synthetic.SyntheticConfig` fields plus an optional
-    ``dmp_config`` mapping."""
-    from .data import synthetic
+def generate_arrays(options: dict, n: int, seed: int, epoch: int = 0) -> DigitData:
+    """``n`` fresh synthetic samples for one epoch from the on-the-fly generator
+    (:class:`img2dmp.data.torch_data.SyntheticDigitStream`, seeded by ``(seed, epoch)``).
+
+    ``options`` are :class:`~img2dmp.data.synthetic.SyntheticConfig` fields plus an
+    optional ``dmp_config`` mapping.
+    """
+    from torch.utils.data import DataLoader
+
+    from .data.synthetic import SyntheticConfig
+    from .data.torch_data import SyntheticDigitStream
 
     opts = dict(options)
     dmp = DMPConfig.from_dict(opts.pop("dmp_config", {}) or {})
-    config = synthetic.SyntheticConfig.from_dict(opts)
-    rng = np.random.default_rng(seed)
-    labels = rng.choice(np.asarray(config.digits, dtype=np.int64), size=int(n))
-    return synthetic.generate(labels, config, rng, dmp)
+    config = SyntheticConfig.from_dict(opts)
+    stream = SyntheticDigitStream(config, samples_per_epoch=int(n), seed=int(seed), dmp_config=dmp)
+    stream.set_epoch(int(epoch))
+    b = next(iter(DataLoader(stream, batch_size=int(n))))  # one batch = the whole epoch
+    return DigitData(
+        images=b["image"][:, 0].numpy(),  # [n, H, W]
+        trajectories=b["trajectory"].numpy(),  # [n, T, d]
+        times=b["times"].numpy(),  # [n, T]
+        labels=b["label"].numpy(),
+        params=b["params"].numpy(),  # [n, P]
+        fit_error_px=b["fit_error_px"].numpy(),
+        split=np.zeros(int(n), np.uint8),
+        meta={"dmp_config": dmp.to_dict(), "source": {"kind": "synthetic"}, "seed": int(seed)},
+    )
 
 
 @dataclass
@@ -422,7 +437,8 @@ class _Data:
             if d.digits is not None:
                 gen.setdefault("digits", list(d.digits))
             self.gen = gen
-            val = generate_arrays(gen, d.val_samples, seed=cfg.seed * 7 + 1_000_001)
+            # Validation: a fixed set from a stream no training epoch draws from.
+            val = generate_arrays(gen, d.val_samples, seed=cfg.seed + 1_000_003)
             self.dmp_config = val.dmp_config
             self.image_size = list(val.images.shape[1:])
             first = self._generated(0)
@@ -439,7 +455,7 @@ class _Data:
 
     def _generated(self, epoch: int) -> DigitData:
         return generate_arrays(
-            self.gen, self.cfg.data.samples_per_epoch, seed=self.cfg.seed * 100_003 + epoch
+            self.gen, self.cfg.data.samples_per_epoch, seed=self.cfg.seed, epoch=epoch
         )
 
     def train_for_epoch(self, epoch: int) -> _Split:
