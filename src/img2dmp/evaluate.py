@@ -73,6 +73,7 @@ def overlay_figure(
     dmp_paths: np.ndarray | None,  # [K, T', d] or None
     titles: list[str] | None = None,
     ncols: int = 4,
+    cell_inches: float = 1.8,
 ) -> Path:
     """Fig.-4-style grid: each image with the demonstrated path (blue) and the DMP path
     (red) drawn over it (:func:`img2dmp.data.plotting.plot_grid`), written atomically."""
@@ -80,7 +81,9 @@ def overlay_figure(
 
     from .data.plotting import plot_grid
 
-    fig = plot_grid(images, demo_paths, dmp_paths, titles=titles, ncols=ncols, cell_inches=1.8)
+    fig = plot_grid(
+        images, demo_paths, dmp_paths, titles=titles, ncols=ncols, cell_inches=cell_inches
+    )
     buf = io.BytesIO()
     try:
         fig.savefig(buf, format="png", dpi=100)

@@ -322,7 +322,7 @@ def write_prediction(
         from .evaluate import overlay_figure
 
         p = out / f"{stem}_overlay.png"
-        overlay_figure(p, image[None], None, y[None], titles=[stem])
+        overlay_figure(p, image[None], None, y[None], titles=[stem], cell_inches=3.0)
         written.append(p)
     return written
 
