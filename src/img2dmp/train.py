@@ -133,7 +133,16 @@ class CostConfig:
 
 @dataclass
 class TrainConfig:
-    """Everything :func:`train` needs; read from YAML/TOML by :func:`load_config`."""
+    """Everything :func:`train` needs; read from YAML/TOML by :func:`load_config`.
+
+    ``init_from`` (top-level key; CLI ``--init-from``): a run directory or checkpoint file
+    whose weights start this run instead of random ones (fine-tuning a pre-trained
+    network). The architecture, the image size and the DMP configuration (N, d, scaling)
+    must match. The checkpoint's output normalisation is **kept**, not refitted on the new
+    data: the network's last layer speaks in those units, so keeping them makes the first
+    fine-tuning step start from exactly the pre-trained network's predictions. Only the
+    weights are taken; the optimiser, schedule and epoch count start afresh.
+    """
 
     model: ModelConfig = field(default_factory=ModelConfig)
     data: DataConfig = field(default_factory=DataConfig)
@@ -143,6 +152,7 @@ class TrainConfig:
     threads: int | None = None
     eval_batch_size: int = 1024
     progress: bool = True
+    init_from: str | None = None
 
     def __post_init__(self) -> None:
         o = self.optim
@@ -571,7 +581,17 @@ def _train(cfg, run_dir, resume, overwrite, epochs, rank, world, t_start) -> Tra
         torch.set_num_threads(int(cfg.threads))
 
     normaliser = ParamNormaliser.from_dict(state.meta["normaliser"]) if state else None
+    init = None
+    if state is None and cfg.init_from:
+        init = load_checkpoint(cfg.init_from)  # a run directory means its best checkpoint
+        normaliser = ParamNormaliser.from_dict(init.meta["normaliser"])
     data = _Data(cfg, normaliser)
+    if init is not None and init.meta["dmp_config"] != data.dmp_config.to_dict():
+        raise ValueError(
+            f"cannot initialise from {init.path}: it was trained with DMP config "
+            f"{init.meta['dmp_config']}, the data set {cfg.data.path} has "
+            f"{data.dmp_config.to_dict()}"
+        )
     if state and cfg.data.path and state.meta["dataset"]["sha256"] != data.dataset_sha256:
         raise ValueError(
             f"cannot resume: data set {cfg.data.path} has changed since the run started "
@@ -584,6 +604,8 @@ def _train(cfg, run_dir, resume, overwrite, epochs, rank, world, t_start) -> Tra
     history: list[dict] = []
     best = {"error": math.inf, "epoch": -1}
     bad_epochs, start_epoch, step = 0, 0, 0
+    if init is not None:
+        load_weights_into(model, init)
     if state:
         load_weights_into(model, state)
         opt.load_state_dict(optimizer_from_tensors(state.extra, state.meta["optimizer"]))

@@ -35,6 +35,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="continue the run in --run-dir from its last checkpoint",
     )
     p.add_argument("--overwrite", action="store_true", help="start afresh in an existing run dir")
+    p.add_argument(
+        "--init-from",
+        metavar="RUN",
+        help="start from the weights (and output normalisation) of this run directory or "
+        "checkpoint instead of random weights: fine-tuning (config key init_from)",
+    )
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
@@ -52,6 +58,8 @@ def run(args: argparse.Namespace) -> int:
     if args.no_progress:
         over.append("progress=false")
     cfg = load_config(args.config, over)
+    if args.init_from is not None:
+        cfg.init_from = args.init_from
     res = train(cfg, args.run_dir, resume=args.resume, overwrite=args.overwrite, epochs=args.epochs)
     print(
         f"{res.epochs_run} epochs in {res.wall_s:.1f} s; best validation trajectory error "
