@@ -198,13 +198,48 @@ def _combine_responses(s: torch.Tensor, coef: torch.Tensor, config: DMPConfig) -
     s: [B, T], coef: [B, C, d] -> [B, T, d]
     """
     h, s_max, poly = _response_table(config, s.dtype, str(s.device))
-    b, c, d = coef.shape
-    i, u = _locate(s, h, s_max, poly.shape[1])  # [B, T]
-    pieces = int(i.max()) + 1
-    table = poly[:, :pieces].reshape(c, pieces * 4)  # [C, G'*4]
-    coef_t = coef.transpose(1, 2).reshape(b * d, c)  # [B*d, C]
-    traj = (coef_t @ table).view(b * d, pieces, 4)  # [B*d, G', 4]: each sample's pieces
-    idx = i[:, None, :, None].expand(b, d, i.shape[-1], 4).reshape(b * d, -1, 4)
-    local = traj.gather(1, idx)  # [B*d, T, 4]
-    u = u[:, None, :].expand(b, d, u.shape[-1]).reshape(b * d, -1)  # [B*d, T]
-    return _horner(local, u).view(b, d, -1).transpose(1, 2)  # [B, T, d]
+    return _PiecewiseCombination.apply(s, coef, poly, h, s_max)
+
+
+class _PiecewiseCombination(torch.autograd.Function):
+    """Forward and hand-written backward of :func:`_combine_responses`.
+
+    Autograd through the same few operations allocates and fills several batch-sized
+    temporaries; the backward here is two fused products, one scatter and one GEMM.
+    """
+
+    @staticmethod
+    def forward(ctx, s, coef, poly, h, s_max):
+        b, c, d = coef.shape
+        n_t = s.shape[-1]
+        i, u = _locate(s, h, s_max, poly.shape[1])  # [B, T]
+        pieces = int(i.max()) + 1
+        table = poly[:, :pieces].reshape(c, pieces * 4)  # [C, G'*4]
+        coef_t = coef.transpose(1, 2).reshape(b * d, c)  # [B*d, C]
+        traj = (coef_t @ table).view(b, d, pieces, 4)  # each sample's own cubic pieces
+        idx = i[:, None, :, None].expand(b, d, n_t, 4)  # [B, d, T, 4], a view
+        local = traj.gather(2, idx)  # [B, d, T, 4]
+        ub = u[:, None, :]  # [B, 1, T]
+        y = ((local[..., 3] * ub + local[..., 2]) * ub + local[..., 1]) * ub + local[..., 0]
+        inside = (s > 0) & (s < s_max)  # where the clamp passes the s-gradient on
+        ctx.save_for_backward(i, u, local, inside, table)
+        ctx.h, ctx.shape = h, (b, c, d, pieces)
+        return y.transpose(1, 2)  # [B, T, d]
+
+    @staticmethod
+    def backward(ctx, gy):  # gy: [B, T, d]
+        i, u, local, inside, table = ctx.saved_tensors
+        b, c, d, pieces = ctx.shape
+        g = gy.transpose(1, 2)  # [B, d, T]
+        ub = u[:, None, :]  # [B, 1, T]
+        grad_s = grad_coef = None
+        if ctx.needs_input_grad[0]:
+            dy_du = local[..., 1] + ub * (2 * local[..., 2] + 3 * ub * local[..., 3])
+            grad_s = (g * dy_du).sum(1) * inside / ctx.h  # [B, T]
+        if ctx.needs_input_grad[1]:
+            powers = ub[..., None] ** torch.arange(4, dtype=u.dtype, device=u.device)
+            g_local = g[..., None] * powers  # [B, d, T, 4]
+            g_traj = torch.zeros(b, d, pieces, 4, dtype=g.dtype, device=g.device)
+            g_traj.scatter_add_(2, i[:, None, :, None].expand_as(g_local), g_local)
+            grad_coef = (g_traj.view(b * d, -1) @ table.T).view(b, d, c).transpose(1, 2)
+        return grad_s, grad_coef, None, None, None
