@@ -151,15 +151,17 @@ def _cli() -> list[str]:
     return [sys.executable, "-m", "img2dmp.cli"]
 
 
-def _run(cmd: list[str], log: Path) -> float:
-    """Run one command with its output appended to ``log``; its wall time in seconds."""
+def _run(cmd: list[str], log: Path, show: bool = False) -> float:
+    """Run one command with its output appended to ``log`` (or on the terminal if
+    ``show``); its wall time in seconds."""
     shown = shlex.join(["img2dmp", *cmd[3:]] if cmd[:3] == _cli() else cmd)
     print(f"$ {shown}", flush=True)
     t0 = time.perf_counter()
     with open(log, "a", encoding="utf-8") as f:
         f.write(f"$ {shown}\n")
         f.flush()
-        proc = subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT, cwd=ROOT)
+        out = None if show else f
+        proc = subprocess.run(cmd, stdout=out, stderr=out and subprocess.STDOUT, cwd=ROOT)
     if proc.returncode != 0:
         raise RuntimeError(f"command failed ({proc.returncode}), see {log}: {shown}")
     return time.perf_counter() - t0
@@ -237,12 +239,13 @@ def prepare(name: str, out: Path, args) -> tuple[Path, str]:
     cmd = [*_cli(), "prepare", *opts, "--data", str(args.data), "--out", str(path)]
     if not path.is_file():
         path.parent.mkdir(parents=True, exist_ok=True)
-        _run(cmd, out / "data" / f"{name}.log")
+        _run(cmd, out / "data" / f"{name}.log", args.progress)
     return path, _shown(cmd)
 
 
-def train(run_dir: Path, config: str, data: Path, cost: str, epochs: int, extra, log) -> str:
-    """Train into ``run_dir`` (resuming an interrupted run; nothing if already done)."""
+def train(run_dir: Path, config: str, data: Path, cost: str, epochs: int, extra, log, show) -> str:
+    """Train into ``run_dir`` (resuming an interrupted run; nothing if already done).
+    ``show``: progress bars on the terminal instead of the log."""
     cmd = [
         *_cli(),
         "train",
@@ -256,15 +259,16 @@ def train(run_dir: Path, config: str, data: Path, cost: str, epochs: int, extra,
         str(epochs),
         "--run-dir",
         str(run_dir),
-        "--no-progress",
+        *([] if show else ["--no-progress"]),
         *extra,
     ]
     done = run_dir / "train_done"
     if not done.is_file():
         if (run_dir / "checkpoints" / "last.safetensors").is_file():
-            _run([*_cli(), "train", "--run-dir", str(run_dir), "--resume", "--no-progress"], log)
+            resume = [*_cli(), "train", "--run-dir", str(run_dir), "--resume"]
+            _run(resume + ([] if show else ["--no-progress"]), log, show)
         else:
-            _run(cmd, log)
+            _run(cmd, log, show)
         done.write_text("ok\n")
     return _shown(cmd)
 
@@ -303,11 +307,13 @@ def run_experiment(name: str, out: Path, args) -> dict:
         commands.append(cmd)
         pre_epochs = args.epochs if args.epochs else exp.pretrain_epochs
         pre_dir = exp_dir / "pretrain"
-        commands.append(train(pre_dir, exp.config, pre_data, exp.cost, pre_epochs, extra, log))
+        commands.append(
+            train(pre_dir, exp.config, pre_data, exp.cost, pre_epochs, extra, log, args.progress)
+        )
         stages["pretrain"] = _metrics(pre_dir)
         extra = ["--init-from", str(pre_dir), *extra]
     run_dir = exp_dir / "run"
-    commands.append(train(run_dir, exp.config, data, exp.cost, epochs, extra, log))
+    commands.append(train(run_dir, exp.config, data, exp.cost, epochs, extra, log, args.progress))
     stages["train"] = _metrics(run_dir)
     ev_cmd = [*_cli(), "evaluate", str(run_dir), str(data), "--split", "test"]
     ev_cmd += ["--out", str(exp_dir / "evaluation")]
@@ -387,6 +393,9 @@ def main(argv=None) -> int:
     p.add_argument("--only", nargs="+", choices=sorted(EXPERIMENTS), help="run just these")
     p.add_argument("--quick", action="store_true", help="30 paths per digit, 2 epochs")
     p.add_argument("--epochs", type=int, help="override every experiment's epochs")
+    p.add_argument(
+        "--progress", action="store_true", help="show the commands' progress bars (no logs)"
+    )
     p.add_argument("--data", type=Path, default=DEFAULT_DATA, help="root of the real data")
     p.add_argument(
         "--set", nargs="*", default=[], metavar="KEY=VALUE", help="training config overrides"
