@@ -114,6 +114,9 @@ EXPERIMENTS = {
     "all10-cost10-conv": Experiment(
         "mnist10", "configs/mnist-conv.yaml", "trajectory", 30, "conv encoder, 10 copies"
     ),
+    "35-cost10-conv": Experiment(
+        "mnist35", "configs/mnist-conv.yaml", "trajectory", 60, "conv encoder", digits="3, 5"
+    ),
     "all10-cost10-pretrained-strokes": Experiment(
         "mnist10",
         "configs/mnist.yaml",
@@ -263,14 +266,26 @@ def train(run_dir: Path, config: str, data: Path, cost: str, epochs: int, extra,
         *extra,
     ]
     done = run_dir / "train_done"
-    if not done.is_file():
+    if not done.is_file() and not _finished(run_dir):
         if (run_dir / "checkpoints" / "last.safetensors").is_file():
             resume = [*_cli(), "train", "--run-dir", str(run_dir), "--resume"]
             _run(resume + ([] if show else ["--no-progress"]), log, show)
         else:
             _run(cmd, log, show)
-        done.write_text("ok\n")
+    done.write_text("ok\n")
     return _shown(cmd)
+
+
+def _finished(run_dir: Path) -> bool:
+    """Whether the run in ``run_dir`` has ended (all epochs done, or stopped early), so
+    that ``--resume`` would train on past the end."""
+    last = run_dir / "checkpoints" / "last.json"
+    if not last.is_file():
+        return False
+    meta = json.loads(last.read_text())
+    optim = meta["train_config"]["optim"]
+    patience = optim["patience"]
+    return meta["epoch"] + 1 >= optim["epochs"] or bool(patience and meta["bad_epochs"] >= patience)
 
 
 def _metrics(run_dir: Path) -> dict:
@@ -375,10 +390,11 @@ def write_results(out: Path) -> str:
         if p.is_file():
             rows.append(json.loads(p.read_text()))
     table = results_table(rows)
-    cmd = shlex.join(["python", "benchmarks/mnist_experiments.py", *sys.argv[1:]])
+    cmd = f"python benchmarks/mnist_experiments.py --out {out} --only NAME"
     (out / "results.md").write_text(
-        f"Command: `{cmd}`\n\nTest part of the fixed split (errors in px of the 28 x 28 "
-        f"image; mean +- std over test samples, ddof 0).\n\n{table}"
+        f"Each row: `{cmd}` (the prepare / train / evaluate commands it ran are in "
+        f"results.json). Test part of the fixed split; errors in px of the 28 x 28 image, "
+        f"mean +- std (ddof 0) over the test samples.\n\n{table}"
     )
     (out / "results.json").write_text(
         json.dumps({"command": cmd, "experiments": rows}, indent=1) + "\n"
