@@ -9,7 +9,7 @@ throughput of batch inference (images -> DMP parameters) in images per second (t
 
 Usage::
 
-    python benchmarks/bench_train.py [--batch 128] [--repeats 30] [--threads 2]
+    python benchmarks/bench_train.py [--batch 128] [--repeats 30] [--threads 1]
 """
 
 from __future__ import annotations
@@ -44,7 +44,10 @@ def main(argv=None) -> int:
     p.add_argument("--batch", type=int, default=128, help="training batch size")
     p.add_argument("--repeats", type=int, default=30, help="timed steps per cost")
     p.add_argument("--infer-batch", type=int, default=4096, help="inference batch size")
-    p.add_argument("--threads", type=int, default=torch.get_num_threads())
+    # One intra-op thread: on a 2-core machine shared with other work, two threads
+    # spin-wait on each other and a step gets several times slower (measured: 95 ms with
+    # one thread, 790 ms with two, while other processes ran).
+    p.add_argument("--threads", type=int, default=1, help="torch intra-op threads")
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
 
