@@ -126,8 +126,17 @@ EXPERIMENTS = {
         pretrain="strokes10",
         pretrain_epochs=10,
     ),
+    "all10-cost10-conv-pretrained-strokes": Experiment(
+        "mnist10",
+        "configs/mnist-conv.yaml",
+        "trajectory",
+        30,
+        "conv, pre-trained on traced strokes, then 10 copies",
+        pretrain="strokes10",
+        pretrain_epochs=10,
+    ),
 }
-# The same five with the duration of every path normalised (time_normalise): errors then
+# The same with the duration of every path normalised (time_normalise): errors then
 # measure the path and its relative speed profile, not how fast the person wrote.
 for _name in list(EXPERIMENTS):
     _e = EXPERIMENTS[_name]
