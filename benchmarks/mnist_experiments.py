@@ -421,6 +421,7 @@ def main(argv=None) -> int:
     p.add_argument(
         "--progress", action="store_true", help="show the commands' progress bars (no logs)"
     )
+    p.add_argument("--table", action="store_true", help="only rewrite the results table")
     p.add_argument("--data", type=Path, default=DEFAULT_DATA, help="root of the real data")
     p.add_argument(
         "--set", nargs="*", default=[], metavar="KEY=VALUE", help="training config overrides"
@@ -429,6 +430,9 @@ def main(argv=None) -> int:
     if args.quick and not args.epochs:
         args.epochs = 2
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.table:
+        print(write_results(args.out))
+        return 0
     for name in args.only or list(EXPERIMENTS):
         run_experiment(name, args.out, args)
         print(write_results(args.out), flush=True)
