@@ -370,8 +370,8 @@ def results_table(rows: list[dict]) -> str:
     """The Markdown table of finished experiments."""
     lines = [
         "| experiment | digits | cost | what | test mean +- std (px) | median | p95 | n test "
-        "| epochs (best) | train time | paper | target |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| best val. (px) | epochs (best) | train time | paper | target |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         t = r["test"]
@@ -385,8 +385,8 @@ def results_table(rows: list[dict]) -> str:
         lines.append(
             f"| {name} | {r['digits']} | {r['cost']} | {r['what']} | "
             f"{t['mean']:.3f} +- {t['std']:.3f} | {t['median']:.3f} | {t['p95']:.3f} | "
-            f"{t['n']} | {epochs} | {r['train_time_s'] / 60:.1f} min | {r['paper'] or ''} "
-            f"| {target} |"
+            f"{t['n']} | {ep['best_val_error_px']:.3f} | {epochs} | "
+            f"{r['train_time_s'] / 60:.1f} min | {r['paper'] or ''} | {target} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -403,7 +403,10 @@ def write_results(out: Path) -> str:
     (out / "results.md").write_text(
         f"Each row: `{cmd}` (the prepare / train / evaluate commands it ran are in "
         f"results.json). Test part of the fixed split; errors in px of the 28 x 28 image, "
-        f"mean +- std (ddof 0) over the test samples.\n\n{table}"
+        f"mean +- std (ddof 0) over the test samples. 'best val.': the validation error "
+        f"of the checkpoint evaluated (early stopping); 'epochs (best)': epochs run and the "
+        f"0-based epoch of that checkpoint; 'train time': sum of the epoch times (the "
+        f"machine was shared, so times vary by 2-4x).\n\n{table}"
     )
     (out / "results.json").write_text(
         json.dumps({"command": cmd, "experiments": rows}, indent=1) + "\n"
