@@ -122,6 +122,6 @@ def run_demo(
     say(
         f"done in {summary['time_s']['total']:.0f} s: test error {m['mean']:.3f} +- "
         f"{m['std']:.3f} px (mean +- std over {m['n']} samples) after {res.epochs_run} "
-        f"epochs; Table I's networks reach ~0.2-0.4 px after much longer training"
+        f"epochs (the paper's Table I, fully trained: 0.23 px with cost 10, 0.40 px with cost 9)"
     )
     return summary
