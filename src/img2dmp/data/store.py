@@ -30,7 +30,7 @@ import numpy as np
 from safetensors import SafetensorError, safe_open
 from safetensors.numpy import save as _st_save
 
-from ..checkpoint import atomic_write_bytes
+from .._files import atomic_write_bytes
 from ..dmp import DMPConfig
 
 FORMAT = "img2dmp-dataset"

@@ -23,7 +23,7 @@ import os
 
 import numpy as np
 
-from ..checkpoint import atomic_write_text
+from .._files import atomic_write_text
 from ..dmp import DMPConfig, DMPParams
 
 

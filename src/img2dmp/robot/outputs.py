@@ -9,7 +9,7 @@ import io
 
 import numpy as np
 
-from ..checkpoint import atomic_write_bytes, atomic_write_text
+from .._files import atomic_write_bytes, atomic_write_text
 from .writing import PHASES, WritingResult
 
 
