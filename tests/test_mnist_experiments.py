@@ -54,3 +54,33 @@ def test_quick_experiment_evaluates_the_test_split_and_resumes(tmp_path, capsys)
     capsys.readouterr()
     assert mod.main(args) == 0
     assert "done before" in capsys.readouterr().out
+
+
+def test_init_from_starts_at_the_pretrained_network(tmp_path):
+    """Fine-tuning (``init_from``, used by the pre-training experiments) starts from the
+    checkpoint's predictions: with a vanishing learning rate the first epoch's validation
+    error is the pre-trained one; another architecture is refused."""
+    from img2dmp.checkpoint import CheckpointError
+    from img2dmp.train import TrainConfig, train
+
+    def config(**top):
+        return TrainConfig.from_dict(
+            {
+                "model": {"image_size": [40, 40], "encoder_layers": [16, 8]},
+                "data": {"samples_per_epoch": 64, "val_samples": 32},
+                "optim": {"epochs": 1, "batch_size": 32, "lr": 1e-3},
+                "threads": 1,
+                "progress": False,
+                **top,
+            }
+        )
+
+    pre = train(config(), tmp_path / "pre")
+    tuned_cfg = config(init_from=str(tmp_path / "pre"))  # same seed: same validation set
+    tuned_cfg.optim.lr = 1e-12
+    tuned = train(tuned_cfg, tmp_path / "tuned")
+    assert tuned.history[0]["val_error_px"] == pytest.approx(pre.best_val_error_px, rel=1e-5)
+    other = config(init_from=str(tmp_path / "pre"))
+    other.model.encoder_layers = [16, 9]
+    with pytest.raises(CheckpointError, match="another architecture"):
+        train(other, tmp_path / "other")
