@@ -8,18 +8,26 @@ validation part. Errors are Table I's: per-sample mean Euclidean distance (px of
 28 x 28 image) between the recorded path and the network's DMP at the recorded time
 stamps; over the test samples mean +- std (ddof 0), median and 95th percentile.
 
-=================================  ==========  ======  ====================================
-experiment                         digits      cost    what
-=================================  ==========  ======  ====================================
-``35-cost9``                       3, 5        (9)     paper's setting, FC, ten affine copies
-``35-cost10``                      3, 5        (10)    paper's setting, FC, ten affine copies
-``all10-cost10``                   0-9         (10)    FC (configs/mnist.yaml), ten copies
-``all10-cost10-conv``              0-9         (10)    conv encoder (configs/mnist-conv.yaml)
-``all10-cost10-pretrained-strokes`` 0-9        (10)    pre-trained on the traced strokes
-                                                       (d = 2, MNIST training digits of the
-                                                       train/validation parts only), then
-                                                       fine-tuned (``--init-from``)
-=================================  ==========  ======  ====================================
+=========================================  ======  ======  ==========================
+experiment                                 digits  cost    what
+=========================================  ======  ======  ==========================
+``35-cost9``, ``35-cost10``                3, 5    (9/10)  paper's setting: FC
+                                                           (configs/mnist.yaml), ten
+                                                           affine copies
+``35-cost10-conv``                         3, 5    (10)    conv encoder
+                                                           (configs/mnist-conv.yaml)
+``all10-cost10``                           0-9     (10)    FC, ten copies
+``all10-cost10-conv``                      0-9     (10)    conv encoder
+``all10-cost10-pretrained-strokes``        0-9     (10)    FC pre-trained on the traced
+                                                           strokes (d = 2; the split
+                                                           rule of the recorded paths,
+                                                           so no test digit), then
+                                                           fine-tuned (``--init-from``)
+``all10-cost10-conv-pretrained-strokes``   0-9     (10)    the same with the conv encoder
+``NAME-tn``                                                each of the above with every
+                                                           path's duration normalised
+                                                           (:func:`time_normalise`)
+=========================================  ======  ======  ==========================
 
 The paper's numbers (Table I, digits 3 and 5): cost (9) 1.23 +- 2.50 px, cost (10)
 0.85 +- 2.28 px. Targets of issue 5 on the test part: 3 and 5 with cost (10) <= 0.6 px,
@@ -36,6 +44,9 @@ Usage::
     python benchmarks/mnist_experiments.py --out runs/mnist --only 35-cost10
     python benchmarks/mnist_experiments.py --out /tmp/q --quick          # minutes: 30 paths
                                                                           # per digit, 2 epochs
+    python benchmarks/mnist_experiments.py --out runs/mnist --table      # rewrite the table
+
+Results and what they say: docs/MNIST.md, "Experiments of issue 5".
 """
 
 from __future__ import annotations
