@@ -161,6 +161,24 @@ for _name in list(EXPERIMENTS):
         pretrain_epochs=_e.pretrain_epochs,
         digits=_e.digits,
     )
+# Pre-training on synthetic digits (img2dmp.data.synthetic, fresh samples every epoch)
+# drawn at 28 x 28, lasting 1 s, with the recorded sets' DMP configuration (scaling none).
+SYNTHETIC_SET = [
+    "data.path=null",
+    "data.generator={image_size: [28, 28], duration_s: 1.0, dmp_config: {scaling: none}}",
+    "data.samples_per_epoch=20000",
+    "data.val_samples=2000",
+]
+QUICK_SYNTHETIC_SET = ["data.samples_per_epoch=200", "data.val_samples=50"]
+EXPERIMENTS["all10-cost10-conv-pretrained-synthetic-tn"] = Experiment(
+    "mnist10-tn",
+    "configs/mnist-conv.yaml",
+    "trajectory",
+    30,
+    "conv, pre-trained on synthetic digits, then 10 copies; duration normalised",
+    pretrain="synthetic",
+    pretrain_epochs=10,
+)
 PAPER = {
     "35-cost9": "1.23 +- 2.50",
     "35-cost10": "0.85 +- 2.28",
@@ -247,6 +265,8 @@ def prepare(name: str, out: Path, args) -> tuple[Path, str]:
     A name ending in ``-tn`` is the time-normalised copy (:func:`time_normalise`) of
     the data set without the suffix.
     """
+    if name == "synthetic":
+        return None, "on-the-fly generator (SYNTHETIC_SET)"
     if name.endswith("-tn"):
         base, cmd = prepare(name[:-3], out, args)
         path = out / "data" / f"{name}.safetensors"
@@ -266,16 +286,16 @@ def prepare(name: str, out: Path, args) -> tuple[Path, str]:
     return path, _shown(cmd)
 
 
-def train(run_dir: Path, config: str, data: Path, cost: str, epochs: int, extra, log, show) -> str:
+def train(run_dir: Path, config: str, data, cost: str, epochs: int, extra, log, show) -> str:
     """Train into ``run_dir`` (resuming an interrupted run; nothing if already done).
+    ``data``: a data-set file, or None for the generator (configured in ``extra``).
     ``show``: progress bars on the terminal instead of the log."""
     cmd = [
         *_cli(),
         "train",
         "--config",
         config,
-        "--data",
-        str(data),
+        *(["--data", str(data)] if data is not None else []),
         "--cost",
         cost,
         "--epochs",
@@ -342,9 +362,14 @@ def run_experiment(name: str, out: Path, args) -> dict:
         commands.append(cmd)
         pre_epochs = args.epochs if args.epochs else exp.pretrain_epochs
         pre_dir = exp_dir / "pretrain"
-        commands.append(
-            train(pre_dir, exp.config, pre_data, exp.cost, pre_epochs, extra, log, args.progress)
+        pre_extra = extra
+        if pre_data is None:  # the generator; one --set list (a second one would replace it)
+            synthetic = SYNTHETIC_SET + (QUICK_SYNTHETIC_SET if args.quick else [])
+            pre_extra = [*exp.extra, "--set", *synthetic, *args.set]
+        pre_cmd = train(
+            pre_dir, exp.config, pre_data, exp.cost, pre_epochs, pre_extra, log, args.progress
         )
+        commands.append(pre_cmd)
         stages["pretrain"] = _metrics(pre_dir)
         extra = ["--init-from", str(pre_dir), *extra]
     run_dir = exp_dir / "run"
