@@ -267,3 +267,17 @@ def test_bad_input_raises_clear_errors():
         DMPIntegrator(p, cfg).step(0.0)
     with pytest.raises(ValueError, match="config expects N=10"):
         rollout(p.to_torch(), torch.tensor(t), DMPConfig(n_kernels=10))
+
+
+def test_unvalidated_rollout_propagates_nan_instead_of_crashing():
+    # A diverged network can hand the hot loop (validate=False) a NaN duration: the
+    # positions must come out NaN, for the training loop to report, not an IndexError.
+    cfg = DMPConfig()
+    p = _random_params(np.random.default_rng(10), 2, cfg).to_torch()
+    tau = p.tau.clone()
+    tau[1] = float("nan")
+    bad = DMPParams.__new__(DMPParams)  # bypasses validation, as a raw network output would
+    bad.w, bad.tau, bad.g, bad.y0 = p.w, tau, p.g, p.y0
+    y = rollout(bad, torch.linspace(0, 1, 7, dtype=torch.float64), cfg, validate=False)
+    assert torch.isfinite(y[0]).all()
+    assert torch.isnan(y[1]).all()

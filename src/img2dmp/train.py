@@ -673,6 +673,12 @@ def _train(cfg, run_dir, resume, overwrite, epochs, rank, world, t_start) -> Tra
             traj, zt = split.trajectories[idx], split.z_target[idx]  # [b, T, d], [b, P]
             z = net(img)  # [b, P]
             loss, y = cost(z, zt, t, traj)
+            if not torch.isfinite(loss):
+                raise FloatingPointError(
+                    f"training cost is {float(loss)} at epoch {epoch}, step {step}: training "
+                    f"diverged (lower optim.lr = {cfg.optim.lr} or set optim.grad_clip); the "
+                    "last good epoch's checkpoint is kept"
+                )
             opt.zero_grad(set_to_none=True)
             loss.backward()
             if cfg.optim.grad_clip:

@@ -93,7 +93,9 @@ def _response_table(config: DMPConfig, dtype: torch.dtype, device: str):
 def _locate(s: torch.Tensor, h: float, s_max: float, n_pieces: int):
     """Piece index ``i`` (no gradient) and local coordinate ``u`` in [0, 1] (differentiable)."""
     q = s.clamp(0.0, s_max) / h
-    i = q.detach().floor().clamp(max=n_pieces - 1).long()
+    # A NaN s (e.g. a diverged network's tau with validate=False) must give NaN positions,
+    # not an out-of-range index: look it up in piece 0 and let u carry the NaN.
+    i = torch.nan_to_num(q.detach(), nan=0.0).floor().clamp(0, n_pieces - 1).long()
     return i, q - i
 
 
