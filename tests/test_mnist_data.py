@@ -546,6 +546,28 @@ def test_prepare_real_recorded_digits_3_and_5():
     assert np.mean(share) > 0.8
 
 
+@_need(RECORDED)
+@_need(MNIST_DIR)
+def test_prepare_duration_normalises_time_and_keeps_paths():
+    base = dict(source="recorded", digits=(3,), limit_per_digit=10)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        real = prepare_dataset(PrepareOptions(**base), data_dir=DATA, progress=False)
+        norm = prepare_dataset(
+            PrepareOptions(**base, duration_s=1.5), data_dir=DATA, progress=False
+        )
+    durations = real.times[:, -1] - real.times[:, 0]
+    assert np.ptp(durations) > 0.1  # people write at different speeds
+    np.testing.assert_allclose(norm.times[:, 0], 0.0, atol=1e-6)
+    np.testing.assert_allclose(norm.times[:, -1], 1.5, rtol=1e-6)
+    np.testing.assert_array_equal(norm.trajectories, real.trajectories)
+    tau = norm.params[:, 25 * 2]  # the flat vector's tau
+    np.testing.assert_allclose(tau, 1.5, rtol=1e-5)
+    assert norm.fit_error_px.mean() < 0.1
+    with pytest.raises(ValueError, match="duration_s"):
+        PrepareOptions(**base, duration_s=0.0)
+
+
 @_need(STROKES_DIR)
 @_need(MNIST_DIR)
 def test_prepare_real_strokes_multi_stroke():

@@ -66,6 +66,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--n-times", type=int, default=100, help="instants per trajectory")
     parser.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="rescale every path to last this long before fitting (removes the writer's "
+        "speed, which an image does not show; default: real timing)",
+    )
+    parser.add_argument(
         "--dims",
         type=int,
         choices=(2, 3),
@@ -142,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
         mnist_split=args.mnist_split,
         limit_per_digit=args.limit_per_digit,
         speed_profile=SpeedProfile(pen_speed_px_s=args.pen_speed, pen_up_s=args.pen_up_s),
+        duration_s=args.duration,
     )
     data = prepare_dataset(
         options,
