@@ -14,9 +14,10 @@ where ``a`` is the free response to a unit initial offset and ``R_k`` the respon
 k-th normalised kernel ``phi_k(x(s))`` (see :func:`basis.basis_functions`). These N + 1
 scalar functions depend only on the DMP constants, so they are solved once, to 1e-12
 relative accuracy, on a fine grid and interpolated with cubic Hermite polynomials (values
-and exact derivatives at the nodes). A batch rollout is then a gather and a small matrix
-product, and autograd gives exact derivatives of it for w, g, y0 and tau; tau enters only
-through ``s = t / tau``, so ``dy/dtau = -(t / tau^2) y'(s)``.
+and exact derivatives at the nodes). A batch rollout is then one small matrix product and
+a gather, and its backward pass (written by hand, checked by gradcheck) gives the exact
+derivatives of that interpolant for w, g, y0 and tau; tau enters only through
+``s = t / tau``, so ``dy/dtau = -(t / tau^2) y'(s)``.
 """
 
 from __future__ import annotations
