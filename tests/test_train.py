@@ -325,3 +325,16 @@ def test_demo_runs_the_whole_chain(tmp_path):
     ):
         assert (tmp_path / "demo" / f).is_file(), f
     assert s["epochs_run"] == 2 and np.isfinite(s["test_error_px"]["mean"])
+
+
+def test_demo_config_file_matches_the_built_in_demo():
+    # configs/demo.yaml is the file form of pipeline.DEMO_CONFIG; they must not drift apart.
+    import yaml
+
+    from img2dmp.pipeline import DEMO_CONFIG, DEMO_EPOCHS
+
+    path = Path(__file__).resolve().parents[1] / "configs" / "demo.yaml"
+    on_disk = yaml.safe_load(path.read_text())
+    for section, values in DEMO_CONFIG.items():
+        assert on_disk[section] == values, f"configs/demo.yaml [{section}] differs"
+    assert on_disk["optim"]["epochs"] == DEMO_EPOCHS

@@ -24,7 +24,12 @@ from .checkpoint import atomic_write_text
 from .evaluate import evaluate, format_table
 from .train import TrainConfig, train
 
-#: The demo's network and optimiser (configs/demo.yaml holds the same as a file).
+#: Size of the demo's data set and length of its training (the CLI's defaults too).
+DEMO_SAMPLES_PER_DIGIT = 300
+DEMO_EPOCHS = 60
+
+#: The demo's network and optimiser. configs/demo.yaml holds the same as a file for
+#: ``img2dmp train --config``; tests/test_train.py checks that the two agree.
 DEMO_CONFIG = {
     "model": {
         "encoder": "fc",
@@ -42,8 +47,8 @@ DEMO_CONFIG = {
 def run_demo(
     out_dir: str | os.PathLike,
     *,
-    samples_per_digit: int = 300,
-    epochs: int = 60,
+    samples_per_digit: int = DEMO_SAMPLES_PER_DIGIT,
+    epochs: int = DEMO_EPOCHS,
     cost: str = "trajectory",
     seed: int = 0,
     progress: bool = True,

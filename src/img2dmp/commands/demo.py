@@ -10,9 +10,13 @@ HELP = "generate -> train -> evaluate -> pictures, on a small built-in example"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from ..pipeline import DEMO_EPOCHS, DEMO_SAMPLES_PER_DIGIT
+
     p.add_argument("--out", default="runs/demo", help="output directory")
-    p.add_argument("--samples-per-digit", type=int, default=300, help="size of the data set")
-    p.add_argument("--epochs", type=int, default=60, help="training epochs")
+    p.add_argument(
+        "--samples-per-digit", type=int, default=DEMO_SAMPLES_PER_DIGIT, help="data set size"
+    )
+    p.add_argument("--epochs", type=int, default=DEMO_EPOCHS, help="training epochs")
     p.add_argument("--cost", default="trajectory", help="parameter (eq. 9) or trajectory (eq. 10)")
     p.add_argument("--seed", type=int, default=0)
 
