@@ -3,11 +3,14 @@
 Same batch for all: B = 128 DMPs, d = 2, N = 25 kernels, 301 time stamps per sample over
 its own duration (tau in [2.5, 3.5] s), loss = sum of squared positions.
 
-1. ``img2dmp.dmp.rollout`` - precomputed unit responses, autograd through a gather.
+1. ``img2dmp.dmp.rollout`` - precomputed unit responses, in its two implementations:
+   ``backend="fused"`` (the default on the CPU: compiled forward and backward loops) and
+   ``backend="torch"`` (torch operations: a GEMM, a gather, a hand-written backward).
 2. Autograd through an explicit Euler loop in torch, one step per time stamp, as Neural
    Dynamic Policies integrates its DMP layer: (a) written as NDP writes it, each step's
-   position assigned in place into a preallocated [B*d, T] tensor; (b) a leaner variant
-   that collects the steps in a list and stacks them once.
+   position assigned in place into a preallocated [B*d, T] tensor, in float32 (NDP's
+   dtype) and float64; (b) a leaner variant that collects the steps in a list and stacks
+   them once.
 3. ``img2dmp.dmp.rollout_sensitivity`` - the paper's sensitivity equations (RK4).
 4. ``img2dmp.dmp.DMPIntegrator`` - the float64 step-by-step reference integrator, one
    trajectory at a time, forward only (it computes no gradient).
@@ -154,19 +157,22 @@ def main():
     cfg, p_np, t_np = make_batch()
     b = t_np.shape[0]
     rows = []
-    for dtype in (torch.float32, torch.float64):
-        p, t = p_np.to_torch(dtype), torch.as_tensor(t_np, dtype=dtype)
-        name = "float32" if dtype == torch.float32 else "float64"
-        fb = forward_backward(lambda q, tt: rollout(q, tt, cfg), p, t)
-        rows.append((f"fast rollout ({name})", *timed(fb, args.repeats)))
-    p, t = p_np.to_torch(torch.float64), torch.as_tensor(t_np)
+    for backend in ("fused", "torch"):
+        for dtype in (torch.float32, torch.float64):
+            p, t = p_np.to_torch(dtype), torch.as_tensor(t_np, dtype=dtype)
+            name = f"fast rollout, {backend} ({str(dtype)[6:]})"
+            fb = forward_backward(lambda q, tt, b=backend: rollout(q, tt, cfg, backend=b), p, t)
+            rows.append((name, *timed(fb, args.repeats)))
     slow_repeats = max(1, args.repeats // 2)
-    for name, fn in (
-        ("Euler loop + autograd, NDP layout (float64)", euler_rollout_ndp),
-        ("Euler loop + autograd, lean (float64)", euler_rollout),
+    for name, fn, dtype in (
+        ("Euler loop + autograd, NDP layout (float32)", euler_rollout_ndp, torch.float32),
+        ("Euler loop + autograd, NDP layout (float64)", euler_rollout_ndp, torch.float64),
+        ("Euler loop + autograd, lean (float64)", euler_rollout, torch.float64),
     ):
+        p, t = p_np.to_torch(dtype), torch.as_tensor(t_np, dtype=dtype)
         fb = forward_backward(lambda q, tt, fn=fn: fn(q, tt, cfg), p, t)
         rows.append((name, *timed(fb, slow_repeats)))
+    p, t = p_np.to_torch(torch.float64), torch.as_tensor(t_np)
     fb = forward_backward(lambda q, tt: rollout_sensitivity(q, tt, cfg), p, t)
     rows.append(("sensitivity equations, RK4 (float64)", *timed(fb, 1)))
     k = args.reference_samples
@@ -183,13 +189,20 @@ def main():
         f"B={b}, d=2, N=25, T={t_np.shape[1]}, forward + backward, median of "
         f"{args.repeats} runs, torch threads={torch.get_num_threads()}"
     )
-    print(f"{'method':46s} {'time (ms)':>10s} {'/ fast f32':>11s} {'max err px':>11s}")
+    print(f"{'method':46s} {'time (ms)':>10s} {'/ fused f32':>11s} {'max err px':>11s}")
     for name, sec, out in rows:
         err = np.abs(np.asarray(out[:4], dtype=np.float64) - refs[: len(out)]).max()
         print(f"{name:46s} {sec * 1e3:10.2f} {sec / base:10.1f}x {err:11.2e}")
+    sec = {name: s for name, s, _ in rows}
+    euler32 = sec["Euler loop + autograd, NDP layout (float32)"]
+    euler64 = sec["Euler loop + autograd, NDP layout (float64)"]
     print(
-        f"\nfast rollout (float32) vs Euler-loop autograd: {rows[2][1] / base:.0f}x faster than "
-        f"the NDP layout, {rows[3][1] / base:.0f}x faster than the lean loop (target >= 100x)"
+        f"\nfused rollout vs the Euler loop in NDP's layout, same dtype: "
+        f"{euler32 / sec['fast rollout, fused (float32)']:.0f}x in float32, "
+        f"{euler64 / sec['fast rollout, fused (float64)']:.0f}x in float64 (target >= 100x)"
+        f"\ntorch-operations rollout, same comparison: "
+        f"{euler32 / sec['fast rollout, torch (float32)']:.0f}x in float32, "
+        f"{euler64 / sec['fast rollout, torch (float64)']:.0f}x in float64"
     )
 
 

@@ -52,8 +52,12 @@ def _solve_ivp_reference(p: DMPParams, t: np.ndarray, config: DMPConfig) -> np.n
     return sol.y[:d].T
 
 
+BACKENDS = ["fused", "torch"]
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("scaling", ["goal-start", "none"])
-def test_fast_rollout_matches_solve_ivp(scaling):
+def test_fast_rollout_matches_solve_ivp(scaling, backend):
     cfg = DMPConfig(scaling=scaling)
     rng = np.random.default_rng(1)
     p = _random_params(rng, 6, cfg)
@@ -64,26 +68,28 @@ def test_fast_rollout_matches_solve_ivp(scaling):
         t = np.sort(rng.uniform(0, 1.3 * pb.tau, 120))
         t[0] = 0.0
         ref = _solve_ivp_reference(pb, t, cfg)
-        fast = rollout(pb.to_torch(), torch.tensor(t), cfg).numpy()
+        fast = rollout(pb.to_torch(), torch.tensor(t), cfg, backend=backend).numpy()
         assert np.ptp(ref) > 5  # a real movement, not a constant
         worst = max(worst, np.abs(fast - ref).max())
     assert worst < 0.01, f"fast rollout deviates from solve_ivp by {worst:.2e} px"
 
 
-def test_fast_rollout_batched_equals_single_and_per_sample_times():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_fast_rollout_batched_equals_single_and_per_sample_times(backend):
     cfg = DMPConfig()
     rng = np.random.default_rng(2)
     p = _random_params(rng, 4, cfg).to_torch()
     t = torch.sort(torch.rand(4, 50, dtype=torch.float64) * 3, dim=-1).values
-    batched = rollout(p, t, cfg)
+    batched = rollout(p, t, cfg, backend=backend)
     for b in range(4):
-        single = rollout(p[b], t[b], cfg)
+        single = rollout(p[b], t[b], cfg, backend=backend)
         torch.testing.assert_close(batched[b], single, rtol=0, atol=1e-12)
     # arbitrary leading batch dimensions
     p2 = DMPParams(
         p.w.reshape(2, 2, 25, 2), p.tau.reshape(2, 2), p.g.reshape(2, 2, 2), p.y0.reshape(2, 2, 2)
     )
-    torch.testing.assert_close(rollout(p2, t.reshape(2, 2, 50), cfg).reshape(4, 50, 2), batched)
+    y2 = rollout(p2, t.reshape(2, 2, 50), cfg, backend=backend)
+    torch.testing.assert_close(y2.reshape(4, 50, 2), batched)
 
 
 def test_rollout_starts_at_y0_and_converges_to_goal():
@@ -118,12 +124,13 @@ def _small_batch(seed=5, b=3, t_count=25):
     return cfg, p.to_torch(), t
 
 
-def test_gradcheck_fast_rollout():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_gradcheck_fast_rollout(backend):
     cfg, p, t = _small_batch()
     leaves = [a.clone().requires_grad_(True) for a in (p.w, p.tau, p.g, p.y0)]
 
     def fn(w, tau, g, y0):
-        return rollout(DMPParams(w, tau, g, y0), t, cfg)
+        return rollout(DMPParams(w, tau, g, y0), t, cfg, backend=backend)
 
     assert torch.autograd.gradcheck(fn, leaves, eps=1e-6, atol=1e-6, rtol=1e-5)
 
@@ -269,7 +276,8 @@ def test_bad_input_raises_clear_errors():
         rollout(p.to_torch(), torch.tensor(t), DMPConfig(n_kernels=10))
 
 
-def test_unvalidated_rollout_propagates_nan_instead_of_crashing():
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_unvalidated_rollout_propagates_nan_instead_of_crashing(backend):
     # A diverged network can hand the hot loop (validate=False) a NaN duration: the
     # positions must come out NaN, for the training loop to report, not an IndexError.
     cfg = DMPConfig()
@@ -278,6 +286,82 @@ def test_unvalidated_rollout_propagates_nan_instead_of_crashing():
     tau[1] = float("nan")
     bad = DMPParams.__new__(DMPParams)  # bypasses validation, as a raw network output would
     bad.w, bad.tau, bad.g, bad.y0 = p.w, tau, p.g, p.y0
-    y = rollout(bad, torch.linspace(0, 1, 7, dtype=torch.float64), cfg, validate=False)
+    t = torch.linspace(0, 1, 7, dtype=torch.float64)
+    y = rollout(bad, t, cfg, validate=False, backend=backend)
     assert torch.isfinite(y[0]).all()
     assert torch.isnan(y[1]).all()
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize(("scaling", "n_kernels", "d"), [("goal-start", 25, 2), ("none", 10, 3)])
+@pytest.mark.parametrize("batch", [3, 40])  # 40: the kernels that spread samples over threads
+def test_fused_and_torch_rollouts_agree(dtype, scaling, n_kernels, d, batch):
+    """Values and gradients of the two implementations, serial and parallel kernels."""
+    cfg = DMPConfig(n_kernels=n_kernels, n_dims=d, scaling=scaling)
+    rng = np.random.default_rng(11)
+    p = _random_params(rng, batch, cfg).to_torch(dtype)
+    t = torch.tensor(np.sort(rng.uniform(0, 6.0, (batch, 60)), axis=-1), dtype=dtype)
+    weights = torch.tensor(rng.normal(size=(batch, 60, d)), dtype=dtype)
+    tol = dict(rtol=2e-5, atol=2e-4) if dtype == torch.float32 else dict(rtol=1e-9, atol=1e-9)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        out = {}
+        for backend in BACKENDS:
+            leaves = [a.clone().requires_grad_(True) for a in (p.w, p.tau, p.g, p.y0)]
+            y = rollout(DMPParams(*leaves), t, cfg, backend=backend)
+            (y * weights).sum().backward()
+            out[backend] = [y.detach()] + [leaf.grad for leaf in leaves]
+    finally:
+        torch.set_num_threads(threads)
+    for name, a, b in zip(["y", "w", "tau", "g", "y0"], out["fused"], out["torch"], strict=True):
+        assert a.dtype == dtype, name
+        torch.testing.assert_close(a, b, **tol, msg=lambda m, name=name: f"{name}: {m}")
+
+
+def test_fused_rollout_with_some_inputs_frozen_matches_torch():
+    # Only w needs a gradient (tau fixed): the fused backward skips the time derivative.
+    cfg, p, t = _small_batch(b=5)
+    grads = {}
+    for backend in BACKENDS:
+        w = p.w.clone().requires_grad_(True)
+        y = rollout(DMPParams(w, p.tau, p.g, p.y0), t, cfg, backend=backend)
+        (y**2).sum().backward()
+        grads[backend] = w.grad
+    torch.testing.assert_close(grads["fused"], grads["torch"], rtol=1e-10, atol=1e-10)
+
+
+def test_rollout_backend_choice_is_checked():
+    cfg, p, t = _small_batch()
+    with pytest.raises(ValueError, match="backend must be one of"):
+        rollout(p, t, cfg, backend="cuda")
+    with pytest.raises(ValueError, match="backend='fused' needs"):
+        rollout(p.to_torch(torch.float16), t.half(), cfg, backend="fused")
+    # "auto" takes what applies: float16 goes through the torch operations
+    y = rollout(p.to_torch(torch.float16), t.half(), cfg)
+    assert y.dtype == torch.float16 and torch.isfinite(y).all()
+
+
+def test_rollout_without_numba_falls_back_to_torch_operations(monkeypatch):
+    from img2dmp.dmp import _kernels
+
+    cfg, p, t = _small_batch()
+    expected = rollout(p, t, cfg, backend="torch")
+    monkeypatch.setattr(_kernels, "available", lambda: False)
+    torch.testing.assert_close(rollout(p, t, cfg), expected, rtol=0, atol=0)
+    with pytest.raises(ValueError, match="numba=no"):
+        rollout(p, t, cfg, backend="fused")
+
+
+def test_forked_child_of_a_parallel_process_gets_serial_kernels(monkeypatch):
+    # GNU OpenMP cannot run again in a child forked after it ran (numba aborts the child).
+    from img2dmp.dmp import _kernels
+
+    if not _kernels._parallel_safe():
+        pytest.skip("numba has no OpenMP/TBB threading layer here: kernels are always serial")
+    monkeypatch.setattr(_kernels, "_parallel_pid", -1)  # "the parent that ran them"
+    serial = _kernels._kernel_pairs(32, 2, False)
+    assert _kernels.kernels(32, 2, n_threads=2) is serial
+    monkeypatch.setattr(_kernels, "_parallel_pid", None)
+    assert _kernels.kernels(32, 2, n_threads=2) is _kernels._kernel_pairs(32, 2, True)
+    assert _kernels.kernels(32, 2, n_threads=1) is serial

@@ -18,6 +18,17 @@ and exact derivatives at the nodes). A batch rollout is then one small matrix pr
 a gather, and its backward pass (written by hand, checked by gradcheck) gives the exact
 derivatives of that interpolant for w, g, y0 and tau; tau enters only through
 ``s = t / tau``, so ``dy/dtau = -(t / tau^2) y'(s)``.
+
+Two implementations of that one interpolant (``rollout(..., backend=...)``):
+
+- ``"fused"`` (the default for float32/float64 CPU tensors): one compiled loop (numba,
+  :mod:`img2dmp.dmp._kernels`) for the forward and one for the backward pass, over the
+  samples in parallel on ``torch.get_num_threads()`` threads; nothing of the batch's size
+  is materialised besides the output. Fastest on the CPU.
+- ``"torch"``: torch operations (one GEMM of the coefficients with the pieces the batch
+  reaches, a gather, a hand-written backward); any device and dtype.
+
+They agree to rounding, and both are checked by gradcheck.
 """
 
 from __future__ import annotations
@@ -29,9 +40,10 @@ import numpy as np
 import torch
 from scipy.integrate import solve_ivp
 
+from . import _kernels
 from .basis import basis_functions, kernel_centres, kernel_widths
 from .config import DMPConfig
-from .params import DMPParams
+from .params import DMPParams, all_finite, as_host_array
 
 # Nodes per shortest time scale of the responses: cubic Hermite error ~1e-7 relative
 # (~2e-6 px on a 40 px digit), below float32 resolution, with few pieces to combine.
@@ -128,15 +140,22 @@ def unit_responses(s: torch.Tensor, config: DMPConfig) -> tuple[torch.Tensor, to
     return val[..., 0], val[..., 1:]
 
 
-def check_time_stamps(t, name: str = "t") -> None:
-    """Raise ``ValueError`` unless ``t`` is finite, non-empty, >= 0 and strictly increasing."""
-    t = torch.as_tensor(t)
-    if t.numel() == 0 or t.shape[-1] == 0:
+def check_time_stamps(t, name: str = "t", *, non_negative: bool = False) -> None:
+    """Raise ``ValueError`` unless ``t`` is finite, non-empty and strictly increasing.
+
+    With ``non_negative`` also unless ``t >= 0``.
+    """
+    x = as_host_array(t) if torch.is_tensor(t) else np.asarray(t)
+    if x is None:  # another device: the same checks in torch
+        x = t.detach().cpu().numpy()
+    if x.size == 0 or x.shape[-1] == 0:
         raise ValueError(f"{name} is empty: a trajectory needs at least one time stamp")
-    if not bool(torch.isfinite(t).all()):
+    if not all_finite(x):
         raise ValueError(f"{name} contains NaN or inf")
-    if t.shape[-1] > 1 and not bool((t[..., 1:] > t[..., :-1]).all()):
+    if x.shape[-1] > 1 and not bool((x[..., 1:] > x[..., :-1]).all()):
         raise ValueError(f"{name} must be strictly increasing along its last axis")
+    if non_negative and bool((x[..., 0] < 0).any()):
+        raise ValueError(f"{name} must be >= 0 (seconds since the start of the movement)")
 
 
 def rollout(
@@ -145,6 +164,7 @@ def rollout(
     config: DMPConfig | None = None,
     *,
     validate: bool = True,
+    backend: str = "auto",
 ) -> torch.Tensor:
     """Positions ``y(t)`` of a batch of DMPs at arbitrary per-sample time stamps.
 
@@ -163,6 +183,11 @@ def rollout(
     validate : bool
         Check inputs (costs a few host syncs; turn off in a hot training loop only once
         the inputs are known to be good).
+    backend : {"auto", "fused", "torch"}
+        ``"fused"``: one compiled loop (numba) for the forward and one for the backward
+        pass, float32/float64 on CPU; ``"torch"``: the same maths in torch operations
+        (any device and dtype). ``"auto"`` (default) takes the fused kernels where they
+        apply. Both give the same numbers to rounding and the same gradients.
 
     Returns
     -------
@@ -173,14 +198,19 @@ def rollout(
     t = torch.as_tensor(t, dtype=w.dtype, device=w.device)
     if validate:
         params.validate(config)
-        check_time_stamps(t)
-        if bool((t < 0).any()):
-            raise ValueError("t must be >= 0 (seconds since the start of the movement)")
+        check_time_stamps(t, non_negative=True)
     batch = params.batch_shape
     if t.ndim == 1:
         t = t.expand(*batch, t.shape[0])
     elif tuple(t.shape[:-1]) != batch:
         raise ValueError(f"t has batch shape {tuple(t.shape[:-1])}, the parameters have {batch}")
+    if _use_fused(backend, w, t):
+        if len(batch) == 1:  # already flat: no reshapes (each would add an autograd node)
+            return _FusedRollout.apply(t, tau, w, g, y0, config)
+        flat = (t.reshape(-1, t.shape[-1]), tau.reshape(-1), w.reshape(-1, *w.shape[-2:]))
+        flat += (g.reshape(-1, g.shape[-1]), y0.reshape(-1, y0.shape[-1]))
+        y = _FusedRollout.apply(*flat, config)
+        return y.reshape(*batch, *y.shape[-2:])
     s = (t / tau[..., None]).reshape(-1, t.shape[-1])  # [B, T]
     scale = (g - y0) if config.scaling == "goal-start" else torch.ones_like(g)
     # y = g + sum_c coef_c * column_c(s) with columns [a, R_1..R_N] of the response table.
@@ -250,3 +280,87 @@ class _PiecewiseCombination(torch.autograd.Function):
             per_k = torch.matmul(g_traj.view(4, b * d, pieces), table.transpose(1, 2))
             grad_coef = per_k.sum(0).view(b, d, c).transpose(1, 2)  # [B, C, d]
         return grad_s, grad_coef, None, None, None
+
+
+BACKENDS = ("auto", "fused", "torch")
+
+
+def _use_fused(backend: str, w: torch.Tensor, t: torch.Tensor) -> bool:
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if backend == "torch":
+        return False
+    ok = (
+        _kernels.available()
+        and w.device.type == "cpu"
+        and w.dtype in (torch.float32, torch.float64)
+        and not t.requires_grad
+    )
+    if backend == "fused" and not ok:
+        raise ValueError(
+            "backend='fused' needs numba and float32/float64 CPU tensors (and t without "
+            f"gradient); got numba={'yes' if _kernels.available() else 'no'}, "
+            f"device={w.device}, dtype={w.dtype}"
+        )
+    return ok
+
+
+@functools.lru_cache(maxsize=16)
+def _kernel_table(config: DMPConfig, dtype: torch.dtype):
+    """``(1 / h, s_max, tab)``: scalars and cubic pieces (``[G, 4, C]``) of one dtype."""
+    h, s_max, poly = _response_table(config, dtype, "cpu")
+    tab = _kernels.piece_table(poly.numpy())
+    one = tab.dtype.type(1.0)
+    return one / tab.dtype.type(h), tab.dtype.type(s_max), tab
+
+
+def _np(x: torch.Tensor) -> np.ndarray:
+    return x.detach().contiguous().numpy()
+
+
+def _fused_kernels(config_table, n_samples: int, n_dims: int):
+    threads = torch.get_num_threads()
+    if n_samples < 2 * _kernels.MIN_SAMPLES_PER_THREAD:
+        threads = 1
+    return _kernels.kernels(config_table.shape[2], n_dims, threads)
+
+
+class _FusedRollout(torch.autograd.Function):
+    """The whole rollout (forward and backward) in two compiled loops; see ``_kernels``.
+
+    Large batches are spread over ``torch.get_num_threads()`` threads.
+    """
+
+    @staticmethod
+    def forward(ctx, t, tau, w, g, y0, config):
+        inv_h, s_max, tab = _kernel_table(config, w.dtype)
+        y = torch.empty(*t.shape, w.shape[-1], dtype=w.dtype)
+        forward = _fused_kernels(tab, t.shape[0], w.shape[-1])[0]
+        arrays = (_np(x.to(w.dtype)) for x in (t, tau, w, g, y0))
+        one = tab.dtype.type(1)
+        forward(*arrays, tab, inv_h, s_max, one, config.scaling == "goal-start", y.numpy())
+        ctx.save_for_backward(t, tau, w, g, y0)
+        ctx.config = config
+        return y
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, gy):
+        t, tau, w, g, y0 = ctx.saved_tensors
+        inv_h, s_max, tab = _kernel_table(ctx.config, w.dtype)
+        need = ctx.needs_input_grad
+        grads = [torch.empty(x.shape, dtype=w.dtype) for x in (w, tau, g, y0)]
+        backward = _fused_kernels(tab, t.shape[0], w.shape[-1])[1]
+        arrays = (_np(x.to(w.dtype)) for x in (gy, t, tau, w, g, y0))
+        one = tab.dtype.type(1)
+        scaled = ctx.config.scaling == "goal-start"
+        backward(*arrays, tab, inv_h, s_max, one, scaled, *(x.numpy() for x in grads), need[1])
+        gw, gtau, gg, gy0 = (d.to(x.dtype) for d, x in zip(grads, (w, tau, g, y0), strict=True))
+        return (
+            None,
+            gtau if need[1] else None,
+            gw if need[2] else None,
+            gg if need[3] else None,
+            gy0 if need[4] else None,
+            None,
+        )

@@ -1,0 +1,267 @@
+"""Fused CPU kernels (numba) for the forward and backward pass of the fast rollout.
+
+One loop over every (sample, time stamp) does the whole rollout of
+:mod:`img2dmp.dmp.rollout`: locate the cubic piece of the response table, evaluate the
+N + 1 unit responses there, and combine them with that sample's coefficients; the
+backward loop does the same once more and accumulates the gradients of w, g, y0 and tau.
+No intermediate array of the batch's size is written, which is where the torch path
+spends most of its time.
+
+The maths is that of :class:`img2dmp.dmp.rollout._PiecewiseCombination` (the two paths
+are tested against each other and by gradcheck). The table has the layout
+``tab[piece, power, column]``, its columns padded with zeros to a multiple of 16, so
+that the inner loops run over contiguous columns without a scalar remainder. NaN in
+``t`` or ``tau`` gives NaN positions, as in the torch path.
+
+The kernels are compiled per (table width, number of dimensions, serial or parallel)
+and dtype; the parallel ones spread the samples over numba's threads (OpenMP, the same
+runtime torch uses). Compiled code is cached on disk (next to this file, or in numba's
+user cache when that is not writable): the first call on a fresh machine compiles for
+about 8 s per dtype, later processes load it in well under a second.
+
+Numba is a dependency, but the package keeps working without it: :func:`available`
+says whether it imported, and the rollout falls back to the torch path.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import os
+
+import numpy as np
+
+try:  # numba is a dependency, but a broken or missing install must not break the package
+    import numba
+except Exception:  # pragma: no cover - exercised only on machines without numba
+    numba = None
+
+
+def available() -> bool:
+    """True when numba imported and the fused kernels can be used."""
+    return numba is not None
+
+
+# Reassociation lets LLVM vectorise the sums over the table's columns; no "nnan"/"ninf",
+# so NaN inputs still propagate (and the NaN test in _locate is kept).
+_FASTMATH = {"reassoc", "contract"}
+
+
+def _jit(fn, parallel: bool = False):
+    if numba is None:  # pragma: no cover
+        return fn
+    opts = dict(fastmath=_FASTMATH, nogil=True, error_model="numpy", parallel=parallel)
+    try:
+        return numba.njit(cache=True, **opts)(fn)
+    except RuntimeError:  # pragma: no cover - no writable cache location
+        return numba.njit(cache=False, **opts)(fn)
+
+
+def _locate(s, inv_h, s_max, n_pieces, one):
+    """Piece index, local coordinate in [0, 1] and "strictly inside the table" of ``s``.
+
+    ``s`` is clamped to [0, s_max]; NaN goes to piece 0 with a NaN coordinate.
+    """
+    if not (s == s):
+        return 0, s, False
+    zero = one - one
+    inside = s > zero and s < s_max
+    q = min(max(s, zero), s_max) * inv_h
+    fl = np.floor(q)
+    i = int(fl)
+    u = q - fl
+    if i > n_pieces - 1:
+        i = n_pieces - 1
+        u = q - fl + one
+    return i, u, inside
+
+
+def _cubic(tab, p, c, u):
+    """Column ``c`` of piece ``p`` at local coordinate ``u`` (Horner)."""
+    return tab[p, 0, c] + u * (tab[p, 1, c] + u * (tab[p, 2, c] + u * tab[p, 3, c]))
+
+
+def _coefficients(b, w, g, y0, scaled, coef, one):
+    """This sample's coefficients of the table's columns: ``[y0 - g, S * w_1, ...]``.
+
+    ``coef`` has an even number of rows (dimensions are processed in pairs); a padding
+    row stays zero.
+    """
+    n_k, d = w.shape[1], w.shape[2]
+    for j in range(d):
+        sc = g[b, j] - y0[b, j] if scaled else one
+        coef[j, 0] = y0[b, j] - g[b, j]
+        for k in range(n_k):
+            coef[j, k + 1] = sc * w[b, k, j]
+
+
+def _build(n_columns: int, n_dims: int, parallel: bool):
+    """Forward and backward kernels for tables of ``n_columns`` columns and ``n_dims`` dims.
+
+    Both counts are compile-time constants of the closures: LLVM then vectorises the
+    column loops without a scalar remainder, unrolls the loop over the pairs of
+    dimensions and can tell the rows of the small work arrays apart, which together
+    halve the time of the generic loops.
+    """
+    n_c, d = n_columns, n_dims
+    n_pairs = (d + 1) // 2
+    # The loop over samples. Being a closure variable, it also keeps the on-disk cache
+    # entries of the serial and the parallel kernels apart.
+    samples = numba.prange if parallel else range
+
+    def forward(t, tau, w, g, y0, tab, inv_h, s_max, one, scaled, out):
+        """``out[b, i, j] = y_j(t[b, i])`` of DMP ``b``.
+
+        t [B, T], tau [B], w [B, N, d], g / y0 [B, d], tab [G, 4, n_c] (columns past
+        N + 1 are zero), out [B, T, d]. ``inv_h``, ``s_max`` and ``one`` are scalars of the
+        table's dtype, so every float stays in that dtype (a Python literal would promote
+        float32 code to float64). Dimensions go in pairs through one loop over the
+        columns, vectorised with two accumulators.
+        """
+        n_b, n_t = t.shape
+        n_pieces = tab.shape[0]
+        zero = one - one
+        coefs = np.zeros((n_b, 2 * n_pairs, n_c), dtype=tab.dtype)
+        for b in samples(n_b):
+            coef = coefs[b]
+            _coefficients(b, w, g, y0, scaled, coef, one)
+            inv_tau = one / tau[b]
+            for i in range(n_t):
+                p, u, _ = _locate(t[b, i] * inv_tau, inv_h, s_max, n_pieces, one)
+                for jp in range(n_pairs):
+                    acc_a = zero
+                    acc_b = zero
+                    for c in range(n_c):
+                        v = _cubic(tab, p, c, u)
+                        acc_a += coef[2 * jp, c] * v
+                        acc_b += coef[2 * jp + 1, c] * v
+                    out[b, i, 2 * jp] = g[b, 2 * jp] + acc_a
+                    if 2 * jp + 1 < d:
+                        out[b, i, 2 * jp + 1] = g[b, 2 * jp + 1] + acc_b
+
+    def backward(gy, t, tau, w, g, y0, tab, inv_h, s_max, one, scaled, gw, gtau, gg, gy0, want_s):
+        """Gradients of ``sum(gy * y)`` for w, tau, g and y0, written into gw ... gy0.
+
+        ``want_s`` skips the time derivative (and gtau) when tau needs no gradient.
+        """
+        n_b, n_t = t.shape
+        n_k = w.shape[1]
+        n_pieces = tab.shape[0]
+        zero = one - one
+        coefs = np.zeros((n_b, 2 * n_pairs, n_c), dtype=tab.dtype)
+        gcs = np.zeros((n_b, 2 * n_pairs, n_c), dtype=tab.dtype)  # gradient of coefs
+        for b in samples(n_b):
+            coef, gc = coefs[b], gcs[b]
+            _coefficients(b, w, g, y0, scaled, coef, one)
+            inv_tau = one / tau[b]
+            g_tau = zero
+            for i in range(n_t):
+                p, u, inside = _locate(t[b, i] * inv_tau, inv_h, s_max, n_pieces, one)
+                g_s = zero
+                for jp in range(n_pairs):
+                    ga = gy[b, i, 2 * jp]
+                    gb = gy[b, i, 2 * jp + 1] if 2 * jp + 1 < d else zero
+                    for c in range(n_c):
+                        v = _cubic(tab, p, c, u)
+                        gc[2 * jp, c] += ga * v
+                        gc[2 * jp + 1, c] += gb * v
+                    if want_s:
+                        acc = zero
+                        for c in range(n_c):
+                            r2 = tab[p, 2, c]
+                            r3 = tab[p, 3, c]
+                            dv = tab[p, 1, c] + u * (r2 + r2 + u * (r3 + r3 + r3))
+                            acc += (ga * coef[2 * jp, c] + gb * coef[2 * jp + 1, c]) * dv
+                        g_s += acc
+                if want_s and inside:
+                    # dy/ds of the interpolant is (dy/du) / h, and s = t / tau; the clamp
+                    # at the ends of the table stops the gradient outside.
+                    g_tau -= g_s * inv_h * t[b, i] * inv_tau * inv_tau
+            gtau[b] = g_tau
+            for j in range(d):
+                sc = g[b, j] - y0[b, j] if scaled else one
+                through_scale = zero
+                g_sum = zero
+                for i in range(n_t):
+                    g_sum += gy[b, i, j]
+                for k in range(n_k):
+                    gw[b, k, j] = gc[j, k + 1] * sc
+                    through_scale += gc[j, k + 1] * w[b, k, j]
+                if not scaled:
+                    through_scale = zero
+                gg[b, j] = g_sum - gc[j, 0] + through_scale
+                gy0[b, j] = gc[j, 0] - through_scale
+
+    return _jit(forward, parallel), _jit(backward, parallel)
+
+
+_locate = _jit(_locate)
+_cubic = _jit(_cubic)
+_coefficients = _jit(_coefficients)
+
+
+@functools.cache
+def _kernel_pairs(n_columns: int, n_dims: int, parallel: bool):
+    return _build(n_columns, n_dims, parallel)
+
+
+# The process that first ran a parallel kernel. GNU OpenMP cannot be used again in a
+# child forked from it (numba aborts the child), so a forked child runs serial kernels.
+_parallel_pid: int | None = None
+
+
+def kernels(n_columns: int, n_dims: int, n_threads: int = 1):
+    """``(forward, backward)`` for this table width and number of dimensions.
+
+    With ``n_threads > 1`` the versions that spread the samples over numba's threads
+    (``numba.set_num_threads`` is set to ``n_threads``, capped by numba's own limit).
+    The serial versions are used instead when numba's only threading layer is
+    "workqueue" (which must not be entered from two threads at once) and in a process
+    forked from one that already ran a parallel kernel.
+    """
+    global _parallel_pid
+    if n_threads <= 1 or not _parallel_safe():
+        return _kernel_pairs(n_columns, n_dims, False)
+    pid = os.getpid()
+    if _parallel_pid is None:
+        _parallel_pid = pid
+    elif _parallel_pid != pid:
+        return _kernel_pairs(n_columns, n_dims, False)
+    numba.set_num_threads(min(n_threads, numba.config.NUMBA_NUM_THREADS))
+    return _kernel_pairs(n_columns, n_dims, True)
+
+
+# Below this many samples per thread, spreading the batch costs more than it saves.
+MIN_SAMPLES_PER_THREAD = 16
+
+
+@functools.lru_cache(maxsize=1)
+def _parallel_safe() -> bool:
+    """True when numba will run parallel kernels on OpenMP or TBB (thread-safe layers)."""
+    if numba is None or numba.config.THREADING_LAYER == "workqueue":
+        return False
+    for layer in ("omppool", "tbbpool"):
+        try:
+            importlib.import_module(f"numba.np.ufunc.{layer}")
+            return True
+        except Exception:
+            continue
+    return False
+
+
+# Columns are padded with zeros to a multiple of this, so that the vectorised loops over
+# them have no scalar remainder (16 float32 = one AVX-512 register).
+_COLUMN_MULTIPLE = 16
+
+
+def piece_table(poly: np.ndarray) -> np.ndarray:
+    """The torch path's ``[C, G, 4]`` polynomial table in the kernels' ``[G, 4, C']`` layout.
+
+    ``C'`` is ``C`` rounded up to a multiple of 16; the extra columns are zero.
+    """
+    poly = np.asarray(poly)
+    n_c = poly.shape[0]
+    padded = -(-n_c // _COLUMN_MULTIPLE) * _COLUMN_MULTIPLE
+    tab = np.zeros((poly.shape[1], 4, padded), dtype=poly.dtype)
+    tab[:, :, :n_c] = poly.transpose(1, 2, 0)
+    return tab
