@@ -15,7 +15,13 @@ from img2dmp.data.store import load_dataset, save_dataset
 from img2dmp.data.synthetic import generate_dataset
 from img2dmp.dmp import rollout
 from img2dmp.evaluate import error_statistics, evaluate, format_table, summarise
-from img2dmp.predict import DEFAULT_MARGIN, Predictor, ink_margin, prepare_image
+from img2dmp.predict import (
+    DEFAULT_MARGIN,
+    Predictor,
+    ink_margin,
+    prepare_image,
+    stroke_width,
+)
 from img2dmp.train import TrainConfig, train
 
 
@@ -151,3 +157,29 @@ def test_predict_paths_and_cli(model_and_data, tmp_path, capsys):
     assert csv[0] == "t_s,x_px,y_px" and len(csv) == 101
     assert cli.main(["evaluate", str(run), str(data_path), "--out", str(tmp_path / "e")]) == 0
     assert (tmp_path / "e" / "examples.png").is_file()
+
+
+def test_stroke_width_estimate_tracks_the_pen():
+    path = generate_dataset(4, seed=0, progress=False).trajectories[1][None] * 10  # 400 px
+    widths = [
+        stroke_width(render_paths(path, 400, pen_width_px=w)[0].numpy(), upsample=1)
+        for w in (4.0, 12.0, 30.0)
+    ]
+    assert widths[0] < widths[1] < widths[2]
+    assert widths[2] - widths[0] > 20  # 26 px apart, biased by the soft edges only
+    assert stroke_width(np.zeros((10, 10))) == 0.0
+
+
+def test_prepare_image_brings_thin_and_thick_pens_to_the_training_width():
+    path = generate_dataset(4, seed=0, progress=False).trajectories[1][None] * 10
+    target = 2.6
+    kept, matched = [], []
+    for pen in (4.0, 12.0, 30.0):
+        scan = 1.0 - render_paths(path, 400, pen_width_px=pen)[0].numpy()  # dark on light
+        kept.append(stroke_width(prepare_image(scan, (40, 40))))
+        matched.append(stroke_width(prepare_image(scan, (40, 40), stroke_width_px=target)))
+    assert max(kept) - min(kept) > 2.0  # unnormalised: from hairline to marker
+    assert max(matched) - min(matched) < 0.8
+    assert all(abs(w - target) < 0.6 for w in matched), matched
+    with pytest.raises(ValueError, match="stroke_width_px"):
+        prepare_image(scan, (40, 40), stroke_width_px=-1.0)

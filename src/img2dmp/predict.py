@@ -52,6 +52,59 @@ def ink_margin(images: np.ndarray) -> float:
     return float(np.clip(np.median(margins), 0.0, 0.45)) if margins else DEFAULT_MARGIN
 
 
+def stroke_width(image: np.ndarray, upsample: int = 4) -> float:
+    """Estimated pen width in pixels of the ink in a grey image ``[H, W]`` (ink high).
+
+    The image is scaled to [0, 1], enlarged ``upsample`` times (bilinear) so that thin
+    strokes span several pixels, and thresholded at half ink; for a stroke of width W the
+    distance of its pixels to the background runs evenly from 0 to W / 2, so W is about
+    four times their mean. Returns 0 for an image without ink.
+    """
+    from PIL import Image
+    from scipy.ndimage import distance_transform_edt
+
+    a = np.asarray(image, dtype=np.float32)
+    top = float(a.max()) if a.size else 0.0
+    if top <= 0:
+        return 0.0
+    big = Image.fromarray(a / top, mode="F").resize(
+        (a.shape[1] * upsample, a.shape[0] * upsample), Image.Resampling.BILINEAR
+    )
+    mask = np.asarray(big) > 0.5
+    if not mask.any():
+        return 0.0
+    return float(4.0 * distance_transform_edt(mask)[mask].mean() / upsample)
+
+
+def typical_stroke_width(images: np.ndarray, limit: int = 500) -> float:
+    """Median :func:`stroke_width` over (up to ``limit`` of) prepared images ``[M, H, W]``."""
+    widths = [w for w in (stroke_width(a) for a in np.asarray(images)[:limit]) if w > 0]
+    return float(np.median(widths)) if widths else 0.0
+
+
+def _match_stroke_width(crop: np.ndarray, scale: float, target_px: float) -> np.ndarray:
+    """Thicken or thin the ink of ``crop`` so that it is ``target_px`` wide after resizing.
+
+    ``scale`` is output pixels per crop pixel. Grey-level dilation (erosion) with a disc
+    widens (narrows) every stroke by twice the disc's radius and keeps its ink profile.
+    """
+    from scipy.ndimage import grey_dilation, grey_erosion
+
+    width_out = stroke_width(crop, upsample=1 if scale < 0.5 else 4) * scale
+    if width_out <= 0 or abs(width_out - target_px) < 0.25:
+        return crop
+    radius = abs(target_px - width_out) / 2.0 / scale  # in crop pixels
+    if width_out > target_px:  # never erode a stroke away: keep at least half its width
+        radius = min(radius, width_out / scale / 4.0)
+    r = int(np.ceil(radius))
+    if r < 1:
+        return crop
+    yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
+    disc = (xx**2 + yy**2) <= radius**2 + 1e-9
+    op = grey_dilation if width_out < target_px else grey_erosion
+    return op(np.pad(crop, r), footprint=disc)
+
+
 def _decode(path: Path) -> np.ndarray:
     """Grey levels in [0, 1] of an image file; transparency is composited on white."""
     from PIL import Image, UnidentifiedImageError
@@ -79,6 +132,7 @@ def prepare_image(
     image_size=(40, 40),
     *,
     margin: float = DEFAULT_MARGIN,
+    stroke_width_px: float | None = None,
     name: str | None = None,
 ) -> np.ndarray:
     """Bring an image of one handwritten digit to the network's input.
@@ -88,8 +142,10 @@ def prepare_image(
     light paper and the image is inverted); the background level (border median) is
     subtracted and the ink scaled to 1; crop to the bounding box of pixels above
     ``INK_THRESHOLD``; pad to a square around the box's centre; add ``margin`` of the
-    side on every border; resize with area averaging (anti-aliased, as the training
-    strokes are); scale so the darkest ink is 1.
+    side on every border; optionally thicken or thin the strokes to the training images'
+    pen width (a thin pen photographed at high resolution would otherwise shrink to faint
+    hairlines); resize with area averaging (anti-aliased, as the training strokes are);
+    scale so the darkest ink is 1.
 
     Parameters
     ----------
@@ -99,6 +155,9 @@ def prepare_image(
         The model's input size.
     margin : float
         Share of the side left empty on each border, in [0, 0.45].
+    stroke_width_px : float, optional
+        Pen width, in output pixels, to bring the strokes to (a model's
+        ``stroke_width_px``, see :func:`typical_stroke_width`); None keeps the width.
     name : str, optional
         Used in error messages for arrays.
 
@@ -123,6 +182,8 @@ def prepare_image(
             grey = grey / 255.0
     if not 0 <= margin <= 0.45:
         raise ValueError(f"margin must be in [0, 0.45], got {margin!r}")
+    if stroke_width_px is not None and not (np.isfinite(stroke_width_px) and stroke_width_px > 0):
+        raise ValueError(f"stroke_width_px must be a positive number, got {stroke_width_px!r}")
     h_out, w_out = (int(s) for s in image_size)
     ring = max(1, round(0.05 * min(grey.shape)))
     border = np.concatenate(
@@ -139,6 +200,11 @@ def prepare_image(
     rows, cols = np.nonzero(ink > INK_THRESHOLD)
     r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
     crop = ink[r0:r1, c0:c1]
+    if stroke_width_px is not None:
+        side = max(crop.shape) / (1.0 - 2.0 * margin)
+        crop = _match_stroke_width(crop, max(h_out, w_out) / side, float(stroke_width_px))
+        rows, cols = np.nonzero(crop > INK_THRESHOLD)  # re-frame the widened ink
+        crop = crop[rows.min() : rows.max() + 1, cols.min() : cols.max() + 1]
     side = max(crop.shape)
     inner = side / (1.0 - 2.0 * margin)
     total = int(np.ceil(inner))
@@ -206,6 +272,12 @@ class Predictor:
         """Framing of the training images, used by :func:`prepare_image`."""
         return float(self.meta.get("ink_margin", DEFAULT_MARGIN))
 
+    @property
+    def stroke_width(self) -> float | None:
+        """Typical pen width of the training images in pixels (None: not recorded)."""
+        w = self.meta.get("stroke_width_px")
+        return float(w) if w else None
+
     def _check_images(self, images) -> torch.Tensor:
         x = torch.as_tensor(np.asarray(images, dtype=np.float32))
         if x.ndim == 2:
@@ -244,9 +316,21 @@ class Predictor:
         n, d = self.dmp_config.n_kernels, self.dmp_config.n_dims
         return DMPParams.from_vector(v.numpy(), n, d)
 
-    def predict_paths(self, paths) -> list[tuple[DMPParams, np.ndarray]]:
-        """One DMP (batch shape ``[]``) and the prepared image for every image file."""
-        images = np.stack([prepare_image(p, self.image_size, margin=self.margin) for p in paths])
+    def predict_paths(
+        self, paths, match_stroke_width: bool = True
+    ) -> list[tuple[DMPParams, np.ndarray]]:
+        """One DMP (batch shape ``[]``) and the prepared image for every image file.
+
+        With ``match_stroke_width`` (and a model that recorded it) the strokes are brought
+        to the training images' pen width, see :func:`prepare_image`.
+        """
+        width = self.stroke_width if match_stroke_width else None
+        images = np.stack(
+            [
+                prepare_image(p, self.image_size, margin=self.margin, stroke_width_px=width)
+                for p in paths
+            ]
+        )
         params = self.predict_images(images)
         return [(params[i], images[i]) for i in range(len(images))]
 

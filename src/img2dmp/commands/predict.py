@@ -1,7 +1,8 @@
 """Predict the DMP that writes the digit in each image (PNG/JPEG of any size).
 
 Each image is brought to the model's input as the training images were made (polarity
-from the border, crop to the ink, pad to square, resize, ink = 1). Without --out the
+from the border, crop to the ink, pad to square, strokes thickened or thinned to the
+training images' pen width, resize, ink = 1). Without --out the
 predictions are printed as JSON; with --out each image gets NAME_dmp.json (parameters and
 sampled trajectory), NAME_trajectory.csv and, with --overlay, NAME_overlay.png.
 """
@@ -21,6 +22,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", help="write JSON/CSV (and PNG) files here instead of printing")
     p.add_argument("--overlay", action="store_true", help="also draw NAME_overlay.png")
     p.add_argument("--points", type=int, default=100, help="trajectory samples over [0, tau]")
+    p.add_argument(
+        "--keep-stroke-width",
+        action="store_true",
+        help="do not bring the strokes to the training images' pen width",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -29,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     if args.points < 2:
         raise ValueError(f"--points must be >= 2, got {args.points}")
     predictor = Predictor.load(args.model)
-    results = predictor.predict_paths(args.images)
+    results = predictor.predict_paths(args.images, not args.keep_stroke_width)
     records = []
     for path, (params, image) in zip(args.images, results, strict=True):
         t, y = predictor.trajectories(params, n_points=args.points)
