@@ -52,7 +52,12 @@ from .checkpoint import (
 from .data.store import DigitData, load_dataset
 from .dmp import DMPConfig
 from .nn import Cost, ModelConfig, ParamNormaliser, build_model, trajectory_error_px
-from .nn.costs import canonical_cost_name, dmp_trajectory
+from .nn.costs import (
+    PARAMETER_WEIGHTINGS,
+    ParameterWeighting,
+    canonical_cost_name,
+    dmp_trajectory,
+)
 from .predict import ink_margin
 
 PLOT_EVERY_S = 20.0
@@ -124,11 +129,22 @@ class OptimConfig:
 
 @dataclass
 class CostConfig:
-    """``name``: ``"parameter"`` (eq. 9), ``"trajectory"`` (eq. 10) or ``"combined"``."""
+    """``name``: ``"parameter"`` (eq. 9), ``"trajectory"`` (eq. 10) or ``"combined"``.
+
+    ``parameter_weighting``: per-unit weights of cost (9) (also inside ``combined``):
+    ``"none"`` (every normalised unit alike, the paper), ``"trajectory"`` (each unit
+    weighted by its mean squared trajectory sensitivity on the training set) or
+    ``"trajectory-full"`` (the mean Gauss-Newton matrix of cost 10 as the metric); computed
+    once before training and saved in the checkpoint, see
+    :class:`img2dmp.nn.costs.ParameterWeighting`. ``parameter_weight_floor``: smallest
+    weight (added to the diagonal for ``"trajectory-full"``), relative to their mean.
+    """
 
     name: str = "trajectory"
     parameter_weight: float = 1.0
     trajectory_weight: float = 1.0
+    parameter_weighting: str = "none"
+    parameter_weight_floor: float = 1e-3
 
 
 @dataclass
@@ -166,6 +182,16 @@ class TrainConfig:
         if o.schedule not in SCHEDULES:
             raise ValueError(f"optim.schedule must be one of {SCHEDULES}, got {o.schedule!r}")
         self.cost.name = canonical_cost_name(self.cost.name)
+        if self.cost.parameter_weighting not in PARAMETER_WEIGHTINGS:
+            raise ValueError(
+                f"cost.parameter_weighting must be one of {PARAMETER_WEIGHTINGS}, got "
+                f"{self.cost.parameter_weighting!r}"
+            )
+        if not 0 < float(self.cost.parameter_weight_floor) <= 1:
+            raise ValueError(
+                f"cost.parameter_weight_floor must be in (0, 1], got "
+                f"{self.cost.parameter_weight_floor!r}"
+            )
         if not 0 <= self.data.val_fraction < 1:
             raise ValueError(f"data.val_fraction must be in [0, 1), got {self.data.val_fraction!r}")
 
@@ -411,7 +437,11 @@ def _select_labels(a: DigitData, digits) -> np.ndarray:
 
 
 class _Data:
-    """Training and validation splits, from a file or the generator."""
+    """Training and validation splits, from a file or the generator.
+
+    ``fit_arrays``: ``(params [M, P], times [M, T])`` of the training samples the output
+    normalisation and the parameter weighting are fitted on (generator mode: epoch 0's).
+    """
 
     def __init__(self, cfg: TrainConfig, normaliser: ParamNormaliser | None):
         d = cfg.data
@@ -439,6 +469,7 @@ class _Data:
             self.normaliser = normaliser or ParamNormaliser.fit(
                 a.params[train_idx], self.dmp_config
             )
+            self.fit_arrays = (a.params[train_idx], a.times[train_idx])
             self.train = _to_split(a, train_idx, self.normaliser)
             self.val = _to_split(a, val_idx, self.normaliser)
             self._arrays = None
@@ -453,6 +484,7 @@ class _Data:
             self.image_size = list(val.images.shape[1:])
             first = self._generated(0)
             self.normaliser = normaliser or ParamNormaliser.fit(first.params, self.dmp_config)
+            self.fit_arrays = (first.params, first.times)
             self.val = _to_split(val, np.arange(len(val.labels)), self.normaliser)
             self._first = first
         # How the training images frame the ink, for preparing other images alike.
@@ -495,6 +527,7 @@ def _checkpoint_meta(cfg, data, epoch, history, best, extra=None) -> dict:
         "kind": "img2dmp-model",
         "model": cfg.model.to_dict(),
         "normaliser": data.normaliser.to_dict(),
+        "parameter_weighting": data.weighting.to_dict() if data.weighting else None,
         "dmp_config": data.dmp_config.to_dict(),
         "train_config": cfg.to_dict(),
         "dataset": {"path": cfg.data.path, "sha256": data.dataset_sha256},
@@ -508,6 +541,27 @@ def _checkpoint_meta(cfg, data, epoch, history, best, extra=None) -> dict:
     }
     meta.update(extra or {})
     return meta
+
+
+def _parameter_weighting(cfg, data, state) -> ParameterWeighting | None:
+    """Weights of cost (9): the resumed run's stored ones (a checkpoint without the record
+    was trained unweighted), else fitted on the training samples (those the normaliser is
+    fitted on) if the configuration asks for them and the cost has a parameter term."""
+    if state is not None and "parameter_weighting" in state.meta:
+        return ParameterWeighting.from_dict(state.meta["parameter_weighting"])
+    if state is not None or cfg.cost.parameter_weighting == "none":
+        return None
+    if cfg.cost.name == "trajectory":  # cost (10) alone: no parameter cost to weight
+        return None
+    params, times = data.fit_arrays
+    return ParameterWeighting.fit(
+        params,
+        times,
+        data.normaliser,
+        data.dmp_config,
+        cfg.cost.parameter_weight_floor,
+        kind=cfg.cost.parameter_weighting,
+    )
 
 
 def train(
@@ -597,6 +651,7 @@ def _train(cfg, run_dir, resume, overwrite, epochs, rank, world, t_start) -> Tra
             f"cannot resume: data set {cfg.data.path} has changed since the run started "
             f"(SHA-256 {data.dataset_sha256[:12]}... != {state.meta['dataset']['sha256'][:12]}...)"
         )
+    data.weighting = _parameter_weighting(cfg, data, state)
     cfg.model.n_outputs = data.dmp_config.n_params
     model = build_model(cfg.model, seed=cfg.seed)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.optim.lr, weight_decay=cfg.optim.weight_decay)
@@ -628,6 +683,7 @@ def _train(cfg, run_dir, resume, overwrite, epochs, rank, world, t_start) -> Tra
         data.dmp_config,
         cfg.cost.parameter_weight,
         cfg.cost.trajectory_weight,
+        data.weighting,
     )
     net = model
     if world > 1:

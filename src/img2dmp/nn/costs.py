@@ -8,32 +8,253 @@
   reaches every parameter, tau included (the paper's eqs. 11-27 by autograd).
 
 Both return the mean over the batch; :class:`Cost` selects one by name or a weighted sum.
+
+Cost (9) may weight its units (:class:`ParameterWeighting`, ``cost.parameter_weighting``):
+``"none"`` gives every normalised unit the same weight (the paper); ``"trajectory"``
+weights unit ``u`` by how much it moves the trajectory, the diagonal of the Gauss-Newton
+matrix of cost (10) at the fitted parameters, averaged over the training set
+(:func:`trajectory_sensitivity`); ``"trajectory-full"`` uses that whole matrix as the
+metric of the parameter error. The cost stays a pure parameter-space cost: the weights
+are computed once, before training, and saved with the model.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
+import numpy as np
 import torch
 
 from ..dmp import DMPConfig, rollout
 from .normalise import ParamNormaliser
 
 COST_NAMES = ("parameter", "trajectory", "combined")
+PARAMETER_WEIGHTINGS = ("none", "trajectory", "trajectory-full")
 # Accepted spellings: the paper's equation numbers as well as the names.
 _ALIASES = {"9": "parameter", "10": "trajectory", "params": "parameter", "traj": "trajectory"}
 
 
-def parameter_cost(z_pred: torch.Tensor, z_target: torch.Tensor) -> torch.Tensor:
+def parameter_cost(
+    z_pred: torch.Tensor, z_target: torch.Tensor, weights: torch.Tensor | None = None
+) -> torch.Tensor:
     """Cost (9): mean over the batch of the squared error of the normalised DMP vector.
 
-    ``C = 1/B sum_b 1/P || z_pred_b - z_target_b ||^2`` (divided by P so the number does
-    not grow with the kernel count).
+    ``C = 1/B sum_b 1/P e_b^T Lambda e_b`` with ``e_b = z_pred_b - z_target_b`` (divided
+    by P so the number does not grow with the kernel count). ``Lambda`` is the identity
+    without weights, ``diag(lambda)`` for a weight vector, or a symmetric positive definite
+    matrix.
 
     Parameters
     ----------
     z_pred, z_target : tensor [B, P]
         Normalised parameter vectors (see :class:`ParamNormaliser`).
+    weights : tensor [P] or [P, P], optional
+        Per-unit weights ``lambda_u`` or the matrix ``Lambda``
+        (:meth:`ParameterWeighting.tensor`); None = unweighted.
     """
-    return ((z_pred - z_target) ** 2).mean()
+    e = z_pred - z_target  # [B, P]
+    if weights is None:
+        return (e**2).mean()
+    weights = weights.to(e.dtype)
+    if weights.ndim == 1:
+        return (e**2 * weights).mean()
+    return ((e @ weights) * e).mean()
+
+
+@torch.no_grad()
+def trajectory_gauss_newton(
+    params: np.ndarray | torch.Tensor,
+    times: np.ndarray | torch.Tensor,
+    normaliser: ParamNormaliser,
+    config: DMPConfig,
+    step: float = 1e-4,
+    batch_size: int = 128,
+) -> np.ndarray:
+    """Mean Gauss-Newton matrix of cost (10) in normalised units (px^2 per unit^2).
+
+    ``H = 1/M sum_b 1/T sum_t J_b(t)^T J_b(t)`` with ``J_b(t) = d y_b(t) / d z`` ([d, P]) at
+    the fitted parameters ``z_b`` of the M samples, at their own time stamps (shifted to
+    start at 0, as in cost 10). To second order, an error ``e`` of the normalised vector
+    adds ``e^T H_b e`` px^2 to a sample's cost (10); ``H`` is that metric averaged over
+    the samples, and its diagonal ``s_u = H_uu`` (:func:`trajectory_sensitivity`) is the
+    mean squared trajectory sensitivity of unit u.
+
+    The derivatives are central differences in float64 with step ``step`` (normalised
+    units). y is affine in w, g and y0, so for those units they are exact up to rounding;
+    for tau (through log tau) the error is O(step^2).
+
+    Parameters
+    ----------
+    params : [M, P]
+        Fitted DMP vectors (``DMPParams.to_vector``, tau > 0).
+    times : [M, T]
+        The demonstrations' time stamps (s).
+
+    Returns
+    -------
+    ndarray [P, P], symmetric positive semi-definite
+    """
+    v = torch.as_tensor(np.asarray(params), dtype=torch.float64)
+    t_all = torch.as_tensor(np.asarray(times), dtype=torch.float64)
+    if v.ndim != 2 or v.shape[1] != normaliser.n_params or t_all.shape[0] != v.shape[0]:
+        raise ValueError(
+            f"need params [M, {normaliser.n_params}] and times [M, T] with the same M, got "
+            f"{tuple(v.shape)} and {tuple(t_all.shape)}"
+        )
+    if v.shape[0] < 1 or not step > 0:
+        raise ValueError(f"need at least one sample and step > 0, got {v.shape[0]}, {step}")
+    p = normaliser.n_params
+    total = torch.zeros(p, p, dtype=torch.float64)
+    eye = torch.eye(p, dtype=torch.float64) * step  # [P, P]
+    for lo in range(0, v.shape[0], batch_size):
+        z = normaliser.normalise(v[lo : lo + batch_size])  # [b, P]
+        t = t_all[lo : lo + batch_size]  # [b, T]
+        jac = torch.stack(
+            [
+                dmp_trajectory(z + eye[u], t, normaliser, config)
+                - dmp_trajectory(z - eye[u], t, normaliser, config)
+                for u in range(p)
+            ],
+            dim=-1,
+        ) / (2 * step)  # [b, T, d, P]
+        total += torch.einsum("btdu,btdv->uv", jac, jac) / jac.shape[1]
+    h = total / v.shape[0]
+    return (0.5 * (h + h.T)).numpy()
+
+
+def trajectory_sensitivity(
+    params: np.ndarray | torch.Tensor,
+    times: np.ndarray | torch.Tensor,
+    normaliser: ParamNormaliser,
+    config: DMPConfig,
+    step: float = 1e-4,
+) -> np.ndarray:
+    """Mean squared trajectory sensitivity of every normalised unit (px^2 per unit^2).
+
+    ``s_u = 1/M sum_b 1/T sum_t || d y_b(t) / d z_u ||^2``: the diagonal of
+    :func:`trajectory_gauss_newton` (the Gauss-Newton matrix of cost 10, half its Hessian
+    at a perfect fit). A small error ``dz_u`` in unit u alone adds ``s_u dz_u^2`` px^2 to
+    cost (10), to second order. Returns ndarray [P].
+    """
+    return np.diag(trajectory_gauss_newton(params, times, normaliser, config, step)).copy()
+
+
+@dataclass
+class ParameterWeighting:
+    """Weights of cost (9), saved with the model (checkpoint field ``parameter_weighting``;
+    a checkpoint without it was trained unweighted).
+
+    Attributes
+    ----------
+    kind : str
+        ``"trajectory"``: per-unit weights ``lambda = max(s / mean(s), floor)`` with ``s``
+        the diagonal of the mean Gauss-Newton matrix ``H`` of cost (10)
+        (:func:`trajectory_gauss_newton`), so the weights average about 1 and cost (9)
+        stays on the scale of the unweighted one. ``"trajectory-full"``: the whole matrix,
+        ``Lambda = H / mean(s) + floor * I`` (couplings between units included; the floor
+        keeps it positive definite).
+    weights : ndarray [P] or [P, P]
+        ``lambda`` or ``Lambda`` of :func:`parameter_cost`.
+    sensitivity : ndarray [P]
+        ``s_u = H_uu`` (px^2 per normalised unit^2), for the record.
+    floor : float
+        Smallest weight relative to the mean, so that no unit is left unconstrained.
+    """
+
+    kind: str
+    weights: np.ndarray
+    sensitivity: np.ndarray
+    floor: float
+
+    def __post_init__(self) -> None:
+        self.weights = np.asarray(self.weights, dtype=np.float64)
+        self.sensitivity = np.asarray(self.sensitivity, dtype=np.float64)
+        if self.kind not in PARAMETER_WEIGHTINGS or self.kind == "none":
+            raise ValueError(f"unknown parameter weighting kind {self.kind!r}")
+        p = self.sensitivity.shape[0] if self.sensitivity.ndim == 1 else -1
+        shape = (p,) if self.kind == "trajectory" else (p, p)
+        if self.weights.shape != shape:
+            raise ValueError(
+                f"{self.kind!r} parameter weights have shape {self.weights.shape}, expected "
+                f"{shape} for a sensitivity of shape {self.sensitivity.shape}"
+            )
+        if not np.isfinite(self.weights).all():
+            raise ValueError("parameter weights must be finite")
+        if self.weights.ndim == 1 and not (self.weights > 0).all():
+            raise ValueError("parameter weights must be > 0")
+        if self.weights.ndim == 2 and not (
+            np.allclose(self.weights, self.weights.T) and np.linalg.eigvalsh(self.weights)[0] > 0
+        ):
+            raise ValueError(
+                "the parameter weight matrix must be symmetric positive definite (> 0)"
+            )
+
+    @property
+    def n_params(self) -> int:
+        return int(self.sensitivity.shape[0])
+
+    def tensor(self, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+        """The weights for :func:`parameter_cost`: [P] or [P, P]."""
+        return torch.as_tensor(self.weights, dtype=dtype)
+
+    @classmethod
+    def from_gauss_newton(
+        cls, h: np.ndarray, kind: str = "trajectory", floor: float = 1e-3
+    ) -> ParameterWeighting:
+        """Weights of the given kind from a mean Gauss-Newton matrix ``h`` [P, P]."""
+        h = np.asarray(h, dtype=np.float64)
+        s = np.diag(h).copy() if h.ndim == 2 else np.array([])
+        if h.ndim != 2 or h.shape[0] != h.shape[1] or not np.isfinite(h).all():
+            raise ValueError(f"need a finite square Gauss-Newton matrix, got shape {h.shape}")
+        if not ((s >= 0).all() and s.sum() > 0):
+            raise ValueError("trajectory sensitivities must be >= 0 and not all 0")
+        if not 0 < float(floor) <= 1:
+            raise ValueError(f"cost.parameter_weight_floor must be in (0, 1], got {floor!r}")
+        if kind == "trajectory":
+            w = np.maximum(s / s.mean(), float(floor))
+        elif kind == "trajectory-full":
+            w = h / s.mean() + float(floor) * np.eye(len(s))
+            w = 0.5 * (w + w.T)
+        else:
+            raise ValueError(f"unknown parameter weighting kind {kind!r}")
+        return cls(kind, w, s, float(floor))
+
+    @classmethod
+    def from_sensitivity(cls, sensitivity: np.ndarray, floor: float = 1e-3) -> ParameterWeighting:
+        """Per-unit (``"trajectory"``) weights from the diagonal ``s`` alone."""
+        return cls.from_gauss_newton(np.diag(np.asarray(sensitivity, np.float64)), floor=floor)
+
+    @classmethod
+    def fit(
+        cls,
+        params: np.ndarray,
+        times: np.ndarray,
+        normaliser: ParamNormaliser,
+        config: DMPConfig,
+        floor: float = 1e-3,
+        kind: str = "trajectory",
+    ) -> ParameterWeighting:
+        """Weights from a training set's fitted DMPs and time stamps (see the class)."""
+        h = trajectory_gauss_newton(params, times, normaliser, config)
+        return cls.from_gauss_newton(h, kind, floor)
+
+    def to_dict(self) -> dict:
+        return {
+            "kind": self.kind,
+            "weights": self.weights.tolist(),
+            "sensitivity": self.sensitivity.tolist(),
+            "floor": self.floor,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> ParameterWeighting | None:
+        """The record of :meth:`to_dict`; ``None`` (an unweighted run) gives ``None``."""
+        if d is None:
+            return None
+        missing = [k for k in ("kind", "weights", "sensitivity", "floor") if k not in d]
+        if missing:
+            raise ValueError(f"parameter weighting record is missing field(s) {missing}")
+        return cls(d["kind"], d["weights"], d["sensitivity"], float(d["floor"]))
 
 
 def dmp_trajectory(
@@ -123,6 +344,8 @@ class Cost:
         To un-normalise and roll out the network's output.
     parameter_weight, trajectory_weight : float
         Weights of the combined cost (C10 is in px^2, C9 in normalised units).
+    weighting : ParameterWeighting, optional
+        Per-unit weights of cost (9) (also in the combined cost); None = unweighted.
     """
 
     def __init__(
@@ -132,6 +355,7 @@ class Cost:
         config: DMPConfig,
         parameter_weight: float = 1.0,
         trajectory_weight: float = 1.0,
+        weighting: ParameterWeighting | None = None,
     ):
         self.name = canonical_cost_name(name)
         for k, v in (
@@ -145,6 +369,15 @@ class Cost:
             float(parameter_weight),
             float(trajectory_weight),
         )
+        self.weighting = weighting
+        self._weights = None
+        if weighting is not None:
+            if weighting.n_params != normaliser.n_params:
+                raise ValueError(
+                    f"parameter weights have shape {weighting.weights.shape}, the DMP vector "
+                    f"has {normaliser.n_params} units"
+                )
+            self._weights = weighting.tensor()
 
     def __call__(
         self,
@@ -156,10 +389,10 @@ class Cost:
         """Return ``(cost, y_dmp)``: ``y_dmp [B, T, d]`` (detached) when the cost rolled the
         DMP out anyway, else ``None``."""
         if self.name == "parameter":
-            return parameter_cost(z_pred, z_target), None
+            return parameter_cost(z_pred, z_target, self._weights), None
         y = dmp_trajectory(z_pred, times, self.normaliser, self.config)  # [B, T, d]
         c10 = _mean_squared_distance(y, trajectories)
         if self.name == "combined":
-            c9 = parameter_cost(z_pred, z_target)
+            c9 = parameter_cost(z_pred, z_target, self._weights)
             c10 = self.parameter_weight * c9 + self.trajectory_weight * c10
         return c10, y.detach()
