@@ -338,3 +338,49 @@ def test_demo_config_file_matches_the_built_in_demo():
     for section, values in DEMO_CONFIG.items():
         assert on_disk[section] == values, f"configs/demo.yaml [{section}] differs"
     assert on_disk["optim"]["epochs"] == DEMO_EPOCHS
+
+
+def test_augmentation_moves_image_and_path_together_and_refits_targets(small_data):
+    from img2dmp.dmp import DMPParams, rollout
+    from img2dmp.train import _Augmenter
+
+    a = load_dataset(small_data)
+    cfg = tiny_config(small_data)
+    cfg.data.augment = {"rotation_deg": [-8, 8], "translation_rel": [-0.05, 0.05]}
+    cfg.cost.name = "parameter"
+    norm = ParamNormaliser.fit(a.params, a.dmp_config)
+    aug = _Augmenter(cfg.data.augment_ranges(), norm, a.dmp_config, refit=True)
+    img = torch.as_tensor(a.images[:16])
+    t = torch.as_tensor(a.times[:16])
+    traj = torch.as_tensor(a.trajectories[:16])
+    zt = norm.normalise(torch.as_tensor(a.params[:16], dtype=torch.float64)).float()
+    img2, traj2, zt2 = aug(np.random.default_rng(0), img, t, traj, zt)
+    assert (traj2 - traj).abs().amax(dim=(1, 2)).min() > 0.2  # every sample moved
+    # the ink is still under the moved path: sample the moved images at the moved points
+    h, w = img2.shape[-2:]
+    xi = traj2[..., 0].round().long().clamp(0, w - 1)
+    yi = traj2[..., 1].round().long().clamp(0, h - 1)
+    on_ink = img2[torch.arange(16)[:, None], yi, xi] > 0.3
+    assert on_ink.float().mean() > 0.9
+    # the refitted targets roll out onto the moved paths, the old ones do not
+    p2 = DMPParams.from_vector(norm.denormalise_vector(zt2.double()), 25, 2)
+    err = (rollout(p2, t.double(), a.dmp_config) - traj2).norm(dim=-1).mean()
+    p1 = DMPParams.from_vector(norm.denormalise_vector(zt.double()), 25, 2)
+    err_old = (rollout(p1, t.double(), a.dmp_config) - traj2).norm(dim=-1).mean()
+    assert err < 0.1 < err_old
+    # reproducible from the generator's state
+    again = aug(np.random.default_rng(0), img, t, traj, zt)
+    torch.testing.assert_close(again[1], traj2)
+
+
+def test_augmented_training_runs_and_bad_ranges_are_named(small_data, tmp_path):
+    cfg = tiny_config(small_data, epochs=2)
+    cfg.data.augment = {"rotation_deg": [-3, 3], "scale": [0.97, 1.03]}
+    res = train(cfg, tmp_path / "aug")
+    assert len(res.history) == 2 and np.isfinite(res.best_val_error_px)
+    meta = read_checkpoint_meta(tmp_path / "aug" / "checkpoints" / "best.json")
+    assert meta["train_config"]["data"]["augment"]["rotation_deg"] == [-3, 3]
+    assert 1.0 < meta["stroke_width_px"] < 6.0  # the training images' pen, in pixels
+    for bad, match in (({"rotation": [0, 1]}, "unknown affine"), ({"scale": [-1, 1]}, "scale")):
+        with pytest.raises(ValueError, match=f"data.augment.*{match}"):
+            TrainConfig.from_dict({"data": {"augment": bad}})

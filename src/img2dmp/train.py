@@ -58,7 +58,7 @@ from .nn.costs import (
     canonical_cost_name,
     dmp_trajectory,
 )
-from .predict import ink_margin
+from .predict import ink_margin, typical_stroke_width
 
 PLOT_EVERY_S = 20.0
 _COST_EQ = {"parameter": "(9)", "trajectory": "(10)", "combined": "(9) + (10)"}
@@ -95,6 +95,14 @@ class DataConfig:
         has no validation split (split = 1).
     digits : list of int or None
         Keep only these labels (Table I's "digit 2 only" row), or all.
+    augment : dict or None
+        On-the-fly augmentation of the training batches: a fresh random affine transform
+        of every image together with its trajectory (:mod:`img2dmp.data.affine`, the code
+        that made the data), with the DMP targets of cost (9) refitted to the moved path.
+        Keys are :class:`~img2dmp.data.affine.AffineRanges` fields, e.g.
+        ``{rotation_deg: [-3, 3], scale: [0.97, 1.03], translation_rel: [-0.02, 0.02],
+        shear_deg: [-3, 3]}``; a missing key means no change of that kind. The
+        validation split is never augmented. None (default): off.
     """
 
     path: str | None = None
@@ -103,6 +111,22 @@ class DataConfig:
     val_samples: int = 1000
     val_fraction: float = 0.1
     digits: list[int] | None = None
+    augment: dict | None = None
+
+    def augment_ranges(self):
+        """The :class:`~img2dmp.data.affine.AffineRanges` of ``augment`` (None if off)."""
+        from .data.affine import AffineRanges
+
+        if self.augment is None:
+            return None
+        if not isinstance(self.augment, dict):
+            raise ValueError(f"data.augment must be a mapping or null, got {self.augment!r}")
+        ranges = AffineRanges.identity().to_dict()
+        ranges.update(self.augment)
+        try:
+            return AffineRanges.from_dict(ranges)
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"data.augment: {e}") from e
 
 
 @dataclass
@@ -192,6 +216,7 @@ class TrainConfig:
                 f"cost.parameter_weight_floor must be in (0, 1], got "
                 f"{self.cost.parameter_weight_floor!r}"
             )
+        self.data.augment_ranges()  # raises on a bad data.augment
         if not 0 <= self.data.val_fraction < 1:
             raise ValueError(f"data.val_fraction must be in [0, 1), got {self.data.val_fraction!r}")
 
@@ -489,6 +514,7 @@ class _Data:
             self._first = first
         # How the training images frame the ink, for preparing other images alike.
         self.ink_margin = ink_margin(self.val.images[:500].numpy())
+        self.stroke_width_px = typical_stroke_width(self.val.images[:500].numpy())
         if self.image_size != list(cfg.model.image_size):
             raise ValueError(
                 f"the data's images are {self.image_size} pixels but model.image_size is "
@@ -533,6 +559,7 @@ def _checkpoint_meta(cfg, data, epoch, history, best, extra=None) -> dict:
         "dataset": {"path": cfg.data.path, "sha256": data.dataset_sha256},
         "image_size": list(cfg.model.image_size),
         "ink_margin": data.ink_margin,
+        "stroke_width_px": data.stroke_width_px,
         "epoch": epoch,
         "val_error_px": history[-1]["val_error_px"] if history else None,
         "best_val_error_px": best["error"],
@@ -541,6 +568,36 @@ def _checkpoint_meta(cfg, data, epoch, history, best, extra=None) -> dict:
     }
     meta.update(extra or {})
     return meta
+
+
+class _Augmenter:
+    """Random affine transforms of a training batch (``data.augment``), image and path
+    together; refits the cost-(9) targets to the moved paths when the cost uses them."""
+
+    def __init__(self, ranges, normaliser, dmp_config, refit: bool):
+        self.ranges = ranges
+        self.normaliser = normaliser
+        self.dmp_config = dmp_config
+        self.refit = refit
+
+    @classmethod
+    def from_config(cls, cfg: TrainConfig, data) -> _Augmenter | None:
+        ranges = cfg.data.augment_ranges()
+        if ranges is None:
+            return None
+        return cls(ranges, data.normaliser, data.dmp_config, cfg.cost.name != "trajectory")
+
+    def __call__(self, rng, images, times, trajectories, z_target):
+        from .data.affine import sample_affine, warp_images, warp_points
+        from .dmp import fit_dmp
+
+        m = torch.as_tensor(sample_affine(rng, len(images), images.shape[-2:], self.ranges))
+        images = warp_images(images, m)
+        trajectories = warp_points(trajectories, m.to(trajectories.dtype))
+        if self.refit:
+            fit = fit_dmp(times, trajectories, self.dmp_config)
+            z_target = self.normaliser.normalise(fit.params.to_vector()).to(torch.float32)
+        return images, trajectories, z_target
 
 
 def _parameter_weighting(cfg, data, state) -> ParameterWeighting | None:
@@ -685,6 +742,7 @@ def _train(cfg, run_dir, resume, overwrite, epochs, rank, world, t_start) -> Tra
         cfg.cost.trajectory_weight,
         data.weighting,
     )
+    augment = _Augmenter.from_config(cfg, data)
     net = model
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(model)
@@ -714,6 +772,7 @@ def _train(cfg, run_dir, resume, overwrite, epochs, rank, world, t_start) -> Tra
         order = torch.randperm(len(split), generator=_epoch_generator(cfg.seed, epoch))[:n]
         mine = order[rank::world]  # every process sees the same order, its own share
         model.train()
+        rng = np.random.default_rng([cfg.seed, epoch, rank])  # augmentation, resumable
         sums = torch.zeros(3, dtype=torch.float64)  # cost * b, error_px sum, samples
         batches = tqdm(
             range(0, len(mine), per_rank),
@@ -727,6 +786,8 @@ def _train(cfg, run_dir, resume, overwrite, epochs, rank, world, t_start) -> Tra
             idx = mine[lo : lo + per_rank]
             img, t = split.images[idx], split.times[idx]  # [b, H, W], [b, T]
             traj, zt = split.trajectories[idx], split.z_target[idx]  # [b, T, d], [b, P]
+            if augment is not None:
+                img, traj, zt = augment(rng, img, t, traj, zt)
             z = net(img)  # [b, P]
             loss, y = cost(z, zt, t, traj)
             if not torch.isfinite(loss):
