@@ -183,3 +183,18 @@ def test_prepare_image_brings_thin_and_thick_pens_to_the_training_width():
     assert all(abs(w - target) < 0.6 for w in matched), matched
     with pytest.raises(ValueError, match="stroke_width_px"):
         prepare_image(scan, (40, 40), stroke_width_px=-1.0)
+
+
+def test_path_error_ignores_timing_but_not_shape():
+    from img2dmp.evaluate import path_error_px
+
+    u = np.linspace(0, 1, 120)
+    circle = lambda s: np.stack([20 + 8 * np.cos(5 * s), 20 + 8 * np.sin(5 * s)], -1)  # noqa: E731
+    even, uneven = circle(u), circle(u**2)  # one curve, two speeds
+    timed = np.linalg.norm(even - uneven, axis=-1).mean()
+    assert timed > 3  # Table I's error sees the speed
+    both = path_error_px(np.stack([even, even + [1.0, 0.0]]), np.stack([uneven, uneven]))
+    assert both[0] < 0.05  # the path error does not
+    assert abs(both[1] - 1.0) < 0.05  # but it sees a 1 px shift
+    with pytest.raises(ValueError, match="shape"):
+        path_error_px(even, uneven)

@@ -6,6 +6,11 @@ averaged: one error per sample. Over samples we report the mean and standard dev
 (Table I's two numbers; population standard deviation, ``ddof = 0``), the median and the
 95th percentile, overall and per digit. :func:`evaluate` writes them as JSON and a text
 table and draws Fig.-4-style pictures: image, demonstrated path in blue, DMP path in red.
+
+Beside Table I's metric it reports a timing-free *path error* (:func:`path_error_px`):
+both paths resampled at evenly spaced arc lengths and compared point by point. It
+separates the shape from the writer's speed, which an image does not show (on recorded
+human paths the timing alone can cost more than a pixel, see docs/MNIST.md).
 """
 
 from __future__ import annotations
@@ -38,6 +43,33 @@ def error_statistics(errors_px) -> dict:
     }
 
 
+def path_error_px(y_a, y_b, n_points: int = 64) -> np.ndarray:
+    """Timing-free distance ``[M]`` (px) between paths ``[M, T, >=2]`` (x, y used).
+
+    Each path is resampled at ``n_points`` evenly spaced arc lengths (from its start to
+    its end, linear interpolation) and the mean Euclidean distance between corresponding
+    points is returned. Two paths that trace the same curve at different speeds have
+    path error 0 (up to the resampling), where Table I's error would not.
+    """
+    a = np.asarray(y_a, dtype=np.float64)[..., :2]
+    b = np.asarray(y_b, dtype=np.float64)[..., :2]
+    if a.shape != b.shape or a.ndim != 3:
+        raise ValueError(f"paths must both have shape [M, T, 2+], got {a.shape} and {b.shape}")
+    diff = _by_arc_length(a, n_points) - _by_arc_length(b, n_points)
+    return np.linalg.norm(diff, axis=-1).mean(-1)
+
+
+def _by_arc_length(paths: np.ndarray, n: int) -> np.ndarray:
+    seg = np.linalg.norm(np.diff(paths, axis=1), axis=-1)
+    s = np.concatenate([np.zeros((len(paths), 1)), np.cumsum(seg, axis=1)], axis=1)
+    out = np.empty((len(paths), n, 2))
+    for i, (p, si) in enumerate(zip(paths, s, strict=True)):
+        grid = np.linspace(0.0, si[-1], n)
+        keep = np.concatenate([[True], np.diff(si) > 0])  # np.interp needs increasing s
+        out[i] = np.stack([np.interp(grid, si[keep], p[keep, k]) for k in range(2)], -1)
+    return out
+
+
 def summarise(errors_px, labels) -> dict:
     """Statistics overall and per digit label (keys ``"0"`` .. ``"9"`` present in ``labels``)."""
     e = np.asarray(errors_px, dtype=np.float64)
@@ -63,6 +95,9 @@ def format_table(summary: dict, title: str = "trajectory error (px)") -> str:
         lines.append(row(d, s))
     lines.append("-" * len(head))
     lines.append(row("all", summary["overall"]))
+    if summary.get("path_error"):
+        lines.append(row("path", summary["path_error"]["overall"]))
+        lines.append("(path: timing-free error, both paths resampled by arc length)")
     return "\n".join(lines)
 
 
@@ -160,6 +195,8 @@ def evaluate(
     y = predictor.trajectories_for_images(data.images, data.times, batch_size)  # [M, T, d]
     errors = np.linalg.norm(y[..., :2] - data.trajectories[..., :2], axis=-1).mean(-1)  # [M]
     result = summarise(errors, data.labels)
+    path_errors = path_error_px(y, data.trajectories)
+    result["path_error"] = summarise(path_errors, data.labels)
     result.update(
         model=str(model_path),
         dataset=str(dataset_path),
@@ -171,6 +208,7 @@ def evaluate(
         fit_error_px=error_statistics(data.fit_error_px),
         wall_s=time.perf_counter() - t0,
         errors_px=errors.tolist(),
+        path_errors_px=path_errors.tolist(),
     )
     if out_dir is not None:
         out = Path(out_dir)
