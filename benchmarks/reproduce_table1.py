@@ -32,8 +32,9 @@ import time
 from pathlib import Path
 
 from img2dmp.checkpoint import atomic_write_text
-from img2dmp.data.store import save_dataset
+from img2dmp.data.store import load_dataset, save_dataset
 from img2dmp.data.synthetic import generate_dataset
+from img2dmp.dmp import DMPConfig
 from img2dmp.evaluate import evaluate, format_table
 from img2dmp.train import TrainConfig, apply_overrides, read_config_file, train
 
@@ -49,15 +50,23 @@ ROWS = {
 ONE_DIGIT_EPOCH_FACTOR = 5
 
 
-def make_data(out: Path, per_digit: int, val_per_digit: int) -> tuple[Path, Path]:
+def make_data(
+    out: Path, per_digit: int, val_per_digit: int, scaling: str = "goal-start"
+) -> tuple[Path, Path]:
+    """Training (+ validation) and evaluation files; DMPs fitted with ``scaling``."""
     out.mkdir(parents=True, exist_ok=True)
     train_path, eval_path = out / "train.safetensors", out / "eval.safetensors"
+    dmp = DMPConfig(scaling=scaling)
+    for path in (train_path, eval_path):
+        if path.is_file() and load_dataset(path).dmp_config.scaling != scaling:
+            raise ValueError(f"{path} was fitted with another scaling; use another --out")
     if not train_path.is_file():
         total = per_digit + val_per_digit
-        d = generate_dataset(total, seed=1, splits=(per_digit / total, val_per_digit / total, 0.0))
-        save_dataset(train_path, d)
+        splits = (per_digit / total, val_per_digit / total, 0.0)
+        save_dataset(train_path, generate_dataset(total, seed=1, splits=splits, dmp_config=dmp))
     if not eval_path.is_file():
-        save_dataset(eval_path, generate_dataset(per_digit, seed=2, splits=(0.0, 0.0, 1.0)))
+        d = generate_dataset(per_digit, seed=2, splits=(0.0, 0.0, 1.0), dmp_config=dmp)
+        save_dataset(eval_path, d)
     return train_path, eval_path
 
 
@@ -137,6 +146,12 @@ def main(argv=None) -> int:
     p.add_argument("--samples-per-digit", type=int, default=2000)
     p.add_argument("--val-per-digit", type=int, default=200)
     p.add_argument(
+        "--scaling",
+        choices=["goal-start", "none"],
+        default="goal-start",
+        help="forcing-term scaling of the fitted DMPs: the paper's diag(g - y0) or none",
+    )
+    p.add_argument(
         "--set",
         nargs="*",
         default=[],
@@ -145,7 +160,9 @@ def main(argv=None) -> int:
     )
     args = p.parse_args(argv)
     t0 = time.perf_counter()
-    train_path, eval_path = make_data(args.out / "data", args.samples_per_digit, args.val_per_digit)
+    train_path, eval_path = make_data(
+        args.out / "data", args.samples_per_digit, args.val_per_digit, args.scaling
+    )
     data_s = time.perf_counter() - t0
     rows = [run_row(name, args.out, train_path, eval_path, args) for name in args.rows]
     print(write_results(args.out, rows, args, data_s))
