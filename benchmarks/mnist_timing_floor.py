@@ -35,18 +35,7 @@ import sys
 import numpy as np
 
 from img2dmp.data.store import SPLITS, load_dataset
-
-
-def arc_fractions(paths: np.ndarray) -> np.ndarray:
-    """Arc-length fraction ``[M, T]`` reached at each time stamp of paths ``[M, T, 2]``."""
-    seg = np.linalg.norm(np.diff(paths, axis=1), axis=-1)
-    length = np.concatenate([np.zeros((len(paths), 1)), np.cumsum(seg, axis=1)], axis=1)
-    return length / np.maximum(length[:, -1:], 1e-12)
-
-
-def point_at(path: np.ndarray, lam: np.ndarray, fraction: np.ndarray) -> np.ndarray:
-    """Points of one path ``[T, 2]`` (arc fractions ``lam``) at other arc fractions."""
-    return np.stack([np.interp(fraction, lam, path[:, k]) for k in range(2)], axis=-1)
+from img2dmp.evaluate import arc_fractions, points_at_fractions
 
 
 def timing_floor(data, ks=(5, 20, 50)) -> dict[str, np.ndarray]:
@@ -80,15 +69,14 @@ def timing_floor(data, ks=(5, 20, 50)) -> dict[str, np.ndarray]:
         for i in test:
             u = np.clip((times[i] - times[i, 0]) / guess, 0.0, 1.0)
             fraction = np.interp(u, u_grid, profile_of(i))
-            out.append(
-                np.linalg.norm(point_at(paths[i], lam[i], fraction) - paths[i], axis=-1).mean()
-            )
+            predicted = points_at_fractions(paths[i], lam[i], fraction)
+            out.append(np.linalg.norm(predicted - paths[i], axis=-1).mean())
         return np.array(out)
 
     mean = prof[train].mean(0)
     per_digit = {c: prof[train[labels[train] == c]].mean(0) for c in np.unique(labels[train])}
     shapes = np.stack(
-        [point_at(paths[i], lam[i], np.linspace(0, 1, 32)) for i in range(len(paths))]
+        [points_at_fractions(paths[i], lam[i], np.linspace(0, 1, 32)) for i in range(len(paths))]
     )
     shapes = (shapes - shapes.mean(1, keepdims=True)).reshape(len(paths), -1)
     out = {

@@ -59,15 +59,28 @@ def path_error_px(y_a, y_b, n_points: int = 64) -> np.ndarray:
     return np.linalg.norm(diff, axis=-1).mean(-1)
 
 
-def _by_arc_length(paths: np.ndarray, n: int) -> np.ndarray:
+def arc_fractions(paths) -> np.ndarray:
+    """Share ``[M, T]`` of each path's length ``[M, T, 2]`` covered at each of its points."""
+    paths = np.asarray(paths, dtype=np.float64)
     seg = np.linalg.norm(np.diff(paths, axis=1), axis=-1)
-    s = np.concatenate([np.zeros((len(paths), 1)), np.cumsum(seg, axis=1)], axis=1)
-    out = np.empty((len(paths), n, 2))
-    for i, (p, si) in enumerate(zip(paths, s, strict=True)):
-        grid = np.linspace(0.0, si[-1], n)
-        keep = np.concatenate([[True], np.diff(si) > 0])  # np.interp needs increasing s
-        out[i] = np.stack([np.interp(grid, si[keep], p[keep, k]) for k in range(2)], -1)
-    return out
+    length = np.concatenate([np.zeros((len(paths), 1)), np.cumsum(seg, axis=1)], axis=1)
+    return length / np.maximum(length[:, -1:], 1e-12)
+
+
+def points_at_fractions(path, fractions_of_path, fractions) -> np.ndarray:
+    """Points ``[K, 2]`` of one path ``[T, 2]`` (arc fractions ``[T]``) at ``fractions``.
+
+    Linear interpolation along the path; points where the pen did not move are skipped.
+    """
+    keep = np.concatenate([[True], np.diff(fractions_of_path) > 0])  # np.interp: increasing
+    f = fractions_of_path[keep]
+    return np.stack([np.interp(fractions, f, path[keep, k]) for k in range(2)], axis=-1)
+
+
+def _by_arc_length(paths: np.ndarray, n: int) -> np.ndarray:
+    lam = arc_fractions(paths)
+    grid = np.linspace(0.0, 1.0, n)
+    return np.stack([points_at_fractions(p, f, grid) for p, f in zip(paths, lam, strict=True)])
 
 
 def summarise(errors_px, labels) -> dict:

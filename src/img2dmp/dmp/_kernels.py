@@ -186,9 +186,8 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
                     g_sum += gy[b, i, j]
                 for k in range(n_k):
                     gw[b, k, j] = gc[j, k + 1] * sc
-                    through_scale += gc[j, k + 1] * w[b, k, j]
-                if not scaled:
-                    through_scale = zero
+                    if scaled:  # S = g - y0 passes the weights' gradient on to g and y0
+                        through_scale += gc[j, k + 1] * w[b, k, j]
                 gg[b, j] = g_sum - gc[j, 0] + through_scale
                 gy0[b, j] = gc[j, 0] - through_scale
 

@@ -112,7 +112,7 @@ class DMPParams:
         if tuple(tau.shape) != batch:
             raise ValueError(f"DMPParams.tau has shape {tuple(tau.shape)}, expected {batch}")
         tau_host = as_host_array(tau)
-        if not (bool((tau_host > 0).all()) if tau_host is not None else bool((tau > 0).all())):
+        if not bool(((tau_host if tau_host is not None else tau) > 0).all()):
             raise ValueError("DMPParams.tau must be > 0 (it is a duration in seconds)")
         if config is not None and (n, d) != (config.n_kernels, config.n_dims):
             raise ValueError(

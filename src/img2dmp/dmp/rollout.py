@@ -146,8 +146,8 @@ def check_time_stamps(t, name: str = "t", *, non_negative: bool = False) -> None
     With ``non_negative`` also unless ``t >= 0``.
     """
     x = as_host_array(t) if torch.is_tensor(t) else np.asarray(t)
-    if x is None:  # another device: the same checks in torch
-        x = t.detach().cpu().numpy()
+    if x is None:  # another device or a dtype NumPy lacks: check a float64 copy
+        x = t.detach().to("cpu", torch.float64).numpy()
     if x.size == 0 or x.shape[-1] == 0:
         raise ValueError(f"{name} is empty: a trajectory needs at least one time stamp")
     if not all_finite(x):
@@ -307,11 +307,11 @@ def _use_fused(backend: str, w: torch.Tensor, t: torch.Tensor) -> bool:
 
 @functools.lru_cache(maxsize=16)
 def _kernel_table(config: DMPConfig, dtype: torch.dtype):
-    """``(1 / h, s_max, tab)``: scalars and cubic pieces (``[G, 4, C]``) of one dtype."""
+    """``(1 / h, s_max, one, tab)``: scalars and cubic pieces (``[G, 4, C]``) of one dtype."""
     h, s_max, poly = _response_table(config, dtype, "cpu")
     tab = _kernels.piece_table(poly.numpy())
     one = tab.dtype.type(1.0)
-    return one / tab.dtype.type(h), tab.dtype.type(s_max), tab
+    return one / tab.dtype.type(h), tab.dtype.type(s_max), one, tab
 
 
 def _np(x: torch.Tensor) -> np.ndarray:
@@ -333,11 +333,10 @@ class _FusedRollout(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, t, tau, w, g, y0, config):
-        inv_h, s_max, tab = _kernel_table(config, w.dtype)
+        inv_h, s_max, one, tab = _kernel_table(config, w.dtype)
         y = torch.empty(*t.shape, w.shape[-1], dtype=w.dtype)
         forward = _fused_kernels(tab, t.shape[0], w.shape[-1])[0]
         arrays = (_np(x.to(w.dtype)) for x in (t, tau, w, g, y0))
-        one = tab.dtype.type(1)
         forward(*arrays, tab, inv_h, s_max, one, config.scaling == "goal-start", y.numpy())
         ctx.save_for_backward(t, tau, w, g, y0)
         ctx.config = config
@@ -347,12 +346,11 @@ class _FusedRollout(torch.autograd.Function):
     @torch.autograd.function.once_differentiable
     def backward(ctx, gy):
         t, tau, w, g, y0 = ctx.saved_tensors
-        inv_h, s_max, tab = _kernel_table(ctx.config, w.dtype)
+        inv_h, s_max, one, tab = _kernel_table(ctx.config, w.dtype)
         need = ctx.needs_input_grad
         grads = [torch.empty(x.shape, dtype=w.dtype) for x in (w, tau, g, y0)]
         backward = _fused_kernels(tab, t.shape[0], w.shape[-1])[1]
         arrays = (_np(x.to(w.dtype)) for x in (gy, t, tau, w, g, y0))
-        one = tab.dtype.type(1)
         scaled = ctx.config.scaling == "goal-start"
         backward(*arrays, tab, inv_h, s_max, one, scaled, *(x.numpy() for x in grads), need[1])
         gw, gtau, gg, gy0 = (d.to(x.dtype) for d, x in zip(grads, (w, tau, g, y0), strict=True))
