@@ -224,6 +224,14 @@ def test_configs_from_yaml_and_toml(tmp_path, small_data):
         load_config(tmp_path / "c.yaml", ["optim.learning_rate=1"])
     with pytest.raises(ValueError, match="schedule"):
         load_config(None, ["optim.schedule=sometimes"])
+    # YAML 1.1 reads 3e-4 as text; the config reader takes it as a number, in files too.
+    (tmp_path / "e.yaml").write_text("optim:\n  lr: 3e-4\n  min_lr: 1E-7\n")
+    cfg = load_config(tmp_path / "e.yaml", ["optim.weight_decay=2e-5"])
+    assert (cfg.optim.lr, cfg.optim.min_lr, cfg.optim.weight_decay) == (3e-4, 1e-7, 2e-5)
+    with pytest.raises(ValueError, match=r"optim\.lr must be a number.*'fast'"):
+        load_config(None, ["optim.lr=fast"])
+    with pytest.raises(ValueError, match=r"optim\.epochs must be a number.*2\.5"):
+        load_config(None, ["optim.epochs=2.5"])
     (tmp_path / "bad.yaml").write_text("optim: [1, 2\n")
     with pytest.raises(ValueError, match="bad.yaml"):
         load_config(tmp_path / "bad.yaml")

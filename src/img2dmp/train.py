@@ -27,6 +27,7 @@ import csv
 import io
 import math
 import os
+import re
 import sys
 import time
 import tomllib
@@ -196,6 +197,13 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         o = self.optim
+        numbers = {"lr": float, "weight_decay": float, "batch_size": int, "epochs": int}
+        numbers |= {"patience": int, "step_size": int, "gamma": float, "min_lr": float}
+        for name, kind in numbers.items():
+            v = getattr(o, name)
+            ok = isinstance(v, (int, float)) if kind is float else isinstance(v, int)
+            if not ok or isinstance(v, bool):
+                raise ValueError(f"optim.{name} must be a number ({kind.__name__}), got {v!r}")
         if not (o.lr > 0 and math.isfinite(o.lr)):
             raise ValueError(f"optim.lr must be > 0, got {o.lr!r}")
         if int(o.batch_size) < 1 or int(o.epochs) < 1 or int(o.patience) < 0:
@@ -250,6 +258,27 @@ class TrainConfig:
         return cls(**kwargs)
 
 
+class _ConfigLoader(yaml.SafeLoader):
+    """YAML's safe loader, reading ``3e-4`` and ``1E5`` as numbers.
+
+    YAML 1.1 (PyYAML) takes a float without a dot for a string, so ``lr: 3e-4`` would
+    reach the optimiser as text.
+    """
+
+
+_ConfigLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(
+        r"""^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$""",
+    ),
+    list("-+0123456789"),
+)
+
+
+def _yaml_load(text: str):
+    return yaml.load(text, Loader=_ConfigLoader)  # noqa: S506 - a SafeLoader subclass
+
+
 def read_config_file(path: str | os.PathLike) -> dict:
     """A YAML (``.yaml``/``.yml``) or TOML (``.toml``) file as a dict."""
     p = Path(path)
@@ -260,7 +289,7 @@ def read_config_file(path: str | os.PathLike) -> dict:
         if p.suffix == ".toml":
             d = tomllib.loads(text)
         elif p.suffix in (".yaml", ".yml"):
-            d = yaml.safe_load(text) or {}
+            d = _yaml_load(text) or {}
         else:
             raise ValueError(f"config file {p} must end in .yaml, .yml or .toml")
     except (yaml.YAMLError, tomllib.TOMLDecodeError) as e:
@@ -284,7 +313,7 @@ def apply_overrides(d: dict, overrides: list[str] | None) -> dict:
             if not isinstance(node, dict):
                 raise ValueError(f"override {item!r}: {p!r} is not a config section")
         try:
-            node[parts[-1]] = yaml.safe_load(raw)
+            node[parts[-1]] = _yaml_load(raw)
         except yaml.YAMLError as e:
             raise ValueError(f"override {item!r}: value cannot be parsed ({e})") from e
     return d
