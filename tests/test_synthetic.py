@@ -146,6 +146,40 @@ def test_start_and_goal_differ_in_both_coordinates():
     assert gap.min() >= 0.05 * 40 - 1e-4
 
 
+def test_end_clearance_of_simple_strokes():
+    theta = np.linspace(0.0, 2.0 * np.pi, 721)
+    ring = 10.0 * np.stack([np.cos(theta), np.sin(theta)], -1)  # closed: both ends covered
+    open_ring = ring[: 721 - 60]  # 30 degrees left open
+    line = np.stack([np.linspace(0, 30, 50), np.zeros(50)], -1)
+    clear = [syn.end_clearance(p[None], exclusion=8.0) for p in (ring, open_ring)]
+    clear.append(syn.end_clearance(line[None], exclusion=5.0))
+    (start, end), (start_open, end_open), (start_line, end_line) = clear
+    assert start[0] < 1e-9 and end[0] < 1e-9
+    gap = 2 * 10.0 * np.sin(np.deg2rad(15.0))  # chord of the 30-degree gap
+    np.testing.assert_allclose([start_open[0], end_open[0]], gap, rtol=1e-3)
+    # A straight stroke: the nearest segment left is the one past the exclusion.
+    np.testing.assert_allclose([start_line[0], end_line[0]], 5.0, atol=30 / 49)
+    assert np.isinf(syn.end_clearance(line[None, :3], exclusion=50.0)[0]).all()
+    with pytest.raises(ValueError, match="paths"):
+        syn.end_clearance(line, exclusion=1.0)
+
+
+def test_both_ends_of_every_stroke_show_in_the_image(monkeypatch):
+    cfg = SyntheticConfig()
+    data = generate(np.repeat(np.arange(10), 20), cfg, np.random.default_rng(3))
+    clear = cfg.min_end_clearance_rel * 40
+    start, end = syn.end_clearance(data.trajectories, 2 * clear)
+    assert min(start.min(), end.min()) >= clear - 1e-3
+    # A 0 closed over its own start, as in the first templates: no draw can pass.
+    closed = syn.DigitTemplate(centre=(0.0, 0.0), elements=(syn.Arc(0.6, 0.95, 8, -100, -520),))
+    monkeypatch.setitem(syn.DIGIT_TEMPLATES, 0, closed)
+    with pytest.raises(ValueError, match="min_end_clearance_rel"):
+        generate(np.zeros(4, int), cfg, np.random.default_rng(0))
+    unchecked = SyntheticConfig(min_end_clearance_rel=0)
+    data = generate(np.zeros(4, int), unchecked, np.random.default_rng(0))
+    assert syn.end_clearance(data.trajectories, 2 * clear)[0].max() < 1.0
+
+
 def test_data_set_is_deterministic_and_split_per_digit():
     cfg = SyntheticConfig(digits=(2, 5))
     a = generate_dataset(10, cfg, seed=11, splits=(0.6, 0.2, 0.2), progress=False)

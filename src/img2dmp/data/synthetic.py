@@ -35,6 +35,14 @@ whose start and end nearly coincide in x or y needs huge weights. The templates 
 end apart, like real writing, and a drawn sample whose start and end are closer than
 ``min_start_goal_rel * image size`` in x or in y (after the affine transform) is drawn
 again, and so is one whose pen would leave the image (before or after the transform).
+
+Visible ends. The image must determine the movement, so both ends of the pen path must
+show in it: a sample where another part of the stroke passes within
+``min_end_clearance_rel * image size`` of the first or the last point (parts within twice
+that distance along the path excepted) is drawn again (:func:`end_clearance`). The
+templates of 0, 6, 8 and 9 leave a gap between the stroke's ends for this reason; closed
+the way many people write them, the stroke ran over its own start or end, and no image
+could tell where the pen set down or lifted off.
 """
 
 from __future__ import annotations
@@ -99,8 +107,8 @@ class DigitTemplate:
 
 # Each written as one stroke, the way a person writes it (unit frame, y down).
 DIGIT_TEMPLATES: dict[int, DigitTemplate] = {
-    # One loop, anticlockwise from the top, ending past its start on the left.
-    0: DigitTemplate(centre=(0.0, 0.0), elements=(Arc(0.6, 0.95, 8.0, -100.0, -520.0),)),
+    # One loop, anticlockwise from the top, open at the upper right (both ends visible).
+    0: DigitTemplate(centre=(0.0, 0.0), elements=(Arc(0.6, 0.95, 8.0, -100.0, -400.0),)),
     # Up-stroke (the flag), then straight down.
     1: DigitTemplate(start=(-0.7, -0.45), elements=(Line(0.8, -42.0), Line(2.0, 94.0))),
     # Hook over the top, diagonal down to the left, base to the right.
@@ -123,28 +131,29 @@ DIGIT_TEMPLATES: dict[int, DigitTemplate] = {
         start=(0.5, -1.0),
         elements=(Line(0.85, 180.0), Line(0.9, 97.0), Arc(0.5, 0.65, 0.0, -150.0, 150.0)),
     ),
-    # Long curve down the left side, then the closed loop.
+    # Long curve down the left side, then the loop, ending at its upper right.
     6: DigitTemplate(
         centre=(0.35, 0.35),
-        elements=(Arc(0.85, 1.3, 0.0, -80.0, -180.0), Arc(0.5, 0.6, 0.0, 180.0, -170.0)),
+        elements=(Arc(0.85, 1.3, 0.0, -80.0, -180.0), Arc(0.5, 0.6, 0.0, 180.0, -50.0)),
     ),
     # Top bar, then the long diagonal.
     7: DigitTemplate(start=(-0.6, -0.9), elements=(Line(1.2, -5.0), Line(2.05, 105.0))),
-    # Upper loop anticlockwise, cross, lower loop clockwise, cross back, over the top.
+    # From the top of the upper loop anticlockwise, cross, lower loop clockwise, cross
+    # back, up the right side of the upper loop (open at its upper right).
     8: DigitTemplate(
         centre=(0.0, -0.5),
         elements=(
-            Arc(0.4, 0.47, 0.0, 0.0, -210.0),
+            Arc(0.4, 0.47, 0.0, -90.0, -210.0),
             Line(0.81, 29.0),
             Arc(0.48, 0.5, 0.0, -40.0, 220.0),
             Line(0.82, -29.0),
-            Arc(0.4, 0.47, 0.0, 30.0, -100.0),
+            Arc(0.4, 0.47, 0.0, 30.0, -10.0),
         ),
     ),
-    # Closed loop anticlockwise from its upper right, then the stem down.
+    # Loop anticlockwise from its top, open at its upper right, then the stem down.
     9: DigitTemplate(
         centre=(0.0, -0.45),
-        elements=(Arc(0.45, 0.5, 8.0, -30.0, -380.0), Line(1.6, 103.0)),
+        elements=(Arc(0.45, 0.5, 8.0, -80.0, -380.0), Line(1.6, 103.0)),
     ),
 }
 
@@ -208,6 +217,11 @@ class SyntheticConfig:
     min_start_goal_rel : float
         A sample whose start and end differ by less than this (times H) in x or in y is
         drawn again; default 0.04 (1.6 px). 0 disables the check.
+    min_end_clearance_rel : float
+        A sample where another part of its stroke passes closer than this (times H) to its
+        first or last point (after the affine transform) is drawn again, so that the image
+        shows where the pen set down and lifted off; default 0.09 (3.6 px, 1.5 pen
+        widths). 0 disables the check.
     ridge : float
         Relative ridge of the DMP weight fit (:func:`img2dmp.dmp.fit_dmp`); default 1e-6.
     """
@@ -229,6 +243,7 @@ class SyntheticConfig:
     salt_fraction: float = 0.5
     affine: AffineRanges = field(default_factory=AffineRanges)
     min_start_goal_rel: float = 0.04
+    min_end_clearance_rel: float = 0.09
     ridge: float = 1e-6
 
     def __post_init__(self) -> None:
@@ -259,6 +274,7 @@ class SyntheticConfig:
             "start_shift",
             "blur_sigma_rel",
             "min_start_goal_rel",
+            "min_end_clearance_rel",
             "ridge",
         )
         for name in positive + non_negative + ("noise_amount", "salt_fraction"):
@@ -454,6 +470,40 @@ def _inside(paths: np.ndarray, h: int, w: int, margin: float) -> np.ndarray:
     return (lo >= margin).all(-1) & (hi[:, 0] <= w - 1 - margin) & (hi[:, 1] <= h - 1 - margin)
 
 
+def end_clearance(paths: np.ndarray, exclusion: float) -> tuple[np.ndarray, np.ndarray]:
+    """How far the rest of each stroke stays from its first and from its last point.
+
+    Parameters
+    ----------
+    paths : array [n, T, 2]
+        Pen paths (a polyline each), in any length unit.
+    exclusion : float
+        The part of the stroke within this arc length of an end belongs to that end and
+        is left out.
+
+    Returns
+    -------
+    start, end : arrays [n]
+        Smallest distance from the first (last) point to the polyline's segments beyond
+        ``exclusion`` along the path; ``inf`` when the stroke is not longer than that.
+    """
+    paths = np.asarray(paths, dtype=np.float64)
+    if paths.ndim != 3 or paths.shape[-1] != 2:
+        raise ValueError(f"paths must have shape [n, T, 2], got {paths.shape}")
+    a, b = paths[:, :-1], paths[:, 1:]  # segments [n, T-1, 2]
+    ab = b - a
+    length = np.linalg.norm(ab, axis=-1)
+    cum = np.concatenate([np.zeros((paths.shape[0], 1)), np.cumsum(length, 1)], 1)  # [n, T]
+    out = []
+    for end, along in ((0, cum), (-1, cum[:, -1:] - cum)):
+        ap = paths[:, end, None] - a
+        f = np.clip((ap * ab).sum(-1) / np.maximum(length**2, 1e-300), 0.0, 1.0)
+        dist = np.linalg.norm(ap - f[..., None] * ab, axis=-1)  # [n, T-1]
+        far = np.minimum(along[:, :-1], along[:, 1:]) > exclusion  # the whole segment
+        out.append(np.where(far, dist, np.inf).min(1, initial=np.inf))
+    return out[0], out[1]
+
+
 def _paths_and_transforms(labels: np.ndarray, config: SyntheticConfig, rng: np.random.Generator):
     # Pixel paths before [M, T, 2] and after [M, T, 2] the affine transform, and its matrices.
     h, w = config.image_size
@@ -464,6 +514,7 @@ def _paths_and_transforms(labels: np.ndarray, config: SyntheticConfig, rng: np.r
     todo = np.arange(m)
     min_gap = config.min_start_goal_rel * h
     margin = 0.5 * config.pen_width_rel * h + 0.5
+    clearance = config.min_end_clearance_rel * h
     for _ in range(100):
         for digit in np.unique(labels[todo]):
             idx = todo[labels[todo] == digit]
@@ -473,14 +524,19 @@ def _paths_and_transforms(labels: np.ndarray, config: SyntheticConfig, rng: np.r
         moved = warp_points(raw[todo], mats[todo])
         gap = np.abs(moved[:, -1] - moved[:, 0]).min(-1)  # [len(todo)]
         inside = _inside(raw[todo], h, w, margin) & _inside(moved, h, w, margin)
-        todo = todo[(gap < min_gap) | ~inside]
+        redraw = (gap < min_gap) | ~inside
+        if clearance > 0:
+            start, end = end_clearance(moved, 2.0 * clearance)
+            redraw |= (start < clearance) | (end < clearance)
+        todo = todo[redraw]
         if todo.size == 0:
             break
     else:
         raise ValueError(
             f"could not draw samples whose start and end differ by {min_gap:.2f} px in x and "
-            f"y and whose pen stays {margin:.2f} px inside the image; lower "
-            "min_start_goal_rel, digit_height_rel or the affine ranges"
+            f"y, whose ends stay {clearance:.2f} px clear of the rest of the stroke and whose "
+            f"pen stays {margin:.2f} px inside the image; lower min_start_goal_rel, "
+            "min_end_clearance_rel, digit_height_rel or the affine ranges"
         )
     return raw, warp_points(raw, mats), mats
 
