@@ -18,7 +18,10 @@ its own duration (tau in [2.5, 3.5] s), loss = sum of squared positions.
 Each method's largest deviation from a scipy ``solve_ivp`` solution (rtol 1e-10) of the
 first 4 samples is printed too: speed is only worth comparing at equal accuracy.
 
-Run: ``.venv/bin/python benchmarks/bench_rollout.py [--repeats 5]``
+The methods are timed in alternation (:func:`interleaved`), and each ratio is taken
+round by round, so that a slow drift of a shared machine does not favour one side.
+
+Run: ``.venv/bin/python benchmarks/bench_rollout.py [--repeats 10]``
 """
 
 from __future__ import annotations
@@ -139,9 +142,38 @@ def forward_backward(roll, p, t):
     return run
 
 
+def interleaved(methods, rounds: int, fast_calls: int):
+    """Time the methods in alternation: ``rounds`` rounds, each timing every method once.
+
+    A method faster than 20 ms counts as the median of ``fast_calls`` consecutive calls
+    in its round. Alternating keeps slow drifts of the machine (other tenants, clock
+    changes) out of the ratios. Returns ``{name: [seconds per round]}`` and each method's
+    last output.
+    """
+    outs, per_round = {}, {name: [] for name in methods}
+    for name, fn in methods.items():  # warm-up (builds cached tables, compiles kernels)
+        outs[name] = fn()
+    for _ in range(rounds):
+        for name, fn in methods.items():
+            n = fast_calls if (not per_round[name] or per_round[name][-1] < 0.02) else 1
+            times = []
+            for _ in range(n):
+                t0 = time.perf_counter()
+                fn()
+                times.append(time.perf_counter() - t0)
+            per_round[name].append(statistics.median(times))
+    return per_round, outs
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=10, help="rounds of alternated timings")
+    ap.add_argument(
+        "--fast-calls",
+        type=int,
+        default=15,
+        help="calls per round of a method faster than 20 ms (their median counts)",
+    )
     ap.add_argument(
         "--reference-samples",
         type=int,
@@ -156,22 +188,22 @@ def main():
     torch.manual_seed(0)
     cfg, p_np, t_np = make_batch()
     b = t_np.shape[0]
-    rows = []
+    methods = {}
     for backend in ("fused", "torch"):
         for dtype in (torch.float32, torch.float64):
             p, t = p_np.to_torch(dtype), torch.as_tensor(t_np, dtype=dtype)
             name = f"fast rollout, {backend} ({str(dtype)[6:]})"
             fb = forward_backward(lambda q, tt, b=backend: rollout(q, tt, cfg, backend=b), p, t)
-            rows.append((name, *timed(fb, args.repeats)))
-    slow_repeats = max(1, args.repeats // 2)
+            methods[name] = fb
     for name, fn, dtype in (
         ("Euler loop + autograd, NDP layout (float32)", euler_rollout_ndp, torch.float32),
         ("Euler loop + autograd, NDP layout (float64)", euler_rollout_ndp, torch.float64),
         ("Euler loop + autograd, lean (float64)", euler_rollout, torch.float64),
     ):
         p, t = p_np.to_torch(dtype), torch.as_tensor(t_np, dtype=dtype)
-        fb = forward_backward(lambda q, tt, fn=fn: fn(q, tt, cfg), p, t)
-        rows.append((name, *timed(fb, slow_repeats)))
+        methods[name] = forward_backward(lambda q, tt, fn=fn: fn(q, tt, cfg), p, t)
+    per_round, outs = interleaved(methods, args.repeats, args.fast_calls)
+    rows = [(name, statistics.median(per_round[name]), outs[name]) for name in methods]
     p, t = p_np.to_torch(torch.float64), torch.as_tensor(t_np)
     fb = forward_backward(lambda q, tt: rollout_sensitivity(q, tt, cfg), p, t)
     rows.append(("sensitivity equations, RK4 (float64)", *timed(fb, 1)))
@@ -187,22 +219,27 @@ def main():
     base = rows[0][1]
     print(
         f"B={b}, d=2, N=25, T={t_np.shape[1]}, forward + backward, median of "
-        f"{args.repeats} runs, torch threads={torch.get_num_threads()}"
+        f"{args.repeats} alternated rounds, torch threads={torch.get_num_threads()}"
     )
     print(f"{'method':46s} {'time (ms)':>10s} {'/ fused f32':>11s} {'max err px':>11s}")
     for name, sec, out in rows:
         err = np.abs(np.asarray(out[:4], dtype=np.float64) - refs[: len(out)]).max()
         print(f"{name:46s} {sec * 1e3:10.2f} {sec / base:10.1f}x {err:11.2e}")
-    sec = {name: s for name, s, _ in rows}
-    euler32 = sec["Euler loop + autograd, NDP layout (float32)"]
-    euler64 = sec["Euler loop + autograd, NDP layout (float64)"]
+
+    def ratio(slow: str, fast: str) -> str:
+        # Per round, so that both sides of each ratio saw the same machine state.
+        r = sorted(a / b for a, b in zip(per_round[slow], per_round[fast], strict=True))
+        return f"{statistics.median(r):.0f}x (rounds {r[0]:.0f}-{r[-1]:.0f}x)"
+
+    euler = "Euler loop + autograd, NDP layout"
     print(
-        f"\nfused rollout vs the Euler loop in NDP's layout, same dtype: "
-        f"{euler32 / sec['fast rollout, fused (float32)']:.0f}x in float32, "
-        f"{euler64 / sec['fast rollout, fused (float64)']:.0f}x in float64 (target >= 100x)"
-        f"\ntorch-operations rollout, same comparison: "
-        f"{euler32 / sec['fast rollout, torch (float32)']:.0f}x in float32, "
-        f"{euler64 / sec['fast rollout, torch (float64)']:.0f}x in float64"
+        f"\nfused rollout vs the Euler loop in NDP's layout, same dtype, median over rounds:"
+        f"\n  float32 {ratio(f'{euler} (float32)', 'fast rollout, fused (float32)')}, "
+        f"float64 {ratio(f'{euler} (float64)', 'fast rollout, fused (float64)')} "
+        "(target >= 100x)"
+        f"\ntorch-operations rollout, same comparison:"
+        f"\n  float32 {ratio(f'{euler} (float32)', 'fast rollout, torch (float32)')}, "
+        f"float64 {ratio(f'{euler} (float64)', 'fast rollout, torch (float64)')}"
     )
 
 

@@ -276,6 +276,29 @@ def test_bad_input_raises_clear_errors():
         rollout(p.to_torch(), torch.tensor(t), DMPConfig(n_kernels=10))
 
 
+def test_unchanged_tensors_are_checked_once_and_changes_are_caught(monkeypatch):
+    from img2dmp.dmp import params as params_module
+
+    cfg = DMPConfig()
+    p = _random_params(np.random.default_rng(4), 3, cfg).to_torch()
+    t = torch.linspace(0.0, 1.0, 20)
+    scans = []
+    real = params_module.all_finite
+    monkeypatch.setattr(params_module, "all_finite", lambda a: scans.append(1) or real(a))
+    rollout(p, t, cfg)
+    rollout(p, t, cfg)
+    assert scans == []  # checked when made; unchanged since
+    with torch.no_grad():
+        p.tau[1] = -2.0  # an in-place change
+    with pytest.raises(ValueError, match="tau must be > 0"):
+        rollout(p, t, cfg)
+    p.tau = torch.ones(3)
+    p.g = torch.full((3, 2), float("nan"))  # a new tensor
+    with pytest.raises(ValueError, match="g contains NaN"):
+        rollout(p, t, cfg)
+    assert len(scans) >= 2
+
+
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_unvalidated_rollout_propagates_nan_instead_of_crashing(backend):
     # A diverged network can hand the hot loop (validate=False) a NaN duration: the

@@ -2,10 +2,10 @@
 
 One loop over every (sample, time stamp) does the whole rollout of
 :mod:`img2dmp.dmp.rollout`: locate the cubic piece of the response table, evaluate the
-N + 1 unit responses there, and combine them with that sample's coefficients; the
-backward loop does the same once more and accumulates the gradients of w, g, y0 and tau.
-No intermediate array of the batch's size is written, which is where the torch path
-spends most of its time.
+N + 1 unit responses there, and combine them with that sample's coefficients. When a
+gradient will be needed, the forward loop also keeps those responses (``[B, T, N + 1]``
+rounded up to 16 columns), and the backward loop accumulates the gradients of w, g and
+y0 from them and that of tau from the table's derivative.
 
 The maths is that of :class:`img2dmp.dmp.rollout._PiecewiseCombination` (the two paths
 are tested against each other and by gradcheck). The table has the layout
@@ -102,6 +102,11 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
     column loops without a scalar remainder, unrolls the loop over the pairs of
     dimensions and can tell the rows of the small work arrays apart, which together
     halve the time of the generic loops.
+
+    Returns ``(forward, forward_saving, backward)``. ``forward_saving`` also writes the
+    N + 1 unit responses at every time stamp into ``vals [B, T, n_columns]``; the backward
+    pass reads them back instead of evaluating the table again, which makes it about
+    twice as fast for the cost of that array (the forward pass is a little slower).
     """
     n_c, d = n_columns, n_dims
     n_pairs = (d + 1) // 2
@@ -109,40 +114,49 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
     # entries of the serial and the parallel kernels apart.
     samples = numba.prange if parallel else range
 
-    def forward(t, tau, w, g, y0, tab, inv_h, s_max, one, scaled, out):
-        """``out[b, i, j] = y_j(t[b, i])`` of DMP ``b``.
+    def make_forward(save: bool):
+        def forward(t, tau, w, g, y0, tab, inv_h, s_max, one, scaled, out, vals):
+            """``out[b, i, j] = y_j(t[b, i])`` of DMP ``b`` (and ``vals`` if saving).
 
-        t [B, T], tau [B], w [B, N, d], g / y0 [B, d], tab [G, 4, n_c] (columns past
-        N + 1 are zero), out [B, T, d]. ``inv_h``, ``s_max`` and ``one`` are scalars of the
-        table's dtype, so every float stays in that dtype (a Python literal would promote
-        float32 code to float64). Dimensions go in pairs through one loop over the
-        columns, vectorised with two accumulators.
-        """
-        n_b, n_t = t.shape
-        n_pieces = tab.shape[0]
-        zero = one - one
-        coefs = np.zeros((n_b, 2 * n_pairs, n_c), dtype=tab.dtype)
-        for b in samples(n_b):
-            coef = coefs[b]
-            _coefficients(b, w, g, y0, scaled, coef, one)
-            inv_tau = one / tau[b]
-            for i in range(n_t):
-                p, u, _ = _locate(t[b, i] * inv_tau, inv_h, s_max, n_pieces, one)
-                for jp in range(n_pairs):
-                    acc_a = zero
-                    acc_b = zero
-                    for c in range(n_c):
-                        v = _cubic(tab, p, c, u)
-                        acc_a += coef[2 * jp, c] * v
-                        acc_b += coef[2 * jp + 1, c] * v
-                    out[b, i, 2 * jp] = g[b, 2 * jp] + acc_a
-                    if 2 * jp + 1 < d:
-                        out[b, i, 2 * jp + 1] = g[b, 2 * jp + 1] + acc_b
+            t [B, T], tau [B], w [B, N, d], g / y0 [B, d], tab [G, 4, n_c] (columns past
+            N + 1 are zero), out [B, T, d], vals [B, T, n_c] (unused unless saving).
+            ``inv_h``, ``s_max`` and ``one`` are scalars of the table's dtype, so every
+            float stays in that dtype (a Python literal would promote float32 code to
+            float64). Dimensions go in pairs through one loop over the columns, vectorised
+            with two accumulators.
+            """
+            n_b, n_t = t.shape
+            n_pieces = tab.shape[0]
+            zero = one - one
+            coefs = np.zeros((n_b, 2 * n_pairs, n_c), dtype=tab.dtype)
+            for b in samples(n_b):
+                coef = coefs[b]
+                _coefficients(b, w, g, y0, scaled, coef, one)
+                inv_tau = one / tau[b]
+                for i in range(n_t):
+                    p, u, _ = _locate(t[b, i] * inv_tau, inv_h, s_max, n_pieces, one)
+                    for jp in range(n_pairs):
+                        acc_a = zero
+                        acc_b = zero
+                        for c in range(n_c):
+                            v = _cubic(tab, p, c, u)
+                            if save and jp == 0:
+                                vals[b, i, c] = v
+                            acc_a += coef[2 * jp, c] * v
+                            acc_b += coef[2 * jp + 1, c] * v
+                        out[b, i, 2 * jp] = g[b, 2 * jp] + acc_a
+                        if 2 * jp + 1 < d:
+                            out[b, i, 2 * jp + 1] = g[b, 2 * jp + 1] + acc_b
 
-    def backward(gy, t, tau, w, g, y0, tab, inv_h, s_max, one, scaled, gw, gtau, gg, gy0, want_s):
+        return forward
+
+    def backward(
+        gy, t, tau, w, g, y0, vals, tab, inv_h, s_max, one, scaled, gw, gtau, gg, gy0, want_s
+    ):
         """Gradients of ``sum(gy * y)`` for w, tau, g and y0, written into gw ... gy0.
 
-        ``want_s`` skips the time derivative (and gtau) when tau needs no gradient.
+        ``vals`` holds the unit responses the saving forward pass wrote. ``want_s`` skips
+        the time derivative (and gtau) when tau needs no gradient.
         """
         n_b, n_t = t.shape
         n_k = w.shape[1]
@@ -156,28 +170,28 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
             inv_tau = one / tau[b]
             g_tau = zero
             for i in range(n_t):
-                p, u, inside = _locate(t[b, i] * inv_tau, inv_h, s_max, n_pieces, one)
+                row = vals[b, i]
                 g_s = zero
                 for jp in range(n_pairs):
                     ga = gy[b, i, 2 * jp]
                     gb = gy[b, i, 2 * jp + 1] if 2 * jp + 1 < d else zero
                     for c in range(n_c):
-                        v = _cubic(tab, p, c, u)
-                        gc[2 * jp, c] += ga * v
-                        gc[2 * jp + 1, c] += gb * v
+                        gc[2 * jp, c] += ga * row[c]
+                        gc[2 * jp + 1, c] += gb * row[c]
                     if want_s:
-                        acc = zero
-                        for c in range(n_c):
-                            r2 = tab[p, 2, c]
-                            r3 = tab[p, 3, c]
-                            dv = tab[p, 1, c] + u * (r2 + r2 + u * (r3 + r3 + r3))
-                            acc += (ga * coef[2 * jp, c] + gb * coef[2 * jp + 1, c]) * dv
-                        g_s += acc
-                if want_s and inside:
-                    # dy/ds of the interpolant is (dy/du) / h, and s = t / tau; the clamp
-                    # at the ends of the table stops the gradient outside.
-                    g_tau -= g_s * inv_h * t[b, i] * inv_tau * inv_tau
-            gtau[b] = g_tau
+                        p, u, inside = _locate(t[b, i] * inv_tau, inv_h, s_max, n_pieces, one)
+                        if inside:
+                            # The clamp at the ends of the table stops the gradient outside.
+                            acc = zero
+                            for c in range(n_c):
+                                r2 = tab[p, 2, c]
+                                r3 = tab[p, 3, c]
+                                dv = tab[p, 1, c] + u * (r2 + r2 + u * (r3 + r3 + r3))
+                                acc += (ga * coef[2 * jp, c] + gb * coef[2 * jp + 1, c]) * dv
+                            g_s += acc
+                # dy/ds of the interpolant is (dy/du) / h, and s = t / tau.
+                g_tau -= g_s * t[b, i]
+            gtau[b] = g_tau * inv_h * inv_tau * inv_tau
             for j in range(d):
                 sc = g[b, j] - y0[b, j] if scaled else one
                 through_scale = zero
@@ -191,10 +205,35 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
                 gg[b, j] = g_sum - gc[j, 0] + through_scale
                 gy0[b, j] = gc[j, 0] - through_scale
 
-    return _jit(forward, parallel), _jit(backward, parallel)
+    forward, forward_saving = make_forward(False), make_forward(True)
+    return _jit(forward, parallel), _jit(forward_saving, parallel), _jit(backward, parallel)
+
+
+def time_stamp_faults(t):
+    """One pass over time stamps ``[R, T]``: a bit mask of what is wrong with them.
+
+    1: a NaN or inf; 2: a row not strictly increasing; 4: a row starting below 0.
+    """
+    faults = 0
+    zero = t.dtype.type(0)
+    for r in range(t.shape[0]):
+        prev = t[r, 0]
+        if not (prev - prev == zero):  # NaN or inf
+            faults |= 1
+        if prev < zero:
+            faults |= 4
+        for i in range(1, t.shape[1]):
+            x = t[r, i]
+            if not (x - x == zero):
+                faults |= 1
+            elif not (x > prev):
+                faults |= 2
+            prev = x
+    return faults
 
 
 _locate = _jit(_locate)
+time_stamp_faults = _jit(time_stamp_faults)
 _cubic = _jit(_cubic)
 _coefficients = _jit(_coefficients)
 
@@ -210,7 +249,7 @@ _parallel_pid: int | None = None
 
 
 def kernels(n_columns: int, n_dims: int, n_threads: int = 1):
-    """``(forward, backward)`` for this table width and number of dimensions.
+    """``(forward, forward_saving, backward)`` for this table width and number of dims.
 
     With ``n_threads > 1`` the versions that spread the samples over numba's threads
     (``numba.set_num_threads`` is set to ``n_threads``, capped by numba's own limit).

@@ -93,14 +93,27 @@ class DMPParams:
                     setattr(self, k, np.asarray(v, dtype=np.float64))
         self.validate()
 
+    def _values_stamp(self) -> tuple | None:
+        # Which tensors, in which state, the values were last checked on: torch bumps a
+        # tensor's _version at every in-place change (a write through a NumPy view of its
+        # memory is the one change it cannot see).
+        fields = (self.w, self.tau, self.g, self.y0)
+        if not all(_is_torch(a) for a in fields):
+            return None
+        return tuple((id(a), a._version) for a in fields)
+
     def validate(self, config: DMPConfig | None = None) -> DMPParams:
-        """Check shapes and values; raise ``ValueError`` naming the field at fault."""
-        for name in ("w", "tau", "g", "y0"):
-            a = getattr(self, name)
-            if not (_is_torch(a) or isinstance(a, np.ndarray)):
-                raise ValueError(f"DMPParams.{name} must be an array or tensor, got {type(a)}")
-            if not all_finite(a):
-                raise ValueError(f"DMPParams.{name} contains NaN or inf")
+        """Check shapes and values; raise ``ValueError`` naming the field at fault.
+
+        The values of torch tensors are checked once: validating the same, unchanged
+        tensors again (as :func:`img2dmp.dmp.rollout` does with parameters that were
+        checked when they were made) only checks the shapes.
+        """
+        stamp = self._values_stamp()
+        if stamp is None or stamp != self.__dict__.get("_checked"):
+            self._check_values()
+            if stamp is not None:
+                self.__dict__["_checked"] = stamp
         w, tau, g, y0 = self.w, self.tau, self.g, self.y0
         if w.ndim < 2:
             raise ValueError(f"DMPParams.w must have shape [*batch, N, d], got {tuple(w.shape)}")
@@ -111,15 +124,23 @@ class DMPParams:
             raise ValueError(f"DMPParams.y0 has shape {tuple(y0.shape)}, expected {batch + (d,)}")
         if tuple(tau.shape) != batch:
             raise ValueError(f"DMPParams.tau has shape {tuple(tau.shape)}, expected {batch}")
-        tau_host = as_host_array(tau)
-        if not bool(((tau_host if tau_host is not None else tau) > 0).all()):
-            raise ValueError("DMPParams.tau must be > 0 (it is a duration in seconds)")
         if config is not None and (n, d) != (config.n_kernels, config.n_dims):
             raise ValueError(
                 f"DMPParams.w has N={n} kernels and d={d} dims, "
                 f"the config expects N={config.n_kernels}, d={config.n_dims}"
             )
         return self
+
+    def _check_values(self) -> None:
+        for name in ("w", "tau", "g", "y0"):
+            a = getattr(self, name)
+            if not (_is_torch(a) or isinstance(a, np.ndarray)):
+                raise ValueError(f"DMPParams.{name} must be an array or tensor, got {type(a)}")
+            if not all_finite(a):
+                raise ValueError(f"DMPParams.{name} contains NaN or inf")
+        tau_host = as_host_array(self.tau)
+        if not bool(((tau_host if tau_host is not None else self.tau) > 0).all()):
+            raise ValueError("DMPParams.tau must be > 0 (it is a duration in seconds)")
 
     @property
     def batch_shape(self) -> tuple:

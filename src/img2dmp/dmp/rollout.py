@@ -150,6 +150,10 @@ def check_time_stamps(t, name: str = "t", *, non_negative: bool = False) -> None
         x = t.detach().to("cpu", torch.float64).numpy()
     if x.size == 0 or x.shape[-1] == 0:
         raise ValueError(f"{name} is empty: a trajectory needs at least one time stamp")
+    if _kernels.available() and x.dtype in (np.float32, np.float64):
+        faults = _kernels.time_stamp_faults(np.ascontiguousarray(x.reshape(-1, x.shape[-1])))
+        if faults == 0 or (faults == 4 and not non_negative):
+            return
     if not all_finite(x):
         raise ValueError(f"{name} contains NaN or inf")
     if x.shape[-1] > 1 and not bool((x[..., 1:] > x[..., :-1]).all()):
@@ -328,31 +332,49 @@ def _fused_kernels(config_table, n_samples: int, n_dims: int):
 class _FusedRollout(torch.autograd.Function):
     """The whole rollout (forward and backward) in two compiled loops; see ``_kernels``.
 
-    Large batches are spread over ``torch.get_num_threads()`` threads.
+    Large batches are spread over ``torch.get_num_threads()`` threads. When a gradient
+    will be needed, the forward pass keeps the unit responses at every time stamp
+    (``[B, T, N + 1]`` rounded up to 16 columns) for the backward pass.
     """
 
     @staticmethod
     def forward(ctx, t, tau, w, g, y0, config):
         inv_h, s_max, one, tab = _kernel_table(config, w.dtype)
         y = torch.empty(*t.shape, w.shape[-1], dtype=w.dtype)
-        forward = _fused_kernels(tab, t.shape[0], w.shape[-1])[0]
-        arrays = (_np(x.to(w.dtype)) for x in (t, tau, w, g, y0))
-        forward(*arrays, tab, inv_h, s_max, one, config.scaling == "goal-start", y.numpy())
-        ctx.save_for_backward(t, tau, w, g, y0)
-        ctx.config = config
+        forward, forward_saving, _ = _fused_kernels(tab, t.shape[0], w.shape[-1])
+        save = any(ctx.needs_input_grad[1:5])
+        vals = torch.empty((*t.shape, tab.shape[2]) if save else (0, 0, 0), dtype=w.dtype)
+        arrays = [_np(x.to(w.dtype)) for x in (t, tau, w, g, y0)]
+        scaled = config.scaling == "goal-start"
+        (forward_saving if save else forward)(
+            *arrays, tab, inv_h, s_max, one, scaled, y.numpy(), vals.numpy()
+        )
+        if save:
+            ctx.save_for_backward(t, tau, w, g, y0, vals)
+            ctx.config = config
         return y
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, gy):
-        t, tau, w, g, y0 = ctx.saved_tensors
+        t, tau, w, g, y0, vals = ctx.saved_tensors
         inv_h, s_max, one, tab = _kernel_table(ctx.config, w.dtype)
         need = ctx.needs_input_grad
         grads = [torch.empty(x.shape, dtype=w.dtype) for x in (w, tau, g, y0)]
-        backward = _fused_kernels(tab, t.shape[0], w.shape[-1])[1]
-        arrays = (_np(x.to(w.dtype)) for x in (gy, t, tau, w, g, y0))
+        backward = _fused_kernels(tab, t.shape[0], w.shape[-1])[2]
+        arrays = [_np(x.to(w.dtype)) for x in (gy, t, tau, w, g, y0)]
         scaled = ctx.config.scaling == "goal-start"
-        backward(*arrays, tab, inv_h, s_max, one, scaled, *(x.numpy() for x in grads), need[1])
+        backward(
+            *arrays,
+            vals.numpy(),
+            tab,
+            inv_h,
+            s_max,
+            one,
+            scaled,
+            *(x.numpy() for x in grads),
+            need[1],
+        )
         gw, gtau, gg, gy0 = (d.to(x.dtype) for d, x in zip(grads, (w, tau, g, y0), strict=True))
         return (
             None,
