@@ -2,30 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 
 from img2dmp.data import synthetic as syn
 from img2dmp.data.synthetic import SyntheticConfig
 
-ROOT = Path(__file__).resolve().parents[1]
 
-
-def _script():
-    spec = importlib.util.spec_from_file_location(
-        "hidden_ends", ROOT / "benchmarks" / "hidden_ends.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
-def test_closed_zero_hides_both_ends_and_sets_a_floor_the_open_one_does_not():
-    mod = _script()
+def test_closed_zero_hides_both_ends_and_sets_a_floor_the_open_one_does_not(benchmark_script):
+    mod = benchmark_script("hidden_ends")
     cfg, rng = SyntheticConfig(), np.random.default_rng(0)
     start, end, floor = mod.measure(mod.FIRST_TEMPLATES[0], cfg, 40, 16, rng)
     assert start == end == 1.0 and 0.4 < floor < 1.5

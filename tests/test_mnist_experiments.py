@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,23 +13,13 @@ DATA = ROOT / ".." / "shared" / "data"
 RECORDED = DATA / "ijs-mnist-trajectories" / "trajectories.tar.gz"
 
 
-def _script():
-    spec = importlib.util.spec_from_file_location(
-        "mnist_experiments", ROOT / "benchmarks" / "mnist_experiments.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look their module up there
-    spec.loader.exec_module(mod)
-    return mod
-
-
 @pytest.mark.skipif(
     not RECORDED.exists(), reason=f"real data not found at {RECORDED} (see docs/MNIST.md)"
 )
-def test_quick_experiment_evaluates_the_test_split_and_resumes(tmp_path, capsys):
+def test_quick_experiment_evaluates_the_test_split_and_resumes(tmp_path, capsys, benchmark_script):
     from img2dmp.data.store import load_dataset
 
-    mod = _script()
+    mod = benchmark_script("mnist_experiments")
     args = ["--quick", "--only", "35-cost10-tn", "--out", str(tmp_path), "--data", str(DATA)]
     args += ["--epochs", "1", "--set", "model.encoder_layers=[64,20]"]
     assert mod.main(args) == 0

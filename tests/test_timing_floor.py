@@ -2,25 +2,9 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
-
 import numpy as np
 
 from img2dmp.data.store import DigitData
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _script():
-    spec = importlib.util.spec_from_file_location(
-        "mnist_timing_floor", ROOT / "benchmarks" / "mnist_timing_floor.py"
-    )
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def _paths(profiles, t_count=50):
@@ -48,8 +32,8 @@ def _data(profiles, split):
     )
 
 
-def test_one_shared_speed_profile_leaves_no_timing_error():
-    mod = _script()
+def test_one_shared_speed_profile_leaves_no_timing_error(benchmark_script):
+    mod = benchmark_script("mnist_timing_floor")
     smooth = lambda u: 3 * u**2 - 2 * u**3  # noqa: E731
     floor = mod.timing_floor(_data([smooth] * 6, [0, 0, 0, 0, 2, 2]), ks=(2,))
     for name in ("mean profile", "per-digit mean", "2 nearest shapes"):
@@ -57,8 +41,8 @@ def test_one_shared_speed_profile_leaves_no_timing_error():
     assert floor["constant speed"].mean() > 0.5  # the wrong law costs pixels
 
 
-def test_writers_with_different_speeds_leave_an_error_no_profile_removes():
-    mod = _script()
+def test_writers_with_different_speeds_leave_an_error_no_profile_removes(benchmark_script):
+    mod = benchmark_script("mnist_timing_floor")
     fast_start, slow_start = (lambda u: np.sqrt(u)), (lambda u: u**2)
     data = _data([fast_start, slow_start] * 3 + [fast_start], [0] * 6 + [2])
     floor = mod.timing_floor(data, ks=(2,))
