@@ -172,23 +172,24 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
             for i in range(n_t):
                 row = vals[b, i]
                 g_s = zero
+                # The clamp at the ends of the table stops the time gradient outside.
+                p, u, inside = 0, zero, False
+                if want_s:
+                    p, u, inside = _locate(t[b, i] * inv_tau, inv_h, s_max, n_pieces, one)
                 for jp in range(n_pairs):
                     ga = gy[b, i, 2 * jp]
                     gb = gy[b, i, 2 * jp + 1] if 2 * jp + 1 < d else zero
                     for c in range(n_c):
                         gc[2 * jp, c] += ga * row[c]
                         gc[2 * jp + 1, c] += gb * row[c]
-                    if want_s:
-                        p, u, inside = _locate(t[b, i] * inv_tau, inv_h, s_max, n_pieces, one)
-                        if inside:
-                            # The clamp at the ends of the table stops the gradient outside.
-                            acc = zero
-                            for c in range(n_c):
-                                r2 = tab[p, 2, c]
-                                r3 = tab[p, 3, c]
-                                dv = tab[p, 1, c] + u * (r2 + r2 + u * (r3 + r3 + r3))
-                                acc += (ga * coef[2 * jp, c] + gb * coef[2 * jp + 1, c]) * dv
-                            g_s += acc
+                    if inside:
+                        acc = zero
+                        for c in range(n_c):
+                            r2 = tab[p, 2, c]
+                            r3 = tab[p, 3, c]
+                            dv = tab[p, 1, c] + u * (r2 + r2 + u * (r3 + r3 + r3))
+                            acc += (ga * coef[2 * jp, c] + gb * coef[2 * jp + 1, c]) * dv
+                        g_s += acc
                 # dy/ds of the interpolant is (dy/du) / h, and s = t / tau.
                 g_tau -= g_s * t[b, i]
             gtau[b] = g_tau * inv_h * inv_tau * inv_tau
