@@ -58,8 +58,7 @@ def pixel_paths(template, anchor, elements, config, mats):
     """Minimum-jerk pen paths in pixels, moved by the affine matrices ``mats``."""
     h, w = config.image_size
     centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
-    dense = syn.build_paths(template, anchor, elements)
-    unit = syn.minimum_jerk_resample(dense, config.times(), config.duration_s)
+    unit = syn.timed_paths(template, anchor, elements, config)
     return warp_points(centre + config.unit_px * unit, mats)
 
 

@@ -455,7 +455,16 @@ def sample_unit_paths(
     if digit not in DIGIT_TEMPLATES:
         raise ValueError(f"digit must be 0-9, got {digit!r}")
     template = DIGIT_TEMPLATES[digit]
-    anchor, elements = sample_element_params(template, n, config, rng)
+    return timed_paths(template, *sample_element_params(template, n, config, rng), config)
+
+
+def timed_paths(
+    template: DigitTemplate,
+    anchor: np.ndarray,
+    elements: list[dict[str, np.ndarray]],
+    config: SyntheticConfig,
+) -> np.ndarray:
+    """Pen paths ``[n, T, 2]`` (unit frame) from element parameters, timed by minimum jerk."""
     dense = build_paths(template, anchor, elements)
     return minimum_jerk_resample(dense, config.times(), config.duration_s)
 
