@@ -21,11 +21,14 @@ import torch
 
 from img2dmp.data import render, synthetic
 from img2dmp.data.affine import sample_affine, warp_images
+from img2dmp.data.recorded import share_on_ink
 from img2dmp.dmp import fit_dmp
 
 
-def stage_times(n: int, seed: int = 0) -> dict[str, float]:
-    """Seconds per stage for ``n`` samples in this process (one torch thread)."""
+def stage_times(n: int, seed: int = 0) -> tuple[dict[str, float], dict[str, float]]:
+    """Seconds per stage for ``n`` samples in this process (one torch thread), and the
+    share of path points on ink (bilinear intensity > 0.5) after the rendering, the affine
+    transform and the noise."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
@@ -39,20 +42,28 @@ def stage_times(n: int, seed: int = 0) -> dict[str, float]:
         raw, traj, mats = synthetic._paths_and_transforms(labels, cfg, rng)
         out["pen paths + min-jerk timing"] = time.perf_counter() - t
         t = time.perf_counter()
-        img = render.render_paths(raw, cfg.image_size, cfg.pen_width_rel * h)
+        rendered = render.render_paths(raw, cfg.image_size, cfg.pen_width_rel * h)
         out["rendering"] = time.perf_counter() - t
         t = time.perf_counter()
         sample_affine(rng, n, cfg.image_size, cfg.affine)
-        img = warp_images(img, mats)
+        moved = warp_images(rendered, mats)
         out["affine warp"] = time.perf_counter() - t
         t = time.perf_counter()
-        img = render.gaussian_filter(img, cfg.blur_sigma_rel * h)
+        img = render.gaussian_filter(moved, cfg.blur_sigma_rel * h)
         img = render.salt_and_pepper(img, cfg.noise_amount, rng)
         out["blur + noise"] = time.perf_counter() - t
         t = time.perf_counter()
         fit_dmp(cfg.times(), traj, ridge=cfg.ridge)
         out["DMP fit"] = time.perf_counter() - t
-        return out
+        on_ink = {
+            name: float(np.mean([share_on_ink(im, xy) for im, xy in zip(ims, paths, strict=True)]))
+            for name, ims, paths in (
+                ("rendered", rendered.numpy(), raw),
+                ("after the affine transform", moved.numpy(), traj),
+                ("after blur and noise", img.numpy(), traj),
+            )
+        }
+        return out, on_ink
     finally:
         torch.set_num_threads(threads)
 
@@ -65,12 +76,15 @@ def main() -> None:
     args = ap.parse_args()
 
     n_stage = synthetic.CHUNK
-    stages = stage_times(n_stage, args.seed)
+    stages, on_ink = stage_times(n_stage, args.seed)
     print(f"stages for one chunk of {n_stage} samples, one process, one thread:")
     for name, sec in stages.items():
         print(f"  {name:30s} {sec:7.3f} s   {n_stage / sec:9.0f} samples/s")
     total_stage = sum(stages.values())
     print(f"  {'sum':30s} {total_stage:7.3f} s   {n_stage / total_stage:9.0f} samples/s")
+    print("share of path points on ink (bilinear intensity > 0.5) in that chunk:")
+    for name, share in on_ink.items():
+        print(f"  {name:30s} {share:7.1%}")
 
     load_before = os.getloadavg()[0]
     cpu0 = time.process_time()
