@@ -72,3 +72,8 @@ def test_init_from_starts_at_the_pretrained_network(tmp_path):
     other.model.encoder_layers = [16, 9]
     with pytest.raises(CheckpointError, match="another architecture"):
         train(other, tmp_path / "other")
+    # the network's outputs mean weights; a run that wants amplitudes cannot start there
+    amplitudes = config(init_from=str(tmp_path / "pre"))
+    amplitudes.cost.parameter_units = "amplitudes"
+    with pytest.raises(ValueError, match="parameter_units is 'amplitudes'"):
+        train(amplitudes, tmp_path / "amplitudes")

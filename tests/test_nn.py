@@ -101,6 +101,67 @@ def test_normaliser_round_trip_and_positive_tau():
     assert np.array_equal(back.scale, norm.scale)
 
 
+def test_amplitude_units_are_the_same_dmp_and_move_linearly():
+    config = DMPConfig()
+    v = _random_params(200, config)
+    vt = torch.as_tensor(v)
+    norm = ParamNormaliser.fit(v, config, units="amplitudes")
+    assert norm.units == "amplitudes"
+    z = norm.normalise(vt)
+    n, d = config.n_kernels, config.n_dims
+    span = (vt[:, n * d + 1 : n * d + 1 + d] - vt[:, n * d + 1 + d :]).abs().min(-1).values
+    assert float(span.min()) == 0.0  # the zigzags end at their start's height: w is lost
+    ok = span > 1e-3  # elsewhere the vector comes back
+    assert torch.allclose(norm.denormalise_vector(z)[ok], vt[ok], rtol=1e-9, atol=1e-9)
+    # the weight units hold (g - y0) * w, unit by unit, in the flat order of eq. (8)
+    p = DMPParams.from_vector(vt, n, d)
+    amp = ((p.g - p.y0)[:, None, :] * p.w).transpose(1, 2).reshape(len(v), -1)
+    raw = z * torch.as_tensor(norm.scale) + torch.as_tensor(norm.centre)
+    assert torch.allclose(raw[:, : n * d], amp, rtol=1e-12, atol=1e-9)
+    # the same DMP (also where g = y0): rolled out from either normalisation, paths agree
+    t = torch.linspace(0, 1, 50, dtype=torch.float64)
+    by_weights = ParamNormaliser.fit(v, config)
+    y_a = rollout(norm.denormalise(z), t, config)
+    y_w = rollout(by_weights.denormalise(by_weights.normalise(vt)), t, config)
+    assert torch.allclose(y_a, y_w, atol=1e-9)
+    # the path is affine in the amplitude units: the midpoint of two outputs rolls out to
+    # the midpoint of their paths (in weight units it does not, w being scaled by g - y0)
+    za, zb = z[:4], z[4:8]
+    mid = rollout(norm.denormalise((za + zb) / 2), t, config)
+    ends = rollout(norm.denormalise(za), t, config) + rollout(norm.denormalise(zb), t, config)
+    assert torch.allclose(mid, ends / 2, atol=1e-8)
+    zw_a, zw_b = by_weights.normalise(vt[:4]), by_weights.normalise(vt[4:8])
+    mid_w = rollout(by_weights.denormalise((zw_a + zw_b) / 2), t, config)
+    assert not torch.allclose(mid_w, ends / 2, atol=1e-3)
+    # g == y0 in a dimension: finite weights, and the record keeps the units
+    zero_span = vt[:1].clone()
+    zero_span[0, n * d + 1] = zero_span[0, n * d + 1 + d]
+    assert torch.isfinite(norm.denormalise_vector(norm.normalise(zero_span))).all()
+    assert ParamNormaliser.from_dict(norm.to_dict()).units == "amplitudes"
+    old = by_weights.to_dict()
+    del old["units"]  # records written before the units existed hold weights
+    assert ParamNormaliser.from_dict(old).units == "weights"
+    with pytest.raises(ValueError, match="goal-start"):
+        ParamNormaliser.fit(v, DMPConfig(scaling="none"), units="amplitudes")
+    with pytest.raises(ValueError, match="units"):
+        ParamNormaliser.fit(v, config, units="forces")
+
+
+def test_normaliser_floors_each_group_on_its_own_scale():
+    # huge weights and a constant tau: tau's floor must not follow the weights' size
+    config = DMPConfig()
+    v = _random_params(100, config) * 1.0
+    n_w = config.n_kernels * config.n_dims
+    v[:, :n_w] *= 1e4
+    v[:, n_w] = 2.0
+    norm = ParamNormaliser.fit(v, config)
+    assert norm.scale[n_w] == pytest.approx(1e-2)
+    assert norm.scale[n_w + 1 :].min() < 10  # positions keep their own pixel scale
+    v[:, n_w + 1] = 5.0  # a constant goal unit: floored at 1e-3 of the positions' scale
+    norm = ParamNormaliser.fit(v, config)
+    assert norm.scale[n_w + 1] == pytest.approx(1e-3 * np.median(norm.scale[n_w + 1 :]), rel=0.5)
+
+
 def test_normaliser_rejects_bad_input():
     config = DMPConfig()
     v = _random_params(10, config)

@@ -250,6 +250,18 @@ def test_other_costs_encoders_and_generator_mode(small_data, tmp_path):
         cfg.model.conv_channels = [4, 8]
         res = train(cfg, tmp_path / name)
         assert np.isfinite(res.best_val_error_px)
+    # cost (9) in amplitude units, weighted by the full metric, on augmented batches
+    cfg = tiny_config(small_data, epochs=2)
+    cfg.cost.name = "parameter"
+    cfg.cost.parameter_units = "amplitudes"
+    cfg.cost.parameter_weighting = "trajectory-full"
+    cfg.data.augment = {"rotation_deg": [-5, 5]}
+    res = train(cfg, tmp_path / "amplitudes")
+    assert np.isfinite(res.best_val_error_px)
+    meta = json.loads((tmp_path / "amplitudes" / "checkpoints" / "best.json").read_text())
+    assert meta["normaliser"]["units"] == "amplitudes"
+    with pytest.raises(ValueError, match="cost.parameter_units"):
+        TrainConfig.from_dict({"cost": {"parameter_units": "newtons"}})
     cfg = TrainConfig.from_dict(
         {
             "model": dict(TINY_MODEL),

@@ -59,6 +59,7 @@ from .nn.costs import (
     canonical_cost_name,
     dmp_trajectory,
 )
+from .nn.normalise import UNITS
 from .predict import ink_margin, typical_stroke_width
 
 PLOT_EVERY_S = 20.0
@@ -163,6 +164,11 @@ class CostConfig:
     once before training and saved in the checkpoint, see
     :class:`img2dmp.nn.costs.ParameterWeighting`. ``parameter_weight_floor``: smallest
     weight (added to the diagonal for ``"trajectory-full"``), relative to their mean.
+
+    ``parameter_units``: what the network's weight outputs (and so cost 9's weight units)
+    are, before normalisation: ``"weights"`` (the w_k of eq. 8, the paper) or
+    ``"amplitudes"`` (``(g - y0) w_k``, the same DMP without the ``1 / (g - y0)``
+    singularity), see :mod:`img2dmp.nn.normalise`.
     """
 
     name: str = "trajectory"
@@ -170,6 +176,7 @@ class CostConfig:
     trajectory_weight: float = 1.0
     parameter_weighting: str = "none"
     parameter_weight_floor: float = 1e-3
+    parameter_units: str = "weights"
 
 
 @dataclass
@@ -223,6 +230,10 @@ class TrainConfig:
             raise ValueError(
                 f"cost.parameter_weight_floor must be in (0, 1], got "
                 f"{self.cost.parameter_weight_floor!r}"
+            )
+        if self.cost.parameter_units not in UNITS:
+            raise ValueError(
+                f"cost.parameter_units must be one of {UNITS}, got {self.cost.parameter_units!r}"
             )
         self.data.augment_ranges()  # raises on a bad data.augment
         if not 0 <= self.data.val_fraction < 1:
@@ -521,7 +532,7 @@ class _Data:
                     + "; need at least 2"
                 )
             self.normaliser = normaliser or ParamNormaliser.fit(
-                a.params[train_idx], self.dmp_config
+                a.params[train_idx], self.dmp_config, cfg.cost.parameter_units
             )
             self.fit_arrays = (a.params[train_idx], a.times[train_idx])
             self.train = _to_split(a, train_idx, self.normaliser)
@@ -537,7 +548,9 @@ class _Data:
             self.dmp_config = val.dmp_config
             self.image_size = list(val.images.shape[1:])
             first = self._generated(0)
-            self.normaliser = normaliser or ParamNormaliser.fit(first.params, self.dmp_config)
+            self.normaliser = normaliser or ParamNormaliser.fit(
+                first.params, self.dmp_config, cfg.cost.parameter_units
+            )
             self.fit_arrays = (first.params, first.times)
             self.val = _to_split(val, np.arange(len(val.labels)), self.normaliser)
             self._first = first
@@ -725,6 +738,12 @@ def _train(cfg, run_dir, resume, overwrite, epochs, rank, world, t_start) -> Tra
     if state is None and cfg.init_from:
         init = load_checkpoint(cfg.init_from)  # a run directory means its best checkpoint
         normaliser = ParamNormaliser.from_dict(init.meta["normaliser"])
+        if normaliser.units != cfg.cost.parameter_units:
+            raise ValueError(
+                f"cannot initialise from {init.path}: its network outputs weight units "
+                f"{normaliser.units!r}, this run's cost.parameter_units is "
+                f"{cfg.cost.parameter_units!r}"
+            )
     data = _Data(cfg, normaliser)
     if init is not None and init.meta["dmp_config"] != data.dmp_config.to_dict():
         raise ValueError(

@@ -11,8 +11,21 @@ unit by unit, so every unit is mapped to a comparable scale first::
 ``centre`` is the per-unit median of the training set and ``scale`` the per-unit
 interquartile range divided by 1.349 (the standard deviation of a Gaussian with that
 IQR). Median and IQR are robust: the few huge goal-start weights of closed shapes do not
-shrink every other sample's values to zero. ``scale`` is floored at ``1e-3`` times its
-median over units (and at an absolute ``1e-6``), so a constant unit cannot divide by zero.
+shrink every other sample's values to zero. ``scale`` is floored within each group of
+units that share a physical unit (the weights; log tau; goal and start) at ``1e-3``
+times the group's median scale (and at an absolute ``1e-2`` for log tau, ``1e-6`` for the
+others), so a constant unit cannot divide by zero and no group's floor depends on the
+size of another's numbers.
+
+**Weight units.** With ``units="weights"`` (the paper) the weight units are the ``w_k``
+themselves. With the paper's goal-start scaling they grow like ``1 / (g - y0)``, a
+singular function of the image where a stroke ends near where it started in one
+dimension. ``units="amplitudes"`` makes them the forcing amplitudes
+``a_{k,i} = (g_i - y0_i) w_{k,i}`` instead: the same DMP (``diag(g - y0) F`` is the forcing
+term either way), but the path is affine in ``a``, ``g`` and ``y0``, and an affine map of
+the image moves them linearly. On the way back ``w = a / (g - y0)``, with ``|g - y0|``
+kept at least ``1e-9`` (of its sign) so that it stays finite. Only for DMPs with the
+goal-start scaling; without it the weights are already amplitudes.
 
 The inverse (:meth:`ParamNormaliser.denormalise`) maps the network's output ``z`` back to a
 :class:`~img2dmp.dmp.DMPParams`; tau comes out as ``exp(.)`` and is therefore always
@@ -29,6 +42,8 @@ import torch
 from ..dmp import DMPConfig, DMPParams
 
 _IQR_TO_STD = 1.3489795
+UNITS = ("weights", "amplitudes")
+_MIN_SPAN = 1e-9  # smallest |g - y0| divided by when amplitudes go back to weights
 
 
 @dataclass
@@ -43,14 +58,19 @@ class ParamNormaliser:
         Per-unit robust standard deviation (IQR / 1.349), floored.
     n_kernels, n_dims : int
         Shape of the DMP the vector encodes (``P = N*d + 1 + 2d``).
+    units : {"weights", "amplitudes"}
+        What the weight units hold: ``w`` (the paper) or ``(g - y0) * w``.
     """
 
     centre: np.ndarray
     scale: np.ndarray
     n_kernels: int
     n_dims: int
+    units: str = "weights"
 
     def __post_init__(self) -> None:
+        if self.units not in UNITS:
+            raise ValueError(f"normalisation units must be one of {UNITS}, got {self.units!r}")
         self.centre = np.asarray(self.centre, dtype=np.float64)
         self.scale = np.asarray(self.scale, dtype=np.float64)
         p = self.n_kernels * self.n_dims + 1 + 2 * self.n_dims
@@ -77,7 +97,7 @@ class ParamNormaliser:
         return self.n_kernels * self.n_dims
 
     @classmethod
-    def fit(cls, params: np.ndarray, config: DMPConfig) -> ParamNormaliser:
+    def fit(cls, params: np.ndarray, config: DMPConfig, units: str = "weights") -> ParamNormaliser:
         """Robust centre and scale of a training set's flat parameter vectors.
 
         Parameters
@@ -86,7 +106,17 @@ class ParamNormaliser:
             Fitted DMPs (``DMPParams.to_vector``), tau > 0.
         config : DMPConfig
             Their constants.
+        units : {"weights", "amplitudes"}
+            See the module docstring; ``"amplitudes"`` needs ``config.scaling ==
+            "goal-start"``.
         """
+        if units not in UNITS:
+            raise ValueError(f"normalisation units must be one of {UNITS}, got {units!r}")
+        if units == "amplitudes" and config.scaling != "goal-start":
+            raise ValueError(
+                f"weight units 'amplitudes' need DMPs with the goal-start scaling; with "
+                f"scaling={config.scaling!r} the weights already are amplitudes (use 'weights')"
+            )
         v = np.asarray(params, dtype=np.float64)
         if v.ndim != 2 or v.shape[1] != config.n_params or v.shape[0] < 2:
             raise ValueError(
@@ -98,14 +128,16 @@ class ParamNormaliser:
         ti = config.n_kernels * config.n_dims
         if not (v[:, ti] > 0).all():
             raise ValueError("training parameter vectors have tau <= 0")
-        u = v.copy()
-        u[:, ti] = np.log(u[:, ti])
+        u = _to_units(torch.as_tensor(v), config.n_kernels, config.n_dims, units).numpy()
         q1, med, q3 = np.percentile(u, [25.0, 50.0, 75.0], axis=0)
         scale = (q3 - q1) / _IQR_TO_STD
-        # A unit with (almost) no spread would otherwise blow up its normalised error.
-        floor = max(1e-3 * float(np.median(scale)), 1e-6)
-        scale = np.maximum(scale, floor)
-        return cls(med, scale, config.n_kernels, config.n_dims)
+        # A unit with (almost) no spread would otherwise blow up its normalised error;
+        # floors are per group of units in the same physical unit.
+        groups = ((slice(0, ti), 1e-6), (slice(ti, ti + 1), 1e-2), (slice(ti + 1, None), 1e-6))
+        for group, absolute in groups:
+            floor = max(1e-3 * float(np.median(scale[group])), absolute)
+            scale[group] = np.maximum(scale[group], floor)
+        return cls(med, scale, config.n_kernels, config.n_dims, units)
 
     def _tensors(self, like: torch.Tensor):
         key = (like.dtype, like.device)
@@ -118,16 +150,12 @@ class ParamNormaliser:
     def normalise(self, v: torch.Tensor) -> torch.Tensor:
         """Flat parameter vectors ``[*batch, P]`` (tau > 0) to normalised units ``[*batch, P]``."""
         c, s = self._tensors(v)
-        ti = self.tau_index
-        u = torch.cat([v[..., :ti], torch.log(v[..., ti : ti + 1]), v[..., ti + 1 :]], dim=-1)
-        return (u - c) / s
+        return (_to_units(v, self.n_kernels, self.n_dims, self.units) - c) / s
 
     def denormalise_vector(self, z: torch.Tensor) -> torch.Tensor:
         """Normalised units ``[*batch, P]`` to flat parameter vectors (tau = exp(.) > 0)."""
         c, s = self._tensors(z)
-        u = z * s + c
-        ti = self.tau_index
-        return torch.cat([u[..., :ti], torch.exp(u[..., ti : ti + 1]), u[..., ti + 1 :]], dim=-1)
+        return _from_units(z * s + c, self.n_kernels, self.n_dims, self.units)
 
     def denormalise(self, z: torch.Tensor) -> DMPParams:
         """Normalised network output ``[*batch, P]`` to :class:`DMPParams` (torch, differentiable).
@@ -154,6 +182,7 @@ class ParamNormaliser:
             "scale": self.scale.tolist(),
             "n_kernels": self.n_kernels,
             "n_dims": self.n_dims,
+            "units": self.units,
         }
 
     @classmethod
@@ -168,4 +197,30 @@ class ParamNormaliser:
             np.asarray(d["scale"], dtype=np.float64),
             int(d["n_kernels"]),
             int(d["n_dims"]),
+            d.get("units", "weights"),  # records written before amplitudes existed
         )
+
+
+def _spans(v: torch.Tensor, n: int, d: int) -> torch.Tensor:
+    """``g - y0`` of flat vectors ``[*batch, P]``, repeated per weight: ``[*batch, N*d]``."""
+    g = v[..., n * d + 1 : n * d + 1 + d]
+    y0 = v[..., n * d + 1 + d :]
+    return torch.repeat_interleave(g - y0, n, dim=-1)
+
+
+def _to_units(v: torch.Tensor, n: int, d: int, units: str) -> torch.Tensor:
+    """Flat DMP vectors to the units that are normalised: log tau, and w or (g - y0) w."""
+    ti = n * d
+    w = v[..., :ti] * _spans(v, n, d) if units == "amplitudes" else v[..., :ti]
+    return torch.cat([w, torch.log(v[..., ti : ti + 1]), v[..., ti + 1 :]], dim=-1)
+
+
+def _from_units(u: torch.Tensor, n: int, d: int, units: str) -> torch.Tensor:
+    """Inverse of :func:`_to_units` (tau = exp(.) > 0; |g - y0| floored when dividing)."""
+    ti = n * d
+    w = u[..., :ti]
+    if units == "amplitudes":
+        span = _spans(u, n, d)
+        sign = torch.where(span < 0, -1.0, 1.0).to(span.dtype)
+        w = w / (sign * span.abs().clamp_min(_MIN_SPAN))
+    return torch.cat([w, torch.exp(u[..., ti : ti + 1]), u[..., ti + 1 :]], dim=-1)
