@@ -360,6 +360,16 @@ def test_demo_config_file_matches_the_built_in_demo():
     assert on_disk["optim"]["epochs"] == DEMO_EPOCHS
 
 
+@pytest.mark.parametrize(
+    "name", sorted(p.name for p in (Path(__file__).resolve().parents[1] / "configs").glob("*.yaml"))
+)
+def test_shipped_configs_load(name):
+    from img2dmp.train import load_config
+
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / name)
+    assert cfg.optim.epochs >= 1
+
+
 def test_augmentation_moves_image_and_path_together_and_refits_targets(small_data):
     from img2dmp.dmp import DMPParams, rollout
     from img2dmp.train import _Augmenter
