@@ -150,7 +150,7 @@ def test_amplitude_units_are_the_same_dmp_and_move_linearly():
 def test_normaliser_floors_each_group_on_its_own_scale():
     # huge weights and a constant tau: tau's floor must not follow the weights' size
     config = DMPConfig()
-    v = _random_params(100, config) * 1.0
+    v = _random_params(100, config)
     n_w = config.n_kernels * config.n_dims
     v[:, :n_w] *= 1e4
     v[:, n_w] = 2.0

@@ -110,8 +110,6 @@ class ParamNormaliser:
             See the module docstring; ``"amplitudes"`` needs ``config.scaling ==
             "goal-start"``.
         """
-        if units not in UNITS:
-            raise ValueError(f"normalisation units must be one of {UNITS}, got {units!r}")
         if units == "amplitudes" and config.scaling != "goal-start":
             raise ValueError(
                 f"weight units 'amplitudes' need DMPs with the goal-start scaling; with "
@@ -221,6 +219,5 @@ def _from_units(u: torch.Tensor, n: int, d: int, units: str) -> torch.Tensor:
     w = u[..., :ti]
     if units == "amplitudes":
         span = _spans(u, n, d)
-        sign = torch.where(span < 0, -1.0, 1.0).to(span.dtype)
-        w = w / (sign * span.abs().clamp_min(_MIN_SPAN))
+        w = w / torch.copysign(span.abs().clamp_min(_MIN_SPAN), span)
     return torch.cat([w, torch.exp(u[..., ti : ti + 1]), u[..., ti + 1 :]], dim=-1)
