@@ -318,8 +318,11 @@ def _kernel_table(config: DMPConfig, dtype: torch.dtype):
     return one / tab.dtype.type(h), tab.dtype.type(s_max), one, tab
 
 
-def _np(x: torch.Tensor) -> np.ndarray:
-    return x.detach().contiguous().numpy()
+def _np(x: torch.Tensor, dtype: torch.dtype) -> np.ndarray:
+    """A NumPy view of ``x`` in ``dtype`` (a converted copy only where needed)."""
+    if x.dtype != dtype or not x.is_contiguous():
+        x = x.to(dtype).contiguous()
+    return x.detach().numpy()
 
 
 def _fused_kernels(config_table, n_samples: int, n_dims: int):
@@ -334,17 +337,19 @@ class _FusedRollout(torch.autograd.Function):
 
     Large batches are spread over ``torch.get_num_threads()`` threads. When a gradient
     will be needed, the forward pass keeps the unit responses at every time stamp
-    (``[B, T, N + 1]`` rounded up to 16 columns) for the backward pass.
+    (``[B, T, N + 1]`` rounded up to 16 columns) for the backward pass. The Python
+    around the kernels is kept to a few microseconds: it is paid on every call.
     """
 
     @staticmethod
     def forward(ctx, t, tau, w, g, y0, config):
-        inv_h, s_max, one, tab = _kernel_table(config, w.dtype)
-        y = torch.empty(*t.shape, w.shape[-1], dtype=w.dtype)
+        dtype = w.dtype
+        inv_h, s_max, one, tab = _kernel_table(config, dtype)
+        y = torch.empty(*t.shape, w.shape[-1], dtype=dtype)
         forward, forward_saving, _ = _fused_kernels(tab, t.shape[0], w.shape[-1])
         save = any(ctx.needs_input_grad[1:5])
-        vals = torch.empty((*t.shape, tab.shape[2]) if save else (0, 0, 0), dtype=w.dtype)
-        arrays = [_np(x.to(w.dtype)) for x in (t, tau, w, g, y0)]
+        vals = torch.empty((*t.shape, tab.shape[2]) if save else (0, 0, 0), dtype=dtype)
+        arrays = [_np(x, dtype) for x in (t, tau, w, g, y0)]
         scaled = config.scaling == "goal-start"
         (forward_saving if save else forward)(
             *arrays, tab, inv_h, s_max, one, scaled, y.numpy(), vals.numpy()
@@ -358,29 +363,17 @@ class _FusedRollout(torch.autograd.Function):
     @torch.autograd.function.once_differentiable
     def backward(ctx, gy):
         t, tau, w, g, y0, vals = ctx.saved_tensors
-        inv_h, s_max, one, tab = _kernel_table(ctx.config, w.dtype)
+        dtype = w.dtype
+        inv_h, s_max, one, tab = _kernel_table(ctx.config, dtype)
         need = ctx.needs_input_grad
-        grads = [torch.empty(x.shape, dtype=w.dtype) for x in (w, tau, g, y0)]
+        np_dtype = tab.dtype  # NumPy arrays: cheaper to make than tensors
+        gw, gtau, gg, gy0 = (np.empty(tuple(x.shape), np_dtype) for x in (w, tau, g, y0))
         backward = _fused_kernels(tab, t.shape[0], w.shape[-1])[2]
-        arrays = [_np(x.to(w.dtype)) for x in (gy, t, tau, w, g, y0)]
+        arrays = [_np(x, dtype) for x in (gy, t, tau, w, g, y0)]
         scaled = ctx.config.scaling == "goal-start"
-        backward(
-            *arrays,
-            vals.numpy(),
-            tab,
-            inv_h,
-            s_max,
-            one,
-            scaled,
-            *(x.numpy() for x in grads),
-            need[1],
-        )
-        gw, gtau, gg, gy0 = (d.to(x.dtype) for d, x in zip(grads, (w, tau, g, y0), strict=True))
-        return (
-            None,
-            gtau if need[1] else None,
-            gw if need[2] else None,
-            gg if need[3] else None,
-            gy0 if need[4] else None,
-            None,
-        )
+        backward(*arrays, vals.numpy(), tab, inv_h, s_max, one, scaled, gw, gtau, gg, gy0, need[1])
+        grads = [None] * 6
+        for i, (grad, x) in enumerate(((gtau, tau), (gw, w), (gg, g), (gy0, y0)), start=1):
+            if need[i]:
+                grads[i] = torch.from_numpy(grad).to(x.dtype)  # .to: no copy when equal
+        return tuple(grads)
