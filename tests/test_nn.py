@@ -182,6 +182,17 @@ def test_paper_architecture_and_conv_encoder():
     assert model(x).shape == (3, 55)
     conv = build_model(ModelConfig(encoder="conv", encoder_layers=[32], decoder_layers=[16]))
     assert conv(x).shape == (3, 55)
+    assert conv.encoder.head[0].in_features == 64 * 5 * 5  # 40 -> 20 -> 10 -> 5
+    # a stride-1 first layer keeps the full resolution: 40 -> 40 -> 20 -> 10
+    cfg = ModelConfig(encoder="conv", conv_channels=[4, 8, 8], conv_strides=[1, 2, 2])
+    fine = build_model(ModelConfig.from_dict(cfg.to_dict()))
+    assert fine.encoder.head[0].in_features == 8 * 10 * 10
+    assert fine(x).shape == (3, 55)
+    assert ModelConfig.from_dict({"encoder": "conv"}).conv_strides is None  # old records
+    with pytest.raises(ValueError, match="conv_strides"):
+        ModelConfig(encoder="conv", conv_channels=[4, 8], conv_strides=[1])
+    with pytest.raises(ValueError, match="conv_strides"):
+        ModelConfig(encoder="conv", conv_channels=[4, 8], conv_strides=[0, 2])
     with pytest.raises(ValueError, match="expects"):
         model(torch.rand(2, 28, 28))
     with pytest.raises(ValueError, match="activation"):

@@ -61,7 +61,12 @@ class ModelConfig:
         (paper: 1500, 1300, 1000, 600, 200, 20). For ``"conv"`` only the last entry
         (the latent size) is used.
     conv_channels : list of int
-        Channels of the convolutional encoder's stride-2 3x3 convolutions.
+        Channels of the convolutional encoder's 3x3 convolutions.
+    conv_strides : list of int, optional
+        Stride of each of those convolutions (default ``None``: 2 for every one, each
+        halving the image). A stride-1 first layer sees the image at full resolution,
+        which can help to place the strokes to a fraction of a pixel, at about twice the
+        cost.
     decoder_layers : list of int
         Hidden widths of the decoder between the latent code and the output (paper: 35).
     activation : str
@@ -74,6 +79,7 @@ class ModelConfig:
     image_size: list[int] = field(default_factory=lambda: [40, 40])
     encoder_layers: list[int] = field(default_factory=lambda: [1500, 1300, 1000, 600, 200, 20])
     conv_channels: list[int] = field(default_factory=lambda: [16, 32, 64])
+    conv_strides: list[int] | None = None
     decoder_layers: list[int] = field(default_factory=lambda: [35])
     activation: str = "relu"
     n_outputs: int = 55
@@ -93,6 +99,13 @@ class ModelConfig:
             raise ValueError("model.encoder_layers must name at least the latent size")
         if self.encoder == "conv" and not self.conv_channels:
             raise ValueError("model.conv_channels must not be empty for a conv encoder")
+        if self.conv_strides is not None:  # None: stride 2 everywhere
+            self.conv_strides = [int(v) for v in self.conv_strides]
+            if len(self.conv_strides) != len(self.conv_channels) or min(self.conv_strides) < 1:
+                raise ValueError(
+                    "model.conv_strides must hold one stride >= 1 per entry of "
+                    f"conv_channels {self.conv_channels}, got {self.conv_strides!r}"
+                )
         if self.activation not in ACTIVATIONS:
             raise ValueError(
                 f"model.activation must be one of {sorted(ACTIVATIONS)}, got {self.activation!r}"
@@ -129,23 +142,29 @@ class FullyConnectedEncoder(nn.Module):
 
 
 class ConvEncoder(nn.Module):
-    """A small convolutional encoder: stride-2 3x3 convolutions, then one linear layer.
+    """A small convolutional encoder: 3x3 convolutions, then one linear layer.
 
-    Each convolution halves the image (40 -> 20 -> 10 -> 5 for three layers); the feature
-    map is flattened and mapped to ``latent`` features.
+    With the default stride 2 each convolution halves the image (40 -> 20 -> 10 -> 5 for
+    three layers); the feature map is flattened and mapped to ``latent`` features.
     """
 
     def __init__(
-        self, image_size: list[int], channels: list[int], latent: int, activation: str = "relu"
+        self,
+        image_size: list[int],
+        channels: list[int],
+        latent: int,
+        activation: str = "relu",
+        strides: list[int] | None = None,
     ):
         super().__init__()
         self.in_shape = tuple(image_size)
         self.out_features = latent
+        strides = strides if strides is not None else [2] * len(channels)
         layers: list[nn.Module] = []
         c_in, h, w = 1, image_size[0], image_size[1]
-        for c in channels:
-            layers += [nn.Conv2d(c_in, c, 3, stride=2, padding=1), _activation(activation)]
-            c_in, h, w = c, (h + 1) // 2, (w + 1) // 2
+        for c, st in zip(channels, strides, strict=True):
+            layers += [nn.Conv2d(c_in, c, 3, stride=st, padding=1), _activation(activation)]
+            c_in, h, w = c, (h - 1) // st + 1, (w - 1) // st + 1
         self.conv = nn.Sequential(*layers)
         self.head = nn.Sequential(nn.Linear(c_in * h * w, latent), _activation(activation))
 
@@ -203,6 +222,7 @@ def build_model(config: ModelConfig, seed: int | None = None) -> EncoderDecoder:
                 config.conv_channels,
                 config.encoder_layers[-1],
                 config.activation,
+                config.conv_strides,
             )
         model = EncoderDecoder(enc, config.decoder_layers, config.n_outputs, config.activation)
     return model
