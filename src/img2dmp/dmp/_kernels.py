@@ -77,8 +77,8 @@ def _locate_row(t, b, inv_tau, inv_h, s_max, one, pieces, coords):
         q = q * inv_h
         fl = np.floor(q)
         fl = fl if fl < last else last  # NaN goes to the last piece
-        coords[b, i] = q - fl
-        pieces[b, i] = int(fl)
+        coords[i] = q - fl
+        pieces[i] = int(fl)
 
 
 def _cubic(tab, p, c, u):
@@ -133,14 +133,16 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
             n_b, n_t = t.shape
             zero = one - one
             coefs = np.zeros((n_b, 2 * n_pairs, n_c), dtype=tab.dtype)
-            pieces = np.empty((n_b, n_t), dtype=np.int64)
-            coords = np.empty((n_b, n_t), dtype=tab.dtype)
             for b in samples(n_b):
                 coef = coefs[b]
                 _coefficients(b, w, g, y0, scaled, coef, one)
+                # Small per-sample buffers: one [B, T] array would be large enough for
+                # malloc to map fresh (page-faulting) memory on every call.
+                pieces = np.empty(n_t, dtype=np.int64)
+                coords = np.empty(n_t, dtype=tab.dtype)
                 _locate_row(t, b, one / tau[b], inv_h, s_max, one, pieces, coords)
                 for i in range(n_t):
-                    p, u = pieces[b, i], coords[b, i]
+                    p, u = pieces[i], coords[i]
                     for jp in range(n_pairs):
                         acc_a = zero
                         acc_b = zero
@@ -169,12 +171,12 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
         zero = one - one
         coefs = np.zeros((n_b, 2 * n_pairs, n_c), dtype=tab.dtype)
         gcs = np.zeros((n_b, 2 * n_pairs, n_c), dtype=tab.dtype)  # gradient of coefs
-        pieces = np.empty((n_b, n_t), dtype=np.int64)
-        coords = np.empty((n_b, n_t), dtype=tab.dtype)
         for b in samples(n_b):
             coef, gc = coefs[b], gcs[b]
             _coefficients(b, w, g, y0, scaled, coef, one)
             inv_tau = one / tau[b]
+            pieces = np.empty(n_t, dtype=np.int64)
+            coords = np.empty(n_t, dtype=tab.dtype)
             if want_s:
                 _locate_row(t, b, inv_tau, inv_h, s_max, one, pieces, coords)
             g_tau = zero
@@ -184,8 +186,8 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
                 # The clamp at the ends of the table stops the time gradient outside.
                 s = t[b, i] * inv_tau
                 inside = want_s and s > zero and s < s_max
-                p = pieces[b, i] if inside else 0
-                u = coords[b, i] if inside else zero
+                p = pieces[i] if inside else 0
+                u = coords[i] if inside else zero
                 for jp in range(n_pairs):
                     ga = gy[b, i, 2 * jp]
                     gb = gy[b, i, 2 * jp + 1] if 2 * jp + 1 < d else zero

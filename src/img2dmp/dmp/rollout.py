@@ -348,7 +348,12 @@ class _FusedRollout(torch.autograd.Function):
         y = torch.empty(*t.shape, w.shape[-1], dtype=dtype)
         forward, forward_saving, _ = _fused_kernels(tab, t.shape[0], w.shape[-1])
         save = any(ctx.needs_input_grad[1:5])
-        vals = torch.empty((*t.shape, tab.shape[2]) if save else (0, 0, 0), dtype=dtype)
+        # A NumPy allocation: for arrays of several MB NumPy asks the kernel for huge
+        # pages, where torch.empty's memory is first touched one 4 kB page at a time (a
+        # page fault each, which took a third of the time of a whole forward + backward).
+        vals = torch.from_numpy(
+            np.empty((*t.shape, tab.shape[2]) if save else (0, 0, 0), tab.dtype)
+        )
         arrays = [_np(x, dtype) for x in (t, tau, w, g, y0)]
         scaled = config.scaling == "goal-start"
         (forward_saving if save else forward)(
