@@ -2,10 +2,9 @@
 
 One loop over every (sample, time stamp) does the whole rollout of
 :mod:`img2dmp.dmp.rollout`: locate the cubic piece of the response table, evaluate the
-N + 1 unit responses there, and combine them with that sample's coefficients. When a
-gradient will be needed, the forward loop also keeps those responses (``[B, T, N + 1]``
-rounded up to 16 columns), and the backward loop accumulates the gradients of w, g and
-y0 from them and that of tau from the table's derivative.
+N + 1 unit responses there, and combine them with that sample's coefficients. The
+backward loop evaluates the responses again and accumulates the gradients of w, g and
+y0 from them, and that of tau from the table's derivative at the same place.
 
 The maths is that of :class:`img2dmp.dmp.rollout._PiecewiseCombination` (the two paths
 are tested against each other and by gradcheck). The table has the layout
@@ -108,10 +107,10 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
     dimensions and can tell the rows of the small work arrays apart, which together
     halve the time of the generic loops.
 
-    Returns ``(forward, forward_saving, backward)``. ``forward_saving`` also writes the
-    N + 1 unit responses at every time stamp into ``vals [B, T, n_columns]``; the backward
-    pass reads them back instead of evaluating the table again, which makes it about
-    twice as fast for the cost of that array (the forward pass is a little slower).
+    Returns ``(forward, backward)``. Nothing of the batch's size passes from one to the
+    other: the backward pass evaluates the unit responses again, in the loop that also
+    needs their time derivative. (Keeping them from the forward pass, ``[B, T, 32]``,
+    was no faster in float32 and 1.2x slower in float64, for 5-10 MB of memory traffic.)
     """
     n_c, d = n_columns, n_dims
     n_pairs = (d + 1) // 2
@@ -119,52 +118,43 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
     # entries of the serial and the parallel kernels apart.
     samples = numba.prange if parallel else range
 
-    def make_forward(save: bool):
-        def forward(t, tau, w, g, y0, tab, inv_h, s_max, one, scaled, out, vals):
-            """``out[b, i, j] = y_j(t[b, i])`` of DMP ``b`` (and ``vals`` if saving).
+    def forward(t, tau, w, g, y0, tab, inv_h, s_max, one, scaled, out):
+        """``out[b, i, j] = y_j(t[b, i])`` of DMP ``b``.
 
-            t [B, T], tau [B], w [B, N, d], g / y0 [B, d], tab [G, 4, n_c] (columns past
-            N + 1 are zero), out [B, T, d], vals [B, T, n_c] (unused unless saving).
-            ``inv_h``, ``s_max`` and ``one`` are scalars of the table's dtype, so every
-            float stays in that dtype (a Python literal would promote float32 code to
-            float64). Dimensions go in pairs through one loop over the columns, vectorised
-            with two accumulators.
-            """
-            n_b, n_t = t.shape
-            zero = one - one
-            coefs = np.zeros((n_b, 2 * n_pairs, n_c), dtype=tab.dtype)
-            for b in samples(n_b):
-                coef = coefs[b]
-                _coefficients(b, w, g, y0, scaled, coef, one)
-                # Small per-sample buffers: one [B, T] array would be large enough for
-                # malloc to map fresh (page-faulting) memory on every call.
-                pieces = np.empty(n_t, dtype=np.int64)
-                coords = np.empty(n_t, dtype=tab.dtype)
-                _locate_row(t, b, one / tau[b], inv_h, s_max, one, pieces, coords)
-                for i in range(n_t):
-                    p, u = pieces[i], coords[i]
-                    for jp in range(n_pairs):
-                        acc_a = zero
-                        acc_b = zero
-                        for c in range(n_c):
-                            v = _cubic(tab, p, c, u)
-                            if save and jp == 0:
-                                vals[b, i, c] = v
-                            acc_a += coef[2 * jp, c] * v
-                            acc_b += coef[2 * jp + 1, c] * v
-                        out[b, i, 2 * jp] = g[b, 2 * jp] + acc_a
-                        if 2 * jp + 1 < d:
-                            out[b, i, 2 * jp + 1] = g[b, 2 * jp + 1] + acc_b
+        t [B, T], tau [B], w [B, N, d], g / y0 [B, d], tab [G, 4, n_c] (columns past
+        N + 1 are zero), out [B, T, d]. ``inv_h``, ``s_max`` and ``one`` are scalars of
+        the table's dtype, so every float stays in that dtype (a Python literal would
+        promote float32 code to float64). Dimensions go in pairs through one loop over
+        the columns, vectorised with two accumulators.
+        """
+        n_b, n_t = t.shape
+        zero = one - one
+        coefs = np.zeros((n_b, 2 * n_pairs, n_c), dtype=tab.dtype)
+        for b in samples(n_b):
+            coef = coefs[b]
+            _coefficients(b, w, g, y0, scaled, coef, one)
+            # Small per-sample buffers: one [B, T] array would be large enough for
+            # malloc to map fresh (page-faulting) memory on every call.
+            pieces = np.empty(n_t, dtype=np.int64)
+            coords = np.empty(n_t, dtype=tab.dtype)
+            _locate_row(t, b, one / tau[b], inv_h, s_max, one, pieces, coords)
+            for i in range(n_t):
+                p, u = pieces[i], coords[i]
+                for jp in range(n_pairs):
+                    acc_a = zero
+                    acc_b = zero
+                    for c in range(n_c):
+                        v = _cubic(tab, p, c, u)
+                        acc_a += coef[2 * jp, c] * v
+                        acc_b += coef[2 * jp + 1, c] * v
+                    out[b, i, 2 * jp] = g[b, 2 * jp] + acc_a
+                    if 2 * jp + 1 < d:
+                        out[b, i, 2 * jp + 1] = g[b, 2 * jp + 1] + acc_b
 
-        return forward
-
-    def backward(
-        gy, t, tau, w, g, y0, vals, tab, inv_h, s_max, one, scaled, gw, gtau, gg, gy0, want_s
-    ):
+    def backward(gy, t, tau, w, g, y0, tab, inv_h, s_max, one, scaled, gw, gtau, gg, gy0, want_s):
         """Gradients of ``sum(gy * y)`` for w, tau, g and y0, written into gw ... gy0.
 
-        ``vals`` holds the unit responses the saving forward pass wrote. ``want_s`` skips
-        the time derivative (and gtau) when tau needs no gradient.
+        ``want_s`` skips the time derivative (and gtau) when tau needs no gradient.
         """
         n_b, n_t = t.shape
         n_k = w.shape[1]
@@ -177,31 +167,34 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
             inv_tau = one / tau[b]
             pieces = np.empty(n_t, dtype=np.int64)
             coords = np.empty(n_t, dtype=tab.dtype)
-            if want_s:
-                _locate_row(t, b, inv_tau, inv_h, s_max, one, pieces, coords)
+            _locate_row(t, b, inv_tau, inv_h, s_max, one, pieces, coords)
             g_tau = zero
             for i in range(n_t):
-                row = vals[b, i]
+                p, u = pieces[i], coords[i]
                 g_s = zero
                 # The clamp at the ends of the table stops the time gradient outside.
                 s = t[b, i] * inv_tau
                 inside = want_s and s > zero and s < s_max
-                p = pieces[i] if inside else 0
-                u = coords[i] if inside else zero
                 for jp in range(n_pairs):
                     ga = gy[b, i, 2 * jp]
                     gb = gy[b, i, 2 * jp + 1] if 2 * jp + 1 < d else zero
-                    for c in range(n_c):
-                        gc[2 * jp, c] += ga * row[c]
-                        gc[2 * jp + 1, c] += gb * row[c]
-                    if inside:
+                    if inside:  # responses and their derivatives from the same loads
                         acc = zero
                         for c in range(n_c):
+                            r1 = tab[p, 1, c]
                             r2 = tab[p, 2, c]
                             r3 = tab[p, 3, c]
-                            dv = tab[p, 1, c] + u * (r2 + r2 + u * (r3 + r3 + r3))
+                            v = tab[p, 0, c] + u * (r1 + u * (r2 + u * r3))
+                            gc[2 * jp, c] += ga * v
+                            gc[2 * jp + 1, c] += gb * v
+                            dv = r1 + u * (r2 + r2 + u * (r3 + r3 + r3))
                             acc += (ga * coef[2 * jp, c] + gb * coef[2 * jp + 1, c]) * dv
                         g_s += acc
+                    else:
+                        for c in range(n_c):
+                            v = _cubic(tab, p, c, u)
+                            gc[2 * jp, c] += ga * v
+                            gc[2 * jp + 1, c] += gb * v
                 # dy/ds of the interpolant is (dy/du) / h, and s = t / tau.
                 g_tau -= g_s * t[b, i]
             gtau[b] = g_tau * inv_h * inv_tau * inv_tau
@@ -218,8 +211,7 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
                 gg[b, j] = g_sum - gc[j, 0] + through_scale
                 gy0[b, j] = gc[j, 0] - through_scale
 
-    forward, forward_saving = make_forward(False), make_forward(True)
-    return _jit(forward, parallel), _jit(forward_saving, parallel), _jit(backward, parallel)
+    return _jit(forward, parallel), _jit(backward, parallel)
 
 
 def time_stamp_faults(t):
@@ -262,7 +254,7 @@ _parallel_pid: int | None = None
 
 
 def kernels(n_columns: int, n_dims: int, n_threads: int = 1):
-    """``(forward, forward_saving, backward)`` for this table width and number of dims.
+    """``(forward, backward)`` for this table width and number of dims.
 
     With ``n_threads > 1`` the versions that spread the samples over numba's threads
     (``numba.set_num_threads`` is set to ``n_threads``, capped by numba's own limit).

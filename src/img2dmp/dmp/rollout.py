@@ -335,10 +335,9 @@ def _fused_kernels(config_table, n_samples: int, n_dims: int):
 class _FusedRollout(torch.autograd.Function):
     """The whole rollout (forward and backward) in two compiled loops; see ``_kernels``.
 
-    Large batches are spread over ``torch.get_num_threads()`` threads. When a gradient
-    will be needed, the forward pass keeps the unit responses at every time stamp
-    (``[B, T, N + 1]`` rounded up to 16 columns) for the backward pass. The Python
-    around the kernels is kept to a few microseconds: it is paid on every call.
+    Large batches are spread over ``torch.get_num_threads()`` threads. Only the inputs
+    are kept for the backward pass. The Python around the kernels is kept to a few
+    microseconds: it is paid on every call.
     """
 
     @staticmethod
@@ -346,37 +345,28 @@ class _FusedRollout(torch.autograd.Function):
         dtype = w.dtype
         inv_h, s_max, one, tab = _kernel_table(config, dtype)
         y = torch.empty(*t.shape, w.shape[-1], dtype=dtype)
-        forward, forward_saving, _ = _fused_kernels(tab, t.shape[0], w.shape[-1])
-        save = any(ctx.needs_input_grad[1:5])
-        # A NumPy allocation: for arrays of several MB NumPy asks the kernel for huge
-        # pages, where torch.empty's memory is first touched one 4 kB page at a time (a
-        # page fault each, which took a third of the time of a whole forward + backward).
-        vals = torch.from_numpy(
-            np.empty((*t.shape, tab.shape[2]) if save else (0, 0, 0), tab.dtype)
-        )
+        forward = _fused_kernels(tab, t.shape[0], w.shape[-1])[0]
         arrays = [_np(x, dtype) for x in (t, tau, w, g, y0)]
         scaled = config.scaling == "goal-start"
-        (forward_saving if save else forward)(
-            *arrays, tab, inv_h, s_max, one, scaled, y.numpy(), vals.numpy()
-        )
-        if save:
-            ctx.save_for_backward(t, tau, w, g, y0, vals)
+        forward(*arrays, tab, inv_h, s_max, one, scaled, y.numpy())
+        if any(ctx.needs_input_grad[1:5]):
+            ctx.save_for_backward(t, tau, w, g, y0)
             ctx.config = config
         return y
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, gy):
-        t, tau, w, g, y0, vals = ctx.saved_tensors
+        t, tau, w, g, y0 = ctx.saved_tensors
         dtype = w.dtype
         inv_h, s_max, one, tab = _kernel_table(ctx.config, dtype)
         need = ctx.needs_input_grad
         np_dtype = tab.dtype  # NumPy arrays: cheaper to make than tensors
         gw, gtau, gg, gy0 = (np.empty(tuple(x.shape), np_dtype) for x in (w, tau, g, y0))
-        backward = _fused_kernels(tab, t.shape[0], w.shape[-1])[2]
+        backward = _fused_kernels(tab, t.shape[0], w.shape[-1])[1]
         arrays = [_np(x, dtype) for x in (gy, t, tau, w, g, y0)]
         scaled = ctx.config.scaling == "goal-start"
-        backward(*arrays, vals.numpy(), tab, inv_h, s_max, one, scaled, gw, gtau, gg, gy0, need[1])
+        backward(*arrays, tab, inv_h, s_max, one, scaled, gw, gtau, gg, gy0, need[1])
         grads = [None] * 6
         for i, (grad, x) in enumerate(((gtau, tau), (gw, w), (gg, g), (gy0, y0)), start=1):
             if need[i]:
