@@ -140,16 +140,16 @@ class DMPParams:
         # One finite total decides for all four fields at once (a few microseconds: this
         # runs for every batch a network makes); only a non-finite one, which an
         # overflow can also cause, is looked into field by field to name the culprit.
-        views = [as_host_array(getattr(self, name)) for name in names]
-        if all(v is not None and v.dtype.kind == "f" for v in views):
+        hosts = [as_host_array(getattr(self, name)) for name in names]
+        finite = False
+        if all(h is not None and h.dtype.kind == "f" for h in hosts):
             with np.errstate(all="ignore"):
-                if np.isfinite(sum(float(v.sum()) for v in views)):
-                    views = None
-        if views is not None:
+                finite = bool(np.isfinite(sum(float(h.sum()) for h in hosts)))
+        if not finite:
             for name in names:
                 if not all_finite(getattr(self, name)):
                     raise ValueError(f"DMPParams.{name} contains NaN or inf")
-        tau_host = as_host_array(self.tau)
+        tau_host = hosts[1]
         if not bool(((tau_host if tau_host is not None else self.tau) > 0).all()):
             raise ValueError("DMPParams.tau must be > 0 (it is a duration in seconds)")
 
