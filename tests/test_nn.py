@@ -202,6 +202,77 @@ def test_paper_architecture_and_conv_encoder():
     assert all(torch.equal(p, q) for p, q in zip(a.parameters(), b.parameters(), strict=True))
 
 
+def test_conv_batch_norm_trains_saves_and_reloads(tmp_path):
+    """``conv_norm: batch``: running statistics move in training, are saved and reloaded,
+    and an evaluated image's output does not depend on the rest of its batch."""
+    from img2dmp.checkpoint import load_checkpoint, load_weights_into, save_checkpoint
+
+    cfg = ModelConfig(
+        encoder="conv", conv_channels=[4, 8], encoder_layers=[16], decoder_layers=[8],
+        conv_norm="batch",
+    )  # fmt: skip
+    model = build_model(cfg, seed=0)
+    norms = [m for m in model.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+    assert len(norms) == 2
+    assert all(m.bias is None for m in model.modules() if isinstance(m, torch.nn.Conv2d))
+    opt = torch.optim.Adam(model.parameters(), lr=1e-2)
+    x = torch.rand(16, 40, 40) * 3.0 + 1.0  # far from the initial running mean 0, var 1
+    for _ in range(5):
+        loss = model(x).square().mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert float(norms[0].running_mean.abs().max()) > 0.01
+    model.eval()
+    with torch.no_grad():
+        ref = model(x)
+        assert torch.allclose(model(x[:3]), ref[:3], atol=1e-6)  # no batch statistics
+    save_checkpoint(tmp_path / "bn.safetensors", model.state_dict(), {"model": cfg.to_dict()})
+    ck = load_checkpoint(tmp_path / "bn.safetensors")
+    back = build_model(ModelConfig.from_dict(ck.meta["model"])).eval()
+    load_weights_into(back, ck)
+    with torch.no_grad():
+        assert torch.equal(back(x), ref)
+    assert ModelConfig.from_dict({"encoder": "conv"}).conv_norm == "none"  # old records
+    with pytest.raises(ValueError, match="conv_norm"):
+        ModelConfig(encoder="conv", conv_norm="layer")
+
+
+def test_impulse_filter_undoes_most_salt_and_pepper_noise():
+    """``input_filter: impulse`` against the generator's own noise: the same samples drawn
+    with and without it (the noise is the last draw from the generator's stream)."""
+    from dataclasses import replace
+
+    from img2dmp.data import synthetic
+    from img2dmp.nn.model import ImpulseFilter
+
+    labels = np.arange(60) % 10
+    cfg = synthetic.SyntheticConfig()
+    noisy = torch.as_tensor(synthetic.generate(labels, cfg, np.random.default_rng(4)).images)
+    clean = synthetic.generate(labels, replace(cfg, noise_amount=0.0), np.random.default_rng(4))
+    clean = torch.as_tensor(clean.images)
+    f = ImpulseFilter()
+    before = float((noisy - clean).square().mean().sqrt())
+    after = float((f(noisy) - clean).square().mean().sqrt())
+    assert after < before / 3, (before, after)
+    torch.testing.assert_close(f(clean), clean, rtol=0, atol=1e-4)  # no noise: ~unchanged
+    # only pixels at exactly 0 or 1 change, each to the median of its 8 neighbours
+    x = torch.full((1, 5, 5), 0.5)
+    x[0, 2, 2], x[0, 0, 0], x[0, 1, 3] = 0.0, 1.0, 0.7
+    y = f(x)
+    assert y[0, 2, 2] == pytest.approx(0.5) and y[0, 0, 0] == pytest.approx(0.5)
+    inside = (x > 0) & (x < 1)
+    assert torch.equal(y[inside], x[inside])
+    model = build_model(ModelConfig(encoder="conv", conv_channels=[4], input_filter="impulse"))
+    plain = build_model(ModelConfig(encoder="conv", conv_channels=[4]))
+    plain.load_state_dict(model.state_dict())  # the filter has no weights
+    with torch.no_grad():
+        torch.testing.assert_close(model(noisy[:4]), plain(f(noisy[:4])))
+    assert ModelConfig.from_dict({"encoder": "conv"}).input_filter == "none"  # old records
+    with pytest.raises(ValueError, match="input_filter"):
+        ModelConfig(input_filter="gaussian")
+
+
 def test_parameter_cost_by_hand():
     zp = torch.tensor([[1.0, 2.0], [0.0, 0.0]])
     zt = torch.tensor([[0.0, 0.0], [0.0, 3.0]])

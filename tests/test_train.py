@@ -403,7 +403,7 @@ def test_augmentation_moves_image_and_path_together_and_refits_targets(small_dat
     torch.testing.assert_close(again[1], traj2)
 
 
-def test_augmented_training_runs_and_bad_ranges_are_named(small_data, tmp_path):
+def test_augmented_training_runs_and_bad_ranges_are_named(small_data, tmp_path, monkeypatch):
     cfg = tiny_config(small_data, epochs=2)
     cfg.data.augment = {"rotation_deg": [-3, 3], "scale": [0.97, 1.03]}
     res = train(cfg, tmp_path / "aug")
@@ -411,6 +411,24 @@ def test_augmented_training_runs_and_bad_ranges_are_named(small_data, tmp_path):
     meta = read_checkpoint_meta(tmp_path / "aug" / "checkpoints" / "best.json")
     assert meta["train_config"]["data"]["augment"]["rotation_deg"] == [-3, 3]
     assert 1.0 < meta["stroke_width_px"] < 6.0  # the training images' pen, in pixels
+    # with the impulse filter, batches are filtered before they are warped (a warp would
+    # smear the noise's exact 0 and 1 values past the filter's reach)
+    from img2dmp.nn.model import ImpulseFilter
+    from img2dmp.train import _Augmenter
+
+    seen = []
+    real_call = _Augmenter.__call__
+
+    def spy(self, rng, images, *rest):
+        seen.append(images.clone())
+        return real_call(self, rng, images, *rest)
+
+    monkeypatch.setattr(_Augmenter, "__call__", spy)
+    cfg.model.input_filter = "impulse"
+    train(cfg, tmp_path / "filtered", epochs=1)
+    f, raw = ImpulseFilter(), torch.as_tensor(load_dataset(small_data).images[:64])
+    assert float((f(raw) - raw).abs().max()) > 0.5  # the stored images carry impulses
+    assert seen and all(float((f(b) - b).abs().max()) < 1e-3 for b in seen)
     for bad, match in (({"rotation": [0, 1]}, "unknown affine"), ({"scale": [-1, 1]}, "scale")):
         with pytest.raises(ValueError, match=f"data.augment.*{match}"):
             TrainConfig.from_dict({"data": {"augment": bad}})

@@ -834,8 +834,8 @@ def _train(cfg, run_dir, resume, overwrite, epochs, rank, world, t_start) -> Tra
             idx = mine[lo : lo + per_rank]
             img, t = split.images[idx], split.times[idx]  # [b, H, W], [b, T]
             traj, zt = split.trajectories[idx], split.z_target[idx]  # [b, T, d], [b, P]
-            if augment is not None:
-                img, traj, zt = augment(rng, img, t, traj, zt)
+            if augment is not None:  # the input filter first: a warp hides impulse noise
+                img, traj, zt = augment(rng, model.input_filter(img), t, traj, zt)
             z = net(img)  # [b, P]
             loss, y = cost(z, zt, t, traj)
             if not torch.isfinite(loss):
