@@ -21,6 +21,7 @@ import torch
 
 from img2dmp.data.synthetic import SyntheticConfig, generate
 from img2dmp.evaluate import error_statistics
+from img2dmp.nn.costs import trajectory_error_px
 from img2dmp.nn.model import ImpulseFilter
 from img2dmp.predict import Predictor
 
@@ -39,8 +40,9 @@ def noise_effect(predictor: Predictor, labels, config: SyntheticConfig, seed: in
     noisy, clean = paired_samples(labels, config, seed)
     out = {}
     for name, d in (("noisy", noisy), ("clean", clean)):
-        y = predictor.trajectories_for_images(d.images, d.times)
-        out[name] = error_statistics(np.linalg.norm(y - d.trajectories, axis=-1).mean(-1))
+        y = torch.as_tensor(predictor.trajectories_for_images(d.images, d.times))
+        errors = trajectory_error_px(y, torch.as_tensor(d.trajectories))  # Table I's metric
+        out[name] = error_statistics(errors.numpy())
     a, b = torch.as_tensor(noisy.images), torch.as_tensor(clean.images)
     out["image_rms"] = float((a - b).square().mean().sqrt())
     out["filtered_image_rms"] = float((ImpulseFilter()(a) - b).square().mean().sqrt())

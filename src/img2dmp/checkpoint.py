@@ -70,9 +70,8 @@ def weights_digest(state: dict) -> str:
     for k in sorted(state):
         t = state[k].detach().cpu().contiguous()
         h.update(f"{k}|{t.dtype}|{tuple(t.shape)}|".encode())
-        h.update(
-            t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b""
-        )  # 0-dim too
+        flat = t.reshape(-1)  # a 0-dim tensor (BatchNorm's step count) cannot be viewed
+        h.update(flat.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
     return h.hexdigest()
 
 

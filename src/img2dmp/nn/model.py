@@ -149,18 +149,27 @@ class ImpulseFilter(nn.Module):
     median of its 8 neighbours (the mean of the middle two; edges replicated); every other
     pixel is left as it is. A blurred synthetic image without noise has neither value on
     or near its strokes, so it passes unchanged (to 1e-4, where a background zero borders
-    the blur's faint tail). A
-    resampled (warped) image no longer holds the exact values, so the filter must come
-    before any warp: training applies it to a batch before augmenting it, and applying it
-    again is then close to a no-op.
+    the blur's faint tail). A resampled (warped) image no longer holds the exact values,
+    so the filter must come before any warp: training applies it to a batch before
+    augmenting it, and applying it again is then close to a no-op.
+
+    Only the pixels that can change are looked at: a zero whose neighbours are all zero
+    keeps its value, which is also their median.
     """
 
+    _NEIGHBOURS = [(di, dj) for di in range(3) for dj in range(3) if (di, dj) != (1, 1)]
+
     def forward(self, images: torch.Tensor) -> torch.Tensor:  # [B, H, W] -> [B, H, W]
-        padded = nn.functional.pad(images[:, None], (1, 1, 1, 1), mode="replicate")
-        patches = nn.functional.unfold(padded, 3)  # [B, 9, H*W], the centre at 4
-        neighbours = torch.cat([patches[:, :4], patches[:, 5:]], 1).sort(1).values
-        median = neighbours[:, 3:5].mean(1).reshape(images.shape)
-        return torch.where((images <= 0) | (images >= 1), median, images)
+        x = images[:, None]
+        hit = ((x <= 0) | (x >= 1)) & (nn.functional.max_pool2d(x.abs(), 3, 1, 1) > 0)
+        b, i, j = hit[:, 0].nonzero(as_tuple=True)
+        out = images.clone()
+        if b.numel():
+            padded = nn.functional.pad(x, (1, 1, 1, 1), mode="replicate")[:, 0]
+            around = [padded[b, i + di, j + dj] for di, dj in self._NEIGHBOURS]
+            ordered = torch.stack(around, 1).sort(1).values  # [hits, 8]
+            out[b, i, j] = ordered[:, 3:5].mean(1)
+        return out
 
 
 class FullyConnectedEncoder(nn.Module):
