@@ -264,6 +264,137 @@ def test_invalid_settings_are_named():
         )
 
 
+# -- the run object and its typed log -----------------------------------------------------
+
+LOG_FIELDS = ("time_s", "phase", "dmp_time_s", "pen_down", "cmd_m", "tip_m", "force_n", "torque_nm")
+CSV_HEADER = [
+    "time_s", "phase", "dmp_time_s", "pen_down",
+    "cmd_x_m", "cmd_y_m", "cmd_z_m", "tip_x_m", "tip_y_m", "tip_z_m", "force_n",
+    *[f"torque_{j}_nm" for j in range(1, 8)],
+]  # fmt: skip
+
+
+def _old_log_dict(log) -> dict:
+    """The log as the former ``_simulate`` built it: one float row per step, read back by
+    column index."""
+    rows = np.column_stack(
+        [log.time_s, log.phase, log.dmp_time_s, log.pen_down, log.cmd_m, log.tip_m,
+         log.force_n, log.torque_nm]
+    )  # fmt: skip
+    return {
+        "time_s": rows[:, 0],
+        "phase": rows[:, 1].astype(int),
+        "dmp_time_s": rows[:, 2],
+        "pen_down": rows[:, 3].astype(bool),
+        "cmd_m": rows[:, 4:7],
+        "tip_m": rows[:, 7:10],
+        "force_n": rows[:, 10],
+        "torque_nm": rows[:, 11:18],
+    }
+
+
+def test_writing_options_and_log_check_their_values():
+    from img2dmp.robot import WritingLog, WritingOptions
+
+    assert WritingOptions(control_rate_hz=1000.0).dt_s == pytest.approx(1e-3)
+    with pytest.raises(ValueError, match="control_rate_hz"):
+        WritingOptions(control_rate_hz=50.0)
+    with pytest.raises(ValueError, match="frame_interval_s"):
+        WritingOptions(frame_interval_s=0.0)
+    n = 4
+    good = {
+        "time_s": np.arange(n) / 240, "phase": np.zeros(n, int), "dmp_time_s": np.zeros(n),
+        "pen_down": np.ones(n, bool), "cmd_m": np.zeros((n, 3)), "tip_m": np.zeros((n, 3)),
+        "force_n": np.zeros(n), "torque_nm": np.zeros((n, 7)),
+    }  # fmt: skip
+    log = WritingLog(**good)
+    assert log.n_steps == n and tuple(log) == LOG_FIELDS and len(log) == len(LOG_FIELDS)
+    assert log["force_n"] is log.force_n and "tip_m" in log and "nope" not in log
+    with pytest.raises(KeyError):
+        log["nope"]
+    with pytest.raises(ValueError, match="'torque_nm'"):
+        WritingLog(**{**good, "torque_nm": np.zeros((n, 6))})
+    with pytest.raises(ValueError, match="'force_n'"):
+        WritingLog(**{**good, "force_n": np.zeros(n + 1)})
+
+
+@needs_pybullet
+def test_typed_log_is_consistent_and_gives_the_old_metrics(tmp_path):
+    import matplotlib.pyplot as plt
+
+    from img2dmp.robot import WritingLog, plot_writing, save_log_csv, write_dmp, writing_metrics
+
+    params, config = fitted(plus_path(), n_kernels=40)
+    result = write_dmp(params, config, IMAGE_SIZE, render_size_px=None)
+    log = result.log
+    assert isinstance(log, WritingLog) and tuple(log) == LOG_FIELDS
+    s = log.n_steps
+    for name in LOG_FIELDS:
+        assert len(getattr(log, name)) == s, name
+        assert log[name] is getattr(log, name)
+    assert log.cmd_m.shape == (s, 3) and log.tip_m.shape == (s, 3)
+    assert log.torque_nm.shape == (s, 7)
+    assert log.phase.dtype.kind == "i" and log.pen_down.dtype == bool
+    # Phases in order, one write step per planned DMP step, one physics step per entry.
+    assert np.all(np.diff(log.phase) >= 0) and set(log.phase) == {0, 1, 2}
+    assert log.in_phase("write").sum() == len(result.plan.time_s) - 1
+    np.testing.assert_allclose(np.diff(log.time_s), 1 / 240, rtol=1e-9)
+    assert np.all(log.dmp_time_s[log.in_phase("approach")] == 0.0)
+    # The metrics from the typed log equal those from the former column-indexed dict.
+    old = writing_metrics(_old_log_dict(log), 5.0)
+    assert writing_metrics(log, 5.0) == old == writing_metrics(dict(log), 5.0)
+    assert {k: result.metrics[k] for k in old} == old
+    # The CSV keeps its columns; the figure is written and closed.
+    save_log_csv(result, tmp_path / "log.csv")
+    with open(tmp_path / "log.csv", newline="") as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == CSV_HEADER and len(rows) == s + 1
+    tip_z_m = float(rows[-1][CSV_HEADER.index("tip_z_m")])
+    assert tip_z_m == pytest.approx(log.tip_m[-1, 2], abs=1e-6)
+    plot_writing(result, tmp_path / "paper.png")
+    assert (tmp_path / "paper.png").stat().st_size > 10_000 and not plt.get_fignums()
+
+
+@needs_pybullet
+def test_writing_run_stages_reproduce_write_dmp():
+    from img2dmp.dmp import DMPIntegrator
+    from img2dmp.robot import (
+        PaperMapping,
+        WritingController,
+        WritingOptions,
+        WritingRun,
+        WritingScene,
+        check_path,
+        plan_path,
+        write_with_options,
+    )
+    from img2dmp.robot.writing import PEN_DOWN_ROTATION, PHASES
+
+    params, config = fitted(plus_path(), n_kernels=40)
+    options = WritingOptions(render_size_px=None)
+    expected = write_with_options(params, config, IMAGE_SIZE, options).log
+    mapping = PaperMapping(IMAGE_SIZE, options.writing_height_mm, (0.55, 0.0))
+    cfg = options.controller_config
+    with WritingScene(options.scene_config, time_step_s=options.dt_s) as scene:
+        plan = plan_path(params, config, mapping, options.dt_s)
+        q_start = check_path(scene, plan, cfg)
+        scene.reset_joints(q_start)
+        z_m = scene.config.paper_top_z + cfg.lift_height_m
+        ctl = WritingController(scene, cfg, PEN_DOWN_ROTATION, q_start, z_m)
+        dmp = DMPIntegrator(params, config, max_step=options.dt_s)
+        steps = []
+        run = WritingRun(scene, plan, ctl, options, dmp, mapping, progress=steps.append)
+        for stage in ("approach", "write", "lift"):
+            getattr(run, stage)()
+            assert PHASES[run.log().phase[-1]] == stage
+        result = run.result(wall_s=1.0)
+    # The simulation is deterministic: stage by stage equals the one call, step for step.
+    for name in LOG_FIELDS:
+        np.testing.assert_array_equal(result.log[name], expected[name])
+    assert sum(steps) <= result.log.n_steps and set(steps) == {24}
+    assert result.metrics["real_time_factor"] == pytest.approx(result.metrics["simulated_s"])
+
+
 # -- command line -------------------------------------------------------------------------
 
 

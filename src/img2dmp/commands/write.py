@@ -66,21 +66,14 @@ def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
     for path in args.images:
         if not os.path.exists(path):
             raise FileNotFoundError(f"no such image: {path}")
-    try:
-        from img2dmp.predict import Predictor
-    except ImportError as e:
-        raise ValueError(
-            "IMAGE --model needs img2dmp.predict, which this installation does not provide "
-            f"yet ({e}); write the DMP to a file and use --dmp params.json"
-        ) from e
+    from img2dmp.predict import Predictor
+
     predictor = Predictor.load(args.model)
+    config = predictor.dmp_config
     out = []
-    for path, pred in zip(args.images, predictor.predict_paths(args.images), strict=True):
-        # (params, image) with the predictor's config, or (params, config, image).
-        if len(pred) == 3:
-            params, config, image = pred
-        else:
-            (params, image), config = pred, predictor.dmp_config
+    for path, (params, image) in zip(
+        args.images, predictor.predict_paths(args.images), strict=True
+    ):
         image = np.asarray(image, dtype=np.float32)
         name = os.path.splitext(os.path.basename(path))[0]
         out.append((name, params, config, tuple(image.shape[-2:]), image))
@@ -88,11 +81,17 @@ def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
 
 
 def _read_image(path):
+    """The ``--image`` file as ``float32 [H, W]`` in [0, 1], ink = 1."""
     import numpy as np
     from PIL import Image
 
-    with Image.open(path) as im:
-        a = np.asarray(im.convert("L"), dtype=np.float32) / 255.0
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"no such image: {path}")
+    try:
+        with Image.open(path) as im:
+            a = np.asarray(im.convert("L"), dtype=np.float32) / 255.0
+    except OSError as e:  # PIL's UnidentifiedImageError is one
+        raise ValueError(f"--image {path}: cannot read it as an image ({e})") from e
     # Show ink dark whatever the file's polarity: ink is the minority of pixels.
     return a if a.mean() < 0.5 else 1.0 - a
 

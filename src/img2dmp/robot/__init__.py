@@ -4,7 +4,10 @@ Needs the optional dependency pybullet (``pip install img2dmp[robot]``); importi
 name that needs it without pybullet raises ``ImportError`` saying how to install it.
 The DMP file format (:mod:`.dmpfile`) works without pybullet. See ``docs/ROBOT.md``.
 
-- :func:`write_dmp` - plan, check, simulate, measure one DMP (:mod:`.writing`)
+- :func:`write_dmp` - plan, check, simulate, measure one DMP (:mod:`.writing`);
+  :func:`write_with_options` - the same with its settings in one :class:`WritingOptions`
+- :class:`WritingRun` - one run of the arm (approach, write, lift), logged step by step
+  in a :class:`WritingLog`; :class:`WritingResult` - what a run produced
 - :class:`PaperMapping` - image pixels to metres on the paper
 - :class:`SceneConfig`, :class:`WritingScene` - the cell (:mod:`.scene`)
 - :class:`ControllerConfig`, :class:`WritingController` - admittance + IK + computed
@@ -23,6 +26,10 @@ from .dmpfile import load_dmp_json, save_dmp_json
 
 _LAZY = {
     "write_dmp": ".writing",
+    "write_with_options": ".writing",
+    "WritingOptions": ".writing",
+    "WritingRun": ".writing",
+    "WritingLog": ".writing",
     "PaperMapping": ".writing",
     "WritingResult": ".writing",
     "writing_metrics": ".writing",

@@ -6,21 +6,24 @@ The sequence of :func:`write_dmp`:
    map every point from image pixels to the paper (:class:`PaperMapping`), and raise
    ``ValueError`` if a point leaves the sheet or the arm cannot reach it with the pen
    vertical (inverse kinematics along the whole path, within joint limits).
-2. **Approach**: the arm starts at rest with the tip ``lift_height_m`` above the first
-   point; the admittance law lowers the pen until it presses with the set force.
-3. **Write**: the DMP runs online, one :meth:`DMPIntegrator.step` per control step; its
-   x, y go through the mapping to the Cartesian target, its pen channel (d = 3) lifts
-   and lowers the pen.
-4. **Lift** the pen off the paper at the end point.
+2. **Approach** (:meth:`WritingRun.approach`): the arm starts at rest with the tip
+   ``lift_height_m`` above the first point; the admittance law lowers the pen until it
+   presses with the set force.
+3. **Write** (:meth:`WritingRun.write`): the DMP runs online, one
+   :meth:`DMPIntegrator.step` per control step; its x, y go through the mapping to the
+   Cartesian target, its pen channel (d = 3) lifts and lowers the pen.
+4. **Lift** (:meth:`WritingRun.lift`) the pen off the paper at the end point.
 
-Metrics are taken over the commanded pen-down time of phase 3.
+Every control step is logged (:class:`WritingLog`); metrics are taken over the commanded
+pen-down time of phase 3.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -33,6 +36,10 @@ PEN_DOWN_ROTATION = np.diag([-1.0, 1.0, -1.0])
 PHASES = ("approach", "write", "lift")
 PEN_THRESHOLD = 0.5
 IK_TOLERANCE_M = 1e-4
+# Writing starts once the force has stayed this close to the set point (relative).
+SETTLE_BAND = 0.05
+# Steps between two calls of the progress callback (0.1 s at 240 Hz).
+PROGRESS_EVERY_STEPS = 24
 
 
 @dataclass(frozen=True)
@@ -98,25 +105,148 @@ class PlannedPath:
     xy_m: np.ndarray  # [T, 2]
 
 
+@dataclass(frozen=True)
+class WritingOptions:
+    """Settings of one writing run (the keyword arguments of :func:`write_dmp`).
+
+    Parameters
+    ----------
+    writing_height_mm : float
+        Height on paper of the whole image (see :class:`PaperMapping`).
+    control_rate_hz : float
+        Controller and physics rate, in [100, 10000]; one DMP step, one IK solve and one
+        physics step per period.
+    scene_config : SceneConfig
+        Cell geometry; the writing area is centred on the paper.
+    controller_config : ControllerConfig
+        Controller gains and set points.
+    approach_timeout_s : float
+        Give up (``RuntimeError``) if the pen has not reached the set force by then.
+    settle_s : float
+        Time the force must stay within ``SETTLE_BAND`` (5 %) of the set point before
+        writing starts.
+    frame_interval_s : float or None
+        If given, keep a camera frame every so many simulated seconds (for a video).
+    frame_size_px, render_size_px : tuple (w, h)
+        Size of each half of a video frame and of the final render (arm | paper);
+        ``render_size_px=None``: no final render.
+    """
+
+    writing_height_mm: float = 40.0
+    control_rate_hz: float = 240.0
+    scene_config: SceneConfig = field(default_factory=SceneConfig)
+    controller_config: ControllerConfig = field(default_factory=ControllerConfig)
+    approach_timeout_s: float = 3.0
+    settle_s: float = 0.2
+    frame_interval_s: float | None = None
+    frame_size_px: tuple[int, int] = (320, 240)
+    render_size_px: tuple[int, int] | None = (640, 480)
+
+    def __post_init__(self) -> None:
+        rate = self.control_rate_hz
+        if not (math.isfinite(rate) and 100.0 <= rate <= 10000.0):
+            raise ValueError(f"control_rate_hz must be in [100, 10000], got {rate!r}")
+        if self.frame_interval_s is not None and not (self.frame_interval_s > 0):
+            raise ValueError(f"frame_interval_s must be > 0, got {self.frame_interval_s!r}")
+
+    @property
+    def dt_s(self) -> float:
+        """Control period = physics time step."""
+        return 1.0 / self.control_rate_hz
+
+
+@dataclass(frozen=True, eq=False)
+class WritingLog(Mapping):
+    """One entry per control step of a writing run, ``S`` steps in all (world frame).
+
+    Read the fields by name (``log.force_n``). ``log["force_n"]``, ``log.keys()`` and
+    ``dict(log)`` work too, as for the dict this log used to be (so ``len(log)`` is the
+    number of fields; the number of steps is :attr:`n_steps`).
+
+    Attributes
+    ----------
+    time_s : ndarray [S]
+        Simulated time at the end of the step.
+    phase : ndarray [S] int
+        Index into ``PHASES`` (approach, write, lift).
+    dmp_time_s : ndarray [S]
+        Time of the DMP (0 during the approach, ``tau`` during the lift).
+    pen_down : ndarray [S] bool
+        The commanded pen state.
+    cmd_m : ndarray [S, 3]
+        Commanded tip position: the DMP's point on the paper and the admittance height.
+    tip_m : ndarray [S, 3]
+        Actual tip position after the physics step.
+    force_n : ndarray [S]
+        Tip-paper normal force after the physics step (0 without contact).
+    torque_nm : ndarray [S, 7]
+        Joint torques applied during the step.
+    """
+
+    time_s: np.ndarray  # [S]
+    phase: np.ndarray  # [S] int
+    dmp_time_s: np.ndarray  # [S]
+    pen_down: np.ndarray  # [S] bool
+    cmd_m: np.ndarray  # [S, 3]
+    tip_m: np.ndarray  # [S, 3]
+    force_n: np.ndarray  # [S]
+    torque_nm: np.ndarray  # [S, 7]
+
+    def __post_init__(self) -> None:
+        n_steps = len(self.time_s)
+        for f in fields(self):
+            shape = np.shape(getattr(self, f.name))
+            width = {"cmd_m": 3, "tip_m": 3, "torque_nm": 7}.get(f.name)
+            expected = (n_steps,) if width is None else (n_steps, width)
+            if shape != expected:
+                raise ValueError(f"WritingLog field '{f.name}' has shape {shape}, not {expected}")
+
+    @property
+    def n_steps(self) -> int:
+        return len(self.time_s)
+
+    def in_phase(self, name: str) -> np.ndarray:
+        """``[S]`` bool: the steps of phase ``name`` (one of ``PHASES``)."""
+        return self.phase == PHASES.index(name)
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name not in self._names():
+            raise KeyError(name)
+        return getattr(self, name)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._names())
+
+    def __len__(self) -> int:
+        return len(self._names())
+
+    @classmethod
+    def _names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
+
 @dataclass
 class WritingResult:
     """Everything a writing run produced.
 
     Attributes
     ----------
-    log : dict of str -> ndarray [S, ...]
-        One row per control step: ``time_s``, ``phase`` (index into ``PHASES``),
-        ``dmp_time_s``, ``pen_down``, ``cmd_m [S, 3]``, ``tip_m [S, 3]``, ``force_n``,
-        ``torque_nm [S, 7]``.
+    log : WritingLog
+        One entry per control step (item access by name works as well).
     metrics : dict
-        See :func:`writing_metrics`.
+        See :func:`writing_metrics`; also ``simulated_s``, ``wall_s``,
+        ``real_time_factor``, ``control_rate_hz``, ``force_set_n``, ``approach_s``.
     plan : PlannedPath
     mapping : PaperMapping
+    scene_config : SceneConfig
+    controller_config : ControllerConfig
     frames : list of ndarray
         Camera frames ``uint8 [h, w, 3]`` if requested.
+    render : ndarray or None
+        Final camera picture ``uint8 [h, 2 w, 3]`` (arm | paper) if requested.
     """
 
-    log: dict
+    log: WritingLog
     metrics: dict
     plan: PlannedPath
     mapping: PaperMapping
@@ -213,8 +343,17 @@ def _unreachable(plan: PlannedPath, i: int, residual_m: float):
     )
 
 
-def writing_metrics(log: dict, force_set_n: float, tolerance: float = 0.2) -> dict:
+def writing_metrics(log: WritingLog, force_set_n: float, tolerance: float = 0.2) -> dict:
     """Tracking and force statistics over the commanded pen-down time of the write phase.
+
+    Parameters
+    ----------
+    log : WritingLog
+        Or a dict with the same keys.
+    force_set_n : float
+        The contact force set point.
+    tolerance : float
+        Half-width of the force band, relative to ``force_set_n``.
 
     Returns
     -------
@@ -224,7 +363,9 @@ def writing_metrics(log: dict, force_set_n: float, tolerance: float = 0.2) -> di
         share of pen-down time with the tip touching the paper; ``force_in_band_share`` -
         share with the force within ``±tolerance`` of the set point; ``pen_down_s``.
     """
-    sel = (log["phase"] == PHASES.index("write")) & log["pen_down"]
+    if not isinstance(log, WritingLog):
+        log = WritingLog(**log)
+    sel = log.in_phase("write") & log.pen_down  # [S]
     if not sel.any():
         nan = float("nan")
         return {
@@ -236,17 +377,18 @@ def writing_metrics(log: dict, force_set_n: float, tolerance: float = 0.2) -> di
             "force_in_band_share": nan,
             "pen_down_s": 0.0,
         }
-    err_mm = np.linalg.norm(log["cmd_m"][sel, :2] - log["tip_m"][sel, :2], axis=1) * 1e3
-    f = log["force_n"][sel]
-    dt = float(np.median(np.diff(log["time_s"]))) if len(log["time_s"]) > 1 else 0.0
+    err_mm = np.linalg.norm(log.cmd_m[sel, :2] - log.tip_m[sel, :2], axis=1) * 1e3
+    force_n = log.force_n[sel]
+    dt_s = float(np.median(np.diff(log.time_s))) if log.n_steps > 1 else 0.0
+    in_band = np.abs(force_n - force_set_n) <= tolerance * force_set_n
     return {
         "tracking_error_mean_mm": float(err_mm.mean()),
         "tracking_error_max_mm": float(err_mm.max()),
-        "force_mean_n": float(f.mean()),
-        "force_std_n": float(f.std()),
-        "contact_share": float(np.mean(f > 0.0)),
-        "force_in_band_share": float(np.mean(np.abs(f - force_set_n) <= tolerance * force_set_n)),
-        "pen_down_s": float(sel.sum() * dt),
+        "force_mean_n": float(force_n.mean()),
+        "force_std_n": float(force_n.std()),
+        "contact_share": float(np.mean(force_n > 0.0)),
+        "force_in_band_share": float(np.mean(in_band)),
+        "pen_down_s": float(sel.sum() * dt_s),
     }
 
 
@@ -267,6 +409,9 @@ def write_dmp(
     progress=None,
 ) -> WritingResult:
     """Write one DMP with the simulated KUKA iiwa; return the log and metrics.
+
+    Builds a :class:`WritingOptions` from the keyword arguments and calls
+    :func:`write_with_options`.
 
     Parameters
     ----------
@@ -300,182 +445,255 @@ def write_dmp(
     ValueError
         Bad arguments, or a path that leaves the paper or the arm's reach (raised before
         the simulation starts).
+    RuntimeError
+        The pen did not settle at the set force within ``approach_timeout_s``.
     """
-    if not (math.isfinite(control_rate_hz) and 100.0 <= control_rate_hz <= 10000.0):
-        raise ValueError(f"control_rate_hz must be in [100, 10000], got {control_rate_hz!r}")
-    if frame_interval_s is not None and not (frame_interval_s > 0):
-        raise ValueError(f"frame_interval_s must be > 0, got {frame_interval_s!r}")
-    scene_config = scene_config or SceneConfig()
-    ctl_cfg = controller_config or ControllerConfig()
+    options = WritingOptions(
+        writing_height_mm=writing_height_mm,
+        control_rate_hz=control_rate_hz,
+        scene_config=scene_config or SceneConfig(),
+        controller_config=controller_config or ControllerConfig(),
+        approach_timeout_s=approach_timeout_s,
+        settle_s=settle_s,
+        frame_interval_s=frame_interval_s,
+        frame_size_px=frame_size_px,
+        render_size_px=render_size_px,
+    )
+    return write_with_options(params, config, image_size, options, progress=progress)
+
+
+def write_with_options(
+    params: DMPParams,
+    config: DMPConfig,
+    image_size,
+    options: WritingOptions,
+    *,
+    progress: Callable[[int], object] | None = None,
+) -> WritingResult:
+    """:func:`write_dmp` with its settings in one :class:`WritingOptions`."""
     params = params.to_numpy()
     if params.batch_shape != ():
         raise ValueError(f"write_dmp runs one DMP, got batch shape {params.batch_shape}")
     params.validate(config)
-    mapping = PaperMapping(tuple(image_size), writing_height_mm, scene_config.paper_center_m)
-    dt = 1.0 / control_rate_hz
-
-    scene = WritingScene(scene_config, time_step_s=dt)
+    scene_cfg, ctl_cfg, dt_s = options.scene_config, options.controller_config, options.dt_s
+    mapping = PaperMapping(tuple(image_size), options.writing_height_mm, scene_cfg.paper_center_m)
+    scene = WritingScene(scene_cfg, time_step_s=dt_s)
     try:
-        plan = plan_path(params, config, mapping, dt)
+        plan = plan_path(params, config, mapping, dt_s)
         q_start = check_path(scene, plan, ctl_cfg)
-        return _simulate(
-            scene,
-            params,
-            config,
-            mapping,
-            plan,
-            ctl_cfg,
-            q_start,
-            approach_timeout_s=approach_timeout_s,
-            settle_s=settle_s,
-            frame_interval_s=frame_interval_s,
-            frame_size_px=frame_size_px,
-            render_size_px=render_size_px,
-            progress=progress,
-        )
+        scene.reset_joints(q_start)
+        lift_z_m = scene_cfg.paper_top_z + ctl_cfg.lift_height_m
+        controller = WritingController(scene, ctl_cfg, PEN_DOWN_ROTATION, q_start, lift_z_m)
+        # One RK4 step per control period: at 240 Hz it differs from 1 ms sub-steps by
+        # about 2e-7 px (DMP time constants are tens of milliseconds and longer).
+        dmp = DMPIntegrator(params, config, max_step=dt_s)
+        run = WritingRun(scene, plan, controller, options, dmp, mapping, progress=progress)
+        return run.execute()
     finally:
         scene.close()
 
 
-def _simulate(
-    scene: WritingScene,
-    params,
-    config,
-    mapping,
-    plan,
-    ctl_cfg,
-    q_start,
-    *,
-    approach_timeout_s,
-    settle_s,
-    frame_interval_s,
-    frame_size_px,
-    render_size_px,
-    progress,
-) -> WritingResult:
-    dt = scene.time_step_s
-    surface = scene.config.paper_top_z
-    scene.reset_joints(q_start)
-    ctl = WritingController(
-        scene, ctl_cfg, PEN_DOWN_ROTATION, q_start, surface + ctl_cfg.lift_height_m
-    )
-    # One RK4 step per control period: at 240 Hz it differs from 1 ms sub-steps by
-    # about 2e-7 px (DMP time constants are tens of milliseconds and longer).
-    integ = DMPIntegrator(params, config, max_step=dt)
-    rows: list[tuple] = []
-    frames: list[np.ndarray] = []
-    ink_pending: list[np.ndarray] = []
-    next_frame_s = 0.0
-    t_sim = 0.0
-    wall0 = time.perf_counter()
-    n_since_progress = 0
+class WritingRun:
+    """One writing run on a checked plan: approach, write, lift, each step logged.
 
-    def control_step(phase: int, xy_m, pen_down: bool, dmp_t: float) -> float:
-        nonlocal t_sim, next_frame_s, n_since_progress
-        q, qd = scene.joint_state()
-        force = scene.contact_force_n()
-        ctl.update_axis(pen_down, force, surface)
-        tau = ctl.torques(xy_m, q, qd)
-        scene.step(tau)
-        t_sim += dt
-        tip, _ = scene.tip_pose()
-        force_after = scene.contact_force_n()
-        rows.append(
-            (t_sim, phase, dmp_t, pen_down, xy_m[0], xy_m[1], ctl.z_c, *tip, force_after, *tau)
-        )
-        if force_after > 0.0:
-            ink_pending.append(np.array([tip[0], tip[1], surface + 0.0002]))
-        if frame_interval_s is not None and t_sim >= next_frame_s:
-            _flush_ink(scene, ink_pending)
-            frames.append(
-                np.concatenate(
-                    [
-                        scene.render(*frame_size_px, **_VIDEO_VIEW),
-                        scene.render(*frame_size_px, shadow=False, **_pen_view(mapping)),
-                    ],
-                    axis=1,
+    The scene must hold the arm at rest in the start posture (tip ``lift_height_m`` above
+    the first point). :meth:`execute` runs the stages in order and returns the result;
+    they can also be called one by one (then :meth:`log` and :meth:`result`).
+
+    Parameters
+    ----------
+    scene : WritingScene
+    plan : PlannedPath
+        From :func:`plan_path`, checked by :func:`check_path`.
+    controller : WritingController
+        Starting at the start posture.
+    options : WritingOptions
+    dmp : DMPIntegrator
+        The plan's DMP at ``t = 0``; it is stepped online, one step per control period.
+    mapping : PaperMapping
+        The mapping the plan was made with.
+    progress : callable or None
+        Called as ``progress(n_steps)`` every ``PROGRESS_EVERY_STEPS`` steps and at the end.
+    """
+
+    def __init__(
+        self,
+        scene: WritingScene,
+        plan: PlannedPath,
+        controller: WritingController,
+        options: WritingOptions,
+        dmp: DMPIntegrator,
+        mapping: PaperMapping,
+        *,
+        progress: Callable[[int], object] | None = None,
+    ):
+        self.scene, self.plan, self.controller = scene, plan, controller
+        self.options, self.dmp, self.mapping = options, dmp, mapping
+        self.progress = progress
+        self.dt_s = scene.time_step_s
+        self.surface_z_m = scene.config.paper_top_z
+        self.time_s = 0.0  # simulated
+        self.approach_s = 0.0
+        self.frames: list[np.ndarray] = []  # each uint8 [h, 2 w, 3]
+        self._columns: dict[str, list] = {f.name: [] for f in fields(WritingLog)}
+        self._ink_pending: list[np.ndarray] = []  # each [3]
+        self._next_frame_s = 0.0
+        self._steps_unreported = 0
+
+    def execute(self) -> WritingResult:
+        """Approach, write and lift; return the log, metrics and pictures."""
+        wall0 = time.perf_counter()
+        self.approach()
+        self.write()
+        self.lift()
+        self._report_progress()
+        wall_s = time.perf_counter() - wall0
+        return self.result(wall_s)
+
+    def approach(self) -> None:
+        """Lower the pen at the first point until the force has settled (unless the DMP
+        starts with the pen up); ``RuntimeError`` after ``approach_timeout_s``."""
+        opt, force_set_n = self.options, self.options.controller_config.force_set_n
+        needed = max(1, int(round(opt.settle_s / self.dt_s)))
+        settled = 0
+        while self.plan.pen_down[0] and settled < needed:
+            force_n = self.control_step("approach", self.plan.xy_m[0], True, 0.0)
+            self.approach_s += self.dt_s
+            ok = abs(force_n - force_set_n) <= SETTLE_BAND * force_set_n
+            settled = settled + 1 if ok else 0
+            if self.approach_s > opt.approach_timeout_s:
+                raise RuntimeError(
+                    f"the pen did not settle at {force_set_n} N within "
+                    f"{opt.approach_timeout_s} s of approach (last force {force_n:.2f} N)"
                 )
-            )
-            next_frame_s += frame_interval_s
-        n_since_progress += 1
-        if progress is not None and n_since_progress >= 24:
-            progress(n_since_progress)
-            n_since_progress = 0
-        return force_after
 
-    # Approach: lower the pen at the first point until the force has settled (unless
-    # the DMP starts with the pen up).
-    start_xy = plan.xy_m[0]
-    settled_steps, needed = 0, max(1, int(round(settle_s / dt)))
-    t_approach = 0.0
-    while plan.pen_down[0] and settled_steps < needed:
-        force = control_step(0, start_xy, True, 0.0)
-        t_approach += dt
-        ok = abs(force - ctl_cfg.force_set_n) <= 0.05 * ctl_cfg.force_set_n
-        settled_steps = settled_steps + 1 if ok else 0
-        if t_approach > approach_timeout_s:
-            raise RuntimeError(
-                f"the pen did not settle at {ctl_cfg.force_set_n} N within "
-                f"{approach_timeout_s} s of approach (last force {force:.2f} N)"
-            )
-    # Write: the DMP runs online at the control rate.
-    n_write = len(plan.time_s) - 1
-    for _ in range(n_write):
-        y = integ.step(dt)
-        xy_m = mapping.to_table(y[:2])
-        pen = bool(_pen_channel(y, config.n_dims))
-        control_step(1, xy_m, pen, integ.t)
+    def write(self) -> None:
+        """Run the DMP online at the control rate, one step per control period."""
+        n_dims = self.dmp.config.n_dims
+        for _ in range(len(self.plan.time_s) - 1):
+            y = self.dmp.step(self.dt_s)  # [d]
+            pen_down = bool(_pen_channel(y, n_dims))
+            self.control_step("write", self.mapping.to_table(y[:2]), pen_down, self.dmp.t)
 
-    # Lift at the end point.
-    end_xy = mapping.to_table(integ.y[:2])
-    lift_s = ctl_cfg.lift_height_m / ctl_cfg.travel_speed_m_s + 0.2
-    for _ in range(int(round(lift_s / dt))):
-        control_step(2, end_xy, False, integ.t)
-    if progress is not None and n_since_progress:
-        progress(n_since_progress)
-    wall_s = time.perf_counter() - wall0
+    def lift(self) -> None:
+        """Lift the pen at the DMP's end point, and wait for it to get there."""
+        cfg = self.options.controller_config
+        end_xy_m = self.mapping.to_table(self.dmp.y[:2])
+        lift_s = cfg.lift_height_m / cfg.travel_speed_m_s + 0.2
+        for _ in range(int(round(lift_s / self.dt_s))):
+            self.control_step("lift", end_xy_m, False, self.dmp.t)
 
-    arr = np.array(rows, dtype=float)
-    log = {
-        "time_s": arr[:, 0],
-        "phase": arr[:, 1].astype(int),
-        "dmp_time_s": arr[:, 2],
-        "pen_down": arr[:, 3].astype(bool),
-        "cmd_m": arr[:, 4:7],
-        "tip_m": arr[:, 7:10],
-        "force_n": arr[:, 10],
-        "torque_nm": arr[:, 11:18],
-    }
-    metrics = writing_metrics(log, ctl_cfg.force_set_n)
-    metrics.update(
-        {
-            "simulated_s": float(t_sim),
-            "wall_s": float(wall_s),
-            "real_time_factor": float(t_sim / wall_s) if wall_s > 0 else float("inf"),
-            "control_rate_hz": 1.0 / dt,
-            "force_set_n": ctl_cfg.force_set_n,
-            "approach_s": float(t_approach),
+    def control_step(self, phase: str, xy_m, pen_down: bool, dmp_time_s: float) -> float:
+        """One control period and physics step towards ``xy_m``; return the force after."""
+        scene, ctl = self.scene, self.controller
+        q, qd = scene.joint_state()
+        ctl.update_axis(pen_down, scene.contact_force_n(), self.surface_z_m)
+        tau = ctl.torques(xy_m, q, qd)  # [7]
+        scene.step(tau)
+        self.time_s += self.dt_s
+        tip_m, _ = scene.tip_pose()
+        force_n = scene.contact_force_n()
+        row = {
+            "time_s": self.time_s,
+            "phase": PHASES.index(phase),
+            "dmp_time_s": dmp_time_s,
+            "pen_down": pen_down,
+            "cmd_m": (xy_m[0], xy_m[1], ctl.z_c),
+            "tip_m": tip_m,
+            "force_n": force_n,
+            "torque_nm": tau,
         }
-    )
-    _flush_ink(scene, ink_pending)
-    render = None
-    if render_size_px is not None:
-        arm = scene.render(*render_size_px, **_ARM_VIEW)
+        for name, value in row.items():
+            self._columns[name].append(value)
+        if force_n > 0.0:
+            # Ink dots 0.2 mm above the sheet, so the renderer draws them over it.
+            self._ink_pending.append(np.array([tip_m[0], tip_m[1], self.surface_z_m + 0.0002]))
+        interval_s = self.options.frame_interval_s
+        if interval_s is not None and self.time_s >= self._next_frame_s:
+            self.record_frame()
+            self._next_frame_s += interval_s
+        self._steps_unreported += 1
+        if self._steps_unreported >= PROGRESS_EVERY_STEPS:
+            self._report_progress()
+        return force_n
+
+    def record_frame(self) -> None:
+        """Keep a video frame: the arm | a close-up of the pen on the paper."""
+        self.flush_ink()
+        size = self.options.frame_size_px
+        arm = self.scene.render(*size, **_VIDEO_VIEW)
+        pen = self.scene.render(*size, shadow=False, **_pen_view(self.mapping))
+        self.frames.append(np.concatenate([arm, pen], axis=1))
+
+    def flush_ink(self) -> None:
+        """Draw the pending ink dots, about 0.3 mm apart (a picture, not a measurement)."""
+        if not self._ink_pending:
+            return
+        pts = np.array(self._ink_pending)  # [n, 3]
+        keep = [0]
+        for i in range(1, len(pts)):
+            if np.linalg.norm(pts[i, :2] - pts[keep[-1], :2]) >= 3e-4:
+                keep.append(i)
+        self.scene.add_ink(pts[keep])
+        self._ink_pending.clear()
+
+    def log(self) -> WritingLog:
+        """The steps so far as a :class:`WritingLog`."""
+        c = self._columns
+        return WritingLog(
+            time_s=np.array(c["time_s"], dtype=float),
+            phase=np.array(c["phase"], dtype=int),
+            dmp_time_s=np.array(c["dmp_time_s"], dtype=float),
+            pen_down=np.array(c["pen_down"], dtype=bool),
+            cmd_m=np.array(c["cmd_m"], dtype=float).reshape(-1, 3),
+            tip_m=np.array(c["tip_m"], dtype=float).reshape(-1, 3),
+            force_n=np.array(c["force_n"], dtype=float),
+            torque_nm=np.array(c["torque_nm"], dtype=float).reshape(-1, 7),
+        )
+
+    def result(self, wall_s: float) -> WritingResult:
+        """Log, metrics (the loop took ``wall_s``), the remaining ink and the final render."""
+        log = self.log()
+        ctl_cfg = self.options.controller_config
+        metrics = writing_metrics(log, ctl_cfg.force_set_n)
+        metrics.update(
+            {
+                "simulated_s": float(self.time_s),
+                "wall_s": float(wall_s),
+                "real_time_factor": float(self.time_s / wall_s) if wall_s > 0 else float("inf"),
+                "control_rate_hz": 1.0 / self.dt_s,
+                "force_set_n": ctl_cfg.force_set_n,
+                "approach_s": float(self.approach_s),
+            }
+        )
+        self.flush_ink()
+        return WritingResult(
+            log=log,
+            metrics=metrics,
+            plan=self.plan,
+            mapping=self.mapping,
+            scene_config=self.scene.config,
+            controller_config=ctl_cfg,
+            frames=self.frames,
+            render=self.final_render(),
+        )
+
+    def final_render(self) -> np.ndarray | None:
+        """The arm at the end | a top-down close-up of the paper (None if not asked for)."""
+        size = self.options.render_size_px
+        if size is None:
+            return None
+        arm = self.scene.render(*size, **_ARM_VIEW)
         # For the close-up the arm is moved up out of the camera's view (after the
         # simulation: it is only a picture).
-        scene.reset_joints(np.array(HOME_JOINTS_RAD))
-        paper = scene.render(*render_size_px, shadow=False, **_paper_view(mapping))
-        render = np.concatenate([arm, paper], axis=1)
-    return WritingResult(
-        log=log,
-        metrics=metrics,
-        plan=plan,
-        mapping=mapping,
-        scene_config=scene.config,
-        controller_config=ctl_cfg,
-        frames=frames,
-        render=render,
-    )
+        self.scene.reset_joints(np.array(HOME_JOINTS_RAD))
+        paper = self.scene.render(*size, shadow=False, **_paper_view(self.mapping))
+        return np.concatenate([arm, paper], axis=1)
+
+    def _report_progress(self) -> None:
+        if self.progress is not None and self._steps_unreported:
+            self.progress(self._steps_unreported)
+        self._steps_unreported = 0
 
 
 _ARM_VIEW = {"target_m": (0.35, 0.0, 0.25), "distance_m": 1.3, "yaw_deg": 55.0, "pitch_deg": -28.0}
@@ -506,15 +724,3 @@ def _pen_view(mapping: PaperMapping) -> dict:
         "yaw_deg": -90.0,
         "pitch_deg": -50.0,
     }
-
-
-def _flush_ink(scene: WritingScene, pending: list) -> None:
-    if pending:
-        pts = np.array(pending)
-        # Keep dots about 0.3 mm apart; the ink is a picture, not a measurement.
-        keep = [0]
-        for i in range(1, len(pts)):
-            if np.linalg.norm(pts[i, :2] - pts[keep[-1], :2]) >= 3e-4:
-                keep.append(i)
-        scene.add_ink(pts[keep])
-        pending.clear()
