@@ -2,7 +2,8 @@
 
 For every test sample the network's DMP is rolled out at the demonstration's own time
 stamps and the Euclidean distances (px, on x and y) to the demonstrated points are
-averaged: one error per sample. Over samples we report the mean and standard deviation
+averaged: one error per sample (:func:`img2dmp.nn.costs.trajectory_error_px`, the metric
+training validates with). Over samples we report the mean and standard deviation
 (Table I's two numbers; population standard deviation, ``ddof = 0``), the median and the
 95th percentile, overall and per digit. :func:`evaluate` writes them as JSON and a text
 table and draws Fig.-4-style pictures: image, demonstrated path in blue, DMP path in red.
@@ -15,16 +16,17 @@ human paths the timing alone can cost more than a pixel, see docs/MNIST.md).
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import time
 from pathlib import Path
 
 import numpy as np
+import torch
 
-from .checkpoint import atomic_write_bytes, atomic_write_text, file_digest
+from .checkpoint import atomic_write_text, file_digest
 from .data.store import SPLITS, load_dataset
+from .nn.costs import trajectory_error_px
 from .predict import Predictor
 
 
@@ -114,33 +116,6 @@ def format_table(summary: dict, title: str = "trajectory error (px)") -> str:
     return "\n".join(lines)
 
 
-def overlay_figure(
-    path: str | os.PathLike,
-    images: np.ndarray,  # [K, H, W]
-    demo_paths: np.ndarray | None,  # [K, T, d] or None
-    dmp_paths: np.ndarray | None,  # [K, T', d] or None
-    titles: list[str] | None = None,
-    ncols: int = 4,
-    cell_inches: float = 1.8,
-) -> Path:
-    """Fig.-4-style grid: each image with the demonstrated path (blue) and the DMP path
-    (red) drawn over it (:func:`img2dmp.data.plotting.plot_grid`), written atomically."""
-    import matplotlib.pyplot as plt
-
-    from .data.plotting import plot_grid
-
-    fig = plot_grid(
-        images, demo_paths, dmp_paths, titles=titles, ncols=ncols, cell_inches=cell_inches
-    )
-    buf = io.BytesIO()
-    try:
-        fig.savefig(buf, format="png", dpi=100)
-    finally:
-        plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
-    return Path(path)
-
-
 def _pick_split(data, split: str):
     if split == "all":
         return data
@@ -187,6 +162,33 @@ def evaluate(
     """
     t0 = time.perf_counter()
     predictor = Predictor.load(model_path)
+    data = _evaluation_data(predictor, dataset_path, split, digits)
+    y = predictor.trajectories_for_images(data.images, data.times, batch_size)  # [M, T, d]
+    # Table I's metric, defined once (training validates with the same function).
+    errors = trajectory_error_px(torch.as_tensor(y), torch.as_tensor(data.trajectories)).numpy()
+    result = summarise(errors, data.labels)
+    path_errors = path_error_px(y, data.trajectories)  # [M]
+    result["path_error"] = summarise(path_errors, data.labels)
+    result.update(
+        model=str(model_path),
+        dataset=str(dataset_path),
+        dataset_sha256=file_digest(dataset_path),
+        split=split,
+        digits=digits,
+        trained_on=predictor.meta.get("dataset"),
+        cost=predictor.meta.get("train_config", {}).get("cost", {}).get("name"),
+        fit_error_px=error_statistics(data.fit_error_px),
+        wall_s=time.perf_counter() - t0,
+        errors_px=errors.tolist(),
+        path_errors_px=path_errors.tolist(),
+    )
+    if out_dir is not None:
+        _write_evaluation(Path(out_dir), result, data, y, errors, n_figures, seed)
+    return result
+
+
+def _evaluation_data(predictor: Predictor, dataset_path, split: str, digits):
+    """The samples of ``split`` (and ``digits``) of a data set, checked against the model."""
     data = _pick_split(load_dataset(dataset_path), split)
     if digits is not None:
         data = data.subset(np.isin(data.labels, np.asarray(digits)))
@@ -205,34 +207,35 @@ def evaluate(
             f"data set {dataset_path} has d={data.dmp_config.n_dims} dimensions, the model "
             f"d={predictor.dmp_config.n_dims}"
         )
-    y = predictor.trajectories_for_images(data.images, data.times, batch_size)  # [M, T, d]
-    errors = np.linalg.norm(y[..., :2] - data.trajectories[..., :2], axis=-1).mean(-1)  # [M]
-    result = summarise(errors, data.labels)
-    path_errors = path_error_px(y, data.trajectories)
-    result["path_error"] = summarise(path_errors, data.labels)
-    result.update(
-        model=str(model_path),
-        dataset=str(dataset_path),
-        dataset_sha256=file_digest(dataset_path),
-        split=split,
-        digits=digits,
-        trained_on=predictor.meta.get("dataset"),
-        cost=predictor.meta.get("train_config", {}).get("cost", {}).get("name"),
-        fit_error_px=error_statistics(data.fit_error_px),
-        wall_s=time.perf_counter() - t0,
-        errors_px=errors.tolist(),
-        path_errors_px=path_errors.tolist(),
-    )
-    if out_dir is not None:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(out / "evaluation.json", json.dumps(result, indent=1) + "\n")
-        atomic_write_text(out / "evaluation.txt", format_table(result) + "\n")
-        if n_figures > 0:
-            rng = np.random.default_rng(seed)
-            pick = np.sort(rng.choice(len(data), size=min(n_figures, len(data)), replace=False))
-            titles = [f"{int(data.labels[i])}: {errors[i]:.3f} px" for i in pick]
-            overlay_figure(
-                out / "examples.png", data.images[pick], data.trajectories[pick], y[pick], titles
-            )
-    return result
+    return data
+
+
+def _write_evaluation(out: Path, result: dict, data, y, errors, n_figures: int, seed: int):
+    """``evaluation.json``, ``evaluation.txt`` and (``n_figures`` > 0) ``examples.png``."""
+    from .data.plotting import overlay_figure
+
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "evaluation.json", json.dumps(result, indent=1) + "\n")
+    atomic_write_text(out / "evaluation.txt", format_table(result) + "\n")
+    if n_figures > 0:
+        rng = np.random.default_rng(seed)
+        pick = np.sort(rng.choice(len(data), size=min(n_figures, len(data)), replace=False))
+        titles = [f"{int(data.labels[i])}: {errors[i]:.3f} px" for i in pick]
+        overlay_figure(
+            out / "examples.png",
+            data.images[pick],
+            data.trajectories[pick],
+            y[pick],
+            titles,
+            labels=("demonstration", "network's DMP"),
+        )
+
+
+def __getattr__(name: str):
+    # overlay_figure lives in data.plotting now; it is still importable from here, but
+    # loaded on first use so that importing this module does not start matplotlib.
+    if name == "overlay_figure":
+        from .data.plotting import overlay_figure
+
+        return overlay_figure
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

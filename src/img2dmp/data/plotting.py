@@ -1,20 +1,40 @@
 """Pictures of images with pen paths drawn over them (like Fig. 4 of Pahič et al.).
 
-Used by ``img2dmp preview`` and by evaluation pictures: the demonstrated path in blue,
-optionally a second path (e.g. the network's DMP) in red. Paths with a pen channel
-(``d = 3``) are drawn only where the pen is down.
+Used by ``img2dmp preview``, evaluation's ``examples.png`` and prediction's overlays:
+the demonstrated path in blue, optionally a second path (e.g. the network's DMP) in red.
+Each path has a dot at its start and an arrowhead partway along it that shows the
+direction of writing; one legend at the top of the figure names the colours. Paths with
+a pen channel (``d = 3``) are drawn only where the pen is down.
+
+- :func:`plot_grid` - the matplotlib Figure
+- :func:`save_grid`, :func:`overlay_figure` - the same written to a PNG file, atomically
+  (:func:`img2dmp._files.save_figure`)
 """
 
 from __future__ import annotations
 
 import math
 import os
+from pathlib import Path
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+
+from .._files import save_figure  # noqa: E402
+
+DEFAULT_LABELS = ("demonstration", "DMP")
+# The first path is drawn under the second; its start dot is larger so that it still
+# shows when the second path starts at the same point.
+_STYLES = (
+    {"colour": "tab:blue", "start_size": 4.0, "arrow_at": 0.4},
+    {"colour": "tab:red", "start_size": 2.5, "arrow_at": 0.6},
+)
+_MARKS = "0.35"  # grey of the "start" and "direction" legend entries
+_FONT = 7  # points, titles and legend
 
 
 def _pen_down_xy(path: np.ndarray) -> np.ndarray:
@@ -26,31 +46,107 @@ def _pen_down_xy(path: np.ndarray) -> np.ndarray:
     return xy
 
 
-def plot_grid(
-    images,
-    paths=None,
-    second_paths=None,
-    *,
-    titles=None,
-    ncols: int = 10,
-    cell_inches: float = 1.2,
-    start_marker: bool = True,
-):
-    """A grid of grey images with paths over them; returns the matplotlib Figure.
+def _arrow_at(xy: np.ndarray, fraction: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Point at ``fraction`` of the drawn length of ``xy [T, 2]`` and the unit direction of
+    the pen there; None for a path that does not move.
 
-    Parameters
-    ----------
-    images : array [M, H, W]
-        Ink = 1 is drawn black on white.
-    paths : array [M, T, d], optional
-        Pixel coordinates (x = column, y = row), drawn in blue; a dot marks the start.
-    second_paths : array [M, T, d], optional
-        Drawn in red (e.g. a predicted DMP's rollout).
-    titles : sequence of str, optional
-        One per image.
-    ncols : int
-        Images per row (>= 1).
+    Segments touching a NaN row (pen up) have no length, so the point is always on ink.
     """
+    seg = np.diff(xy, axis=0)  # [T-1, 2]
+    length = np.nan_to_num(np.linalg.norm(seg, axis=-1))  # [T-1]
+    total = length.sum()
+    if not total > 0:
+        return None
+    cum = np.cumsum(length)
+    # For 0 < fraction < 1 the first segment to reach the point has length > 0.
+    i = min(int(np.searchsorted(cum, fraction * total)), len(cum) - 1)
+    u = seg[i] / length[i]
+    into = fraction * total - (cum[i] - length[i])
+    return xy[i] + np.clip(into, 0.0, length[i]) * u, u
+
+
+def _draw_path(ax, xy: np.ndarray, style: dict, start_marker: bool, arrow_pt: float) -> None:
+    """One path ``[T, 2]`` (NaN = pen up) with its start dot and, for ``arrow_pt > 0``, an
+    arrowhead of about that size (points) in the direction of writing."""
+    colour = style["colour"]
+    ax.plot(xy[:, 0], xy[:, 1], color=colour, linewidth=1.0)
+    finite = np.flatnonzero(np.isfinite(xy).all(axis=1))
+    if start_marker and finite.size:
+        x0, y0 = xy[finite[0]]
+        ax.plot(x0, y0, "o", color=colour, ms=style["start_size"], mec="white", mew=0.4, zorder=3)
+    where = _arrow_at(xy, style["arrow_at"]) if arrow_pt > 0 else None
+    if where is not None:
+        tip, u = where
+        # The head's size is in points; the short shaft only sets its orientation. A white
+        # rim keeps the head visible on dark ink.
+        ax.annotate(
+            "",
+            xy=tip,
+            xytext=tip - 0.5 * u,
+            arrowprops={
+                "arrowstyle": "-|>,head_length=0.7,head_width=0.35",
+                "fc": colour,
+                "ec": "white",
+                "lw": 0.4,
+                "shrinkA": 0,
+                "shrinkB": 0,
+                "mutation_scale": arrow_pt,
+            },
+            zorder=3,
+        )
+
+
+def _draw_cell(ax, image: np.ndarray, paths: list, start_marker: bool, arrow_pt: float):
+    """One image ``[H, W]`` with its ``(xy [T, 2], style)`` paths over it."""
+    h, w = image.shape
+    # extent puts pixel [i, j]'s centre at (x=j, y=i), as in docs/CONTRACTS.md.
+    ax.imshow(image, cmap="gray_r", vmin=0, vmax=1, extent=(-0.5, w - 0.5, h - 0.5, -0.5))
+    for xy, style in paths:
+        _draw_path(ax, xy, style, start_marker, arrow_pt)
+    ax.set_xlim(-0.5, w - 0.5)
+    ax.set_ylim(h - 0.5, -0.5)
+
+
+def _legend_handles(drawn: list[tuple[str, dict]], start_marker: bool, arrow: bool) -> list:
+    handles = [Line2D([], [], color=s["colour"], linewidth=1.0, label=lab) for lab, s in drawn]
+    if start_marker:
+        handles.append(Line2D([], [], ls="none", marker="o", ms=3.5, color=_MARKS, label="start"))
+    if arrow:
+        handles.append(
+            Line2D([], [], ls="none", marker=">", ms=4.0, color=_MARKS, label="direction")
+        )
+    return handles
+
+
+def _add_legend(fig, handles: list) -> float:
+    """A legend centred in a band added on top of the figure, as many entries per row as
+    fit in the figure's width; returns the share of the new height below the band."""
+    renderer = fig.canvas.get_renderer()
+    width = fig.get_window_extent(renderer).width
+    for ncol in range(len(handles), 0, -1):
+        leg = fig.legend(
+            handles=handles,
+            loc="upper center",
+            bbox_to_anchor=(0.5, 1.0),
+            ncol=ncol,
+            frameon=False,
+            fontsize=_FONT,
+            handlelength=1.8,
+            columnspacing=1.2,
+            borderaxespad=0.2,
+        )
+        box = leg.get_window_extent(renderer)
+        if box.width <= width or ncol == 1:
+            band = box.height / fig.dpi + 0.03  # inches; a little air above the titles
+            # A band of its own, so that the cells keep their size.
+            fig_w, fig_h = fig.get_size_inches()
+            fig.set_size_inches(fig_w, fig_h + band)
+            return fig_h / (fig_h + band)
+        leg.remove()
+    raise AssertionError("unreachable: one column is always accepted")
+
+
+def _check_grid_inputs(images, paths, second_paths, titles, ncols, labels) -> np.ndarray:
     images = np.asarray(images)
     if images.ndim != 3:
         raise ValueError(f"images must have shape [M, H, W], got {images.shape}")
@@ -64,37 +160,118 @@ def plot_grid(
             raise ValueError(f"{name} has {len(p)} entries for {m} images")
     if titles is not None and len(titles) != m:
         raise ValueError(f"titles has {len(titles)} entries for {m} images")
+    if isinstance(labels, str) or len(labels) != 2 or not all(isinstance(s, str) for s in labels):
+        raise ValueError(f"labels must be two strings (first path, second path), got {labels!r}")
+    return images
+
+
+def plot_grid(
+    images,
+    paths=None,
+    second_paths=None,
+    *,
+    titles=None,
+    ncols: int = 10,
+    cell_inches: float = 1.2,
+    start_marker: bool = True,
+    labels: tuple[str, str] = DEFAULT_LABELS,
+    direction_arrow: bool = True,
+    legend: bool = True,
+):
+    """A grid of grey images with paths over them; returns the matplotlib Figure.
+
+    Parameters
+    ----------
+    images : array [M, H, W]
+        Ink = 1 is drawn black on white.
+    paths : array [M, T, d], optional
+        Pixel coordinates (x = column, y = row), drawn in blue (e.g. the demonstration).
+    second_paths : array [M, T', d], optional
+        Drawn in red over the first (e.g. a DMP's rollout).
+    titles : sequence of str, optional
+        One per image.
+    ncols : int
+        Images per row (>= 1).
+    cell_inches : float
+        Side of one image.
+    start_marker : bool
+        A dot at the start of every path (the first path's dot is the larger).
+    labels : (str, str)
+        Legend names of the blue and the red path, e.g. ``("demonstration",
+        "prediction")``.
+    direction_arrow : bool
+        An arrowhead on every path in the direction of writing, at 40 % of the blue
+        path's length and 60 % of the red one's, so that both show where they coincide.
+    legend : bool
+        One legend for the whole figure, above the grid, naming the drawn paths (and the
+        start dot and arrowhead); only drawn if there is a path.
+    """
+    images = _check_grid_inputs(images, paths, second_paths, titles, ncols, labels)
+    m = images.shape[0]
     ncols = min(ncols, m)
     nrows = math.ceil(m / ncols)
     fig, axes = plt.subplots(
         nrows, ncols, figsize=(cell_inches * ncols, cell_inches * nrows), squeeze=False
     )
-    h, w = images.shape[1:]
+    given = zip((paths, second_paths), labels, _STYLES, strict=True)
+    sets = [(p, lab, style) for p, lab, style in given if p is not None]
+    # Heads that stay visible in small cells without hiding a digit's strokes in large ones.
+    arrow_pt = 4.5 + 1.5 * cell_inches if direction_arrow else 0.0
     for k, ax in enumerate(axes.flat):
         ax.set_axis_off()
-        if k >= m:
-            continue
-        # extent puts pixel [i, j]'s centre at (x=j, y=i), as in docs/CONTRACTS.md.
-        ax.imshow(images[k], cmap="gray_r", vmin=0, vmax=1, extent=(-0.5, w - 0.5, h - 0.5, -0.5))
-        for p, colour in ((paths, "tab:blue"), (second_paths, "tab:red")):
-            if p is None:
-                continue
-            xy = _pen_down_xy(p[k])
-            ax.plot(xy[:, 0], xy[:, 1], color=colour, linewidth=1.0)
-            if start_marker and p is paths:
-                ax.plot(xy[0, 0], xy[0, 1], "o", color=colour, markersize=2.5)
-        ax.set_xlim(-0.5, w - 0.5)
-        ax.set_ylim(h - 0.5, -0.5)
-        if titles is not None:
-            ax.set_title(str(titles[k]), fontsize=7)
-    fig.tight_layout(pad=0.2)
+        if k < m:
+            cell_paths = [(_pen_down_xy(p[k]), style) for p, _, style in sets]
+            _draw_cell(ax, images[k], cell_paths, start_marker, arrow_pt)
+            if titles is not None:
+                ax.set_title(str(titles[k]), fontsize=_FONT)
+    top = 1.0
+    if legend and sets:
+        drawn = [(lab, style) for _, lab, style in sets]
+        top = _add_legend(fig, _legend_handles(drawn, start_marker, direction_arrow))
+    # tight_layout leaves figure legends alone, hence the explicit band. One pass leaves
+    # the cell titles a few pixels too high (into the band, or cut at a one-row grid's
+    # top edge); the second pass starts from the laid-out titles and fits them.
+    for _ in range(2):
+        fig.tight_layout(pad=0.2, rect=(0.0, 0.0, 1.0, top))
     return fig
 
 
-def save_grid(path: str | os.PathLike, *args, dpi: int = 100, **kwargs) -> None:
-    """:func:`plot_grid` written to a PNG file (the figure is closed afterwards)."""
-    fig = plot_grid(*args, **kwargs)
-    try:
-        fig.savefig(path, dpi=dpi)
-    finally:
-        plt.close(fig)
+def save_grid(path: str | os.PathLike, *args, dpi: int = 100, **kwargs) -> Path:
+    """:func:`plot_grid` written to a PNG file atomically (the figure is closed afterwards).
+
+    The file is PNG whatever the suffix of ``path``.
+    """
+    return save_figure(plot_grid(*args, **kwargs), path, dpi=dpi)
+
+
+def overlay_figure(
+    path: str | os.PathLike,
+    images: np.ndarray,  # [K, H, W]
+    demo_paths: np.ndarray | None,  # [K, T, d] or None
+    dmp_paths: np.ndarray | None,  # [K, T', d] or None
+    titles: list[str] | None = None,
+    ncols: int = 4,
+    cell_inches: float = 1.8,
+    *,
+    labels: tuple[str, str] = DEFAULT_LABELS,
+    dpi: int = 100,
+) -> Path:
+    """Fig.-4-style grid: each image with the demonstrated path (blue) and the DMP path
+    (red) drawn over it (:func:`plot_grid`), written to a PNG file atomically.
+
+    ``labels`` names the two paths in the legend, e.g. ``("demonstration",
+    "prediction")``. Returns ``path``.
+    """
+    fig = plot_grid(
+        images,
+        demo_paths,
+        dmp_paths,
+        titles=titles,
+        ncols=ncols,
+        cell_inches=cell_inches,
+        labels=labels,
+    )
+    return save_figure(fig, path, dpi=dpi)
+
+
+__all__ = ["DEFAULT_LABELS", "overlay_figure", "plot_grid", "save_grid"]

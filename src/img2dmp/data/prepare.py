@@ -447,7 +447,35 @@ def prepare_dataset(
         (``pixel_scale``, ``pixel_offset``: a 28 x 28 point x is at ``s x + o``), per-row
         MNIST split / index / augmentation copy, and fit statistics.
     """
-    data_dir = Path(data_dir)
+    raw = _read_source(options, Path(data_dir), mnist_dir, recorded_path, strokes_dir, progress)
+    s, o = image_transform(options.image_size, options.resize_mode)
+    images = resize_images(raw.images, options.image_size, options.resize_mode)  # [M, S, S]
+    paths = raw.paths.copy()  # [M, T, d]
+    paths[..., :2] = s * paths[..., :2] + o
+    images, paths, rows, copy = _augment(images, paths, raw.split, options, progress)
+    times = raw.times[rows]  # [M', T]
+    if options.duration_s is not None:
+        times = options.duration_s * (times - times[:, :1]) / (times[:, -1:] - times[:, :1])
+    fit = fit_paths(times, paths, options.dmp_config, ridge=options.ridge, progress=progress)
+    split = raw.split[rows]
+    labels = raw.labels[rows]
+    meta = _dataset_meta(options, raw, rows, copy, split, (s, o), _fit_statistics(fit, labels))
+    return DigitData(
+        images=np.ascontiguousarray(images, dtype=np.float32),
+        trajectories=paths.astype(np.float32),
+        times=times.astype(np.float32),
+        labels=labels.astype(np.int64),
+        params=fit.params,
+        fit_error_px=fit.error_px,
+        split=split.astype(np.uint8),
+        meta=meta,
+    )
+
+
+def _read_source(
+    options: PrepareOptions, data_dir: Path, mnist_dir, recorded_path, strokes_dir, progress
+) -> _Raw:
+    """Images and pen paths of ``options.source``, from the given or default locations."""
     mnist_dir = Path(mnist_dir) if mnist_dir else data_dir / "mnist"
     if options.source == "recorded":
         path = (
@@ -455,43 +483,42 @@ def prepare_dataset(
             if recorded_path
             else data_dir / "ijs-mnist-trajectories" / "trajectories.tar.gz"
         )
-        raw = _recorded_raw(path, mnist_dir, options, progress)
-    else:
-        path = Path(strokes_dir) if strokes_dir else data_dir / "mnist-stroke-sequences"
-        raw = _strokes_raw(path, mnist_dir, options, progress)
+        return _recorded_raw(path, mnist_dir, options, progress)
+    path = Path(strokes_dir) if strokes_dir else data_dir / "mnist-stroke-sequences"
+    return _strokes_raw(path, mnist_dir, options, progress)
 
-    s, o = image_transform(options.image_size, options.resize_mode)
-    images = resize_images(raw.images, options.image_size, options.resize_mode)  # [M, S, S]
-    paths = raw.paths.copy()
-    paths[..., :2] = s * paths[..., :2] + o
+
+def _augment(images, paths, raw_split, options: PrepareOptions, progress: bool):
+    """``options.augment`` random affine copies of every training sample appended.
+
+    Returns images ``[M', S, S]``, paths ``[M', T, d]``, the source row of every sample
+    ``[M']`` and its copy number ``[M']`` (0 = the original).
+    """
     copy = np.zeros(len(paths), np.int64)
     rows = np.arange(len(paths))
-    if options.augment:
-        train = np.flatnonzero(raw.split == 0)
-        rng = np.random.default_rng(options.seed)
-        src = np.repeat(train, options.augment)  # [A]
-        mats = sample_affine(rng, len(src), options.image_size, options.affine)  # [A, 2, 3]
-        aug_images = np.empty((len(src), options.image_size, options.image_size), np.float32)
-        chunk = 4096
-        for lo in tqdm(
-            range(0, len(src), chunk), desc="augment", unit="chunk", disable=not progress
-        ):
-            sl = slice(lo, lo + chunk)
-            aug_images[sl] = warp_images(images[src[sl]], mats[sl]).clamp(0.0, 1.0).numpy()
-        aug_paths = warp_points(paths[src], mats)
-        images = np.concatenate([images, aug_images])
-        paths = np.concatenate([paths, aug_paths])
-        copy = np.concatenate([copy, np.tile(np.arange(1, options.augment + 1), len(train))])
-        rows = np.concatenate([rows, src])
+    if not options.augment:
+        return images, paths, rows, copy
+    train = np.flatnonzero(raw_split == 0)
+    rng = np.random.default_rng(options.seed)
+    src = np.repeat(train, options.augment)  # [A]
+    mats = sample_affine(rng, len(src), options.image_size, options.affine)  # [A, 2, 3]
+    aug_images = np.empty((len(src), options.image_size, options.image_size), np.float32)
+    chunk = 4096  # bounds the memory of the warp
+    for lo in tqdm(range(0, len(src), chunk), desc="augment", unit="chunk", disable=not progress):
+        sl = slice(lo, lo + chunk)
+        aug_images[sl] = warp_images(images[src[sl]], mats[sl]).clamp(0.0, 1.0).numpy()
+    aug_paths = warp_points(paths[src], mats)
+    return (
+        np.concatenate([images, aug_images]),
+        np.concatenate([paths, aug_paths]),
+        np.concatenate([rows, src]),
+        np.concatenate([copy, np.tile(np.arange(1, options.augment + 1), len(train))]),
+    )
 
-    config = options.dmp_config
-    times = raw.times[rows]
-    if options.duration_s is not None:
-        times = options.duration_s * (times - times[:, :1]) / (times[:, -1:] - times[:, :1])
-    fit = fit_paths(times, paths, config, ridge=options.ridge, progress=progress)
-    split = raw.split[rows]
-    labels = raw.labels[rows]
-    fit_stats = {
+
+def _fit_statistics(fit, labels: np.ndarray) -> dict:
+    """The ``fit`` record of the data set's meta: fit errors (px), overall and by digit."""
+    stats = {
         "mean_error_px": float(fit.error_px.mean()),
         "max_error_px": float(fit.max_error_px.max()),
         "mean_error_px_by_digit": {
@@ -499,10 +526,16 @@ def prepare_dataset(
         },
     }
     if fit.pen_agreement is not None:
-        fit_stats["pen_agreement_mean"] = float(fit.pen_agreement.mean())
-        fit_stats["pen_agreement_min"] = float(fit.pen_agreement.min())
-    meta = {
-        "dmp_config": config.to_dict(),
+        stats["pen_agreement_mean"] = float(fit.pen_agreement.mean())
+        stats["pen_agreement_min"] = float(fit.pen_agreement.min())
+    return stats
+
+
+def _dataset_meta(options: PrepareOptions, raw: _Raw, rows, copy, split, transform, fit_stats):
+    """The data set's ``meta`` record (see :func:`prepare_dataset`)."""
+    s, o = transform
+    return {
+        "dmp_config": options.dmp_config.to_dict(),
         "seed": options.seed,
         "source": raw.source,
         "prepare": options.to_dict(),
@@ -530,16 +563,6 @@ def prepare_dataset(
         },
         "fit": fit_stats,
     }
-    return DigitData(
-        images=np.ascontiguousarray(images, dtype=np.float32),
-        trajectories=paths.astype(np.float32),
-        times=times.astype(np.float32),
-        labels=labels.astype(np.int64),
-        params=fit.params,
-        fit_error_px=fit.error_px,
-        split=split.astype(np.uint8),
-        meta=meta,
-    )
 
 
 # --- frame check ------------------------------------------------------------------------

@@ -41,6 +41,9 @@ def sensitivity_rollout(
 ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """Integrate a batch of DMPs and their parameter sensitivities.
 
+    The DMP (eqs. 3-7) and the sensitivity equations of the paper's eqs. 11-27 (the table
+    in the module docstring) form one system of ODEs, integrated with RK4.
+
     Parameters
     ----------
     params : DMPParams
@@ -61,6 +64,13 @@ def sensitivity_rollout(
     config = config or DMPConfig()
     if not (isinstance(max_step, (int, float)) and 0 < max_step <= 1):
         raise ValueError(f"max_step must be in (0, 1], got {max_step!r}")
+    w, tau, g, y0, t = _checked_inputs(params, t, config)
+    deriv = _sensitivity_system(w, tau, g, y0, config)
+    return _integrate(deriv, _initial_state(w, g, y0), t, tau, max_step)
+
+
+def _checked_inputs(params: DMPParams, t, config: DMPConfig):
+    """Detached ``w [B, N, d], tau [B], g [B, d], y0 [B, d]`` and time stamps ``[B, T]``."""
     params.validate(config)
     w, tau, g, y0 = (a.detach() for a in (params.w, params.tau, params.g, params.y0))
     if w.ndim != 3:
@@ -69,44 +79,60 @@ def sensitivity_rollout(
     check_time_stamps(t)
     if bool((t < 0).any()):
         raise ValueError("t must be >= 0 (seconds since the start of the movement)")
-    b, n, d = w.shape
+    b = w.shape[0]
     if t.ndim == 1:
         t = t.expand(b, t.shape[0])
     if t.shape[0] != b:
         raise ValueError(f"t has batch size {t.shape[0]}, the parameters have {b}")
+    return w, tau, g, y0, t
 
+
+def _sensitivity_system(w, tau, g, y0, config: DMPConfig):
+    """Right-hand side ``deriv(t [B], state) -> d state / dt`` of the DMP and its
+    sensitivities (eqs. 11-27); ``state`` is the list of :func:`_initial_state`."""
     az, bz, ax = config.alpha_z, config.beta, config.alpha_x
     scaled = config.scaling == "goal-start"
     c = kernel_centres(config)
     hw = kernel_widths(config)
-    scale = (g - y0) if scaled else torch.ones_like(g)  # [B, d]
+    scale = (g - y0) if scaled else torch.ones_like(g)  # S, [B, d]
     tau_ = tau[:, None]  # [B, 1]
+    tau_w = tau[:, None, None]  # [B, 1, 1]
 
     def deriv(tt, st):
         y, z, yw, zw, yg, zg, yy, zy, yt, zt = st
-        x = torch.exp(-ax * tt / tau)  # [B]
+        x = torch.exp(-ax * tt / tau)  # phase, [B]
         phi, dphi = basis_functions_and_derivative(x, c, hw)  # [B, N]
-        f_x = torch.einsum("bn,bnd->bd", phi, w)
-        df_x = torch.einsum("bn,bnd->bd", dphi, w)
-        xt = (x * ax * tt / tau**2)[:, None]  # dx/dtau
-        f = az * (bz * (g - y) - z) + scale * f_x
-        f_g = f_x if scaled else 0.0
+        f_x = torch.einsum("bn,bnd->bd", phi, w)  # F(x), [B, d]
+        df_x = torch.einsum("bn,bnd->bd", dphi, w)  # F'(x), [B, d]
+        xt = (x * ax * tt / tau**2)[:, None]  # X = dx/dtau, [B, 1]
+        f = az * (bz * (g - y) - z) + scale * f_x  # [B, d]
+        f_g = f_x if scaled else 0.0  # d(S F)/dg = F = -d(S F)/dy0 for S = g - y0
         return (
+            # DMP: tau y' = z, tau z' = f
             z / tau_,
             f / tau_,
-            zw / tau[:, None, None],
-            (-az * (bz * yw + zw) + scale[:, None, :] * phi[..., None]) / tau[:, None, None],
+            # d/dw_kj: tau Yw' = Zw, tau Zw' = -a_z(b_z Yw + Zw) + S_j phi_k(x)
+            zw / tau_w,
+            (-az * (bz * yw + zw) + scale[:, None, :] * phi[..., None]) / tau_w,
+            # d/dg: tau Yg' = Zg, tau Zg' = a_z(b_z(1 - Yg) - Zg) + F  [F if scaled]
             zg / tau_,
             (az * (bz * (1 - yg) - zg) + f_g) / tau_,
+            # d/dy0: tau Yy' = Zy, tau Zy' = -a_z(b_z Yy + Zy) - F  [F if scaled]
             zy / tau_,
             (-az * (bz * yy + zy) - f_g) / tau_,
+            # d/dtau: tau Yt' = Zt - z/tau, tau Zt' = -a_z(b_z Yt + Zt) + S F'(x) X - f/tau
             (zt - z / tau_) / tau_,
             (-az * (bz * yt + zt) + scale * df_x * xt - f / tau_) / tau_,
         )
 
-    zeros = torch.zeros_like(g)
-    wzeros = torch.zeros_like(w)
-    state = [
+    return deriv
+
+
+def _initial_state(w, g, y0) -> list[torch.Tensor]:
+    """``[y, z, Yw, Zw, Yg, Zg, Yy, Zy, Yt, Zt]`` at t = 0: y = y0, Yy = dy/dy0 = 1, else 0."""
+    zeros = torch.zeros_like(g)  # [B, d]
+    wzeros = torch.zeros_like(w)  # [B, N, d]
+    return [
         y0.clone(),
         zeros,
         wzeros,
@@ -118,9 +144,16 @@ def sensitivity_rollout(
         zeros,
         zeros,
     ]
-    out_y = torch.empty(b, t.shape[1], d, dtype=w.dtype, device=w.device)
+
+
+def _integrate(deriv, state, t, tau, max_step: float):
+    """RK4 from t = 0 through the time stamps ``t [B, T]``; positions ``[B, T, d]`` and
+    sensitivities (see :func:`sensitivity_rollout`) at every stamp."""
+    w_like = state[2]  # [B, N, d]
+    b, n, d = w_like.shape
+    out_y = torch.empty(b, t.shape[1], d, dtype=w_like.dtype, device=w_like.device)
     out = {
-        "w": torch.empty(b, t.shape[1], n, d, dtype=w.dtype, device=w.device),
+        "w": torch.empty(b, t.shape[1], n, d, dtype=w_like.dtype, device=w_like.device),
         "g": torch.empty_like(out_y),
         "y0": torch.empty_like(out_y),
         "tau": torch.empty_like(out_y),
@@ -128,14 +161,14 @@ def sensitivity_rollout(
     # RK4 steps per interval: enough for the sample that needs most, planned up front.
     dt = torch.diff(t, dim=1, prepend=torch.zeros_like(t[:, :1]))  # [B, T]
     n_steps = torch.ceil((dt / tau[:, None]).amax(0) / max_step).long().tolist()
-    t_now = torch.zeros(b, dtype=w.dtype, device=w.device)
+    t_now = torch.zeros(b, dtype=w_like.dtype, device=w_like.device)
     for j in range(t.shape[1]):
         if n_steps[j] > 0:
             h = dt[:, j] / n_steps[j]  # [B]
             for _ in range(n_steps[j]):
                 state = _rk4(deriv, t_now, state, h)
                 t_now = t_now + h
-        t_now = t[:, j].clone()
+        t_now = t[:, j].clone()  # no drift of the clock from summing steps
         out_y[:, j] = state[0]
         out["w"][:, j] = state[2]
         out["g"][:, j] = state[4]

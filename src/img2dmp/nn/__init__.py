@@ -5,6 +5,8 @@
 - :class:`ParamNormaliser` - per-unit scaling of the DMP vector (eq. 8)
 - :func:`parameter_cost` (eq. 9), :func:`trajectory_cost` (eq. 10), :class:`Cost`
 - :func:`trajectory_error_px` - Table I's metric
+- :func:`network_outputs`, :func:`dmp_trajectories` - the one batched inference path
+  (images -> network -> DMP rollout) of prediction, evaluation and validation
 """
 
 from .costs import (
@@ -15,6 +17,7 @@ from .costs import (
     trajectory_cost,
     trajectory_error_px,
 )
+from .inference import dmp_trajectories, network_outputs
 from .model import (
     ConvEncoder,
     EncoderDecoder,
@@ -33,7 +36,9 @@ __all__ = [
     "ModelConfig",
     "ParamNormaliser",
     "build_model",
+    "dmp_trajectories",
     "dmp_trajectory",
+    "network_outputs",
     "parameter_cost",
     "trajectory_cost",
     "trajectory_error_px",
