@@ -1,7 +1,15 @@
 """The ``img2dmp`` command line: one entry point, one module per subcommand.
 
 Each module in :mod:`img2dmp.commands` defines ``HELP`` (one line), ``add_arguments(parser)``
-and ``run(args) -> int``, and stays a thin call into the library.
+and ``run(args) -> int``, and stays a thin call into the library. The command modules
+import only the standard library (and the light :mod:`img2dmp.config`,
+:mod:`img2dmp.errors`, :mod:`img2dmp.commands._args`) at module level, so that building
+the parser (``img2dmp --help``) does not load torch; each ``run`` imports what it needs.
+
+Exit status: 0 done; 2 a usage error or an anticipated failure (bad input, a missing,
+existing or unwritable file, a full disk, a diverged training), reported as one line
+``img2dmp COMMAND: error: ...`` on standard error; 1 a bug (traceback, then a request to
+report it); 130 interrupted.
 """
 
 from __future__ import annotations
@@ -9,9 +17,33 @@ from __future__ import annotations
 import argparse
 import importlib
 import pkgutil
+import shlex
 import sys
+import traceback
 
 from . import __version__, commands
+from .errors import Img2dmpError
+
+#: Failures that are the user's input or the machine's state, not bugs: one line, exit 2.
+#: ``ValueError`` covers ``img2dmp.config.ConfigError`` and ``CheckpointError``;
+#: ``OSError`` covers missing, existing and unreadable files and a full disk.
+ANTICIPATED = (ValueError, OSError, Img2dmpError)
+
+
+class _Parser(argparse.ArgumentParser):
+    """A parser whose usage errors are one line (``prog: error: ...``), exit status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+class _HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+    """Descriptions as written; defaults shown, except for empty ones (None, off, [])."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        if action.default is None or action.default is False or action.default == []:
+            return action.help or ""
+        return super()._get_help_string(action)
 
 
 def _command_modules():
@@ -21,9 +53,11 @@ def _command_modules():
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="img2dmp",
-        description="From a raw image of handwriting to the DMP that wrote it (Pahič et al. 2018).",
+        description="From a raw image of handwriting to the DMP that wrote it (Pahič et al. "
+        "2018).\nEvery command has its own --help.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"img2dmp {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
@@ -32,24 +66,49 @@ def build_parser() -> argparse.ArgumentParser:
             name.replace("_", "-"),
             help=module.HELP,
             description=module.__doc__,
-            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+            formatter_class=_HelpFormatter,
         )
         module.add_arguments(p)
         p.set_defaults(_run=module.run)
     return parser
 
 
+def describe(e: BaseException) -> str:
+    """An anticipated failure as one line: the message, or for a system error the file
+    and the reason (``out.safetensors: No space left on device``)."""
+    if isinstance(e, OSError) and e.strerror and (e.errno is not None or e.filename):
+        files = " -> ".join(str(f) for f in (e.filename, e.filename2) if f is not None)
+        msg = f"{files}: {e.strerror}" if files else e.strerror
+    else:
+        msg = str(e)
+    lines = [line.strip() for line in msg.splitlines() if line.strip()]
+    return " ".join(lines) or type(e).__name__
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """Run one command; its exit status (see the module docstring)."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as e:  # --help, --version, or a usage error already printed
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else 2)
+    prog = f"img2dmp {args.command}"
     try:
         return int(args._run(args) or 0)
-    except (ValueError, FileNotFoundError, FileExistsError) as e:
-        # Bad input: one clear sentence, no traceback.
-        print(f"img2dmp {args.command}: error: {e}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
-        print(f"img2dmp {args.command}: interrupted", file=sys.stderr)
+        print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+    except ANTICIPATED as e:
+        print(f"{prog}: error: {describe(e)}", file=sys.stderr)
+        return 2
+    except Exception:
+        traceback.print_exc()
+        print(
+            f"{prog}: internal error, a bug in img2dmp; please report it with the traceback "
+            f"above and the command line: {shlex.join(['img2dmp', *argv])}",
+            file=sys.stderr,
+        )
+        return 1
 
 
 if __name__ == "__main__":

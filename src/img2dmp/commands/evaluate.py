@@ -3,6 +3,12 @@
 Prints mean, standard deviation, median and 95th percentile overall and per digit, and
 writes evaluation.json, evaluation.txt and examples.png (image, demonstrated path in
 blue, DMP path in red, like Fig. 4 of the paper) to --out.
+
+  img2dmp evaluate --model runs/paper --data digits.safetensors --digits 2,3
+  img2dmp evaluate runs/paper digits.safetensors --digits 2 3     (the older form)
+
+The model and the data are given with --model and --data, as in the other commands, or
+as the two positional arguments MODEL DATA; if both forms are used they must agree.
 """
 
 from __future__ import annotations
@@ -10,36 +16,76 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from . import _args
+
 HELP = "Table I statistics and Fig. 4 pictures of a trained network on a data set"
+SPLITS = ("auto", "all", "train", "validation", "test")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("model", help="run directory or checkpoint (.safetensors)")
-    p.add_argument("data", help="data-set file (.safetensors)")
+    p.add_argument("model", nargs="?", metavar="MODEL", help="the same as --model")
+    p.add_argument("data", nargs="?", metavar="DATA", help="the same as --data")
+    # The options keep their own names; model_and_data() reconciles the two forms.
+    _args.add_model(p, dest="model_option")
+    _args.add_data(p, dest="data_option", help="data-set file (.safetensors)")
     p.add_argument(
         "--split",
         default="auto",
-        help="auto (test split if any, else all), all, train, validation or test",
+        choices=SPLITS,
+        help="auto = the test split if the file has one, else all",
     )
-    p.add_argument("--digits", type=int, nargs="*", help="only these digits")
-    p.add_argument("--out", help="output directory (default: MODEL/evaluation for a run dir)")
-    p.add_argument("--figures", type=int, default=16, help="samples drawn in examples.png")
+    _args.add_digits(p, "only these digits (default: all in the data)")
+    p.add_argument(
+        "--out", metavar="DIR", help="output directory (default: MODEL/evaluation for a run dir)"
+    )
+    p.add_argument(
+        "--figures",
+        metavar="N",
+        type=_args.int_at_least(0),
+        default=16,
+        help="samples drawn in examples.png (0 = no picture)",
+    )
+
+
+def model_and_data(args: argparse.Namespace) -> tuple[str, str]:
+    """MODEL and DATA from the positional arguments or from --model / --data."""
+    out = []
+    for name in ("model", "data"):
+        positional, option = getattr(args, name), getattr(args, f"{name}_option")
+        if (
+            positional is not None
+            and option is not None
+            and not _args.same_path(positional, option)
+        ):
+            raise ValueError(
+                f"{name.upper()} is given twice and differently: {positional!r} and "
+                f"--{name} {option!r}"
+            )
+        value = option if option is not None else positional
+        if value is None:
+            raise ValueError(
+                f"no {name} given: img2dmp evaluate --model RUN --data FILE "
+                "(or img2dmp evaluate RUN FILE)"
+            )
+        out.append(value)
+    return out[0], out[1]
 
 
 def run(args: argparse.Namespace) -> int:
     from ..evaluate import evaluate, format_table
 
+    model, data = model_and_data(args)
     out = args.out
     if out is None:
-        out = Path(args.model) / "evaluation" if Path(args.model).is_dir() else "evaluation"
+        out = Path(model) / "evaluation" if Path(model).is_dir() else "evaluation"
     res = evaluate(
-        args.model,
-        args.data,
+        model,
+        data,
         split=args.split,
         out_dir=out,
         n_figures=args.figures,
-        digits=args.digits,
+        digits=list(args.digits) if args.digits is not None else None,
     )
-    print(format_table(res, f"trajectory error (px), {args.data} [{args.split}]"))
+    print(format_table(res, f"trajectory error (px), {data} [{args.split}]"))
     print(f"written: {Path(out) / 'evaluation.json'}, evaluation.txt, examples.png")
     return 0

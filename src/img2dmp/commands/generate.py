@@ -4,6 +4,15 @@ Digits are built from straight lines and elliptic arcs with a minimum-jerk speed
 rendered, blurred, moved by a random affine transform together with their paths, and
 sprinkled with salt-and-pepper noise, as in the first experiments of Pahič et al. (2018).
 The file format is described in docs/DATASET.md. The same seed gives identical data.
+
+The generator's settings (img2dmp.data.synthetic.SyntheticConfig: digits, image_size,
+duration_s, dt_s, ranges of the template parameters, pen width, blur, noise_amount,
+affine ranges, ridge ...) come from the defaults, then --config FILE, then --digits and
+--image-size (when given), then --set KEY=VALUE. Examples:
+
+  img2dmp generate --out twos.safetensors --digits 2 --per-digit 500
+  img2dmp generate --out d.safetensors --config synth.yaml --set noise_amount=0.1 \\
+      --set 'affine.scale=[0.9, 1.0]'
 """
 
 from __future__ import annotations
@@ -12,85 +21,88 @@ import argparse
 import json
 import os
 
+from . import _args
+
 HELP = "generate a synthetic handwritten-digit data set (images + paths + fitted DMPs)"
-
-
-def parse_digits(text: str) -> tuple[int, ...]:
-    """``"0-9"``, ``"2"``, ``"1,4,7"`` or ``"0-3,8"`` -> a tuple of digits."""
-    digits: list[int] = []
-    for part in text.replace(" ", "").split(","):
-        if not part:
-            continue
-        lo, sep, hi = part.partition("-")
-        try:
-            a, b = int(lo), int(hi) if sep else int(lo)
-        except ValueError:
-            raise ValueError(f"--digits: {part!r} is not a digit or a range like 0-9") from None
-        if a > b:
-            raise ValueError(f"--digits: range {part!r} runs backwards")
-        digits.extend(range(a, b + 1))
-    if not digits:
-        raise ValueError("--digits must name at least one digit, e.g. 0-9 or 2")
-    return tuple(digits)
 
 
 def parse_splits(text: str) -> tuple[float, float, float]:
     """``"0.8,0.1,0.1"`` -> (train, validation, test) fractions."""
+    msg = f"must be three fractions >= 0 summing to 1 like 0.8,0.1,0.1, got {text!r}"
     try:
         parts = tuple(float(v) for v in text.split(","))
     except ValueError:
-        raise ValueError(f"--splits must be three numbers like 0.8,0.1,0.1, got {text!r}") from None
-    if len(parts) != 3:
-        raise ValueError(f"--splits must be three numbers like 0.8,0.1,0.1, got {text!r}")
+        raise argparse.ArgumentTypeError(msg) from None
+    if len(parts) != 3 or min(parts) < 0 or abs(sum(parts) - 1.0) > 1e-6:
+        raise argparse.ArgumentTypeError(msg)
     return parts
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, help="output .safetensors file")
-    p.add_argument("--digits", default="0-9", help="digits to include: 0-9, 2, 1,4,7 ...")
-    p.add_argument("--per-digit", type=int, default=2000, help="samples of each digit")
-    p.add_argument("--image-size", type=int, default=40, help="image height = width (px)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (same seed, same data)")
-    p.add_argument("--splits", default="0.8,0.1,0.1", help="train,validation,test fractions")
+    p.add_argument("--out", required=True, metavar="FILE", help="output .safetensors file")
+    _args.add_digits(p, "digits to include (default: the config file's, else 0-9)")
     p.add_argument(
-        "--config",
-        default=None,
-        help="YAML or JSON file of SyntheticConfig fields (ranges, pen, noise, affine ...); "
-        "--digits and --image-size override it",
+        "--per-digit",
+        metavar="N",
+        type=_args.int_at_least(1),
+        default=2000,
+        help="samples of each digit",
     )
     p.add_argument(
-        "--workers", type=int, default=min(2, os.cpu_count() or 1), help="parallel processes"
+        "--image-size",
+        type=_args.int_at_least(8),
+        metavar="PX",
+        help="image height = width in pixels (default: the config file's, else 40)",
+    )
+    p.add_argument(
+        "--seed",
+        metavar="N",
+        type=_args.int_at_least(0),
+        default=0,
+        help="random seed (same seed, same data)",
+    )
+    p.add_argument(
+        "--splits", type=parse_splits, default="0.8,0.1,0.1", help="train,validation,test fractions"
+    )
+    _args.add_config(p, "SyntheticConfig fields (ranges, pen, noise, affine ...)")
+    _args.add_set(p, "--set noise_amount=0.1 --set 'affine.scale=[0.9, 1.0]'")
+    p.add_argument(
+        "--workers",
+        metavar="N",
+        type=_args.int_at_least(1),
+        default=min(2, os.cpu_count() or 1),
+        help="parallel processes (the data do not depend on it)",
     )
     p.add_argument("--force", action="store_true", help="overwrite an existing file")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _args.add_no_progress(p)
 
 
-def load_config_file(path: str) -> dict:
-    """Fields of :class:`SyntheticConfig` from a YAML (or JSON) file."""
-    import yaml
+def synthetic_config(args: argparse.Namespace):
+    """The :class:`~img2dmp.data.synthetic.SyntheticConfig` of the command line: file,
+    then ``--digits`` / ``--image-size`` if given, then ``--set``."""
+    from ..config import apply_overrides, read_config_file
+    from ..data.synthetic import SyntheticConfig
 
-    with open(path, encoding="utf-8") as f:
-        d = yaml.safe_load(f)
-    if not isinstance(d, dict):
-        raise ValueError(f"{path}: expected a mapping of SyntheticConfig fields")
-    return d
+    fields = read_config_file(args.config) if args.config else {}
+    if args.digits is not None:
+        fields["digits"] = list(args.digits)
+    if args.image_size is not None:
+        fields["image_size"] = [args.image_size, args.image_size]
+    return SyntheticConfig.from_dict(apply_overrides(fields, args.set))
 
 
 def run(args: argparse.Namespace) -> int:
     from ..data.store import save_dataset
-    from ..data.synthetic import SyntheticConfig, generate_dataset
+    from ..data.synthetic import generate_dataset
 
-    fields = load_config_file(args.config) if args.config else {}
-    fields["digits"] = parse_digits(args.digits)
-    fields["image_size"] = (args.image_size, args.image_size)
-    config = SyntheticConfig.from_dict(fields)
+    config = synthetic_config(args)
     if os.path.exists(args.out) and not args.force:
         raise FileExistsError(f"{args.out} exists; pass --force to overwrite it")
     data = generate_dataset(
         args.per_digit,
         config,
         seed=args.seed,
-        splits=parse_splits(args.splits),
+        splits=args.splits,
         progress=not args.no_progress,
         workers=args.workers,
     )

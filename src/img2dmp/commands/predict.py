@@ -5,6 +5,8 @@ from the border, crop to the ink, pad to square, strokes thickened or thinned to
 training images' pen width, resize, ink = 1). Without --out the
 predictions are printed as JSON; with --out each image gets NAME_dmp.json (parameters and
 sampled trajectory), NAME_trajectory.csv and, with --overlay, NAME_overlay.png.
+
+  img2dmp predict --model runs/paper my_digit.jpg --out pred --overlay
 """
 
 from __future__ import annotations
@@ -13,15 +15,25 @@ import argparse
 import json
 from pathlib import Path
 
+from . import _args
+
 HELP = "DMP parameters and trajectory for image files"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("images", nargs="+", metavar="IMAGE", help="PNG or JPEG files")
-    p.add_argument("--model", required=True, help="run directory or checkpoint")
-    p.add_argument("--out", help="write JSON/CSV (and PNG) files here instead of printing")
+    _args.add_model(p, required=True)
+    p.add_argument(
+        "--out", metavar="DIR", help="write JSON/CSV (and PNG) files here instead of printing"
+    )
     p.add_argument("--overlay", action="store_true", help="also draw NAME_overlay.png")
-    p.add_argument("--points", type=int, default=100, help="trajectory samples over [0, tau]")
+    p.add_argument(
+        "--points",
+        metavar="N",
+        type=_args.int_at_least(2),
+        default=100,
+        help="trajectory samples over [0, tau]",
+    )
     p.add_argument(
         "--keep-stroke-width",
         action="store_true",
@@ -32,8 +44,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..predict import Predictor, prediction_record, write_prediction
 
-    if args.points < 2:
-        raise ValueError(f"--points must be >= 2, got {args.points}")
     predictor = Predictor.load(args.model)
     results = predictor.predict_paths(args.images, not args.keep_stroke_width)
     records = []

@@ -1,8 +1,24 @@
 """Turn real handwriting into an img2dmp data set: MNIST images with the recorded human pen
-paths (``--source recorded``) or the traced stroke sequences (``--source strokes``),
-resampled to the DMP time grid, optionally affine-augmented, with fitted DMPs and a fixed
+paths (--source recorded) or the traced stroke sequences (--source strokes), resampled to
+the DMP time grid, optionally affine-augmented, with fitted DMPs and a fixed
 train / validation / test split by MNIST index. Formats, frames and the split:
 docs/MNIST.md.
+
+The options (img2dmp.data.prepare.PrepareOptions: source, digits, n_dims, n_times,
+image_size, resize_mode, augment, affine, seed, scaling, n_kernels, ridge, mnist_split,
+limit_per_digit, speed_profile, duration_s) come from the defaults, then --config FILE,
+then the option flags below (each only when given), then --set KEY=VALUE. Nested
+sections: affine (AffineRanges: translation_rel, rotation_deg, scale, shear_deg) and
+speed_profile (pen_speed_px_s, min_stroke_s, pen_up_s).
+
+Note: here --data is the ROOT DIRECTORY of the real data (holding mnist/,
+ijs-mnist-trajectories/ and mnist-stroke-sequences/), not a data-set file as in the other
+commands; --out names the data-set file written.
+
+  img2dmp prepare --digits 3,5 --augment 10 --out mnist35.safetensors
+  img2dmp prepare --config prep.yaml --set augment=4 --set 'affine.rotation_deg=[-5, 5]' \\
+      --out mnist.safetensors
+  img2dmp prepare --check-frames
 """
 
 from __future__ import annotations
@@ -10,33 +26,71 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from . import _args
+
 HELP = "make a data set from MNIST with recorded or traced pen paths"
 
-
-def _digits(text: str) -> tuple[int, ...]:
-    try:
-        out = tuple(int(d) for d in text.replace(",", " ").split())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"digits must be numbers 0-9, got {text!r}") from None
-    if not out or any(not 0 <= d <= 9 for d in out):
-        raise argparse.ArgumentTypeError(f"digits must be numbers 0-9, got {text!r}")
-    return out
-
-
-# Literal copies of img2dmp.data.prepare's SOURCES, RESIZE_MODES and DEFAULT_DATA_DIR, so
-# that building the CLI parser does not import torch; PrepareOptions validates them again.
+# Literal copies of img2dmp.data.prepare's SOURCES, RESIZE_MODES and DEFAULT_DATA_DIR and
+# of PrepareOptions' defaults (shown in --help), so that building the CLI parser does not
+# import torch; tests check them against the library, and PrepareOptions validates again.
 SOURCES = ("recorded", "strokes")
 RESIZE_MODES = ("scale", "pad")
 DEFAULT_DATA_DIR = "../shared/data"
+DEFAULTS = {
+    "source": "recorded",
+    "n_times": 100,
+    "image_size": 28,
+    "resize_mode": "scale",
+    "augment": 0,
+    "seed": 0,
+    "n_kernels": 25,
+    "mnist_split": "train",
+    "speed_profile.pen_speed_px_s": 51.0,
+    "speed_profile.pen_up_s": 0.2,
+}
+
+#: Option flag (its ``args`` name) -> the PrepareOptions field it sets (dots: nested).
+FLAG_FIELDS = {
+    "source": "source",
+    "digits": "digits",
+    "dims": "n_dims",
+    "n_times": "n_times",
+    "image_size": "image_size",
+    "resize": "resize_mode",
+    "augment": "augment",
+    "seed": "seed",
+    "scaling": "scaling",
+    "n_kernels": "n_kernels",
+    "mnist_split": "mnist_split",
+    "limit_per_digit": "limit_per_digit",
+    "pen_speed": "speed_profile.pen_speed_px_s",
+    "pen_up_s": "speed_profile.pen_up_s",
+    "duration": "duration_s",
+}
+
+
+def _field(flag: str, text: str, default: str | None = None) -> str:
+    """Help text naming the field a flag sets and its default."""
+    key = FLAG_FIELDS[flag]
+    if default is None and key in DEFAULTS:
+        default = str(DEFAULTS[key])
+    return f"{text} (= {key}; default {default})" if default else f"{text} (= {key})"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--source", choices=SOURCES, default="recorded", help="pen paths to use")
+    _paths(parser)
+    _args.add_config(parser, "PrepareOptions fields, with affine and speed_profile sections")
+    _args.add_set(parser, "--set augment=4 --set 'affine.scale=[0.95, 1.05]'")
+    _options(parser)
+    _args.add_no_progress(parser)
+
+
+def _paths(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--digits", type=_digits, default=tuple(range(10)), help='labels to keep, e.g. "3,5"'
-    )
-    parser.add_argument(
-        "--out", "-o", help="output .safetensors file (required unless --check-frames)"
+        "--out",
+        "-o",
+        metavar="FILE",
+        help="output .safetensors file (required unless --check-frames)",
     )
     parser.add_argument(
         "--check-frames",
@@ -45,62 +99,98 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "under trial shifts of the frame, and print it (docs/MNIST.md)",
     )
     parser.add_argument(
-        "--data", default=DEFAULT_DATA_DIR, help="root of the real data (see docs/MNIST.md)"
+        "--data",
+        default=DEFAULT_DATA_DIR,
+        metavar="DIR",
+        help="ROOT DIRECTORY of the real data, holding mnist/, ijs-mnist-trajectories/ and "
+        "mnist-stroke-sequences/ (here not a data-set file; see docs/MNIST.md)",
     )
-    parser.add_argument("--mnist", help="folder of the MNIST IDX files (default DATA/mnist)")
+    parser.add_argument(
+        "--mnist", metavar="DIR", help="folder of the MNIST IDX files (default DATA/mnist)"
+    )
     parser.add_argument(
         "--recorded",
+        metavar="PATH",
         help="trajectories.tar.gz or its unpacked folder "
         "(default DATA/ijs-mnist-trajectories/trajectories.tar.gz)",
     )
     parser.add_argument(
-        "--strokes", help="folder of the stroke sequences (default DATA/mnist-stroke-sequences)"
+        "--strokes",
+        metavar="DIR",
+        help="folder of the stroke sequences (default DATA/mnist-stroke-sequences)",
     )
-    parser.add_argument(
-        "--augment", type=int, default=0, help="affine copies added per training sample"
-    )
-    parser.add_argument("--seed", type=int, default=0, help="seed of the augmentation")
-    parser.add_argument("--image-size", type=int, default=28, help="side of the stored images")
-    parser.add_argument(
-        "--resize", choices=RESIZE_MODES, default="scale", help="how to reach --image-size"
-    )
-    parser.add_argument("--n-times", type=int, default=100, help="instants per trajectory")
-    parser.add_argument(
+
+
+def _options(parser: argparse.ArgumentParser) -> None:
+    # Every flag defaults to None: it overrides --config only when given.
+    def add(flag: str, text: str, shown_default: str | None = None, **kwargs) -> None:
+        name = flag[2:].replace("-", "_")
+        parser.add_argument(flag, help=_field(name, text, shown_default), **kwargs)
+
+    n, pos = {"metavar": "N"}, {"metavar": "X"}
+    add("--source", "pen paths to use", choices=SOURCES)
+    _args.add_digits(parser, _field("digits", "labels to keep", "0-9"))
+    add("--augment", "affine copies added per training sample", type=_args.int_at_least(0), **n)
+    add("--seed", "seed of the augmentation", type=_args.int_at_least(0), **n)
+    add("--image-size", "side of the stored images", type=_args.int_at_least(8), metavar="PX")
+    add("--resize", "how to reach --image-size", choices=RESIZE_MODES)
+    add("--n-times", "instants per trajectory", type=_args.int_at_least(2), **n)
+    add(
         "--duration",
-        type=float,
-        default=None,
+        "rescale every path to last this long before fitting (removes the writer's speed, "
+        "which an image does not show)",
+        "real timing",
+        type=_args.positive_float,
         metavar="SECONDS",
-        help="rescale every path to last this long before fitting (removes the writer's "
-        "speed, which an image does not show; default: real timing)",
     )
-    parser.add_argument(
+    add(
         "--dims",
+        "2 = (x, y), 3 = (x, y, pen)",
+        "2 for recorded, 3 for strokes",
         type=int,
         choices=(2, 3),
-        help="2 = (x, y), 3 = (x, y, pen); default 2 for recorded, 3 for strokes",
     )
-    parser.add_argument(
+    add(
         "--scaling",
+        "DMP forcing-term scaling",
+        "goal-start for d=2, none for d=3",
         choices=("goal-start", "none"),
-        help="DMP forcing-term scaling; default goal-start for d=2, none for d=3",
     )
-    parser.add_argument("--n-kernels", type=int, default=25, help="DMP kernels per dimension")
-    parser.add_argument(
+    add("--n-kernels", "DMP kernels per dimension", type=_args.int_at_least(1), **n)
+    add(
         "--mnist-split",
+        "strokes only: MNIST split(s) whose traces to use",
         choices=("train", "test", "both"),
-        default="train",
-        help="strokes only: MNIST split(s) whose traces to use",
     )
-    parser.add_argument(
-        "--limit-per-digit", type=int, help="keep at most this many samples per digit"
+    add(
+        "--limit-per-digit",
+        "keep at most this many samples per digit",
+        "all",
+        type=_args.int_at_least(1),
+        **n,
     )
-    parser.add_argument(
-        "--pen-speed", type=float, default=51.0, help="strokes: mean pen speed, px/s"
-    )
-    parser.add_argument(
-        "--pen-up-s", type=float, default=0.2, help="strokes: duration of a pen-up travel"
-    )
-    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add("--pen-speed", "strokes: mean pen speed, px/s", type=_args.positive_float, **pos)
+    add("--pen-up-s", "strokes: duration of a pen-up travel, s", type=_args.positive_float, **pos)
+
+
+def prepare_options(args: argparse.Namespace):
+    """The :class:`~img2dmp.data.prepare.PrepareOptions` of the command line: defaults,
+    then ``--config``, then the flags given, then ``--set``."""
+    from ..config import apply_overrides, from_mapping, merge, read_config_file
+    from ..data.prepare import PrepareOptions
+
+    d = read_config_file(args.config) if args.config else {}
+    flags: dict = {}
+    for flag, key in FLAG_FIELDS.items():
+        value = getattr(args, flag)
+        if value is None:
+            continue
+        *sections, leaf = key.split(".")
+        node = flags
+        for s in sections:
+            node = node.setdefault(s, {})
+        node[leaf] = list(value) if isinstance(value, tuple) else value
+    return from_mapping(PrepareOptions, apply_overrides(merge(d, flags), args.set))
 
 
 def _check_frames(args: argparse.Namespace) -> int:
@@ -128,30 +218,14 @@ def _check_frames(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from img2dmp.data.prepare import PrepareOptions, prepare_dataset
+    from img2dmp.data.prepare import prepare_dataset
     from img2dmp.data.store import save_dataset
-    from img2dmp.data.strokes import SpeedProfile
 
     if args.check_frames:
         return _check_frames(args)
     if not args.out:
         raise ValueError("--out is required (the data-set file to write)")
-    options = PrepareOptions(
-        source=args.source,
-        digits=args.digits,
-        n_dims=args.dims,
-        n_times=args.n_times,
-        image_size=args.image_size,
-        resize_mode=args.resize,
-        augment=args.augment,
-        seed=args.seed,
-        scaling=args.scaling,
-        n_kernels=args.n_kernels,
-        mnist_split=args.mnist_split,
-        limit_per_digit=args.limit_per_digit,
-        speed_profile=SpeedProfile(pen_speed_px_s=args.pen_speed, pen_up_s=args.pen_up_s),
-        duration_s=args.duration,
-    )
+    options = prepare_options(args)
     data = prepare_dataset(
         options,
         data_dir=args.data,

@@ -2,34 +2,61 @@
 
 Reads a stored data set (--data), or, without one, generates a few fresh synthetic
 samples. The demonstrated path is blue with a dot at its start; with --dmp the fitted
-DMP's rollout is drawn over it in red.
+DMP's rollout is drawn over it in red. One column per digit of --digits.
+
+  img2dmp preview --data digits.safetensors --out digits.png --dmp --digits 2,3
 """
 
 from __future__ import annotations
 
 import argparse
 
-import numpy as np
+from . import _args
 
 HELP = "PNG grid of images with their pen paths drawn over them"
+SPLITS = ("train", "validation", "test")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, help="output PNG file")
-    p.add_argument("--data", default=None, help="data-set file; default: fresh synthetic digits")
-    p.add_argument("--per-digit", type=int, default=4, help="samples shown of each digit")
-    p.add_argument("--digits", default="0-9", help="digits to show: 0-9, 2, 1,4,7 ...")
-    p.add_argument("--image-size", type=int, default=40, help="image size of fresh samples")
-    p.add_argument("--seed", type=int, default=0, help="seed for fresh samples and the pick")
-    p.add_argument("--split", default=None, help="only this split of --data (train, ...)")
+    p.add_argument("--out", required=True, metavar="PNG", help="output PNG file")
+    _args.add_data(p, help="data-set file (.safetensors); default: fresh synthetic digits")
+    p.add_argument(
+        "--per-digit",
+        metavar="N",
+        type=_args.int_at_least(1),
+        default=4,
+        help="samples shown of each digit",
+    )
+    _args.add_digits(p, "digits to show (default: 0-9)")
+    p.add_argument(
+        "--image-size",
+        type=_args.int_at_least(8),
+        default=40,
+        metavar="PX",
+        help="image size of fresh samples (without --data)",
+    )
+    p.add_argument(
+        "--seed",
+        metavar="N",
+        type=_args.int_at_least(0),
+        default=0,
+        help="seed for fresh samples and the pick",
+    )
+    p.add_argument("--split", choices=SPLITS, help="only this split of --data (default: all)")
     p.add_argument("--dmp", action="store_true", help="also draw the fitted DMP in red")
-    p.add_argument("--cell-inches", type=float, default=1.2, help="size of one image")
-    p.add_argument("--dpi", type=int, default=100)
+    p.add_argument(
+        "--cell-inches", type=_args.positive_float, default=1.2, help="size of one image"
+    )
+    p.add_argument(
+        "--dpi", metavar="N", type=_args.int_at_least(1), default=100, help="resolution of the PNG"
+    )
 
 
-def _pick(labels: np.ndarray, digits, per_digit: int, rng) -> np.ndarray:
+def _pick(labels, digits, per_digit: int, rng):
     # Up to per_digit random samples of each digit, grouped by sample index so that each
     # row of the grid shows the digits in order.
+    import numpy as np
+
     chosen = []
     for d in digits:
         idx = np.flatnonzero(labels == d)
@@ -40,12 +67,11 @@ def _pick(labels: np.ndarray, digits, per_digit: int, rng) -> np.ndarray:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..data.plotting import save_grid
-    from .generate import parse_digits
+    import numpy as np
 
-    digits = parse_digits(args.digits)
-    if args.per_digit < 1:
-        raise ValueError(f"--per-digit must be >= 1, got {args.per_digit}")
+    from ..data.plotting import save_grid
+
+    digits = args.digits or tuple(range(10))
     rng = np.random.default_rng(args.seed)
     if args.data:
         from ..data.store import load_dataset

@@ -1,65 +1,109 @@
 """Train the encoder-decoder network on a stored data set or the on-the-fly generator.
 
-Settings come from defaults, then ``--config`` (YAML or TOML), then the shortcuts below,
-then ``--set section.key=value`` overrides. The run directory receives config.yaml,
-metrics.csv, training_curve.png and checkpoints/{best,last}.safetensors (+ .json).
-Data-parallel: ``torchrun --nproc_per_node 2 -m img2dmp.cli train ...``.
+Settings (img2dmp.train.TrainConfig: model, data, optim, cost, seed ...) come from the
+defaults, then --config FILE (YAML, TOML or JSON), then the shortcuts --data (data.path),
+--cost (cost.name), --digits (data.digits), --seed, --init-from (init_from) and
+--no-progress (progress), then --set section.key=value overrides, in order; unknown keys
+are refused. The run directory receives config.yaml, metrics.csv, training_curve.png and
+checkpoints/{best,last}.safetensors (+ .json).
+
+  img2dmp train --config configs/paper.yaml --data digits.safetensors --run-dir runs/paper \\
+      --set optim.lr=3e-4 --set model.activation=tanh
+
+--resume continues the run in --run-dir from its last checkpoint with the configuration
+stored there; only --epochs (train on to this many epochs) and --no-progress may be given
+with it. Data-parallel: torchrun --nproc_per_node 2 -m img2dmp train ...
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+
+from . import _args
 
 HELP = "train the image-to-DMP network with cost (9) or (10)"
 
+#: Options that set the configuration, which a resumed run takes from its checkpoint.
+CONFIG_OPTIONS = ("config", "set", "data", "cost", "seed", "digits", "init_from")
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--config", help="YAML or TOML training config (default: built-in defaults)")
-    p.add_argument("--data", help="data-set file (.safetensors); omit to use the generator")
-    p.add_argument("--run-dir", default="runs/train", help="output directory")
-    p.add_argument("--cost", help="parameter (eq. 9), trajectory (eq. 10) or combined")
+    _args.add_config(p, "TrainConfig sections (default: built-in defaults)")
+    _args.add_data(p, help="data-set file (.safetensors) = data.path; omit to use the generator")
+    p.add_argument("--run-dir", default="runs/train", metavar="DIR", help="output directory")
     p.add_argument(
-        "--epochs", type=int, help="number of epochs (with --resume: train the run on to this many)"
+        "--cost",
+        metavar="NAME",
+        help="cost.name: parameter (eq. 9), trajectory (eq. 10) or combined",
     )
-    p.add_argument("--seed", type=int, help="random seed")
+    _args.add_digits(p, "data.digits: train on these labels only (default: all)")
     p.add_argument(
-        "--set",
-        nargs="*",
-        default=[],
-        metavar="KEY=VALUE",
-        help="config overrides, e.g. optim.lr=3e-4 model.activation=tanh",
+        "--epochs",
+        metavar="N",
+        type=_args.int_at_least(1),
+        help="optim.epochs (with --resume: train the run on to this many epochs)",
     )
+    p.add_argument("--seed", metavar="N", type=_args.int_at_least(0), help="random seed (= seed)")
+    _args.add_set(p, "--set optim.lr=3e-4 model.activation=tanh --set optim.batch_size=32")
     p.add_argument(
         "--resume",
         action="store_true",
-        help="continue the run in --run-dir from its last checkpoint",
+        help="continue the run in --run-dir from its last checkpoint, with its stored "
+        "configuration (only --epochs may extend it)",
     )
     p.add_argument("--overwrite", action="store_true", help="start afresh in an existing run dir")
     p.add_argument(
         "--init-from",
         metavar="RUN",
         help="start from the weights (and output normalisation) of this run directory or "
-        "checkpoint instead of random weights: fine-tuning (config key init_from)",
+        "checkpoint instead of random weights: fine-tuning (= init_from)",
     )
-    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    _args.add_no_progress(p)
 
 
-def run(args: argparse.Namespace) -> int:
-    from ..train import load_config, train
-
-    over = list(args.set)
+def overrides(args: argparse.Namespace) -> list[str]:
+    """The ``section.key=value`` overrides of the command line: the shortcuts, then every
+    ``--set`` (all of them, in order; a later value of one key wins)."""
+    over = []
     for key, value in (
         ("data.path", args.data),
         ("cost.name", args.cost),
+        ("data.digits", list(args.digits) if args.digits is not None else None),
         ("seed", args.seed),
+        ("init_from", args.init_from),
     ):
         if value is not None:
-            over.append(f"{key}={value}")
+            over.append(f"{key}={json.dumps(value)}")  # JSON is YAML: paths stay text
     if args.no_progress:
         over.append("progress=false")
-    cfg = load_config(args.config, over)
-    if args.init_from is not None:
-        cfg.init_from = args.init_from
+    return over + list(args.set)
+
+
+def check_resume(args: argparse.Namespace) -> None:
+    """Refuse options that a resumed run would ignore."""
+    if not args.resume:
+        return
+    given = [
+        "--" + name.replace("_", "-")
+        for name in CONFIG_OPTIONS
+        if getattr(args, name) is not None and getattr(args, name) != []
+    ]
+    if args.overwrite:
+        given.append("--overwrite")
+    if given:
+        raise ValueError(
+            f"--resume continues the run in {args.run_dir} with the configuration stored in "
+            f"its checkpoint, so {', '.join(given)} cannot be used with it (only --epochs can "
+            "extend the run); start a new run with another --run-dir or --overwrite instead"
+        )
+
+
+def run(args: argparse.Namespace) -> int:
+    check_resume(args)
+    from ..train import load_config, train
+
+    cfg = load_config(args.config, overrides(args))
     res = train(cfg, args.run_dir, resume=args.resume, overwrite=args.overwrite, epochs=args.epochs)
     print(
         f"{res.epochs_run} epochs in {res.wall_s:.1f} s; best validation trajectory error "

@@ -42,7 +42,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
+
+from .._progress import bar
 
 #: Added to the recorded x and y to reach the centre convention of docs/CONTRACTS.md.
 FRAME_OFFSET_PX = -0.5
@@ -275,7 +276,7 @@ def load_recorded(
     digits : iterable of int, optional
         Keep only these labels (every file is still validated).
     progress : bool
-        Show a tqdm progress bar.
+        Show progress (:func:`img2dmp._progress.bar`).
 
     Returns
     -------
@@ -293,8 +294,8 @@ def load_recorded(
     path = Path(path)
     keep = None if digits is None else {int(d) for d in digits}
     out: dict[int, RecordedPath] = {}
-    for name, data in tqdm(
-        _iter_sources(path), desc="recorded paths", unit="file", disable=not progress
+    for name, data in bar(
+        _iter_sources(path), desc="recorded paths", unit="file", enabled=progress
     ):
         rec = parse_recorded(data, name)
         if rec.image_index in out:

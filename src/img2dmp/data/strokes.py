@@ -37,7 +37,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
+
+from .._progress import bar
 
 #: Added to the cumulative x and y to reach the centre convention (see module docstring).
 FRAME_OFFSET_PX = -1.0
@@ -370,7 +371,7 @@ def load_strokes(
     digits : iterable of int, optional
         Keep only these labels.
     progress : bool
-        Show a tqdm progress bar while parsing.
+        Show progress while parsing (:func:`img2dmp._progress.bar`).
 
     Returns
     -------
@@ -406,7 +407,7 @@ def load_strokes(
         raise ValueError(f"{seq_name}: row indices must lie in 0..{len(seqs) - 1}")
     keep = None if digits is None else {int(d) for d in digits}
     out = []
-    for i in tqdm(idx, desc=f"strokes ({split})", unit="digit", disable=not progress):
+    for i in bar(idx, desc=f"strokes ({split})", unit="digit", enabled=progress):
         if keep is not None and int(labels[i]) not in keep:
             continue
         out.append(parse_sequence(seqs[i], f"{seq_name}#{int(i)}", int(i), int(labels[i])))

@@ -54,8 +54,9 @@ from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
+from .._progress import bar as progress_bar
+from ..config import ConfigError, from_mapping
 from ..dmp import DMPConfig, fit_dmp
 from .affine import AffineRanges, sample_affine, warp_images, warp_points
 from .render import gaussian_filter, render_paths, salt_and_pepper
@@ -327,17 +328,24 @@ class SyntheticConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> SyntheticConfig:
-        names = {f.name for f in fields(cls)}
-        unknown = set(d) - names
+        """A config from a mapping of its fields (a file, ``--set`` overrides, a data
+        set's metadata), typed by :func:`img2dmp.config.from_mapping`: unknown fields
+        are refused, ``1e-6`` is a number, a wrong type is named. ``affine`` takes a
+        mapping of :class:`AffineRanges` fields; one digit or one image side may be
+        given as a plain integer."""
+        if not isinstance(d, dict):
+            raise ConfigError(f"a synthetic config must be a mapping of fields, got {d!r}")
+        names = [f.name for f in fields(cls)]
+        unknown = sorted(set(d) - set(names))
         if unknown:
-            raise ValueError(f"unknown synthetic config field(s): {sorted(unknown)}")
+            raise ConfigError(
+                f"unknown synthetic config field(s): {unknown}; known: {', '.join(names)}"
+            )
         d = dict(d)
-        if "affine" in d and isinstance(d["affine"], dict):
-            d["affine"] = AffineRanges.from_dict(d["affine"])
-        for key in ("digits", "image_size"):
-            if key in d and isinstance(d[key], list):
-                d[key] = tuple(d[key])
-        return cls(**d)
+        for key, n in (("digits", 1), ("image_size", 2)):
+            if isinstance(d.get(key), (int, np.integer)) and not isinstance(d[key], bool):
+                d[key] = [int(d[key])] * n
+        return from_mapping(cls, d)
 
 
 # ---------------------------------------------------------------------------------------
@@ -653,7 +661,7 @@ def generate_dataset(
         Fractions summing to 1; within each digit the counts are rounded down and the
         remainder goes to train.
     progress : bool
-        Show a tqdm progress bar.
+        Show progress (:func:`img2dmp._progress.bar`).
     workers : int
         Processes generating chunks in parallel (each with one torch thread); the data
         do not depend on it.
@@ -685,7 +693,7 @@ def generate_dataset(
         for i in range(n_chunks)
     ]
     parts = []
-    with tqdm(total=labels.size, desc="generate", unit="sample", disable=not progress) as bar:
+    with progress_bar(total=labels.size, desc="generate", unit="sample", enabled=progress) as bar:
         if workers <= 1 or n_chunks < 2 * workers:  # starting processes costs seconds
             results = map(_generate_chunk, jobs)
             pool = None

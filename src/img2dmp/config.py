@@ -1,0 +1,277 @@
+"""The one configuration mechanism of img2dmp: a file, then ``--set key=value`` overrides.
+
+Every command that takes settings (``generate``, ``prepare``, ``train``, ``demo``) reads
+them the same way:
+
+1. the dataclass defaults (:class:`img2dmp.data.synthetic.SyntheticConfig`,
+   :class:`img2dmp.data.prepare.PrepareOptions`, :class:`img2dmp.training.TrainConfig`);
+2. a YAML (``.yaml``/``.yml``) or TOML (``.toml``) file, :func:`read_config_file`;
+3. ``section.key=value`` overrides, values parsed as YAML, :func:`apply_overrides`;
+4. :func:`from_mapping`: typed construction from the fields' annotations. Unknown keys
+   are rejected, numbers given as text, booleans given as numbers and wrong shapes are
+   refused with an error that names the field (``optim.lr must be a number, got 'x'``).
+
+:func:`check_positive` is the one "finite and > 0" check of the package.
+
+Nothing here imports the rest of img2dmp, so every layer can use it.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import os
+import re
+import tomllib
+import types
+import typing
+from pathlib import Path
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration file, field or override that cannot be used (names which)."""
+
+
+class _Loader(yaml.SafeLoader):
+    """YAML's safe loader, reading ``3e-4`` and ``1E5`` as numbers.
+
+    YAML 1.1 (PyYAML) takes a float without a dot for a string, so ``lr: 3e-4`` would
+    otherwise reach the optimiser as text.
+    """
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"),
+)
+
+
+def parse_yaml(text: str):
+    """A YAML document (or a single ``--set`` value) with :class:`_Loader`."""
+    return yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
+
+
+def read_config_file(path: str | os.PathLike) -> dict:
+    """A YAML (``.yaml``/``.yml``), TOML (``.toml``) or JSON (``.json``) file as a dict."""
+    p = Path(path)
+    if p.is_dir():
+        raise ConfigError(f"config file {p} is a directory")
+    if not p.is_file():
+        raise FileNotFoundError(f"config file {p} does not exist")
+    if p.suffix not in (".yaml", ".yml", ".toml", ".json"):
+        raise ConfigError(f"config file {p} must end in .yaml, .yml, .toml or .json")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"config file {p} cannot be read: {e}") from e
+    try:
+        # JSON is YAML 1.2; the loader reads it too.
+        d = tomllib.loads(text) if p.suffix == ".toml" else (parse_yaml(text) or {})
+    except (yaml.YAMLError, tomllib.TOMLDecodeError) as e:
+        first = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise ConfigError(f"config file {p} cannot be parsed: {first}") from e
+    if not isinstance(d, dict):
+        raise ConfigError(f"config file {p} must hold a mapping at the top level")
+    return d
+
+
+def apply_overrides(d: dict, overrides: list[str] | None) -> dict:
+    """A copy of ``d`` with ``section.key=value`` overrides applied in order.
+
+    Values are parsed as YAML (``[16, 32]``, ``null``, ``3e-4``); the last of two
+    overrides of one key wins, overrides of different keys all apply.
+    """
+    d = copy.deepcopy(d)
+    for item in overrides or []:
+        if "=" not in item:
+            raise ConfigError(f"override {item!r} must look like section.key=value")
+        key, raw = item.split("=", 1)
+        parts = key.strip().split(".")
+        if not all(parts):
+            raise ConfigError(f"override {item!r}: {key!r} is not a field name")
+        node = d
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"override {item!r}: {p!r} is not a config section")
+        try:
+            node[parts[-1]] = parse_yaml(raw)
+        except yaml.YAMLError as e:
+            raise ConfigError(f"override {item!r}: value cannot be parsed ({e})") from e
+    return d
+
+
+def check_positive(name: str, value, *, allow_zero: bool = False) -> float:
+    """``value`` as a float if it is a finite number > 0 (>= 0 with ``allow_zero``).
+
+    The package's one such check: the error names ``name`` and the value given.
+    """
+    bound = ">= 0" if allow_zero else "> 0"
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        try:  # NumPy and torch scalars
+            value = float(value)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{name} must be a number {bound}, got {value!r}") from None
+    v = float(value)
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        raise ConfigError(f"{name} must be a finite number {bound}, got {value!r}")
+    return v
+
+
+def _describe(tp) -> str:
+    return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
+
+
+def _coerce(value, tp, name: str):
+    """``value`` checked (and lightly converted) against the annotation ``tp``."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        arms = [a for a in args if a is not type(None)]
+        errors = []
+        for arm in arms:
+            try:
+                return _coerce(value, arm, name)
+            except ConfigError as e:
+                errors.append(e)
+        if len(arms) == 1:
+            raise errors[0]
+        raise ConfigError(f"{name} must be one of {[_describe(a) for a in arms]}, got {value!r}")
+    if tp is typing.Any:
+        return value
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{name} must be true or false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)  # YAML's 1e3
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{name} must be a number (int), got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{name} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"{name} must be a finite number, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{name} must be text, got {value!r}")
+        return value
+    if origin in (list, tuple) or tp in (list, tuple):
+        return _coerce_sequence(value, tp, origin or tp, args, name)
+    if origin is dict or tp is dict:
+        if not isinstance(value, dict):
+            raise ConfigError(f"{name} must be a mapping, got {value!r}")
+        return value
+    if dataclasses.is_dataclass(tp):
+        if isinstance(value, tp):
+            return value
+        if not isinstance(value, dict):
+            raise ConfigError(f"{name} must be a mapping of {tp.__name__} fields, got {value!r}")
+        return from_mapping(tp, value, name)
+    return value
+
+
+def _coerce_sequence(value, tp, kind, args, name: str):
+    if not isinstance(value, (list, tuple)):
+        raise ConfigError(f"{name} must be a list, got {value!r}")
+    if kind is tuple and args and args[-1] is not Ellipsis:
+        if len(value) != len(args):
+            raise ConfigError(f"{name} must hold {len(args)} values, got {value!r}")
+        return tuple(
+            _coerce(v, a, f"{name}[{i}]") for i, (v, a) in enumerate(zip(value, args, strict=True))
+        )
+    item = args[0] if args else typing.Any
+    out = [_coerce(v, item, f"{name}[{i}]") for i, v in enumerate(value)]
+    return tuple(out) if kind is tuple else out
+
+
+def from_mapping(cls, d: dict, section: str = ""):
+    """An instance of the dataclass ``cls`` from a mapping, typed by its annotations.
+
+    ``section`` prefixes field names in errors (``"optim"`` gives ``optim.lr``). Unknown
+    keys are refused; missing keys take their defaults; a nested dataclass field takes a
+    mapping. The class's own ``__post_init__`` then checks ranges and choices.
+    """
+    where = f"{section}." if section else ""
+    if not isinstance(d, dict):
+        raise ConfigError(
+            f"config section {section or cls.__name__!r} must be a mapping, got {d!r}"
+        )
+    hints = typing.get_type_hints(cls)
+    names = [f.name for f in dataclasses.fields(cls) if f.init]
+    unknown = sorted(set(d) - set(names))
+    if unknown:
+        raise ConfigError(
+            f"unknown field(s) {', '.join(where + u for u in unknown)}; known: {', '.join(names)}"
+        )
+    kwargs = {k: _coerce(v, hints.get(k, typing.Any), where + k) for k, v in d.items()}
+    try:
+        return cls(**kwargs)
+    except ConfigError:
+        raise
+    except (TypeError, ValueError) as e:
+        msg = str(e)
+        # The classes' own checks name their fields bare; say which section they are in.
+        if section and not msg.startswith(where):
+            msg = f"{section}: {msg}"
+        raise ConfigError(msg) from e
+
+
+def load(
+    cls,
+    path: str | os.PathLike | None = None,
+    overrides: list[str] | None = None,
+    base: dict | None = None,
+):
+    """``cls`` from ``base`` (a mapping), then the file at ``path``, then ``overrides``."""
+    d = copy.deepcopy(base or {})
+    if path:
+        d = merge(d, read_config_file(path))
+    return from_mapping(cls, apply_overrides(d, overrides))
+
+
+def merge(base: dict, update: dict) -> dict:
+    """``update`` over ``base``, section by section (nested mappings merge, values replace)."""
+    out = copy.deepcopy(base)
+    for k, v in update.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def to_dict(obj) -> dict:
+    """A dataclass as plain lists / dicts / scalars (tuples become lists), for YAML/JSON."""
+
+    def plain(v):
+        if dataclasses.is_dataclass(v):
+            return {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v)}
+        if isinstance(v, (list, tuple)):
+            return [plain(x) for x in v]
+        if isinstance(v, dict):
+            return {k: plain(x) for k, x in v.items()}
+        return v
+
+    return plain(obj)
+
+
+__all__ = [
+    "ConfigError",
+    "apply_overrides",
+    "check_positive",
+    "from_mapping",
+    "load",
+    "merge",
+    "parse_yaml",
+    "read_config_file",
+    "to_dict",
+]
