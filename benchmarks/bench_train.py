@@ -1,9 +1,11 @@
 """Speed of one training step with cost (9) vs cost (10), and of batch inference.
 
 In one run, on the same batch and the same network (the paper's fully connected
-encoder-decoder unless --config says otherwise), one Adam step with cost (9) and one with
-cost (10) are timed alternately; the ratio of their medians is printed (target <= 1.10:
-the trajectory cost rides on the fast rollout, so it should be almost free). Then the
+encoder-decoder unless --config says otherwise), one step of the real training loop
+(:func:`img2dmp.training.train_step`: network, cost, backward, Adam, and the batch's
+Table I error that training records) with cost (9) and one with cost (10) are timed
+alternately; the ratio of their medians is printed (target <= 1.10: the trajectory cost
+rides on the fast rollout, so it should be almost free). Then the
 throughput of batch inference (images -> DMP parameters) in images per second (target
 >= 5,000 / s on the 2-core development machine), and with the trajectory rollout added.
 
@@ -26,7 +28,7 @@ from img2dmp.data.synthetic import generate
 from img2dmp.dmp import DMPConfig
 from img2dmp.nn import Cost, ModelConfig, ParamNormaliser, build_model
 from img2dmp.nn.costs import dmp_trajectory
-from img2dmp.train import load_config
+from img2dmp.training import load_config, train_step
 
 
 def _median_time(fn, repeats: int) -> float:
@@ -36,6 +38,19 @@ def _median_time(fn, repeats: int) -> float:
         fn()
         times.append(time.perf_counter() - t0)
     return statistics.median(times)
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    import platform
+
+    return platform.processor() or platform.machine()
 
 
 def main(argv=None) -> int:
@@ -67,14 +82,7 @@ def main(argv=None) -> int:
     costs = {name: Cost(name, norm, dmp) for name in ("parameter", "trajectory")}
 
     def step(name):
-        def run():
-            z = model(images)  # [B, P]
-            loss, _ = costs[name](z, z_t, times, traj)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-
-        return run
+        return lambda: train_step(model, opt, costs[name], images, times, traj, z_t)
 
     for _ in range(5):  # warm-up (allocator, response table)
         step("parameter")()
@@ -86,6 +94,7 @@ def main(argv=None) -> int:
     m9, m10 = statistics.median(t9), statistics.median(t10)
     b9, b10 = min(t9), min(t10)
     n_weights = sum(q.numel() for q in model.parameters())
+    print(f"CPU: {_cpu_model()}; torch {torch.__version__}")
     print(
         f"model: {mcfg.encoder} encoder {mcfg.encoder_layers} decoder {mcfg.decoder_layers}, "
         f"{n_weights / 1e6:.2f} M weights; batch {args.batch} x {tuple(images.shape[1:])}, "

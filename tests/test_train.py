@@ -184,7 +184,10 @@ def test_resume_after_kill_reproduces_history(small_data, tmp_path):
     assert rc == -signal.SIGKILL
     done = len(read_metrics_csv(metrics))
     assert 2 <= done < 8
-    assert cli.main(["train", "--run-dir", str(run_dir), "--resume", *args]) == 0
+    resume = ["train", "--run-dir", str(run_dir), "--resume", "--no-progress"]
+    # The resumed run takes its configuration from the checkpoint; changing it is refused.
+    assert cli.main([*resume, *args]) == 2 and len(read_metrics_csv(metrics)) == done
+    assert cli.main([*resume, "--epochs", "8"]) == 0
     ref, got = read_metrics_csv(ref_dir / "metrics.csv"), read_metrics_csv(metrics)
     assert len(got) == len(ref) == 8
     for a, b in zip(ref, got, strict=True):
@@ -199,7 +202,6 @@ def test_resume_after_kill_reproduces_history(small_data, tmp_path):
                 "--run-dir",
                 str(run_dir),
                 "--resume",
-                *args[:2],
                 "--epochs",
                 "9",
                 "--no-progress",
@@ -347,17 +349,28 @@ def test_demo_runs_the_whole_chain(tmp_path):
     assert s["epochs_run"] == 2 and np.isfinite(s["test_error_px"]["mean"])
 
 
-def test_demo_config_file_matches_the_built_in_demo():
-    # configs/demo.yaml is the file form of pipeline.DEMO_CONFIG; they must not drift apart.
+def test_demo_config_is_shipped_once_and_is_what_the_demo_trains(tmp_path):
+    # The demo's configuration exists once, as package data; the demo trains with it.
+    from importlib import resources
+
+    from img2dmp.pipeline import DEMO_CONFIG, DEMO_EPOCHS, run_demo
+
+    root = Path(__file__).resolve().parents[1]
+    assert not (root / "configs" / "demo.yaml").exists()
+    shipped = resources.files("img2dmp").joinpath("configs", "demo.yaml")
+    cfg = load_config(Path(str(shipped)))
+    assert cfg.optim.epochs == DEMO_EPOCHS and cfg.model.encoder_layers == [512, 256, 64, 20]
+    assert TrainConfig.from_dict(DEMO_CONFIG).to_dict() == cfg.to_dict()
+    run_demo(tmp_path / "d", samples_per_digit=10, epochs=1, progress=False)
     import yaml
 
-    from img2dmp.pipeline import DEMO_CONFIG, DEMO_EPOCHS
-
-    path = Path(__file__).resolve().parents[1] / "configs" / "demo.yaml"
-    on_disk = yaml.safe_load(path.read_text())
-    for section, values in DEMO_CONFIG.items():
-        assert on_disk[section] == values, f"configs/demo.yaml [{section}] differs"
-    assert on_disk["optim"]["epochs"] == DEMO_EPOCHS
+    used = yaml.safe_load((tmp_path / "d" / "run" / "config.yaml").read_text())
+    for section in ("optim", "cost"):
+        for key, value in DEMO_CONFIG[section].items():
+            if key != "epochs":
+                assert used[section][key] == value, (section, key)
+    assert used["model"]["encoder_layers"] == DEMO_CONFIG["model"]["encoder_layers"]
+    assert used["model"]["image_size"] == [40, 40]  # taken from the data
 
 
 @pytest.mark.parametrize(
@@ -432,3 +445,64 @@ def test_augmented_training_runs_and_bad_ranges_are_named(small_data, tmp_path, 
     for bad, match in (({"rotation": [0, 1]}, "unknown affine"), ({"scale": [-1, 1]}, "scale")):
         with pytest.raises(ValueError, match=f"data.augment.*{match}"):
             TrainConfig.from_dict({"data": {"augment": bad}})
+
+
+def test_train_step_learns_its_batch_measures_it_and_refuses_a_nan_cost(small_data):
+    from img2dmp.errors import TrainingDiverged
+    from img2dmp.nn import Cost, trajectory_error_px
+    from img2dmp.nn.costs import dmp_trajectory
+    from img2dmp.training import train_step
+
+    a = load_dataset(small_data).select_split("train")
+    norm = ParamNormaliser.fit(a.params, a.dmp_config)
+    images, times = torch.as_tensor(a.images[:32]), torch.as_tensor(a.times[:32])
+    paths = torch.as_tensor(a.trajectories[:32])
+    z_t = norm.normalise(torch.as_tensor(a.params[:32], dtype=torch.float64)).float()
+    for name in ("parameter", "trajectory"):
+        model = build_model(ModelConfig(**TINY_MODEL), seed=0)
+        opt = torch.optim.Adam(model.parameters(), lr=2e-3)
+        cost = Cost(name, norm, a.dmp_config)
+        with torch.no_grad():  # the error it reports is that of the batch before the step
+            expected = trajectory_error_px(
+                dmp_trajectory(model(images), times, norm, a.dmp_config), paths
+            )
+        first = train_step(model, opt, cost, images, times, paths, z_t)
+        torch.testing.assert_close(first.error_px, expected, rtol=1e-5, atol=1e-6)
+        assert first.error_px.shape == (32,)
+        for _ in range(60):
+            last = train_step(model, opt, cost, images, times, paths, z_t, grad_clip=10.0)
+        assert last.cost < 0.6 * first.cost, name
+        assert float(last.error_px.mean()) < float(first.error_px.mean()), name
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    bad = images.clone()
+    bad[0, 0, 0] = float("nan")
+    with pytest.raises(TrainingDiverged, match="training cost is nan"):
+        train_step(model, opt, cost, bad, times, paths, z_t)
+    assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())
+
+
+def test_image_size_comes_from_the_data_and_the_config_is_not_changed(tmp_path, capsys):
+    from img2dmp.data.synthetic import SyntheticConfig
+
+    data = tmp_path / "d28.safetensors"
+    gen = SyntheticConfig(image_size=(28, 28), digits=(1, 7))
+    save_dataset(data, generate_dataset(20, gen, seed=1, progress=False))
+    cfg = TrainConfig.from_dict(
+        {
+            "model": {"encoder_layers": [32, 20], "decoder_layers": [35]},
+            "data": {"path": str(data)},
+            "optim": {"epochs": 2, "batch_size": 8},
+            "threads": 1,
+        }
+    )
+    before = cfg.to_dict()
+    res = train(cfg, tmp_path / "run")
+    assert cfg.to_dict() == before and cfg.model.image_size is None  # the caller's config
+    assert Predictor.load(tmp_path / "run").image_size == (28, 28)
+    # Not a terminal: one plain line per epoch on stderr, no bar redrawn with "\r".
+    err = capsys.readouterr().err
+    epoch_lines = [ln for ln in err.splitlines() if ln.startswith("epoch ")]
+    assert len(epoch_lines) == res.epochs_run == 2 and "\r" not in err
+    cfg.model.image_size = [40, 40]
+    with pytest.raises(ValueError, match=r"\[28, 28\] pixels but model.image_size is \[40, 40\]"):
+        train(cfg, tmp_path / "run2")

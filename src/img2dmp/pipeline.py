@@ -5,6 +5,9 @@ trains a small encoder-decoder network briefly with cost (10) (or (9)), evaluate
 in Table I and draws Fig.-4-style pictures. On a 2-core CPU it takes a few minutes. The
 error after so short a training is far from Table I's; it is printed as measured.
 
+The network and optimiser are the package's ``configs/demo.yaml`` (:func:`demo_config`),
+the one copy of the demo's configuration.
+
 Output directory::
 
     data.safetensors            the generated data set (train / validation / test split)
@@ -18,30 +21,25 @@ from __future__ import annotations
 import json
 import os
 import time
+from importlib import resources
 from pathlib import Path
 
-from .checkpoint import atomic_write_text
-from .evaluate import evaluate, format_table
-from .train import TrainConfig, train
+from ._files import atomic_write_text
+from .config import merge, parse_yaml
 
-#: Size of the demo's data set and length of its training (the CLI's defaults too).
+#: Size of the demo's data set (the CLI's default too).
 DEMO_SAMPLES_PER_DIGIT = 300
-DEMO_EPOCHS = 60
 
-#: The demo's network and optimiser. configs/demo.yaml holds the same as a file for
-#: ``img2dmp train --config``; tests/test_train.py checks that the two agree.
-DEMO_CONFIG = {
-    "model": {
-        "encoder": "fc",
-        "image_size": [40, 40],
-        "encoder_layers": [512, 256, 64, 20],
-        "decoder_layers": [35],
-        "activation": "relu",
-    },
-    "optim": {"lr": 1e-3, "batch_size": 64, "epochs": 60, "patience": 15, "schedule": "cosine"},
-    "cost": {"name": "trajectory"},
-    "threads": 1,
-}
+
+def demo_config() -> dict:
+    """The demo's training configuration, read from the package's ``configs/demo.yaml``."""
+    text = resources.files("img2dmp").joinpath("configs", "demo.yaml").read_text("utf-8")
+    return parse_yaml(text)
+
+
+#: The demo's training configuration (a mapping of TrainConfig fields) and its length.
+DEMO_CONFIG = demo_config()
+DEMO_EPOCHS = int(DEMO_CONFIG["optim"]["epochs"])
 
 
 def run_demo(
@@ -66,6 +64,8 @@ def run_demo(
         Training epochs.
     cost : str
         ``"trajectory"`` (eq. 10) or ``"parameter"`` (eq. 9).
+    progress : bool
+        Say what happens (stages on standard output, progress on standard error).
     overrides : dict, optional
         Merged into :data:`DEMO_CONFIG` section by section (e.g. a tinier model in tests).
 
@@ -74,39 +74,64 @@ def run_demo(
     dict
         The summary also written to ``summary.json``.
     """
-    from .data.store import save_dataset
-    from .data.synthetic import generate_dataset
-
+    if isinstance(samples_per_digit, bool) or int(samples_per_digit) < 10:
+        raise ValueError(
+            "samples_per_digit must be >= 10 (10 % of them make the test split), got "
+            f"{samples_per_digit!r}"
+        )
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
     say = print if progress else (lambda *a, **k: None)
+    t0 = time.perf_counter()
 
-    say(f"[1/4] generating {samples_per_digit} synthetic samples per digit ...")
-    data_path = out / "data.safetensors"
-    save_dataset(data_path, generate_dataset(samples_per_digit, seed=seed, progress=progress))
+    say(f"[1/4] generating {samples_per_digit} synthetic samples per digit ...", flush=True)
+    data_path = _generate(out, samples_per_digit, seed, progress)
     t_data = time.perf_counter() - t0
 
-    say(f"[2/4] training for {epochs} epochs with cost {cost!r} ...")
-    cfg_dict = json.loads(json.dumps(DEMO_CONFIG))
-    for section, values in (overrides or {}).items():
-        if isinstance(values, dict):
-            cfg_dict.setdefault(section, {}).update(values)
-        else:
-            cfg_dict[section] = values
-    cfg_dict.setdefault("data", {})["path"] = str(data_path)
-    cfg_dict["optim"]["epochs"] = int(epochs)
-    cfg_dict["cost"]["name"] = cost
-    cfg_dict["seed"] = int(seed)
-    cfg_dict["progress"] = progress
-    res = train(TrainConfig.from_dict(cfg_dict), out / "run", overwrite=True)
+    say(f"[2/4] training for {epochs} epochs with cost {cost!r} ...", flush=True)
+    cfg = _train_config(data_path, epochs, cost, seed, progress, overrides)
+    from .train import train
+
+    res = train(cfg, out / "run", overwrite=True)
     t_train = time.perf_counter() - t0 - t_data
 
-    say("[3/4] evaluating on the test split ...")
+    say("[3/4] evaluating on the test split ...", flush=True)
+    from .evaluate import evaluate, format_table
+
     ev = evaluate(out / "run", data_path, split="test", out_dir=out / "evaluation")
     say(format_table(ev, "trajectory error (px) on the test split"))
 
     say("[4/4] pictures: run/training_curve.png, evaluation/examples.png")
+    times = {"data": t_data, "train": t_train, "total": time.perf_counter() - t0}
+    summary = _summary(out, data_path, samples_per_digit, cost, res, ev, times)
+    m = ev["overall"]
+    say(
+        f"done in {times['total']:.0f} s: test error {m['mean']:.3f} +- {m['std']:.3f} px "
+        f"(mean +- std over {m['n']} samples) after {res.epochs_run} epochs (the paper's "
+        "Table I, fully trained: 0.23 px with cost 10, 0.40 px with cost 9)"
+    )
+    return summary
+
+
+def _generate(out: Path, samples_per_digit: int, seed: int, progress: bool) -> Path:
+    from .data.store import save_dataset
+    from .data.synthetic import generate_dataset
+
+    path = out / "data.safetensors"
+    save_dataset(path, generate_dataset(samples_per_digit, seed=seed, progress=progress))
+    return path
+
+
+def _train_config(data_path, epochs, cost, seed, progress, overrides):
+    from .training import TrainConfig
+
+    d = merge(demo_config(), overrides or {})
+    d = merge(d, {"data": {"path": str(data_path)}, "optim": {"epochs": int(epochs)}})
+    d = merge(d, {"cost": {"name": cost}, "seed": int(seed), "progress": bool(progress)})
+    return TrainConfig.from_dict(d)
+
+
+def _summary(out: Path, data_path: Path, samples_per_digit, cost, res, ev, times) -> dict:
     summary = {
         "data": str(data_path),
         "run_dir": str(out / "run"),
@@ -120,13 +145,7 @@ def run_demo(
         "cost": cost,
         "best_val_error_px": res.best_val_error_px,
         "test_error_px": {k: ev["overall"][k] for k in ("mean", "std", "median", "p95")},
-        "time_s": {"data": t_data, "train": t_train, "total": time.perf_counter() - t0},
+        "time_s": times,
     }
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=1) + "\n")
-    m = ev["overall"]
-    say(
-        f"done in {summary['time_s']['total']:.0f} s: test error {m['mean']:.3f} +- "
-        f"{m['std']:.3f} px (mean +- std over {m['n']} samples) after {res.epochs_run} "
-        f"epochs (the paper's Table I, fully trained: 0.23 px with cost 10, 0.40 px with cost 9)"
-    )
     return summary

@@ -31,6 +31,8 @@ ACTIVATIONS = {
 ENCODERS = ("fc", "conv")
 CONV_NORMS = ("none", "batch")
 INPUT_FILTERS = ("none", "impulse")
+#: The paper's input size (1600 inputs), used when a model is built without data.
+PAPER_IMAGE_SIZE = (40, 40)
 
 
 def _activation(name: str) -> nn.Module:
@@ -56,8 +58,9 @@ class ModelConfig:
     ----------
     encoder : {"fc", "conv"}
         ``"fc"``: the paper's fully connected encoder; ``"conv"``: :class:`ConvEncoder`.
-    image_size : [H, W]
-        Input image size in pixels (the paper: 40 x 40 = 1600 inputs).
+    image_size : [H, W] or None
+        Input image size in pixels (the paper: 40 x 40 = 1600 inputs). None (default):
+        taken from the data by training; :func:`build_model` alone reads it as 40 x 40.
     encoder_layers : list of int
         Widths of the fully connected encoder's layers, the last being the latent code
         (paper: 1500, 1300, 1000, 600, 200, 20). For ``"conv"`` only the last entry
@@ -85,7 +88,7 @@ class ModelConfig:
     """
 
     encoder: str = "fc"
-    image_size: list[int] = field(default_factory=lambda: [40, 40])
+    image_size: list[int] | None = None
     encoder_layers: list[int] = field(default_factory=lambda: [1500, 1300, 1000, 600, 200, 20])
     conv_channels: list[int] = field(default_factory=lambda: [16, 32, 64])
     conv_strides: list[int] | None = None
@@ -98,9 +101,10 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if self.encoder not in ENCODERS:
             raise ValueError(f"model.encoder must be one of {ENCODERS}, got {self.encoder!r}")
-        self.image_size = [int(s) for s in self.image_size]
-        if len(self.image_size) != 2 or min(self.image_size) < 4:
-            raise ValueError(f"model.image_size must be [H, W] >= 4, got {self.image_size!r}")
+        if self.image_size is not None:
+            self.image_size = [int(s) for s in self.image_size]
+            if len(self.image_size) != 2 or min(self.image_size) < 4:
+                raise ValueError(f"model.image_size must be [H, W] >= 4, got {self.image_size!r}")
         for name in ("encoder_layers", "conv_channels", "decoder_layers"):
             vals = [int(v) for v in getattr(self, name)]
             if any(v < 1 for v in vals):
@@ -269,15 +273,16 @@ def build_model(config: ModelConfig, seed: int | None = None) -> EncoderDecoder:
 
     ``seed`` makes the initial weights reproducible without touching the global RNG.
     """
+    size = config.image_size if config.image_size is not None else list(PAPER_IMAGE_SIZE)
     fork = torch.random.fork_rng(enabled=seed is not None)
     with fork:
         if seed is not None:
             torch.manual_seed(seed)
         if config.encoder == "fc":
-            enc = FullyConnectedEncoder(config.image_size, config.encoder_layers, config.activation)
+            enc = FullyConnectedEncoder(size, config.encoder_layers, config.activation)
         else:
             enc = ConvEncoder(
-                config.image_size,
+                size,
                 config.conv_channels,
                 config.encoder_layers[-1],
                 config.activation,

@@ -1,0 +1,240 @@
+"""What a training run is told: model, data, optimiser, cost (one config mechanism).
+
+Read from defaults, a YAML/TOML file and ``--set`` overrides by :func:`load_config`,
+which builds through :mod:`img2dmp.config` (typed, unknown keys refused, errors naming
+``section.field``). The resolved configuration is saved with every checkpoint, so a run
+can be resumed or its model rebuilt from it.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+from .. import config as _config
+from ..config import ConfigError, check_positive
+from ..nn.model import ModelConfig
+
+#: Learning-rate schedules, see :class:`OptimConfig`.
+SCHEDULES = ("none", "cosine", "step", "plateau")
+
+
+@dataclass
+class DataConfig:
+    """Where training examples come from.
+
+    Parameters
+    ----------
+    path : str or None
+        A stored data set (``img2dmp.data.store`` format). ``None``: use the generator.
+    generator : dict
+        Options passed to the on-the-fly synthetic generator (generator mode):
+        :class:`~img2dmp.data.synthetic.SyntheticConfig` fields and ``dmp_config``.
+    samples_per_epoch : int
+        Generator mode: fresh samples drawn for every epoch.
+    val_samples : int
+        Generator mode: size of the fixed validation set.
+    val_fraction : float
+        Stored mode: share of the training split held out for validation when the file
+        has no validation split (split = 1).
+    digits : list of int or None
+        Keep only these labels (Table I's "digit 2 only" row), or all.
+    augment : dict or None
+        On-the-fly augmentation of the training batches: a fresh random affine transform
+        of every image together with its trajectory (:mod:`img2dmp.data.affine`, the code
+        that made the data), with the DMP targets of cost (9) refitted to the moved path.
+        Keys are :class:`~img2dmp.data.affine.AffineRanges` fields, e.g.
+        ``{rotation_deg: [-3, 3], scale: [0.97, 1.03], translation_rel: [-0.02, 0.02],
+        shear_deg: [-3, 3]}``; a missing key means no change of that kind. The
+        validation split is never augmented. None (default): off.
+    """
+
+    path: str | None = None
+    generator: dict = field(default_factory=dict)
+    samples_per_epoch: int = 20000
+    val_samples: int = 1000
+    val_fraction: float = 0.1
+    digits: list[int] | None = None
+    augment: dict | None = None
+
+    def __post_init__(self) -> None:
+        for name in ("samples_per_epoch", "val_samples"):
+            if int(getattr(self, name)) < 1:
+                raise ConfigError(f"data.{name} must be >= 1, got {getattr(self, name)!r}")
+        if not 0 <= self.val_fraction < 1:
+            raise ConfigError(f"data.val_fraction must be in [0, 1), got {self.val_fraction!r}")
+        if self.digits is not None and (
+            not self.digits or any(not 0 <= int(d) <= 9 for d in self.digits)
+        ):
+            raise ConfigError(f"data.digits must be a non-empty list of 0-9, got {self.digits!r}")
+        self.augment_ranges()  # raises on a bad data.augment
+
+    def augment_ranges(self):
+        """The :class:`~img2dmp.data.affine.AffineRanges` of ``augment`` (None if off)."""
+        from ..data.affine import AffineRanges
+
+        if self.augment is None:
+            return None
+        if not isinstance(self.augment, dict):
+            raise ConfigError(f"data.augment must be a mapping or null, got {self.augment!r}")
+        ranges = AffineRanges.identity().to_dict()
+        ranges.update(self.augment)
+        try:
+            return AffineRanges.from_dict(ranges)
+        except (TypeError, ValueError) as e:
+            raise ConfigError(f"data.augment: {e}") from e
+
+
+@dataclass
+class OptimConfig:
+    """Adam and its learning-rate schedule.
+
+    ``schedule``: ``"none"``; ``"cosine"`` (to ``min_lr`` over ``epochs``); ``"step"``
+    (times ``gamma`` every ``step_size`` epochs); ``"plateau"`` (times ``gamma`` after
+    ``step_size`` epochs without a better validation error). ``patience``: early stopping
+    after that many epochs without a better validation trajectory error (0 = never).
+    ``grad_clip``: largest gradient norm (None = no clipping).
+    """
+
+    lr: float = 1e-3
+    weight_decay: float = 0.0
+    batch_size: int = 128
+    epochs: int = 100
+    patience: int = 20
+    schedule: str = "cosine"
+    step_size: int = 10
+    gamma: float = 0.5
+    min_lr: float = 1e-6
+    grad_clip: float | None = None
+
+    def __post_init__(self) -> None:
+        numbers = {"lr": float, "weight_decay": float, "batch_size": int, "epochs": int}
+        numbers |= {"patience": int, "step_size": int, "gamma": float, "min_lr": float}
+        for name, kind in numbers.items():
+            v = getattr(self, name)
+            ok = isinstance(v, (int, float)) if kind is float else isinstance(v, int)
+            if not ok or isinstance(v, bool):
+                raise ConfigError(f"optim.{name} must be a number ({kind.__name__}), got {v!r}")
+        check_positive("optim.lr", self.lr)
+        check_positive("optim.weight_decay", self.weight_decay, allow_zero=True)
+        check_positive("optim.min_lr", self.min_lr, allow_zero=True)
+        check_positive("optim.gamma", self.gamma)
+        if self.grad_clip is not None:
+            check_positive("optim.grad_clip", self.grad_clip)
+        if self.batch_size < 1 or self.epochs < 1 or self.patience < 0 or self.step_size < 1:
+            raise ConfigError(
+                "optim.batch_size, optim.epochs and optim.step_size must be >= 1 and "
+                f"optim.patience >= 0, got {self.batch_size!r}, {self.epochs!r}, "
+                f"{self.step_size!r}, {self.patience!r}"
+            )
+        if self.schedule not in SCHEDULES:
+            raise ConfigError(f"optim.schedule must be one of {SCHEDULES}, got {self.schedule!r}")
+
+
+@dataclass
+class CostConfig:
+    """``name``: ``"parameter"`` (eq. 9), ``"trajectory"`` (eq. 10) or ``"combined"``.
+
+    ``parameter_weighting``: per-unit weights of cost (9) (also inside ``combined``):
+    ``"none"`` (every normalised unit alike, the paper), ``"trajectory"`` (each unit
+    weighted by its mean squared trajectory sensitivity on the training set) or
+    ``"trajectory-full"`` (the mean Gauss-Newton matrix of cost 10 as the metric); computed
+    once before training and saved in the checkpoint, see
+    :class:`img2dmp.nn.costs.ParameterWeighting`. ``parameter_weight_floor``: smallest
+    weight (added to the diagonal for ``"trajectory-full"``), relative to their mean.
+
+    ``parameter_units``: what the network's weight outputs (and so cost 9's weight units)
+    are, before normalisation: ``"weights"`` (the w_k of eq. 8, the paper) or
+    ``"amplitudes"`` (``(g - y0) w_k``, the same DMP without the ``1 / (g - y0)``
+    singularity), see :mod:`img2dmp.nn.normalise`.
+    """
+
+    name: str = "trajectory"
+    parameter_weight: float = 1.0
+    trajectory_weight: float = 1.0
+    parameter_weighting: str = "none"
+    parameter_weight_floor: float = 1e-3
+    parameter_units: str = "weights"
+
+    def __post_init__(self) -> None:
+        from ..nn.costs import PARAMETER_WEIGHTINGS, canonical_cost_name
+        from ..nn.normalise import UNITS
+
+        self.name = canonical_cost_name(self.name)
+        check_positive("cost.parameter_weight", self.parameter_weight, allow_zero=True)
+        check_positive("cost.trajectory_weight", self.trajectory_weight, allow_zero=True)
+        if self.parameter_weighting not in PARAMETER_WEIGHTINGS:
+            raise ConfigError(
+                f"cost.parameter_weighting must be one of {PARAMETER_WEIGHTINGS}, got "
+                f"{self.parameter_weighting!r}"
+            )
+        if not 0 < float(self.parameter_weight_floor) <= 1:
+            raise ConfigError(
+                f"cost.parameter_weight_floor must be in (0, 1], got "
+                f"{self.parameter_weight_floor!r}"
+            )
+        if self.parameter_units not in UNITS:
+            raise ConfigError(
+                f"cost.parameter_units must be one of {UNITS}, got {self.parameter_units!r}"
+            )
+
+
+@dataclass
+class TrainConfig:
+    """Everything :func:`img2dmp.training.train` needs; read by :func:`load_config`.
+
+    ``model.image_size`` left out (None) is taken from the data. ``threads``: torch's
+    intra-op threads (None: torch's default). ``eval_batch_size``: images per validation
+    batch. ``progress``: bars on a terminal, a line per epoch otherwise.
+
+    ``init_from`` (CLI ``--init-from``): a run directory or checkpoint file whose weights
+    start this run instead of random ones (fine-tuning a pre-trained network). The
+    architecture, the image size and the DMP configuration (N, d, scaling) must match. The
+    checkpoint's output normalisation is **kept**, not refitted on the new data: the
+    network's last layer speaks in those units, so keeping them makes the first
+    fine-tuning step start from exactly the pre-trained network's predictions. Only the
+    weights are taken; the optimiser, schedule and epoch count start afresh.
+    """
+
+    model: ModelConfig = field(default_factory=ModelConfig)
+    data: DataConfig = field(default_factory=DataConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    cost: CostConfig = field(default_factory=CostConfig)
+    seed: int = 0
+    threads: int | None = None
+    eval_batch_size: int = 1024
+    progress: bool = True
+    init_from: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.threads is not None and self.threads < 1:
+            raise ConfigError(f"threads must be >= 1 or null, got {self.threads!r}")
+        if self.eval_batch_size < 1:
+            raise ConfigError(f"eval_batch_size must be >= 1, got {self.eval_batch_size!r}")
+        if self.seed < 0:
+            raise ConfigError(f"seed must be >= 0, got {self.seed!r}")
+
+    def to_dict(self) -> dict:
+        return _config.to_dict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> TrainConfig:
+        return _config.from_mapping(cls, dict(d or {}))
+
+
+def load_config(
+    path: str | os.PathLike | None = None, overrides: list[str] | None = None
+) -> TrainConfig:
+    """Defaults, then the file (if any), then the ``section.key=value`` overrides."""
+    return _config.load(TrainConfig, path, overrides)
+
+
+__all__ = [
+    "SCHEDULES",
+    "CostConfig",
+    "DataConfig",
+    "ModelConfig",
+    "OptimConfig",
+    "TrainConfig",
+    "load_config",
+]

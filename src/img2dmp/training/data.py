@@ -1,0 +1,229 @@
+"""Feeding a training run: its training and validation examples, and their augmentation.
+
+:class:`TrainingData` holds the validation split and hands out each epoch's training
+split, from a stored data set (the same samples every epoch) or from the on-the-fly
+generator (fresh samples every epoch, drawn from ``(seed, epoch)`` so that a resumed run
+sees the same ones). It also fits what the model keeps of its data: the output
+normalisation, cost (9)'s parameter weighting, and how the images frame their ink.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .._files import file_digest
+from ..data.images import ink_margin, typical_stroke_width
+from ..data.store import DigitData, load_dataset
+from ..dmp import DMPConfig
+from ..nn import ParamNormaliser
+from ..nn.costs import ParameterWeighting
+from .config import TrainConfig
+
+#: Validation images measured for the ink framing and pen width the model records.
+_FRAMING_SAMPLES = 500
+
+
+def generate_arrays(options: dict, n: int, seed: int, epoch: int = 0) -> DigitData:
+    """``n`` fresh synthetic samples for one epoch from the on-the-fly generator
+    (:class:`img2dmp.data.torch_data.SyntheticDigitStream`, seeded by ``(seed, epoch)``).
+
+    ``options`` are :class:`~img2dmp.data.synthetic.SyntheticConfig` fields plus an
+    optional ``dmp_config`` mapping.
+    """
+    from torch.utils.data import DataLoader
+
+    from ..data.synthetic import SyntheticConfig
+    from ..data.torch_data import SyntheticDigitStream
+
+    opts = dict(options)
+    dmp = DMPConfig.from_dict(opts.pop("dmp_config", {}) or {})
+    config = SyntheticConfig.from_dict(opts)
+    stream = SyntheticDigitStream(config, samples_per_epoch=int(n), seed=int(seed), dmp_config=dmp)
+    stream.set_epoch(int(epoch))
+    b = next(iter(DataLoader(stream, batch_size=int(n))))  # one batch = the whole epoch
+    return DigitData(
+        images=b["image"][:, 0].numpy(),  # [n, H, W]
+        trajectories=b["trajectory"].numpy(),  # [n, T, d]
+        times=b["times"].numpy(),  # [n, T]
+        labels=b["label"].numpy(),
+        params=b["params"].numpy(),  # [n, P]
+        fit_error_px=b["fit_error_px"].numpy(),
+        split=np.zeros(int(n), np.uint8),
+        meta={"dmp_config": dmp.to_dict(), "source": {"kind": "synthetic"}, "seed": int(seed)},
+    )
+
+
+@dataclass
+class Split:
+    """Examples as the training step takes them (float32 tensors)."""
+
+    images: torch.Tensor  # [M, H, W]
+    times: torch.Tensor  # [M, T]
+    trajectories: torch.Tensor  # [M, T, d]
+    z_target: torch.Tensor  # [M, P], normalised DMP vector (cost 9's target)
+
+    def __len__(self) -> int:
+        return int(self.images.shape[0])
+
+    @classmethod
+    def of(cls, a: DigitData, idx: np.ndarray, norm: ParamNormaliser) -> Split:
+        params = torch.as_tensor(a.params[idx], dtype=torch.float64)
+        return cls(
+            images=torch.as_tensor(a.images[idx], dtype=torch.float32),
+            times=torch.as_tensor(a.times[idx], dtype=torch.float32),
+            trajectories=torch.as_tensor(a.trajectories[idx], dtype=torch.float32),
+            z_target=norm.normalise(params).to(torch.float32),
+        )
+
+
+def _split_indices(a: DigitData, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Training and validation rows of a stored data set (labels filtered)."""
+    d = cfg.data
+    keep = np.ones(len(a.labels), dtype=bool)
+    if d.digits is not None:
+        keep = np.isin(a.labels, np.asarray(d.digits))
+    train_idx = np.flatnonzero(keep & (a.split == 0))
+    val_idx = np.flatnonzero(keep & (a.split == 1))
+    if len(val_idx) == 0:  # no validation split: hold out a share of the training split
+        perm = np.random.default_rng(cfg.seed).permutation(train_idx)
+        n_val = max(1, int(round(d.val_fraction * len(perm))))
+        val_idx, train_idx = np.sort(perm[:n_val]), np.sort(perm[n_val:])
+    if len(train_idx) < 2:
+        raise ValueError(
+            f"data set {d.path} has {len(train_idx)} training samples"
+            + (f" with labels {d.digits}" if d.digits is not None else "")
+            + "; need at least 2"
+        )
+    return train_idx, val_idx
+
+
+class TrainingData:
+    """Training and validation splits of a run, from a file or the generator.
+
+    Attributes
+    ----------
+    dmp_config : DMPConfig
+    image_size : [H, W]
+    normaliser : ParamNormaliser
+        Given (resume, fine-tuning) or fitted on the training samples.
+    fit_arrays : (params [M, P], times [M, T])
+        The training samples the normaliser and the parameter weighting are fitted on
+        (generator mode: epoch 0's).
+    val : Split
+    dataset_sha256 : str or None
+        Of the data-set file (stored mode).
+    ink_margin, stroke_width_px : float
+        How the images frame their ink and how wide the pen is, for preparing other
+        images alike (:func:`img2dmp.data.images.prepare_image`).
+    """
+
+    def __init__(self, cfg: TrainConfig, normaliser: ParamNormaliser | None = None):
+        self.cfg = cfg
+        self.dataset_sha256 = None
+        self._train: Split | None = None
+        self._first: DigitData | None = None
+        if cfg.data.path is not None:
+            self._from_file(cfg, normaliser)
+        else:
+            self._from_generator(cfg, normaliser)
+        sample = self.val.images[:_FRAMING_SAMPLES].numpy()
+        self.ink_margin = ink_margin(sample)
+        self.stroke_width_px = typical_stroke_width(sample)
+
+    def _from_file(self, cfg: TrainConfig, normaliser: ParamNormaliser | None) -> None:
+        a = load_dataset(cfg.data.path)
+        self.dmp_config = a.dmp_config
+        self.image_size = list(a.images.shape[1:])
+        self.dataset_sha256 = file_digest(cfg.data.path)
+        train_idx, val_idx = _split_indices(a, cfg)
+        self.normaliser = normaliser or ParamNormaliser.fit(
+            a.params[train_idx], self.dmp_config, cfg.cost.parameter_units
+        )
+        self.fit_arrays = (a.params[train_idx], a.times[train_idx])
+        self._train = Split.of(a, train_idx, self.normaliser)
+        self.val = Split.of(a, val_idx, self.normaliser)
+
+    def _from_generator(self, cfg: TrainConfig, normaliser: ParamNormaliser | None) -> None:
+        gen = dict(cfg.data.generator)
+        if cfg.data.digits is not None:
+            gen.setdefault("digits", list(cfg.data.digits))
+        self._generator = gen
+        # Validation: a fixed set from a stream no training epoch draws from.
+        val = generate_arrays(gen, cfg.data.val_samples, seed=cfg.seed + 1_000_003)
+        self.dmp_config = val.dmp_config
+        self.image_size = list(val.images.shape[1:])
+        first = self._generated(0)
+        self.normaliser = normaliser or ParamNormaliser.fit(
+            first.params, self.dmp_config, cfg.cost.parameter_units
+        )
+        self.fit_arrays = (first.params, first.times)
+        self.val = Split.of(val, np.arange(len(val.labels)), self.normaliser)
+        self._first = first
+
+    def _generated(self, epoch: int) -> DigitData:
+        n = self.cfg.data.samples_per_epoch
+        return generate_arrays(self._generator, n, seed=self.cfg.seed, epoch=epoch)
+
+    def train_for_epoch(self, epoch: int) -> Split:
+        """The training split of ``epoch`` (stored mode: always the same)."""
+        if self._train is not None:
+            return self._train
+        a = self._first if epoch == 0 and self._first is not None else self._generated(epoch)
+        self._first = None
+        return Split.of(a, np.arange(len(a.labels)), self.normaliser)
+
+    def parameter_weighting(self, stored: dict | None, resumed: bool) -> ParameterWeighting | None:
+        """Weights of cost (9): a resumed run's stored ones (a checkpoint without the record
+        was trained unweighted), else fitted on :attr:`fit_arrays` if the configuration
+        asks for them and the cost has a parameter term."""
+        c = self.cfg.cost
+        if stored is not None:
+            return ParameterWeighting.from_dict(stored)
+        if resumed or c.parameter_weighting == "none" or c.name == "trajectory":
+            return None
+        params, times = self.fit_arrays
+        return ParameterWeighting.fit(
+            params,
+            times,
+            self.normaliser,
+            self.dmp_config,
+            c.parameter_weight_floor,
+            kind=c.parameter_weighting,
+        )
+
+
+class Augmenter:
+    """Random affine transforms of a training batch (``data.augment``), image and path
+    together; refits the cost-(9) targets to the moved paths when the cost uses them."""
+
+    def __init__(self, ranges, normaliser: ParamNormaliser, dmp_config: DMPConfig, refit: bool):
+        self.ranges = ranges
+        self.normaliser = normaliser
+        self.dmp_config = dmp_config
+        self.refit = refit
+
+    @classmethod
+    def from_config(cls, cfg: TrainConfig, data: TrainingData) -> Augmenter | None:
+        ranges = cfg.data.augment_ranges()
+        if ranges is None:
+            return None
+        return cls(ranges, data.normaliser, data.dmp_config, cfg.cost.name != "trajectory")
+
+    def __call__(self, rng, images, times, trajectories, z_target):
+        """``(images, trajectories, z_target)`` moved by one fresh transform per sample."""
+        from ..data.affine import sample_affine, warp_images, warp_points
+        from ..dmp import fit_dmp
+
+        m = torch.as_tensor(sample_affine(rng, len(images), images.shape[-2:], self.ranges))
+        images = warp_images(images, m)
+        trajectories = warp_points(trajectories, m.to(trajectories.dtype))
+        if self.refit:
+            fit = fit_dmp(times, trajectories, self.dmp_config)
+            z_target = self.normaliser.normalise(fit.params.to_vector()).to(torch.float32)
+        return images, trajectories, z_target
+
+
+__all__ = ["Augmenter", "Split", "TrainingData", "generate_arrays"]

@@ -1,0 +1,69 @@
+"""What a run leaves for people: ``metrics.csv`` and ``training_curve.png``."""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from pathlib import Path
+
+from .._files import atomic_write_text, save_figure
+
+#: Columns of ``metrics.csv``, one row per epoch (:class:`~.state.EpochStats`).
+METRIC_FIELDS = (
+    "epoch",
+    "step",
+    "lr",
+    "train_cost",
+    "train_error_px",
+    "val_error_px",
+    "best_val_error_px",
+    "epoch_time_s",
+)
+
+
+def write_metrics_csv(path: str | os.PathLike, history: list[dict]) -> None:
+    """``history`` (one dict per epoch) as ``metrics.csv``, written atomically."""
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=METRIC_FIELDS, lineterminator="\n")
+    w.writeheader()
+    for row in history:
+        w.writerow({k: row.get(k, "") for k in METRIC_FIELDS})
+    atomic_write_text(path, buf.getvalue())
+
+
+def read_metrics_csv(path: str | os.PathLike) -> list[dict]:
+    """Rows of a ``metrics.csv`` as dicts of floats (``epoch``/``step`` as int)."""
+    with open(path, newline="", encoding="utf-8") as f:
+        rows = list(csv.DictReader(f))
+    out = []
+    for r in rows:
+        out.append({k: (int(v) if k in ("epoch", "step") else float(v)) for k, v in r.items()})
+    return out
+
+
+def plot_training_curve(path: str | os.PathLike, history: list[dict], title: str = "") -> Path:
+    """Train and validation trajectory error (px, log scale) per epoch, saved atomically."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+
+    ep = [r["epoch"] for r in history]
+    fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
+    ax.plot(ep, [r["train_error_px"] for r in history], label="train", color="tab:blue")
+    ax.plot(ep, [r["val_error_px"] for r in history], label="validation", color="tab:red")
+    ax.set_yscale("log")
+    ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+    ax.yaxis.set_minor_formatter(matplotlib.ticker.FormatStrFormatter("%.2g"))
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("mean trajectory error (px)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    if title:
+        ax.set_title(title, fontsize=9)
+    return save_figure(fig, path)
+
+
+__all__ = ["METRIC_FIELDS", "plot_training_curve", "read_metrics_csv", "write_metrics_csv"]

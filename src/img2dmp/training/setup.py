@@ -1,0 +1,179 @@
+"""Opening a run: a fresh start, a resumed run or a fine-tuning, resolved once.
+
+:func:`open_run` reads the configuration (the stored one when resuming), loads the data,
+checks that a resumed or initialising checkpoint fits them, builds the network, the
+optimiser, the schedule and the cost, and writes ``config.yaml``. What it returns,
+:class:`Run`, is everything the loop needs; only ``run.state`` changes afterwards.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+import yaml
+
+from .._files import atomic_write_text
+from ..checkpoint import CHECKPOINT_DIR, Checkpoint, load_checkpoint, load_weights_into
+from ..nn import Cost, ParamNormaliser, build_model
+from ..nn.costs import ParameterWeighting
+from .config import OptimConfig, TrainConfig
+from .data import Augmenter, TrainingData
+from .records import write_metrics_csv
+from .state import RunState
+
+
+@dataclass
+class Run:
+    """A training run being carried out: its fixed parts and its :class:`RunState`."""
+
+    cfg: TrainConfig  # resolved: image size and output count from the data
+    run_dir: Path
+    data: TrainingData
+    weighting: ParameterWeighting | None  # cost (9)'s per-unit weights
+    cost: Cost
+    augment: Augmenter | None
+    state: RunState
+    net: torch.nn.Module  # state.model, or its DistributedDataParallel wrapper
+    rank: int = 0
+    world: int = 1
+
+    @property
+    def show_progress(self) -> bool:
+        return self.cfg.progress and self.rank == 0
+
+
+def open_run(
+    config: TrainConfig,
+    run_dir: Path,
+    resume: bool = False,
+    overwrite: bool = False,
+    epochs: int | None = None,
+    rank: int = 0,
+    world: int = 1,
+) -> Run:
+    """Everything :func:`~.loop.fit` needs, from a configuration and a run directory."""
+    cfg, last = _configuration(config, run_dir, resume, overwrite, epochs)
+    if cfg.threads:
+        torch.set_num_threads(int(cfg.threads))
+    init = load_checkpoint(cfg.init_from) if last is None and cfg.init_from else None
+    data = TrainingData(cfg, _kept_normaliser(cfg, last or init))
+    _check_fits(cfg, data, last, init)
+    cfg = _resolved(cfg, data)
+    stored = last.meta.get("parameter_weighting") if last is not None else None
+    weighting = data.parameter_weighting(stored, resumed=last is not None)
+    model = build_model(cfg.model, seed=cfg.seed)
+    opt = torch.optim.Adam(model.parameters(), lr=cfg.optim.lr, weight_decay=cfg.optim.weight_decay)
+    state = RunState(model, opt, make_scheduler(opt, cfg.optim))
+    if init is not None:
+        load_weights_into(model, init)
+    if last is not None:
+        state.restore(last, cfg.optim.epochs)
+    c = cfg.cost
+    cost = Cost(
+        c.name, data.normaliser, data.dmp_config, c.parameter_weight, c.trajectory_weight, weighting
+    )
+    net = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
+    if rank == 0:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(run_dir / "config.yaml", yaml.safe_dump(cfg.to_dict(), sort_keys=False))
+        if state.history:
+            write_metrics_csv(run_dir / "metrics.csv", state.history_dicts())
+    augment = Augmenter.from_config(cfg, data)
+    return Run(cfg, run_dir, data, weighting, cost, augment, state, net, rank, world)
+
+
+def _configuration(config, run_dir, resume, overwrite, epochs):
+    """The run's configuration (a copy; the stored one to resume) and its last checkpoint."""
+    last_path = run_dir / CHECKPOINT_DIR / "last.safetensors"
+    if not resume:
+        if last_path.is_file() and not overwrite:
+            raise FileExistsError(
+                f"{run_dir} already holds a run; pass --resume to continue it or --overwrite"
+            )
+        cfg = copy.deepcopy(config)
+        if epochs is not None:
+            cfg.optim = _with_epochs(cfg.optim, epochs)
+        return cfg, None
+    if not last_path.is_file():
+        raise FileNotFoundError(f"cannot resume: {last_path} does not exist")
+    last = load_checkpoint(last_path)
+    cfg = TrainConfig.from_dict(last.meta["train_config"])
+    cfg.progress = config.progress
+    done = last.meta["epoch"] + 1
+    if epochs is not None:
+        if epochs <= done:
+            raise ValueError(
+                f"cannot resume to {epochs} epochs: the run in {run_dir} has already done {done}"
+            )
+        cfg.optim = _with_epochs(cfg.optim, epochs)
+    return cfg, last
+
+
+def _with_epochs(optim: OptimConfig, epochs: int) -> OptimConfig:
+    if isinstance(epochs, bool) or not isinstance(epochs, int) or epochs < 1:
+        raise ValueError(f"epochs must be an integer >= 1, got {epochs!r}")
+    o = copy.deepcopy(optim)
+    o.epochs = epochs
+    return o
+
+
+def _kept_normaliser(cfg: TrainConfig, ckpt: Checkpoint | None) -> ParamNormaliser | None:
+    """A resumed run keeps its normaliser, a fine-tuning the pre-trained one (its last
+    layer speaks those units); a fresh run fits its own (None)."""
+    if ckpt is None:
+        return None
+    normaliser = ParamNormaliser.from_dict(ckpt.meta["normaliser"])
+    if normaliser.units != cfg.cost.parameter_units:
+        raise ValueError(
+            f"cannot initialise from {ckpt.path}: its network outputs weight units "
+            f"{normaliser.units!r}, this run's cost.parameter_units is "
+            f"{cfg.cost.parameter_units!r}"
+        )
+    return normaliser
+
+
+def _check_fits(cfg: TrainConfig, data: TrainingData, last, init) -> None:
+    if init is not None and init.meta["dmp_config"] != data.dmp_config.to_dict():
+        raise ValueError(
+            f"cannot initialise from {init.path}: it was trained with DMP config "
+            f"{init.meta['dmp_config']}, the data set {cfg.data.path} has "
+            f"{data.dmp_config.to_dict()}"
+        )
+    if last is not None and cfg.data.path and last.meta["dataset"]["sha256"] != data.dataset_sha256:
+        raise ValueError(
+            f"cannot resume: data set {cfg.data.path} has changed since the run started "
+            f"(SHA-256 {data.dataset_sha256[:12]}... != {last.meta['dataset']['sha256'][:12]}...)"
+        )
+    size = cfg.model.image_size
+    if size is not None and list(size) != data.image_size:
+        raise ValueError(
+            f"the data's images are {data.image_size} pixels but model.image_size is {size} "
+            "(leave model.image_size out to take it from the data)"
+        )
+
+
+def _resolved(cfg: TrainConfig, data: TrainingData) -> TrainConfig:
+    """``cfg`` with the image size and the output count taken from the data."""
+    cfg = copy.deepcopy(cfg)
+    cfg.model.image_size = list(data.image_size)
+    cfg.model.n_outputs = data.dmp_config.n_params
+    return cfg
+
+
+def make_scheduler(opt: torch.optim.Optimizer, o: OptimConfig):
+    """The learning-rate schedule ``o.schedule`` of ``opt`` (None for ``"none"``)."""
+    if o.schedule == "cosine":
+        return torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=o.epochs, eta_min=o.min_lr)
+    if o.schedule == "step":
+        return torch.optim.lr_scheduler.StepLR(opt, step_size=o.step_size, gamma=o.gamma)
+    if o.schedule == "plateau":
+        return torch.optim.lr_scheduler.ReduceLROnPlateau(
+            opt, factor=o.gamma, patience=o.step_size, min_lr=o.min_lr
+        )
+    return None
+
+
+__all__ = ["Run", "make_scheduler", "open_run"]
