@@ -1,4 +1,4 @@
-"""benchmarks/hidden_ends.py: hidden pen ends of the first templates, none in the current."""
+"""experiments/hidden_ends.py: hidden pen ends of the first templates, none in the current."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ from img2dmp.data import synthetic as syn
 from img2dmp.data.synthetic import SyntheticConfig
 
 
-def test_closed_zero_hides_both_ends_and_sets_a_floor_the_open_one_does_not(benchmark_script):
-    mod = benchmark_script("hidden_ends")
+def test_closed_zero_hides_both_ends_and_sets_a_floor_the_open_one_does_not(experiment_script):
+    mod = experiment_script("hidden_ends")
     cfg, rng = SyntheticConfig(), np.random.default_rng(0)
     start, end, floor = mod.measure(mod.FIRST_TEMPLATES[0], cfg, 40, 16, rng)
     assert start == end == 1.0 and 0.4 < floor < 1.5

@@ -1,4 +1,4 @@
-"""benchmarks/mnist_experiments.py --quick on the real data (skipped when it is absent)."""
+"""experiments/mnist_experiments.py --quick on the real data (skipped when it is absent)."""
 
 from __future__ import annotations
 
@@ -16,10 +16,10 @@ RECORDED = DATA / "ijs-mnist-trajectories" / "trajectories.tar.gz"
 @pytest.mark.skipif(
     not RECORDED.exists(), reason=f"real data not found at {RECORDED} (see docs/MNIST.md)"
 )
-def test_quick_experiment_evaluates_the_test_split_and_resumes(tmp_path, capsys, benchmark_script):
+def test_quick_experiment_evaluates_the_test_split_and_resumes(tmp_path, capsys, experiment_script):
     from img2dmp.data.store import load_dataset
 
-    mod = benchmark_script("mnist_experiments")
+    mod = experiment_script("mnist_experiments")
     args = ["--quick", "--only", "35-cost10-tn", "--out", str(tmp_path), "--data", str(DATA)]
     args += ["--epochs", "1", "--set", "model.encoder_layers=[64,20]"]
     assert mod.main(args) == 0

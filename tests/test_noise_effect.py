@@ -1,4 +1,4 @@
-"""benchmarks/noise_effect.py: paired noisy/clean samples and the error it reports."""
+"""experiments/noise_effect.py: paired noisy/clean samples and the error it reports."""
 
 from __future__ import annotations
 
@@ -20,8 +20,8 @@ class _Shifted:
         return self.trajectories + salted[:, None, None] * np.float32([0.3, 0.4])
 
 
-def test_paired_samples_share_paths_and_differ_by_the_noise(benchmark_script):
-    mod = benchmark_script("noise_effect")
+def test_paired_samples_share_paths_and_differ_by_the_noise(experiment_script):
+    mod = experiment_script("noise_effect")
     labels = np.array([2, 2, 3, 7])
     noisy, clean = mod.paired_samples(labels, SyntheticConfig(), seed=5)
     np.testing.assert_array_equal(noisy.trajectories, clean.trajectories)

@@ -1,4 +1,4 @@
-"""benchmarks/mnist_timing_floor.py on made-up paths whose timing is known."""
+"""experiments/mnist_timing_floor.py on made-up paths whose timing is known."""
 
 from __future__ import annotations
 
@@ -32,8 +32,8 @@ def _data(profiles, split):
     )
 
 
-def test_one_shared_speed_profile_leaves_no_timing_error(benchmark_script):
-    mod = benchmark_script("mnist_timing_floor")
+def test_one_shared_speed_profile_leaves_no_timing_error(experiment_script):
+    mod = experiment_script("mnist_timing_floor")
     smooth = lambda u: 3 * u**2 - 2 * u**3  # noqa: E731
     floor = mod.timing_floor(_data([smooth] * 6, [0, 0, 0, 0, 2, 2]), ks=(2,))
     for name in ("mean profile", "per-digit mean", "2 nearest shapes"):
@@ -41,8 +41,8 @@ def test_one_shared_speed_profile_leaves_no_timing_error(benchmark_script):
     assert floor["constant speed"].mean() > 0.5  # the wrong law costs pixels
 
 
-def test_writers_with_different_speeds_leave_an_error_no_profile_removes(benchmark_script):
-    mod = benchmark_script("mnist_timing_floor")
+def test_writers_with_different_speeds_leave_an_error_no_profile_removes(experiment_script):
+    mod = experiment_script("mnist_timing_floor")
     fast_start, slow_start = (lambda u: np.sqrt(u)), (lambda u: u**2)
     data = _data([fast_start, slow_start] * 3 + [fast_start], [0] * 6 + [2])
     floor = mod.timing_floor(data, ks=(2,))

@@ -36,17 +36,19 @@ all ten digits <= 0.85 px.
 Resumable: a data file that exists is reused, an experiment whose ``result.json`` exists
 is skipped, an interrupted training continues from its last checkpoint. The table of every
 finished experiment is rewritten to ``OUT/results.md`` and ``OUT/results.json`` after each
-one.
+one. Every experiment's ``result.json`` records the date, the git revision and the command
+line of the run that made it; ``results.md`` lists them under the table.
 
-Usage::
+Usage (from the repository's root)::
 
-    python benchmarks/mnist_experiments.py --out runs/mnist               # everything
-    python benchmarks/mnist_experiments.py --out runs/mnist --only 35-cost10
-    python benchmarks/mnist_experiments.py --out /tmp/q --quick          # minutes: 30 paths
-                                                                          # per digit, 2 epochs
-    python benchmarks/mnist_experiments.py --out runs/mnist --table      # rewrite the table
+    python experiments/mnist_experiments.py --out runs/mnist               # everything
+    python experiments/mnist_experiments.py --out runs/mnist --only 35-cost10
+    python experiments/mnist_experiments.py --out /tmp/q --quick          # minutes: 30 paths
+                                                                           # per digit, 2 epochs
+    python experiments/mnist_experiments.py --out runs/mnist --table      # rewrite the table
 
-Results and what they say: docs/MNIST.md, "Experiments of issue 5".
+The experiments and their options: docs/MNIST.md, "Experiments of issue 5"; dated results
+and what they say: experiments/RESULTS.md.
 """
 
 from __future__ import annotations
@@ -59,6 +61,10 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+# isort: split
+# From this script's directory, which Python puts on sys.path when it runs a script.
+from _provenance import format_record, run_record
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data"
@@ -251,7 +257,7 @@ def time_normalise(src: Path, dst: Path, duration_s: float = TN_DURATION_S) -> P
         "duration_s": duration_s,
         "from": str(src),
         "from_sha256": file_digest(src),
-        "by": "benchmarks/mnist_experiments.py time_normalise",
+        "by": "experiments/mnist_experiments.py time_normalise",
     }
     meta["fit"] = dict(meta.get("fit") or {}, mean_error_px=float(fit.error_px.mean()))
     arrays = a.arrays()
@@ -341,8 +347,10 @@ def _metrics(run_dir: Path) -> dict:
     }
 
 
-def run_experiment(name: str, out: Path, args) -> dict:
-    """Prepare, (pre-)train and evaluate one experiment; its ``result.json`` as a dict."""
+def run_experiment(name: str, out: Path, args, record: dict) -> dict:
+    """Prepare, (pre-)train and evaluate one experiment; its ``result.json`` as a dict.
+    ``record``: this run's date, revision and command line (:func:`run_record`), kept in
+    the ``result.json`` of an experiment it finishes."""
     exp = EXPERIMENTS[name]
     exp_dir = out / name
     result_path = exp_dir / "result.json"
@@ -397,6 +405,7 @@ def run_experiment(name: str, out: Path, args) -> dict:
         "train_time_s": sum(s["train_time_s"] for s in stages.values()),
         "wall_time_s_this_session": time.perf_counter() - t0,
         "commands": commands,
+        "run": record,
     }
     result_path.write_text(json.dumps(row, indent=1) + "\n")
     return row
@@ -427,26 +436,28 @@ def results_table(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_results(out: Path) -> str:
-    """Collect every ``OUT/*/result.json`` into ``results.md`` and ``results.json``."""
+def write_results(out: Path, record: dict) -> str:
+    """Collect every ``OUT/*/result.json`` into ``results.md`` and ``results.json``;
+    ``record``: date, revision and command line of the run writing them."""
     rows = []
     for name in EXPERIMENTS:
         p = out / name / "result.json"
         if p.is_file():
             rows.append(json.loads(p.read_text()))
     table = results_table(rows)
-    cmd = f"python benchmarks/mnist_experiments.py --out {out} --only NAME"
+    cmd = f"python experiments/mnist_experiments.py --out {out} --only NAME"
+    made_by = "".join(f"- {r['experiment']}: {format_record(r.get('run', {}))}\n" for r in rows)
     (out / "results.md").write_text(
         f"Each row: `{cmd}` (the prepare / train / evaluate commands it ran are in "
         f"results.json). Test part of the fixed split; errors in px of the 28 x 28 image, "
         f"mean +- std (ddof 0) over the test samples. 'best val.': the validation error "
         f"of the checkpoint evaluated (early stopping); 'epochs (best)': epochs run and the "
         f"0-based epoch of that checkpoint; 'train time': sum of the epoch times (the "
-        f"machine was shared, so times vary by 2-4x).\n\n{table}"
+        f"machine was shared, so times vary by 2-4x).\n\n{table}\n"
+        f"Table written {format_record(record)}\n\nEach row made by:\n\n{made_by}"
     )
-    (out / "results.json").write_text(
-        json.dumps({"command": cmd, "experiments": rows}, indent=1) + "\n"
-    )
+    summary = {"command": cmd, "written": record, "experiments": rows}
+    (out / "results.json").write_text(json.dumps(summary, indent=1) + "\n")
     return table
 
 
@@ -465,16 +476,19 @@ def main(argv=None) -> int:
     p.add_argument(
         "--set", nargs="*", default=[], metavar="KEY=VALUE", help="training config overrides"
     )
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = p.parse_args(argv)
+    record = run_record(__file__, argv)
+    print(format_record(record), flush=True)
     if args.quick and not args.epochs:
         args.epochs = 2
     args.out.mkdir(parents=True, exist_ok=True)
     if args.table:
-        print(write_results(args.out))
+        print(write_results(args.out, record))
         return 0
     for name in args.only or list(EXPERIMENTS):
-        run_experiment(name, args.out, args)
-        print(write_results(args.out), flush=True)
+        run_experiment(name, args.out, args, record)
+        print(write_results(args.out, record), flush=True)
     return 0
 
 

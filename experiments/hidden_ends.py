@@ -17,18 +17,25 @@ overestimates):
   that knew all but the hidden angles could do no better than this on average (up to the
   difference between the mean and the best point under a Euclidean loss).
 
-Run: ``python benchmarks/hidden_ends.py [--samples 1000] [--redraws 64]``
+Run from the repository's root: ``python experiments/hidden_ends.py [--samples 1000]
+[--redraws 64]``. It prints the date, the git revision and its command line first, to go
+with its table in ``experiments/RESULTS.md``.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 
 import numpy as np
 
 from img2dmp.data import synthetic as syn
 from img2dmp.data.affine import sample_affine, warp_points
 from img2dmp.data.synthetic import Arc, DigitTemplate, Line, SyntheticConfig
+
+# isort: split
+# From this script's directory, which Python puts on sys.path when it runs a script.
+from _provenance import format_record, run_record
 
 # The templates of 0, 6, 8 and 9 before they were opened (the others did not change).
 FIRST_TEMPLATES = {
@@ -95,11 +102,13 @@ def main(argv=None) -> int:
     ap.add_argument("--samples", type=int, default=1000, help="samples per digit")
     ap.add_argument("--redraws", type=int, default=64, help="redraws of the hidden angles")
     ap.add_argument("--seed", type=int, default=0)
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = ap.parse_args(argv)
     if args.samples < 1 or args.redraws < 2:
         ap.error("--samples must be >= 1 and --redraws >= 2")
     config = SyntheticConfig()
     rng = np.random.default_rng(args.seed)
+    print(format_record(run_record(__file__, argv)))
     print(
         f"{args.samples} samples per digit; an end is hidden when the stroke passes within "
         f"{config.min_end_clearance_rel * config.image_size[0]:.1f} px of it"

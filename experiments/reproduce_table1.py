@@ -15,12 +15,14 @@ Data are built the paper's way with :mod:`img2dmp.data.synthetic`: 2,000 trainin
 samples per digit (plus 200 per digit for validation / early stopping) and a separate
 evaluation set of 2,000 per digit drawn with another seed. Every stage is resumable:
 data files and finished rows are kept, an interrupted row continues from its last
-checkpoint. Results go to ``OUT/results.json`` and ``OUT/results.md``.
+checkpoint. Results go to ``OUT/results.json`` and ``OUT/results.md``, with the date,
+the git revision and the command line of the run (and of the run that finished each row);
+dated tables are kept in ``experiments/RESULTS.md``.
 
-Usage::
+Usage (from the repository's root)::
 
-    python benchmarks/reproduce_table1.py --out runs/table1            # all three rows
-    python benchmarks/reproduce_table1.py --rows cost10 --epochs 20    # a shortened row
+    python experiments/reproduce_table1.py --out runs/table1            # all three rows
+    python experiments/reproduce_table1.py --rows cost10 --epochs 20    # a shortened row
 """
 
 from __future__ import annotations
@@ -37,6 +39,10 @@ from img2dmp.data.synthetic import generate_dataset
 from img2dmp.dmp import DMPConfig
 from img2dmp.evaluate import evaluate, format_table
 from img2dmp.train import TrainConfig, apply_overrides, read_config_file, train
+
+# isort: split
+# From this script's directory, which Python puts on sys.path when it runs a script.
+from _provenance import format_record, run_record
 
 ROOT = Path(__file__).resolve().parents[1]
 ROWS = {
@@ -70,7 +76,9 @@ def make_data(
     return train_path, eval_path
 
 
-def run_row(name: str, out: Path, train_path: Path, eval_path: Path, args) -> dict:
+def run_row(name: str, out: Path, train_path: Path, eval_path: Path, args, record: dict) -> dict:
+    """Train and evaluate one row (or read it back if done); ``record`` is this run's
+    date, revision and command (:func:`run_record`), kept with a row it finishes."""
     digits, cost, paper, target = ROWS[name]
     run_dir = out / name
     done = run_dir / "done.json"
@@ -108,12 +116,13 @@ def run_row(name: str, out: Path, train_path: Path, eval_path: Path, args) -> di
         "best_epoch": res.best_epoch,
         "train_time_s": prev,
         "this_session_s": time.perf_counter() - t0,
+        "run": record,
     }
     atomic_write_text(done, json.dumps(row, indent=1) + "\n")
     return row
 
 
-def write_results(out: Path, rows: list[dict], args, data_s: float) -> str:
+def write_results(out: Path, rows: list[dict], record: dict, data_s: float) -> str:
     lines = [
         "| data | cost | paper mean (px) | target | measured mean +- std (px) | median | p95 "
         "| epochs | train time |",
@@ -127,12 +136,13 @@ def write_results(out: Path, rows: list[dict], args, data_s: float) -> str:
             f"{r['train_time_s'] / 60:.1f} min |"
         )
     text = "\n".join(lines) + "\n"
-    cmd = "python benchmarks/reproduce_table1.py " + " ".join(sys.argv[1:])
-    atomic_write_text(out / "results.md", f"Command: `{cmd}`\n\n{text}")
+    finished = "".join(f"- {r['row']}: {format_record(r.get('run', {}))}\n" for r in rows)
     atomic_write_text(
-        out / "results.json",
-        json.dumps({"command": cmd, "rows": rows, "data_time_s": data_s}, indent=1) + "\n",
+        out / "results.md",
+        f"Table written {format_record(record)}\n\n{text}\nEach row finished by:\n\n{finished}",
     )
+    summary = {**record, "rows": rows, "data_time_s": data_s}
+    atomic_write_text(out / "results.json", json.dumps(summary, indent=1) + "\n")
     return text
 
 
@@ -158,14 +168,17 @@ def main(argv=None) -> int:
         metavar="KEY=VALUE",
         help="further config overrides, e.g. optim.lr=3e-4",
     )
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = p.parse_args(argv)
+    record = run_record(__file__, argv)
+    print(format_record(record), flush=True)
     t0 = time.perf_counter()
     train_path, eval_path = make_data(
         args.out / "data", args.samples_per_digit, args.val_per_digit, args.scaling
     )
     data_s = time.perf_counter() - t0
-    rows = [run_row(name, args.out, train_path, eval_path, args) for name in args.rows]
-    print(write_results(args.out, rows, args, data_s))
+    rows = [run_row(name, args.out, train_path, eval_path, args, record) for name in args.rows]
+    print(write_results(args.out, rows, record, data_s))
     return 0
 
 

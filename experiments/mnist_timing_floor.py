@@ -22,9 +22,12 @@ cannot, on average, beat the best of these by much: it would have to predict the
 speed from the shape better than the shapes' nearest neighbours do.
 
 Run on a prepared data set (``img2dmp prepare``), e.g. the duration-normalised one that
-``benchmarks/mnist_experiments.py`` builds::
+``experiments/mnist_experiments.py`` builds, from the repository's root::
 
-    python benchmarks/mnist_timing_floor.py runs/mnist/data/mnist35-tn.safetensors
+    python experiments/mnist_timing_floor.py runs/mnist/data/mnist35-tn.safetensors
+
+It prints the date, the git revision and its command line first, to go with its table in
+``experiments/RESULTS.md``.
 """
 
 from __future__ import annotations
@@ -36,6 +39,10 @@ import numpy as np
 
 from img2dmp.data.store import SPLITS, load_dataset
 from img2dmp.evaluate import arc_fractions, points_at_fractions
+
+# isort: split
+# From this script's directory, which Python puts on sys.path when it runs a script.
+from _provenance import format_record, run_record
 
 
 def timing_floor(data, ks=(5, 20, 50)) -> dict[str, np.ndarray]:
@@ -97,7 +104,9 @@ def timing_floor(data, ks=(5, 20, 50)) -> dict[str, np.ndarray]:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("data", nargs="+", help="prepared data-set files (.safetensors)")
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = p.parse_args(argv)
+    print(format_record(run_record(__file__, argv)))
     for path in args.data:
         data = load_dataset(path)
         n_test = int((data.split == SPLITS["test"]).sum())

@@ -5,9 +5,11 @@ once without. The paths and everything else are identical: the noise is the gene
 last random draw. Reports the network's Table I error on both sets, and how far
 :class:`~img2dmp.nn.model.ImpulseFilter` brings the noisy images back to the clean ones
 (root mean square over pixels). A model trained with ``model.input_filter: impulse``
-applies the filter itself, so its "noisy" row already includes it.
+applies the filter itself, so its "noisy" row already includes it. Prints the date, the
+git revision and its command line first, to go with its numbers in
+``experiments/RESULTS.md``. From the repository's root:
 
-    python benchmarks/noise_effect.py runs/d2_2000/digit2_cost9 --digits 2
+    python experiments/noise_effect.py runs/d2_2000/digit2_cost9 --digits 2
 """
 
 from __future__ import annotations
@@ -24,6 +26,10 @@ from img2dmp.evaluate import error_statistics
 from img2dmp.nn.costs import trajectory_error_px
 from img2dmp.nn.model import ImpulseFilter
 from img2dmp.predict import Predictor
+
+# isort: split
+# From this script's directory, which Python puts on sys.path when it runs a script.
+from _provenance import format_record, run_record
 
 
 def paired_samples(labels, config: SyntheticConfig, seed: int):
@@ -56,7 +62,9 @@ def main(argv=None) -> int:
     p.add_argument("--digits", type=int, nargs="+", default=list(range(10)))
     p.add_argument("--per-digit", type=int, default=500)
     p.add_argument("--seed", type=int, default=7)
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = p.parse_args(argv)
+    print(format_record(run_record(__file__, argv)))
     predictor = Predictor.load(args.model)
     labels = np.repeat(np.asarray(args.digits), args.per_digit)
     config = SyntheticConfig(digits=tuple(sorted(set(args.digits))))

@@ -1,0 +1,53 @@
+"""When, at which revision and by which command an experiment ran, to go with its results.
+
+A dated table in ``experiments/RESULTS.md`` can be traced when the run that made it
+recorded these three things beside its numbers. The experiment scripts import this
+module from their own directory (Python puts a script's directory on ``sys.path``).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import shlex
+import subprocess
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def git_revision(root: Path = ROOT) -> str:
+    """``git rev-parse --short HEAD`` in ``root``, or ``"unknown"`` without git or a repository."""
+    try:
+        proc = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return proc.stdout.strip() or "unknown"
+
+
+def run_record(script: str, argv: list[str]) -> dict[str, str]:
+    """``{"date", "revision", "command"}`` of this run of ``experiments/<script>``.
+
+    ``date`` is UTC, ISO 8601 to the second; ``command`` is the command line that
+    repeats the run from the repository's root, with ``argv`` as given.
+    """
+    return {
+        "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "revision": git_revision(),
+        "command": shlex.join(["python", f"experiments/{Path(script).name}", *argv]),
+    }
+
+
+def format_record(record: dict) -> str:
+    """One line for a results file or the terminal (results made before runs were recorded
+    have an empty record)."""
+    if not record:
+        return "date, revision and command not recorded"
+    date, rev, cmd = (record.get(k, "unknown") for k in ("date", "revision", "command"))
+    return f"{date}, revision {rev}: `{cmd}`"
