@@ -335,7 +335,7 @@ def _finished(run_dir: Path) -> bool:
 
 
 def _metrics(run_dir: Path) -> dict:
-    from img2dmp.train import read_metrics_csv
+    from img2dmp.training import read_metrics_csv
 
     rows = read_metrics_csv(run_dir / "metrics.csv")
     best = min(rows, key=lambda r: r["val_error_px"])

@@ -34,11 +34,12 @@ import time
 from pathlib import Path
 
 from img2dmp.checkpoint import atomic_write_text
+from img2dmp.config import apply_overrides, read_config_file
 from img2dmp.data.store import load_dataset, save_dataset
 from img2dmp.data.synthetic import generate_dataset
 from img2dmp.dmp import DMPConfig
 from img2dmp.evaluate import evaluate, format_table
-from img2dmp.train import TrainConfig, apply_overrides, read_config_file, train
+from img2dmp.training import TrainConfig, train
 
 # isort: split
 # From this script's directory, which Python puts on sys.path when it runs a script.

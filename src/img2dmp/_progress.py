@@ -80,8 +80,9 @@ class _Lines:
         self._closed = True
         if self._report and self.n > self._start_n:
             done = self.n - self._start_n
+            unit = self.unit if done == 1 or self.unit.endswith("s") else f"{self.unit}s"
             tail = f" ({self._postfix})" if self._postfix else ""
-            say(f"{self.desc}: {done} {self.unit} in {time.perf_counter() - self._t0:.1f} s{tail}")
+            say(f"{self.desc}: {done} {unit} in {time.perf_counter() - self._t0:.1f} s{tail}")
 
 
 def bar(

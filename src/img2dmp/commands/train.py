@@ -1,6 +1,6 @@
 """Train the encoder-decoder network on a stored data set or the on-the-fly generator.
 
-Settings (img2dmp.train.TrainConfig: model, data, optim, cost, seed ...) come from the
+Settings (img2dmp.training.TrainConfig: model, data, optim, cost, seed ...) come from the
 defaults, then --config FILE (YAML, TOML or JSON), then the shortcuts --data (data.path),
 --cost (cost.name), --digits (data.digits), --seed, --init-from (init_from) and
 --no-progress (progress), then --set section.key=value overrides, in order; unknown keys

@@ -103,8 +103,7 @@ def run(args) -> int:
     if not available():
         print(f"img2dmp write: error: {INSTALL_HINT}", file=sys.stderr)
         return 2
-    from tqdm import tqdm
-
+    from img2dmp._progress import bar as progress_bar
     from img2dmp.robot import (
         ControllerConfig,
         SceneConfig,
@@ -122,8 +121,8 @@ def run(args) -> int:
     os.makedirs(args.out_dir, exist_ok=True)
     for name, params, config, size, image in _inputs(args):
         est_steps = int((float(params.tau) + 2.0) * args.rate_hz)
-        with tqdm(
-            total=est_steps, unit="step", desc=f"writing {name}", disable=args.no_progress
+        with progress_bar(
+            total=est_steps, unit="step", desc=f"writing {name}", enabled=not args.no_progress
         ) as bar:
             try:
                 result = write_dmp(

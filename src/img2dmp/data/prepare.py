@@ -35,8 +35,8 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.nn.functional as F
-from tqdm.auto import tqdm
 
+from .._progress import bar as progress_bar
 from ..dmp import DMPConfig, DMPParams, fit_dmp, rollout
 from .affine import AffineRanges, sample_affine, warp_images, warp_points
 from .mnist import load_mnist
@@ -255,7 +255,7 @@ def fit_paths(
     """
     m = len(paths)
     parts = []
-    bar = tqdm(total=m, desc="fit DMPs", unit="path", disable=not progress)
+    bar = progress_bar(total=m, desc="fit DMPs", unit="path", enabled=progress)
     for lo in range(0, m, _FIT_CHUNK):
         t = np.asarray(times[lo : lo + _FIT_CHUNK], dtype=np.float64)  # [B, T]
         y = np.asarray(paths[lo : lo + _FIT_CHUNK], dtype=np.float64)  # [B, T, d]
@@ -379,7 +379,7 @@ def _strokes_raw(strokes_dir: Path, mnist_dir: Path, opt: PrepareOptions, progre
     times, paths, imgs, labs, idxs, msplit, split = [], [], [], [], [], [], []
     n_strokes = np.zeros(10, np.int64)
     for ms, images, digits in parts:
-        for s in tqdm(digits, desc=f"time strokes ({ms})", unit="digit", disable=not progress):
+        for s in progress_bar(digits, desc=f"time strokes ({ms})", unit="digit", enabled=progress):
             t, xyp = time_strokes(s.strokes, opt.n_times, opt.speed_profile)
             times.append(t)
             paths.append(xyp[:, : opt.n_dims])
@@ -437,7 +437,7 @@ def prepare_dataset(
     mnist_dir, recorded_path, strokes_dir : path-like, optional
         Override one location.
     progress : bool
-        tqdm progress bars.
+        progress bars (one line each when not on a terminal).
 
     Returns
     -------
@@ -504,7 +504,8 @@ def _augment(images, paths, raw_split, options: PrepareOptions, progress: bool):
     mats = sample_affine(rng, len(src), options.image_size, options.affine)  # [A, 2, 3]
     aug_images = np.empty((len(src), options.image_size, options.image_size), np.float32)
     chunk = 4096  # bounds the memory of the warp
-    for lo in tqdm(range(0, len(src), chunk), desc="augment", unit="chunk", disable=not progress):
+    chunks = range(0, len(src), chunk)
+    for lo in progress_bar(chunks, desc="augment", unit="chunk", enabled=progress):
         sl = slice(lo, lo + chunk)
         aug_images[sl] = warp_images(images[src[sl]], mats[sl]).clamp(0.0, 1.0).numpy()
     aug_paths = warp_points(paths[src], mats)
