@@ -506,3 +506,16 @@ def test_image_size_comes_from_the_data_and_the_config_is_not_changed(tmp_path, 
     cfg.model.image_size = [40, 40]
     with pytest.raises(ValueError, match=r"\[28, 28\] pixels but model.image_size is \[40, 40\]"):
         train(cfg, tmp_path / "run2")
+
+
+def test_a_diverging_run_ends_with_one_line_and_exit_2(small_data, tmp_path, capsys):
+    args = ["train", "--data", str(small_data), "--run-dir", str(tmp_path / "run")]
+    args += ["--epochs", "3", "--no-progress", "--set", "optim.lr=1e30", "threads=1"]
+    args += ["optim.batch_size=16", f"model.encoder_layers={TINY_MODEL['encoder_layers']}"]
+    assert cli.main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "training diverged" in err[0] and "optim.lr" in err[0], err
+    assert "Traceback" not in "\n".join(err)
+    # it says truthfully whether an earlier epoch's checkpoint exists
+    best = tmp_path / "run" / "checkpoints" / "best.safetensors"
+    assert ("is kept" in err[0]) == best.is_file()

@@ -106,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_config(args.config, overrides(args))
     res = train(cfg, args.run_dir, resume=args.resume, overwrite=args.overwrite, epochs=args.epochs)
     print(
-        f"{res.epochs_run} epochs in {res.wall_s:.1f} s; best validation trajectory error "
+        f"{res.epochs_run} epoch{'s' if res.epochs_run != 1 else ''} in {res.wall_s:.1f} s; "
+        "best validation trajectory error "
         f"{res.best_val_error_px:.4f} px (epoch {res.best_epoch}); run in {res.run_dir}"
     )
     return 0
