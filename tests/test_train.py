@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -295,26 +297,19 @@ def test_torchrun_two_processes_match_one(small_data, tmp_path):
     env = dict(
         os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"), OMP_NUM_THREADS="1"
     )
-    out = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "torch.distributed.run",
-            "--standalone",
-            "--nproc_per_node",
-            "2",
-            "-m",
-            "img2dmp.cli",
-            *args,
-            "--run-dir",
-            str(tmp_path / "ddp"),
-        ],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
-    assert out.returncode == 0, out.stderr[-2000:]
+    torchrun = [sys.executable, "-m", "torch.distributed.run", "--standalone"]
+    torchrun += ["--nproc_per_node", "2", "--tee", "3", "-m", "img2dmp.cli", *args]
+    run = [*torchrun, "--run-dir", str(tmp_path / "ddp")]
+    out = subprocess.run(run, env=env, capture_output=True, text=True, timeout=120)
+    if out.returncode != 0 and "(SIGABRT)" in out.stderr:
+        # Once in CI (never in 40 runs by hand) gloo aborted a rank with SIGABRT before any
+        # Python error; a second try tells such a flake of the transport from a failure of
+        # ours, and the first attempt's output stays in the warning.
+        warnings.warn(f"torchrun: a rank aborted, again:\n{out.stderr[-4000:]}", stacklevel=1)
+        shutil.rmtree(tmp_path / "ddp", ignore_errors=True)
+        out = subprocess.run(run, env=env, capture_output=True, text=True, timeout=120)
+    ranks = "\n".join(ln for ln in out.stderr.splitlines() if ln.startswith(("[0]", "[1]")))
+    assert out.returncode == 0, (ranks or out.stderr)[-4000:]
     assert cli.main([*args, "--run-dir", str(tmp_path / "one")]) == 0
     ddp = read_metrics_csv(tmp_path / "ddp" / "metrics.csv")
     one = read_metrics_csv(tmp_path / "one" / "metrics.csv")
