@@ -198,3 +198,89 @@ def test_path_error_ignores_timing_but_not_shape():
     assert abs(both[1] - 1.0) < 0.05  # but it sees a 1 px shift
     with pytest.raises(ValueError, match="shape"):
         path_error_px(even, uneven)
+
+
+PATH_MEASURES = ("chamfer", "on_ink", "on_ink_human", "start_error", "area_ratio", "width_ratio")
+PER_SAMPLE = (
+    "chamfer_px",
+    "on_ink_shares",
+    "on_ink_human_shares",
+    "start_errors_px",
+    "area_ratios",
+    "width_ratios",
+)
+
+
+def test_evaluate_reports_the_timing_free_path_measures(model_and_data, tmp_path):
+    run, data_path = model_and_data
+    res = evaluate(run, data_path, split="test", out_dir=tmp_path, n_figures=0)
+    labels = load_dataset(data_path).select_split("test").labels
+    n = res["overall"]["n"]
+    for key in PATH_MEASURES:
+        assert set(res[key]) == {"overall", "per_digit"}, key
+    for key in PER_SAMPLE:
+        assert len(res[key]) == n, key
+    human = np.array(res["on_ink_human_shares"])
+    model = np.array(res["on_ink_shares"])
+    assert np.all((human >= 0) & (human <= 1)) and np.all((model >= 0) & (model <= 1))
+    assert res["on_ink_human"]["overall"]["mean"] > 0.9  # the images were drawn from them
+    assert np.all(np.array(res["chamfer_px"]) >= 0) and np.all(
+        np.array(res["start_errors_px"]) >= 0
+    )
+    assert res["on_ink"]["overall"]["mean"] == pytest.approx(model.mean())
+    closed = np.isin(labels, (0, 6, 8, 9))
+    assert set(res["area_ratio"]["per_digit"]) == {str(d) for d in np.unique(labels[closed])}
+    assert all(r is None for r, c in zip(res["area_ratios"], closed, strict=True) if not c)
+    assert all(r > 0 for r, c in zip(res["area_ratios"], closed, strict=True) if c)
+    assert res["area_ratio"]["overall"]["n"] == closed.sum()
+    assert res["hypotheses"] == 1 and "best_of_k" not in res and res["pen_never_down"] == 0
+    saved = json.loads((tmp_path / "evaluation.json").read_text())
+    assert saved["chamfer"] == res["chamfer"] and saved["area_ratios"] == res["area_ratios"]
+    text = (tmp_path / "evaluation.txt").read_text()
+    assert text.startswith("trajectory error") and "path measures" in text
+    assert len([ln for ln in text.splitlines() if ln.split()[:1] == ["all"]]) == 2
+
+
+class _ThreeGuesses:
+    """A stand-in predictor with K = 3 hypotheses: the most probable is the demonstration
+    shifted 2 px to the right, then the demonstration itself, then it backwards."""
+
+    def __init__(self, data):
+        self.data = data
+        self.image_size = tuple(data.image_size)
+        self.dmp_config = data.dmp_config
+        self.meta = {}
+
+    def hypothesis_trajectories(self, images, times, batch_size):
+        assert np.array_equal(images, self.data.images) and batch_size > 0
+        demo = self.data.trajectories.astype(np.float64)  # [M, T, 2]
+        shifted = demo + [2.0, 0.0]
+        y = np.stack([shifted, demo, demo[:, ::-1]], axis=1)  # [M, 3, T, 2]
+        return y, np.tile([0.5, 0.2, 0.3], (len(demo), 1))
+
+
+def test_best_of_k_hypotheses_finds_the_demonstration(model_and_data, tmp_path):
+    _, data_path = model_and_data
+    stand_in = _ThreeGuesses(load_dataset(data_path).select_split("test"))
+    res = evaluate(stand_in, data_path, split="test", out_dir=tmp_path, n_figures=2)
+    assert res["hypotheses"] == 3
+    # the table reports the most probable hypothesis: 2 px off everywhere
+    assert res["overall"]["mean"] == pytest.approx(2.0, abs=1e-5)
+    assert 0.1 < res["chamfer"]["overall"]["mean"] <= 2.0 + 1e-9  # each point has one 2 px off
+    best = res["best_of_k"]
+    assert best["k"] == 3 and best["top_is_best"] == 0.0
+    assert set(best["top_hypothesis"]) == {0} and set(best["best_hypothesis"]) == {1}
+    assert best["trajectory_error"]["overall"]["max"] == pytest.approx(0.0, abs=1e-6)
+    assert best["path_error"]["overall"]["max"] == pytest.approx(0.0, abs=1e-6)
+    assert best["chamfer"]["overall"]["max"] == pytest.approx(0.0, abs=1e-6)
+    assert len(best["errors_px"]) == res["overall"]["n"]
+    assert "best of K = 3" in format_table(res)
+    assert json.loads((tmp_path / "evaluation.json").read_text())["best_of_k"] == best
+
+
+def test_hypothesis_metrics_checks_its_shapes():
+    from img2dmp.evaluate import hypothesis_metrics
+
+    y = np.zeros((4, 2, 10, 2))
+    with pytest.raises(ValueError, match="probs"):
+        hypothesis_metrics(y, np.ones((4, 3)), y[:, 0], np.zeros((4, 8, 8)), np.arange(4))

@@ -8,10 +8,22 @@ training validates with). Over samples we report the mean and standard deviation
 95th percentile, overall and per digit. :func:`evaluate` writes them as JSON and a text
 table and draws Fig.-4-style pictures: image, demonstrated path in blue, DMP path in red.
 
-Beside Table I's metric it reports a timing-free *path error* (:func:`path_error_px`):
-both paths resampled at evenly spaced arc lengths and compared point by point. It
-separates the shape from the writer's speed, which an image does not show (on recorded
-human paths the timing alone can cost more than a pixel, see docs/MNIST.md).
+Beside Table I's metric it reports measures that ignore the writer's speed, which an
+image does not show (on recorded human paths the timing alone can cost more than a
+pixel, see docs/MNIST.md), all from :mod:`img2dmp.metrics`, overall and per digit:
+
+- ``path_error``: both paths resampled by arc length and compared point by point;
+- ``chamfer``: symmetric Chamfer distance, free of order and direction;
+- ``on_ink`` / ``on_ink_human``: share of the network's / the demonstration's path on
+  the image's ink (the demonstration's share is the human reference);
+- ``start_error``: distance between where the two paths start writing;
+- ``area_ratio``: enclosed area of the network's path over the demonstration's, for the
+  closed digits (:data:`~img2dmp.metrics.CLOSED_DIGITS`; its median is the headline);
+- ``width_ratio``: horizontal extent of the network's path over the demonstration's.
+
+A network with several hypotheses per image (``predictor.hypothesis_trajectories``) is
+judged on its most probable one; ``best_of_k`` adds, per sample, the smallest Table I,
+path and Chamfer errors over all K hypotheses (:func:`hypothesis_metrics`).
 """
 
 from __future__ import annotations
@@ -26,6 +38,17 @@ import torch
 
 from .checkpoint import atomic_write_text, file_digest
 from .data.store import SPLITS, load_dataset
+from .metrics import (  # noqa: F401  (arc_fractions, points_at_fractions: re-exported)
+    CLOSED_DIGITS,
+    arc_fractions,
+    area_ratio,
+    chamfer_px,
+    on_ink_share,
+    path_error_px,
+    points_at_fractions,
+    start_error_px,
+    width_ratio,
+)
 from .nn.costs import trajectory_error_px
 from .predict import Predictor
 
@@ -45,46 +68,6 @@ def error_statistics(errors_px) -> dict:
     }
 
 
-def path_error_px(y_a, y_b, n_points: int = 64) -> np.ndarray:
-    """Timing-free distance ``[M]`` (px) between paths ``[M, T, >=2]`` (x, y used).
-
-    Each path is resampled at ``n_points`` evenly spaced arc lengths (from its start to
-    its end, linear interpolation) and the mean Euclidean distance between corresponding
-    points is returned. Two paths that trace the same curve at different speeds have
-    path error 0 (up to the resampling), where Table I's error would not.
-    """
-    a = np.asarray(y_a, dtype=np.float64)[..., :2]
-    b = np.asarray(y_b, dtype=np.float64)[..., :2]
-    if a.shape != b.shape or a.ndim != 3:
-        raise ValueError(f"paths must both have shape [M, T, 2+], got {a.shape} and {b.shape}")
-    diff = _by_arc_length(a, n_points) - _by_arc_length(b, n_points)
-    return np.linalg.norm(diff, axis=-1).mean(-1)
-
-
-def arc_fractions(paths) -> np.ndarray:
-    """Share ``[M, T]`` of each path's length ``[M, T, 2]`` covered at each of its points."""
-    paths = np.asarray(paths, dtype=np.float64)
-    seg = np.linalg.norm(np.diff(paths, axis=1), axis=-1)
-    length = np.concatenate([np.zeros((len(paths), 1)), np.cumsum(seg, axis=1)], axis=1)
-    return length / np.maximum(length[:, -1:], 1e-12)
-
-
-def points_at_fractions(path, fractions_of_path, fractions) -> np.ndarray:
-    """Points ``[K, 2]`` of one path ``[T, 2]`` (arc fractions ``[T]``) at ``fractions``.
-
-    Linear interpolation along the path; points where the pen did not move are skipped.
-    """
-    keep = np.concatenate([[True], np.diff(fractions_of_path) > 0])  # np.interp: increasing
-    f = fractions_of_path[keep]
-    return np.stack([np.interp(fractions, f, path[keep, k]) for k in range(2)], axis=-1)
-
-
-def _by_arc_length(paths: np.ndarray, n: int) -> np.ndarray:
-    lam = arc_fractions(paths)
-    grid = np.linspace(0.0, 1.0, n)
-    return np.stack([points_at_fractions(p, f, grid) for p, f in zip(paths, lam, strict=True)])
-
-
 def summarise(errors_px, labels) -> dict:
     """Statistics overall and per digit label (keys ``"0"`` .. ``"9"`` present in ``labels``)."""
     e = np.asarray(errors_px, dtype=np.float64)
@@ -94,7 +77,8 @@ def summarise(errors_px, labels) -> dict:
 
 
 def format_table(summary: dict, title: str = "trajectory error (px)") -> str:
-    """A plain-text table of :func:`summarise`'s output."""
+    """A plain-text table of :func:`summarise`'s output; for a result of :func:`evaluate`
+    (or :func:`hypothesis_metrics`) followed by :func:`format_metrics_table`'s."""
     head = f"{'digit':>7} {'n':>6} {'mean':>8} {'std':>8} {'median':>8} {'p95':>8} {'max':>8}"
     lines = [title, head, "-" * len(head)]
 
@@ -113,7 +97,214 @@ def format_table(summary: dict, title: str = "trajectory error (px)") -> str:
     if summary.get("path_error"):
         lines.append(row("path", summary["path_error"]["overall"]))
         lines.append("(path: timing-free error, both paths resampled by arc length)")
+    if "chamfer" in summary:
+        lines += ["", format_metrics_table(summary)]
     return "\n".join(lines)
+
+
+def _cell(stats: dict | None, key: str, width: int, scale: float = 1.0, digits: int = 4) -> str:
+    value = None if not stats or not stats.get("n") else stats.get(key)
+    return f"{'-':>{width}}" if value is None else f"{value * scale:>{width}.{digits}f}"
+
+
+def format_metrics_table(result: dict) -> str:
+    """The path measures of :func:`evaluate` per digit and overall, one line each.
+
+    Columns: samples, Table I's mean error, mean path error, mean Chamfer distance (px),
+    on-ink share of the network's path and of the demonstration's (%), median area
+    ratio (closed digits only, ``-`` otherwise), mean start error (px); for K > 1
+    hypotheses a line with the best-of-K means.
+    """
+    head = (
+        f"{'digit':>7} {'n':>6} {'TableI':>8} {'path':>8} {'Chamfer':>8} {'ink %':>6} "
+        f"{'human%':>6} {'area':>6} {'start':>8}"
+    )
+    lines = ["path measures (px; ink: % of the path on the image's ink)", head, "-" * len(head)]
+
+    def row(name: str, d: str | None = None) -> str:
+        def stats(key: str | None = None):  # None: Table I's statistics
+            block = result if key is None else (result.get(key) or {})
+            return block.get("overall") if d is None else block.get("per_digit", {}).get(d)
+
+        return (
+            f"{name:>7} {(stats() or {}).get('n', 0):>6} {_cell(stats(), 'mean', 8)} "
+            f"{_cell(stats('path_error'), 'mean', 8)} {_cell(stats('chamfer'), 'mean', 8)} "
+            f"{_cell(stats('on_ink'), 'mean', 6, 100, 1)} "
+            f"{_cell(stats('on_ink_human'), 'mean', 6, 100, 1)} "
+            f"{_cell(stats('area_ratio'), 'median', 6, 1, 2)} "
+            f"{_cell(stats('start_error'), 'mean', 8)}"
+        )
+
+    lines += [row(d, d) for d in result["per_digit"]]
+    lines += ["-" * len(head), row("all")]
+    lines.append(
+        "(means; area: median of enclosed area network / demonstration, closed digits "
+        f"{', '.join(map(str, CLOSED_DIGITS))})"
+    )
+    best = result.get("best_of_k")
+    if best:
+        mean = {k: _cell(best[k]["overall"], "mean", 0) for k in ("trajectory_error", "path_error")}
+        lines.append(
+            f"best of K = {best['k']}: TableI {mean['trajectory_error']}, path "
+            f"{mean['path_error']}, Chamfer {_cell(best['chamfer']['overall'], 'mean', 0)} px; "
+            f"the most probable hypothesis is the best in {100 * best['top_is_best']:.0f} % "
+            "of the samples"
+        )
+    return "\n".join(lines)
+
+
+def predict_hypotheses(predictor, images, times, batch_size: int = 2048):
+    """All of a predictor's hypotheses for prepared images ``[M, H, W]`` at ``times [M, T]``.
+
+    Uses ``predictor.hypothesis_trajectories(images, times, batch_size) -> (y [M, K, T, d],
+    probs [M, K])`` when the predictor has it, else ``trajectories_for_images`` with
+    K = 1 and probability 1.
+
+    Returns
+    -------
+    y_all : ndarray [M, K, T, d]
+    probs : ndarray float64 [M, K]
+    """
+    hypotheses = getattr(predictor, "hypothesis_trajectories", None)
+    if hypotheses is None:
+        y = np.asarray(predictor.trajectories_for_images(images, times, batch_size))  # [M, T, d]
+        return y[:, None], np.ones((len(y), 1))
+    y_all, probs = hypotheses(images, times, batch_size)
+    return np.asarray(y_all), np.asarray(probs, dtype=np.float64)
+
+
+def _check_hypotheses(y_all, probs, m: int):
+    y_all, probs = np.asarray(y_all), np.asarray(probs, dtype=np.float64)
+    if y_all.ndim != 4 or y_all.shape[0] != m or probs.shape != y_all.shape[:2]:
+        raise ValueError(
+            f"hypotheses must be y [M, K, T, d] and probs [M, K] with M = {m}, got "
+            f"{y_all.shape} and {probs.shape}"
+        )
+    return y_all, probs
+
+
+def top_hypothesis(y_all, probs):
+    """The most probable hypothesis per sample: index ``[M]`` and path ``[M, T, d]``."""
+    top = np.argmax(np.asarray(probs), axis=1)  # [M]
+    return top, np.asarray(y_all)[np.arange(len(top)), top]
+
+
+def _table1_errors(y, reference) -> np.ndarray:
+    # Table I's metric, defined once (training validates with the same function).
+    return trajectory_error_px(torch.as_tensor(y), torch.as_tensor(reference)).numpy()
+
+
+#: Per-sample arrays of :func:`sample_metrics` and the name of their statistics.
+METRIC_SUMMARIES = {
+    "path_errors_px": "path_error",
+    "chamfer_px": "chamfer",
+    "on_ink_shares": "on_ink",
+    "on_ink_human_shares": "on_ink_human",
+    "start_errors_px": "start_error",
+    "area_ratios": "area_ratio",
+    "width_ratios": "width_ratio",
+}
+
+
+def sample_metrics(y, reference, images, labels) -> dict[str, np.ndarray]:
+    """The timing-free measures ``[M]`` of paths ``y [M, T, d]`` against the
+    demonstrations ``reference [M, T', d]`` drawn in ``images [M, H, W]``.
+
+    Keys are those of :data:`METRIC_SUMMARIES`; ``area_ratios`` is NaN for digits not in
+    :data:`~img2dmp.metrics.CLOSED_DIGITS` (and where the demonstration encloses nothing).
+    """
+    y, reference = np.asarray(y), np.asarray(reference)
+    closed = np.isin(np.asarray(labels), CLOSED_DIGITS)  # [M]
+    areas = np.full(len(y), np.nan)
+    if closed.any():
+        areas[closed] = area_ratio(y[closed], reference[closed])
+    return {
+        "path_errors_px": path_error_px(y, reference),
+        "chamfer_px": chamfer_px(y, reference),
+        "on_ink_shares": on_ink_share(images, y),
+        "on_ink_human_shares": on_ink_share(images, reference),
+        "start_errors_px": start_error_px(y, reference),
+        "area_ratios": areas,
+        "width_ratios": width_ratio(y, reference),
+    }
+
+
+def _summarise_finite(values, labels) -> dict:
+    ok = np.isfinite(values)
+    return summarise(values[ok], np.asarray(labels)[ok])
+
+
+def _json_list(values) -> list:
+    return [float(v) if np.isfinite(v) else None for v in np.asarray(values, dtype=np.float64)]
+
+
+def _best_of_k(y_all, top, reference, labels) -> dict:
+    """Per sample the smallest Table I, path and Chamfer errors over the K hypotheses."""
+    m, k = y_all.shape[:2]
+    flat = y_all.reshape(m * k, *y_all.shape[2:])  # [M K, T, d]
+    ref_k = np.repeat(np.asarray(reference), k, axis=0)  # [M K, T, d]
+    table1 = _table1_errors(y_all, np.asarray(reference)[:, None])  # [M, K]
+    best = {
+        "errors_px": table1.min(axis=1),
+        "path_errors_px": path_error_px(flat, ref_k).reshape(m, k).min(axis=1),
+        "chamfer_px": chamfer_px(flat, ref_k).reshape(m, k).min(axis=1),
+    }
+    names = {
+        "errors_px": "trajectory_error",
+        "path_errors_px": "path_error",
+        "chamfer_px": "chamfer",
+    }
+    out = {"k": int(k), "top_is_best": float(np.mean(np.argmin(table1, axis=1) == top))}
+    out.update({names[key]: summarise(v, labels) for key, v in best.items()})
+    out.update({key: v.tolist() for key, v in best.items()})
+    out["top_hypothesis"] = top.tolist()
+    out["best_hypothesis"] = np.argmin(table1, axis=1).tolist()
+    return out
+
+
+def hypothesis_metrics(y_all, probs, reference, images, labels) -> dict:
+    """Table I's statistics and the path measures of a network's hypotheses.
+
+    Parameters
+    ----------
+    y_all : array [M, K, T, d]
+        K hypotheses per sample at the demonstration's time stamps (K = 1: one path).
+    probs : array [M, K]
+        Their probabilities; the most probable one is the network's answer.
+    reference : array [M, T, d]
+        The demonstrations.
+    images : array [M, H, W]
+        The images they were written on (ink = 1).
+    labels : array [M]
+
+    Returns
+    -------
+    dict
+        Statistics (:func:`summarise`) of the top hypothesis: ``overall`` and
+        ``per_digit`` (Table I) and ``path_error``, ``chamfer``, ``on_ink``,
+        ``on_ink_human``, ``start_error``, ``area_ratio`` (closed digits only),
+        ``width_ratio``; per-sample lists ``errors_px`` and those of
+        :data:`METRIC_SUMMARIES` (``None`` where undefined); ``hypotheses`` (K),
+        ``pen_never_down`` (d = 3 paths that never write) and, for K > 1, ``best_of_k``.
+    """
+    reference = np.asarray(reference)
+    y_all, probs = _check_hypotheses(y_all, probs, len(reference))
+    labels = np.asarray(labels)
+    top, y = top_hypothesis(y_all, probs)  # [M], [M, T, d]
+    errors = _table1_errors(y, reference)  # [M]
+    per_sample = sample_metrics(y, reference, images, labels)
+    out = summarise(errors, labels)
+    out.update(
+        {name: _summarise_finite(per_sample[k], labels) for k, name in METRIC_SUMMARIES.items()}
+    )
+    out["errors_px"] = errors.tolist()
+    out.update({k: _json_list(v) for k, v in per_sample.items()})
+    out["hypotheses"] = int(y_all.shape[1])
+    never = ~(y[..., 2] >= 0.5).any(axis=1) if y.shape[-1] >= 3 else np.zeros(len(y), bool)
+    out["pen_never_down"] = int(never.sum())
+    if y_all.shape[1] > 1:
+        out["best_of_k"] = _best_of_k(y_all, top, reference, labels)
+    return out
 
 
 def _pick_split(data, split: str):
@@ -127,7 +318,7 @@ def _pick_split(data, split: str):
 
 
 def evaluate(
-    model_path: str | os.PathLike,
+    model_path: str | os.PathLike | Predictor,
     dataset_path: str | os.PathLike,
     *,
     split: str = "auto",
@@ -137,12 +328,14 @@ def evaluate(
     batch_size: int = 2048,
     seed: int = 0,
 ) -> dict:
-    """Table I's statistics of a trained network on a stored data set.
+    """Table I's statistics and the path measures of a trained network on a data set.
 
     Parameters
     ----------
-    model_path : path
-        Run directory or checkpoint file.
+    model_path : path or Predictor
+        Run directory or checkpoint file, or a loaded predictor (with
+        ``hypothesis_trajectories`` for several hypotheses per image, see
+        :func:`predict_hypotheses`).
     dataset_path : path
         A data set (``img2dmp.data.store`` format).
     split : {"auto", "all", "train", "validation", "test"}
@@ -157,18 +350,20 @@ def evaluate(
     Returns
     -------
     dict
-        ``overall`` and ``per_digit`` statistics plus ``errors_px`` (per sample) and a
-        description of the model and data.
+        ``overall`` and ``per_digit`` statistics (Table I) plus ``errors_px`` (per
+        sample), a description of the model and data, and the path measures of
+        :func:`hypothesis_metrics` (``path_error``, ``chamfer``, ``on_ink``,
+        ``on_ink_human``, ``start_error``, ``area_ratio``, ``width_ratio`` with their
+        per-sample lists; ``best_of_k`` for K > 1 hypotheses).
     """
     t0 = time.perf_counter()
-    predictor = Predictor.load(model_path)
+    predictor = _load_predictor(model_path)
     data = _evaluation_data(predictor, dataset_path, split, digits)
-    y = predictor.trajectories_for_images(data.images, data.times, batch_size)  # [M, T, d]
-    # Table I's metric, defined once (training validates with the same function).
-    errors = trajectory_error_px(torch.as_tensor(y), torch.as_tensor(data.trajectories)).numpy()
-    result = summarise(errors, data.labels)
-    path_errors = path_error_px(y, data.trajectories)  # [M]
-    result["path_error"] = summarise(path_errors, data.labels)
+    y_all, probs = predict_hypotheses(predictor, data.images, data.times, batch_size)
+    measures = hypothesis_metrics(y_all, probs, data.trajectories, data.images, data.labels)
+    _, y = top_hypothesis(y_all, probs)  # [M, T, d]
+    errors = np.asarray(measures["errors_px"])  # [M], Table I
+    result = {key: measures.pop(key) for key in ("overall", "per_digit", "path_error")}
     result.update(
         model=str(model_path),
         dataset=str(dataset_path),
@@ -178,13 +373,20 @@ def evaluate(
         trained_on=predictor.meta.get("dataset"),
         cost=predictor.meta.get("train_config", {}).get("cost", {}).get("name"),
         fit_error_px=error_statistics(data.fit_error_px),
-        wall_s=time.perf_counter() - t0,
-        errors_px=errors.tolist(),
-        path_errors_px=path_errors.tolist(),
     )
+    result.update(measures)
+    result["wall_s"] = time.perf_counter() - t0
     if out_dir is not None:
         _write_evaluation(Path(out_dir), result, data, y, errors, n_figures, seed)
     return result
+
+
+def _load_predictor(model):
+    """A :class:`Predictor` loaded from a path, or ``model`` itself if it is one already
+    (any object with ``trajectories_for_images`` or ``hypothesis_trajectories``)."""
+    if hasattr(model, "trajectories_for_images") or hasattr(model, "hypothesis_trajectories"):
+        return model
+    return Predictor.load(model)
 
 
 def _evaluation_data(predictor: Predictor, dataset_path, split: str, digits):

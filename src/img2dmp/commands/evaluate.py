@@ -1,8 +1,15 @@
 """Evaluate a trained network as in Table I: per-sample mean trajectory error in pixels.
 
-Prints mean, standard deviation, median and 95th percentile overall and per digit, and
-writes evaluation.json, evaluation.txt and examples.png (image, demonstrated path in
-blue, DMP path in red, like Fig. 4 of the paper) to --out.
+Prints mean, standard deviation, median and 95th percentile overall and per digit, then a
+second table of measures that ignore the writer's speed (img2dmp.metrics), per digit and
+overall: the path error (both paths resampled by arc length), the Chamfer distance (free
+of order and direction), the share of the network's path on the image's ink beside the
+demonstration's own share (the human reference), the median ratio of enclosed areas
+network / demonstration for the closed digits 0, 6, 8, 9, and the distance between the
+start points. A model with several hypotheses is judged on its most probable one, with a
+best-of-K line. Writes evaluation.json (every statistic and the per-sample values),
+evaluation.txt and examples.png (image, demonstrated path in blue, DMP path in red, like
+Fig. 4 of the paper) to --out.
 
   img2dmp evaluate --model runs/paper --data digits.safetensors --digits 2,3
   img2dmp evaluate runs/paper digits.safetensors --digits 2 3     (the older form)
@@ -18,7 +25,10 @@ from pathlib import Path
 
 from . import _args
 
-HELP = "Table I statistics and Fig. 4 pictures of a trained network on a data set"
+HELP = (
+    "Table I statistics, timing-free path measures and Fig. 4 pictures of a trained network "
+    "on a data set"
+)
 SPLITS = ("auto", "all", "train", "validation", "test")
 
 
@@ -86,6 +96,7 @@ def run(args: argparse.Namespace) -> int:
         n_figures=args.figures,
         digits=list(args.digits) if args.digits is not None else None,
     )
+    # Table I's table, then (in the same text) the path measures' table.
     print(format_table(res, f"trajectory error (px), {data} [{args.split}]"))
     print(f"written: {Path(out) / 'evaluation.json'}, evaluation.txt, examples.png")
     return 0
