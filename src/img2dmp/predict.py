@@ -41,7 +41,13 @@ from .data.images import (  # noqa: F401  (re-exported: their home was this modu
 )
 from .dmp import DMPConfig, DMPParams, rollout
 from .nn import ModelConfig, ParamNormaliser, build_model
-from .nn.inference import dmp_trajectories, network_outputs
+from .nn.costs import dmp_trajectory
+from .nn.inference import dmp_trajectories, hypothesis_trajectories, network_outputs
+from .nn.model import split_hypotheses, top_hypothesis
+from .nn.refine import RefineOptions, refine
+
+#: Instants over a DMP's duration at which refinement compares its path with the ink.
+REFINE_POINTS = 100
 
 
 class Predictor:
@@ -55,14 +61,36 @@ class Predictor:
     image_size : (H, W)
     meta : dict
         The checkpoint's JSON record.
+    refine_options : RefineOptions or None
+        If set, every prediction is refined on its image (:func:`img2dmp.nn.refine.refine`:
+        a few gradient steps that pull the DMP onto the ink near the network's output);
+        None (default): the network's output as it is.
     """
 
-    def __init__(self, model, normaliser: ParamNormaliser, dmp_config: DMPConfig, meta: dict):
+    def __init__(
+        self,
+        model,
+        normaliser: ParamNormaliser,
+        dmp_config: DMPConfig,
+        meta: dict,
+        refine_options: RefineOptions | None = None,
+    ):
         self.model = model.eval()
         self.normaliser = normaliser
         self.dmp_config = dmp_config
         self.meta = meta
         self.image_size = tuple(int(s) for s in model.image_size)
+        self.refine_options = refine_options
+
+    def _refined(self, z: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """``z [N, P]`` refined on images ``x [N, H, W]`` (unchanged without refinement),
+        compared with the ink at 100 instants over each DMP's own duration."""
+        o = self.refine_options
+        if o is None or o.steps == 0:
+            return z
+        tau = self.normaliser.denormalise_vector(z.detach().double())[:, self.normaliser.tau_index]
+        t = tau[:, None] * torch.linspace(0.0, 1.0, REFINE_POINTS, dtype=torch.float64)
+        return refine(z, x, t, self.normaliser, self.dmp_config, o).to(z.dtype)
 
     @classmethod
     def load(cls, path: str | os.PathLike, name: str = "best") -> Predictor:
@@ -111,10 +139,55 @@ class Predictor:
             raise ValueError("images contain NaN or inf")
         return x
 
+    @property
+    def n_hypotheses(self) -> int:
+        """K, the DMPs the network proposes per image (1: the paper's network)."""
+        return int(getattr(self.model, "n_hypotheses", 1))
+
     def predict_normalised(self, images, batch_size: int = 4096) -> torch.Tensor:
-        """Network output ``[B, P]`` (normalised units) for prepared images ``[B, H, W]``
-        (:func:`img2dmp.nn.network_outputs`)."""
-        return network_outputs(self.model, self._check_images(images), batch_size)
+        """Network output ``[B, P]`` (normalised units; the top hypothesis of a network
+        with several) for prepared images ``[B, H, W]`` (:func:`img2dmp.nn.network_outputs`)."""
+        x = self._check_images(images)
+        out = network_outputs(self.model, x, batch_size)
+        return self._refined(top_hypothesis(out, self.n_hypotheses), x)
+
+    def predict_hypotheses(self, images, batch_size: int = 4096) -> tuple[DMPParams, np.ndarray]:
+        """All K hypotheses for prepared images, ranked by probability (highest first).
+
+        Returns
+        -------
+        params : DMPParams
+            NumPy float64, batch shape ``[B, K]``; ``params[b, 0]`` is the top hypothesis.
+        probs : ndarray [B, K]
+            Their probabilities (softmax of the scores), descending along K.
+        """
+        x = self._check_images(images)
+        z, logits = split_hypotheses(network_outputs(self.model, x, batch_size), self.n_hypotheses)
+        b, k, p = z.shape  # [B, K, P], scores [B, K]
+        z = self._refined(z.reshape(b * k, p), x.repeat_interleave(k, 0)).reshape(b, k, p)
+        probs = torch.softmax(logits.double(), dim=1)
+        order = torch.argsort(probs, dim=1, descending=True)  # [B, K]
+        z = torch.gather(z, 1, order[..., None].expand_as(z))
+        v = self.normaliser.denormalise_vector(z.double())
+        n, d = self.dmp_config.n_kernels, self.dmp_config.n_dims
+        return DMPParams.from_vector(v.numpy(), n, d), torch.gather(probs, 1, order).numpy()
+
+    def hypothesis_trajectories(self, images, times, batch_size: int = 4096):
+        """Every hypothesis rolled out at time stamps ``[B, T]``, in the network's order:
+        ``y [B, K, T, d]`` and ``probs [B, K]`` (NumPy arrays), see
+        :func:`img2dmp.nn.hypothesis_trajectories`."""
+        x = self._check_images(images)
+        t = torch.as_tensor(np.asarray(times), dtype=torch.float32)
+        if self.refine_options is None:
+            y, probs = hypothesis_trajectories(
+                self.model, self.normaliser, self.dmp_config, x, t, batch_size
+            )
+            return y.numpy(), probs.numpy()
+        z, logits = split_hypotheses(network_outputs(self.model, x, batch_size), self.n_hypotheses)
+        b, k, p = z.shape
+        z = self._refined(z.reshape(b * k, p), x.repeat_interleave(k, 0))  # [B K, P]
+        y = dmp_trajectory(z.float(), t.repeat_interleave(k, 0), self.normaliser, self.dmp_config)
+        return y.reshape(b, k, *y.shape[1:]).detach().numpy(), torch.softmax(logits, 1).numpy()
 
     def predict_images(self, images, batch_size: int = 4096) -> DMPParams:
         """DMPs for prepared images.
@@ -182,6 +255,10 @@ class Predictor:
         (seconds, each row shifted to start at 0; :func:`img2dmp.nn.dmp_trajectories`)."""
         x = self._check_images(images)
         t = torch.as_tensor(np.asarray(times), dtype=torch.float32)  # [B, T], like training
+        if self.refine_options is not None:
+            z = self.predict_normalised(x, batch_size)  # [B, P], refined
+            y = dmp_trajectory(z.float(), t, self.normaliser, self.dmp_config)
+            return y.detach().numpy()
         y = dmp_trajectories(self.model, self.normaliser, self.dmp_config, x, t, batch_size)
         return y.numpy()  # [B, T, d]
 

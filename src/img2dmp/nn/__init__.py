@@ -5,7 +5,10 @@
 - :class:`ParamNormaliser` - per-unit scaling of the DMP vector (eq. 8)
 - :func:`parameter_cost` (eq. 9), :func:`trajectory_cost` (eq. 10), :class:`Cost`
 - :func:`trajectory_error_px` - Table I's metric
-- :func:`network_outputs`, :func:`dmp_trajectories` - the one batched inference path
+- :func:`split_hypotheses`, :func:`top_hypothesis` - K DMPs per image and their scores
+- :mod:`.ink` - image-consistency terms: the path on the ink, the ink covered
+- :func:`network_outputs`, :func:`dmp_trajectories`, :func:`hypothesis_trajectories` - the
+  one batched inference path
   (images -> network -> DMP rollout) of prediction, evaluation and validation
 """
 
@@ -17,13 +20,15 @@ from .costs import (
     trajectory_cost,
     trajectory_error_px,
 )
-from .inference import dmp_trajectories, network_outputs
+from .inference import dmp_trajectories, hypothesis_trajectories, network_outputs
 from .model import (
     ConvEncoder,
     EncoderDecoder,
     FullyConnectedEncoder,
     ModelConfig,
     build_model,
+    split_hypotheses,
+    top_hypothesis,
 )
 from .normalise import ParamNormaliser
 
@@ -38,8 +43,11 @@ __all__ = [
     "build_model",
     "dmp_trajectories",
     "dmp_trajectory",
+    "hypothesis_trajectories",
     "network_outputs",
     "parameter_cost",
+    "split_hypotheses",
     "trajectory_cost",
+    "top_hypothesis",
     "trajectory_error_px",
 ]

@@ -333,7 +333,7 @@ def canonical_cost_name(name: str) -> str:
 
 
 class Cost:
-    """A training cost selected by name.
+    """A training cost selected by name, for one or several hypotheses, with ink terms.
 
     Parameters
     ----------
@@ -346,6 +346,16 @@ class Cost:
         Weights of the combined cost (C10 is in px^2, C9 in normalised units).
     weighting : ParameterWeighting, optional
         Per-unit weights of cost (9) (also in the combined cost); None = unweighted.
+    hypotheses : int
+        K DMPs per image (:func:`img2dmp.nn.model.split_hypotheses`). With K > 1 the cost
+        is winner-takes-all: each sample's cost is that of its best hypothesis, relaxed
+        so that no head dies (weight ``1 - wta_relax`` on the winner, ``wta_relax / (K -
+        1)`` on each other), plus ``score_weight`` times the cross-entropy that teaches
+        the scores which hypothesis wins. K = 1 is the single-head cost, exactly.
+    ink_weight, coverage_weight : float
+        Weights of the image-consistency terms (:mod:`img2dmp.nn.ink`, px^2, on every
+        hypothesis): :func:`~img2dmp.nn.ink.ink_attraction` and
+        :func:`~img2dmp.nn.ink.ink_coverage`. 0 (default) = off. They need the images.
     """
 
     def __init__(
@@ -356,19 +366,35 @@ class Cost:
         parameter_weight: float = 1.0,
         trajectory_weight: float = 1.0,
         weighting: ParameterWeighting | None = None,
+        *,
+        hypotheses: int = 1,
+        wta_relax: float = 0.05,
+        score_weight: float = 0.1,
+        ink_weight: float = 0.0,
+        coverage_weight: float = 0.0,
+        coverage_tolerance_px: float = 1.0,
     ):
         self.name = canonical_cost_name(name)
         for k, v in (
             ("parameter_weight", parameter_weight),
             ("trajectory_weight", trajectory_weight),
+            ("ink_weight", ink_weight),
+            ("coverage_weight", coverage_weight),
+            ("score_weight", score_weight),
         ):
             if not (float(v) >= 0):
                 raise ValueError(f"cost.{k} must be >= 0, got {v!r}")
+        if not 0 <= float(wta_relax) < 1:
+            raise ValueError(f"cost.wta_relax must be in [0, 1), got {wta_relax!r}")
         self.normaliser, self.config = normaliser, config
         self.parameter_weight, self.trajectory_weight = (
             float(parameter_weight),
             float(trajectory_weight),
         )
+        self.hypotheses = int(hypotheses)
+        self.wta_relax, self.score_weight = float(wta_relax), float(score_weight)
+        self.ink_weight, self.coverage_weight = float(ink_weight), float(coverage_weight)
+        self.coverage_tolerance_px = float(coverage_tolerance_px)
         self.weighting = weighting
         self._weights = None
         if weighting is not None:
@@ -379,15 +405,26 @@ class Cost:
                 )
             self._weights = weighting.tensor()
 
+    @property
+    def uses_images(self) -> bool:
+        return self.ink_weight > 0 or self.coverage_weight > 0
+
     def __call__(
         self,
-        z_pred: torch.Tensor,  # [B, P]
+        z_pred: torch.Tensor,  # [B, P] or [B, K (P + 1)]
         z_target: torch.Tensor,  # [B, P]
         times: torch.Tensor,  # [B, T]
         trajectories: torch.Tensor,  # [B, T, d]
+        images: torch.Tensor | None = None,  # [B, H, W], for the ink terms
     ) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Return ``(cost, y_dmp)``: ``y_dmp [B, T, d]`` (detached) when the cost rolled the
-        DMP out anyway, else ``None``."""
+        """Return ``(cost, y_dmp)``: ``y_dmp [B, T, d]`` (detached, the top hypothesis)
+        when the cost rolled the DMPs out anyway, else ``None``."""
+        if self.hypotheses == 1 and not self.uses_images:
+            return self._single(z_pred, z_target, times, trajectories)
+        return self._general(z_pred, z_target, times, trajectories, images)
+
+    def _single(self, z_pred, z_target, times, trajectories):
+        # The paper's costs, one hypothesis: eqs. (9) and (10) as written.
         if self.name == "parameter":
             return parameter_cost(z_pred, z_target, self._weights), None
         y = dmp_trajectory(z_pred, times, self.normaliser, self.config)  # [B, T, d]
@@ -396,3 +433,61 @@ class Cost:
             c9 = parameter_cost(z_pred, z_target, self._weights)
             c10 = self.parameter_weight * c9 + self.trajectory_weight * c10
         return c10, y.detach()
+
+    def _general(self, z_pred, z_target, times, trajectories, images):
+        from .ink import ink_attraction, ink_coverage, ink_distance_map
+        from .model import split_hypotheses
+
+        z, logits = split_hypotheses(z_pred, self.hypotheses)  # [B, K, P], [B, K]
+        b, k, p = z.shape
+        y = None
+        if self.name != "parameter" or self.uses_images:
+            t = times.repeat_interleave(k, dim=0)  # [B K, T]
+            y = dmp_trajectory(z.reshape(b * k, p), t, self.normaliser, self.config)
+            y = y.reshape(b, k, *y.shape[1:])  # [B, K, T, d]
+        per = self._per_hypothesis(z, z_target, y, trajectories)  # [B, K]
+        cost = self._winner_takes_all(per, logits)
+        if self.uses_images:
+            if images is None:
+                raise ValueError("the ink terms of the cost need the images")
+            flat = y.reshape(b * k, *y.shape[2:])  # [B K, T, d]
+            imgs = images.repeat_interleave(k, dim=0)  # [B K, H, W]
+            if self.ink_weight > 0:
+                dist = ink_distance_map(imgs)
+                cost = cost + self.ink_weight * ink_attraction(flat, dist).mean()
+            if self.coverage_weight > 0:
+                cov = ink_coverage(flat, imgs, tolerance_px=self.coverage_tolerance_px)
+                cost = cost + self.coverage_weight * cov.mean()
+        if y is None:
+            return cost, None
+        top = logits.argmax(dim=1)  # [B]
+        return cost, y[torch.arange(b), top].detach()
+
+    def _per_hypothesis(self, z, z_target, y, trajectories) -> torch.Tensor:
+        """Each sample's cost (9), (10) or their sum for each of its hypotheses, [B, K]."""
+        per = 0.0
+        if self.name in ("parameter", "combined"):
+            e = z - z_target[:, None, :]  # [B, K, P]
+            w = self._weights
+            if w is None:
+                c9 = (e**2).mean(-1)
+            elif w.ndim == 1:
+                c9 = (e**2 * w.to(e.dtype)).mean(-1)
+            else:
+                c9 = ((e @ w.to(e.dtype)) * e).mean(-1)
+            per = c9 if self.name == "parameter" else self.parameter_weight * c9
+        if self.name in ("trajectory", "combined"):
+            c10 = ((y - trajectories[:, None]) ** 2).sum(-1).mean(-1)  # [B, K]
+            per = per + (c10 if self.name == "trajectory" else self.trajectory_weight * c10)
+        return per
+
+    def _winner_takes_all(self, per: torch.Tensor, logits: torch.Tensor) -> torch.Tensor:
+        """Relaxed min over the hypotheses plus the scores' cross-entropy (K > 1)."""
+        k = per.shape[1]
+        if k == 1:
+            return per.mean()
+        winner = per.detach().argmin(dim=1)  # [B]
+        w = torch.full_like(per, self.wta_relax / (k - 1))
+        w.scatter_(1, winner[:, None], 1.0 - self.wta_relax)
+        ce = torch.nn.functional.cross_entropy(logits, winner)
+        return (w * per).sum(1).mean() + self.score_weight * ce

@@ -23,6 +23,7 @@ import torch
 
 from ..dmp import DMPConfig
 from .costs import dmp_trajectory
+from .model import split_hypotheses, top_hypothesis
 from .normalise import ParamNormaliser
 
 
@@ -127,7 +128,8 @@ def dmp_trajectories(
             f"times must have shape [B, T] with B = {images.shape[0]} (the images), got "
             f"{tuple(times.shape)}"
         )
-    z = network_outputs(model, images, batch_size)  # [B, P]
+    k = getattr(model, "n_hypotheses", 1)
+    z = top_hypothesis(network_outputs(model, images, batch_size), k)  # [B, P]
     if z.shape[0] == 0:
         return z.new_zeros(0, times.shape[1], dmp_config.n_dims)
     out = []
@@ -138,4 +140,40 @@ def dmp_trajectories(
     return torch.cat(out)  # [B, T, d]
 
 
-__all__ = ["dmp_trajectories", "network_outputs"]
+def hypothesis_trajectories(
+    model: torch.nn.Module,
+    normaliser: ParamNormaliser,
+    dmp_config: DMPConfig,
+    images: torch.Tensor,
+    times: torch.Tensor,
+    batch_size: int = 4096,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Every hypothesis of a multi-hypothesis network, rolled out, with its probability.
+
+    Returns
+    -------
+    y : tensor [B, K, T, d]
+        Hypothesis k of sample b at the sample's time stamps (shifted to start at 0).
+    probs : tensor [B, K]
+        Softmax of the scores; 1 for a one-hypothesis network.
+    """
+    batch_size = _check_batch_size(batch_size)
+    _check_images(images)
+    times = torch.as_tensor(times)
+    k = getattr(model, "n_hypotheses", 1)
+    out = network_outputs(model, images, batch_size)  # [B, K (P + 1)] or [B, P]
+    z, logits = split_hypotheses(out, k)  # [B, K, P], [B, K]
+    b, _, p = z.shape
+    with torch.no_grad():
+        flat_t = times.repeat_interleave(k, dim=0)  # [B K, T]
+        flat_z = z.reshape(b * k, p)
+        parts = [
+            dmp_trajectory(flat_z[lo : lo + batch_size], flat_t[lo : lo + batch_size],
+                           normaliser, dmp_config)
+            for lo in range(0, b * k, batch_size)
+        ]  # fmt: skip
+    y = torch.cat(parts) if parts else z.new_zeros(0, times.shape[-1], dmp_config.n_dims)
+    return y.reshape(b, k, *y.shape[1:]), torch.softmax(logits, dim=1)
+
+
+__all__ = ["dmp_trajectories", "hypothesis_trajectories", "network_outputs"]

@@ -85,6 +85,9 @@ class ModelConfig:
         One of :data:`ACTIVATIONS`, after every hidden layer.
     n_outputs : int
         Length P of the DMP vector (55 for N = 25, d = 2); set from the data.
+    hypotheses : int
+        K, the number of DMPs the network proposes for one image, each with a score
+        (:func:`split_hypotheses`). 1 (default) is the paper's network: one DMP, no score.
     """
 
     encoder: str = "fc"
@@ -97,6 +100,7 @@ class ModelConfig:
     input_filter: str = "none"
     activation: str = "relu"
     n_outputs: int = 55
+    hypotheses: int = 1
 
     def __post_init__(self) -> None:
         if self.encoder not in ENCODERS:
@@ -134,6 +138,14 @@ class ModelConfig:
         if int(self.n_outputs) < 1:
             raise ValueError(f"model.n_outputs must be >= 1, got {self.n_outputs!r}")
         self.n_outputs = int(self.n_outputs)
+        if isinstance(self.hypotheses, bool) or int(self.hypotheses) < 1:
+            raise ValueError(f"model.hypotheses must be an integer >= 1, got {self.hypotheses!r}")
+        self.hypotheses = int(self.hypotheses)
+
+    @property
+    def output_size(self) -> int:
+        """Width of the network's output: ``P`` for one hypothesis, ``K (P + 1)`` for K."""
+        return hypotheses_output_size(self.n_outputs, self.hypotheses)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -239,7 +251,10 @@ class EncoderDecoder(nn.Module):
     decoder_layers : list of int
         Hidden widths between the code and the output.
     n_outputs : int
-        Output size P (normalised DMP vector, eq. 8).
+        Size P of one normalised DMP vector (eq. 8).
+    hypotheses : int
+        K DMPs per image: the output is ``[B, P]`` for K = 1 (the paper), else
+        ``[B, K (P + 1)]``, K vectors and K scores (:func:`split_hypotheses`).
     """
 
     def __init__(
@@ -249,17 +264,20 @@ class EncoderDecoder(nn.Module):
         n_outputs: int,
         activation: str,
         input_filter: nn.Module | None = None,
+        hypotheses: int = 1,
     ):
         super().__init__()
         self.input_filter = input_filter if input_filter is not None else nn.Identity()
         self.encoder = encoder
-        self.decoder = _mlp([encoder.out_features, *decoder_layers, n_outputs], activation, False)
+        self.n_params, self.n_hypotheses = int(n_outputs), int(hypotheses)
+        width = hypotheses_output_size(self.n_params, self.n_hypotheses)
+        self.decoder = _mlp([encoder.out_features, *decoder_layers, width], activation, False)
 
     @property
     def image_size(self) -> tuple[int, int]:
         return tuple(self.encoder.in_shape)
 
-    def forward(self, images: torch.Tensor) -> torch.Tensor:  # [B, H, W] -> [B, P]
+    def forward(self, images: torch.Tensor) -> torch.Tensor:  # [B, H, W] -> [B, P | K (P+1)]
         if images.shape[-2:] != self.encoder.in_shape:
             raise ValueError(
                 f"images are {tuple(images.shape[-2:])} pixels, the model expects "
@@ -291,6 +309,32 @@ def build_model(config: ModelConfig, seed: int | None = None) -> EncoderDecoder:
             )
         filt = ImpulseFilter() if config.input_filter == "impulse" else None
         model = EncoderDecoder(
-            enc, config.decoder_layers, config.n_outputs, config.activation, filt
-        )
+            enc, config.decoder_layers, config.n_outputs, config.activation, filt,
+            hypotheses=config.hypotheses,
+        )  # fmt: skip
     return model
+
+
+def hypotheses_output_size(n_params: int, hypotheses: int) -> int:
+    """``P`` for one hypothesis; ``K P`` DMP units and K scores for ``K > 1``."""
+    return n_params if hypotheses == 1 else hypotheses * (n_params + 1)
+
+
+def split_hypotheses(out: torch.Tensor, hypotheses: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """A network output ``[B, K (P + 1)]`` as normalised DMP vectors ``[B, K, P]`` and the
+    hypotheses' scores (logits) ``[B, K]``; one hypothesis ``[B, P]`` as ``[B, 1, P]`` with
+    score 0."""
+    if hypotheses == 1:
+        return out[:, None, :], out.new_zeros(out.shape[0], 1)
+    k = hypotheses
+    p = out.shape[-1] // k - 1
+    return out[:, : k * p].reshape(-1, k, p), out[:, k * p :]
+
+
+def top_hypothesis(out: torch.Tensor, hypotheses: int) -> torch.Tensor:
+    """The normalised DMP vector ``[B, P]`` of the highest-scoring hypothesis."""
+    if hypotheses == 1:
+        return out
+    z, logits = split_hypotheses(out, hypotheses)
+    best = logits.argmax(dim=1)  # [B]
+    return z[torch.arange(z.shape[0], device=z.device), best]

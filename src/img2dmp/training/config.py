@@ -147,6 +147,13 @@ class CostConfig:
     are, before normalisation: ``"weights"`` (the w_k of eq. 8, the paper) or
     ``"amplitudes"`` (``(g - y0) w_k``, the same DMP without the ``1 / (g - y0)``
     singularity), see :mod:`img2dmp.nn.normalise`.
+
+    ``ink_weight``, ``coverage_weight`` (px^-2 scale, 0 = off): image-consistency terms on
+    every hypothesis, :func:`img2dmp.nn.ink.ink_attraction` (the path on the ink) and
+    :func:`img2dmp.nn.ink.ink_coverage` (the ink reached by the path, beyond
+    ``coverage_tolerance_px``). ``wta_relax`` and ``score_weight``: the winner-takes-all
+    cost of a network with several hypotheses (``model.hypotheses``), see
+    :class:`img2dmp.nn.Cost`.
     """
 
     name: str = "trajectory"
@@ -155,6 +162,11 @@ class CostConfig:
     parameter_weighting: str = "none"
     parameter_weight_floor: float = 1e-3
     parameter_units: str = "weights"
+    ink_weight: float = 0.0
+    coverage_weight: float = 0.0
+    coverage_tolerance_px: float = 1.0
+    wta_relax: float = 0.05
+    score_weight: float = 0.1
 
     def __post_init__(self) -> None:
         from ..nn.costs import PARAMETER_WEIGHTINGS, canonical_cost_name
@@ -163,6 +175,10 @@ class CostConfig:
         self.name = canonical_cost_name(self.name)
         check_positive("cost.parameter_weight", self.parameter_weight, allow_zero=True)
         check_positive("cost.trajectory_weight", self.trajectory_weight, allow_zero=True)
+        for name in ("ink_weight", "coverage_weight", "coverage_tolerance_px", "score_weight"):
+            check_positive(f"cost.{name}", getattr(self, name), allow_zero=True)
+        if not 0 <= self.wta_relax < 1:
+            raise ConfigError(f"cost.wta_relax must be in [0, 1), got {self.wta_relax!r}")
         if self.parameter_weighting not in PARAMETER_WEIGHTINGS:
             raise ConfigError(
                 f"cost.parameter_weighting must be one of {PARAMETER_WEIGHTINGS}, got "

@@ -36,7 +36,7 @@ import torch
 
 from .._progress import bar, say
 from ..errors import TrainingDiverged
-from ..nn import Cost, trajectory_error_px
+from ..nn import Cost, top_hypothesis, trajectory_error_px
 from ..nn.costs import dmp_trajectory
 from ..nn.inference import dmp_trajectories
 from .config import TrainConfig
@@ -235,7 +235,7 @@ def train_step(
         The cost is NaN or infinite; the weights are left as they were.
     """
     z = model(images)  # [b, P]
-    loss, y = cost(z, z_target, times, trajectories)
+    loss, y = cost(z, z_target, times, trajectories, images if cost.uses_images else None)
     if not torch.isfinite(loss):
         raise TrainingDiverged(f"training cost is {float(loss.detach())}")
     optimizer.zero_grad(set_to_none=True)
@@ -245,7 +245,8 @@ def train_step(
     optimizer.step()
     with torch.no_grad():
         if y is None:
-            y = dmp_trajectory(z.detach(), times, cost.normaliser, cost.config)  # [b, T, d]
+            top = top_hypothesis(z.detach(), cost.hypotheses)  # [b, P]
+            y = dmp_trajectory(top, times, cost.normaliser, cost.config)  # [b, T, d]
         error = trajectory_error_px(y, trajectories)  # [b]
     return StepResult(float(loss.detach()), error)
 

@@ -71,10 +71,7 @@ def open_run(
         load_weights_into(model, init)
     if last is not None:
         state.restore(last, cfg.optim.epochs)
-    c = cfg.cost
-    cost = Cost(
-        c.name, data.normaliser, data.dmp_config, c.parameter_weight, c.trajectory_weight, weighting
-    )
+    cost = make_cost(cfg, data.normaliser, data.dmp_config, weighting)
     net = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
     if rank == 0:
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -163,6 +160,25 @@ def _resolved(cfg: TrainConfig, data: TrainingData) -> TrainConfig:
     return cfg
 
 
+def make_cost(cfg: TrainConfig, normaliser, dmp_config, weighting=None) -> Cost:
+    """The run's :class:`~img2dmp.nn.Cost` from ``cfg.cost`` and ``model.hypotheses``."""
+    c = cfg.cost
+    return Cost(
+        c.name,
+        normaliser,
+        dmp_config,
+        c.parameter_weight,
+        c.trajectory_weight,
+        weighting,
+        hypotheses=cfg.model.hypotheses,
+        wta_relax=c.wta_relax,
+        score_weight=c.score_weight,
+        ink_weight=c.ink_weight,
+        coverage_weight=c.coverage_weight,
+        coverage_tolerance_px=c.coverage_tolerance_px,
+    )
+
+
 def make_scheduler(opt: torch.optim.Optimizer, o: OptimConfig):
     """The learning-rate schedule ``o.schedule`` of ``opt`` (None for ``"none"``)."""
     if o.schedule == "cosine":
@@ -176,4 +192,4 @@ def make_scheduler(opt: torch.optim.Optimizer, o: OptimConfig):
     return None
 
 
-__all__ = ["Run", "make_scheduler", "open_run"]
+__all__ = ["Run", "make_cost", "make_scheduler", "open_run"]

@@ -1,0 +1,101 @@
+"""Refinement at prediction time: a few gradient steps that pull a predicted DMP onto the ink.
+
+The rollout is exact and differentiable, so a prediction can be improved on the one image
+it is for: minimise, over the normalised DMP vector ``z`` (eq. 8, normalised),
+
+    J(z) = a A(y(z)) + c C(y(z)) + lambda |z - z_0|^2 / P
+
+with ``A`` :func:`~img2dmp.nn.ink.ink_attraction` (the path on the ink), ``C``
+:func:`~img2dmp.nn.ink.ink_coverage` (the ink reached), ``y(z)`` the DMP's path at the
+given time stamps and ``z_0`` the network's output. The prior term keeps the movement
+(its timing, its start and direction) close to what the network proposed; the image terms
+move its shape onto the strokes. Adam, a fixed number of steps, no network involved.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from ..dmp import DMPConfig
+from .costs import dmp_trajectory
+from .ink import ink_attraction, ink_coverage, ink_distance_map
+from .normalise import ParamNormaliser
+
+
+@dataclass(frozen=True)
+class RefineOptions:
+    """Settings of :func:`refine`.
+
+    ``steps`` Adam steps of size ``lr`` (normalised units); ``prior_weight`` = lambda;
+    ``ink_weight`` = a, ``coverage_weight`` = c (px^-2 scale); ``coverage_tolerance_px``
+    as in :func:`~img2dmp.nn.ink.ink_coverage`.
+    """
+
+    steps: int = 30
+    lr: float = 0.02
+    prior_weight: float = 1.0
+    ink_weight: float = 1.0
+    coverage_weight: float = 1.0
+    coverage_tolerance_px: float = 1.0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.steps, bool) or int(self.steps) < 0:
+            raise ValueError(f"refine steps must be an integer >= 0, got {self.steps!r}")
+        for name in ("lr", "prior_weight", "ink_weight", "coverage_weight"):
+            v = float(getattr(self, name))
+            if not v >= 0 or v == float("inf"):
+                raise ValueError(f"refine {name} must be a finite number >= 0, got {v!r}")
+
+
+def refine(
+    z0: torch.Tensor,
+    images: torch.Tensor,
+    times: torch.Tensor,
+    normaliser: ParamNormaliser,
+    config: DMPConfig,
+    options: RefineOptions | None = None,
+) -> torch.Tensor:
+    """Normalised DMP vectors ``[B, P]`` refined on their images ``[B, H, W]``.
+
+    Parameters
+    ----------
+    z0 : tensor [B, P]
+        The network's output (one hypothesis per image).
+    images : tensor [B, H, W]
+        The prepared images (ink = 1) the network saw.
+    times : tensor [B, T]
+        Time stamps at which the path is compared with the ink (e.g. 100 over [0, tau]).
+
+    Returns
+    -------
+    tensor [B, P]
+        ``z0`` after ``options.steps`` Adam steps on J (module docstring); detached.
+    """
+    o = options or RefineOptions()
+    z0 = z0.detach().to(torch.float64)
+    if o.steps == 0 or z0.shape[0] == 0:
+        return z0.clone()
+    imgs = images.detach().to(torch.float64)
+    t = times.detach().to(torch.float64)
+    dist = ink_distance_map(imgs)
+    z = z0.clone().requires_grad_()
+    opt = torch.optim.Adam([z], lr=o.lr)
+    with torch.enable_grad():
+        for _ in range(int(o.steps)):
+            y = dmp_trajectory(z, t, normaliser, config)  # [B, T, d]
+            j = o.prior_weight * ((z - z0) ** 2).mean(-1)  # [B]
+            if o.ink_weight:
+                j = j + o.ink_weight * ink_attraction(y, dist)
+            if o.coverage_weight:
+                j = j + o.coverage_weight * ink_coverage(
+                    y, imgs, tolerance_px=o.coverage_tolerance_px
+                )
+            opt.zero_grad(set_to_none=True)
+            j.sum().backward()  # samples are independent: the sum's gradient is each one's
+            opt.step()
+    return z.detach()
+
+
+__all__ = ["RefineOptions", "refine"]
