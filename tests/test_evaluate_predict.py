@@ -284,3 +284,13 @@ def test_hypothesis_metrics_checks_its_shapes():
     y = np.zeros((4, 2, 10, 2))
     with pytest.raises(ValueError, match="probs"):
         hypothesis_metrics(y, np.ones((4, 3)), y[:, 0], np.zeros((4, 8, 8)), np.arange(4))
+
+
+def test_a_crisp_bar_filling_its_box_is_prepared_not_eroded_away():
+    # A clean "1": its crop is all ink, with no background inside the bounding box.
+    img = np.full((200, 200), 255, np.uint8)
+    img[40:160, 95:105] = 0
+    for width in (None, 2.5, 1.2):
+        out = prepare_image(img.astype(np.float32) / 255.0, (28, 28), stroke_width_px=width)
+        cols = np.flatnonzero((out > 0.5).any(axis=0))
+        assert 1 <= cols.size <= 4 and (out > 0.5).sum(axis=0).max() >= 18, width

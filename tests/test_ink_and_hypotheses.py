@@ -124,3 +124,85 @@ def test_winner_takes_all_learns_from_the_nearest_hypothesis_and_scores_it():
     relaxed(out, torch.zeros(4, cfg.n_params), t, target)[0].backward()
     assert float(split_hypotheses(out.grad, 3)[0][:, :2].abs().sum()) > 0.0
     assert y_top.shape == (4, 50, 2)
+
+
+def test_refinement_pulls_a_dmp_onto_the_ink_and_the_prior_holds_it_back():
+    from img2dmp.dmp import fit_dmp
+    from img2dmp.nn.refine import RefineOptions, refine
+
+    cfg = DMPConfig()
+    img = _line_image()
+    t = np.linspace(0.0, 1.0, 100)
+    off = _path_along(16.0, t=100)[0].numpy()  # 2 px below the stroke
+    fit = fit_dmp(t, off, cfg)
+    params = np.stack([fit.params.to_vector()] * 4)
+    spread = params + np.random.default_rng(0).normal(0, 1.0, params.shape)
+    spread[:, cfg.n_kernels * cfg.n_dims] = params[0, cfg.n_kernels * cfg.n_dims]  # tau > 0
+    norm = ParamNormaliser.fit(spread, cfg)
+    z0 = norm.normalise(torch.as_tensor(params[:1]))
+    times = torch.as_tensor(t)[None]
+    dist = ink_distance_map(img).double()
+
+    def attraction(z):
+        return float(ink_attraction(dmp_trajectory(z, times, norm, cfg), dist))
+
+    before = attraction(z0)
+    assert before == pytest.approx(4.0, rel=0.05)
+    z = refine(z0, img, times, norm, cfg, RefineOptions(steps=60, lr=0.1, prior_weight=0.01))
+    assert attraction(z) < 0.25 * before
+    held = refine(z0, img, times, norm, cfg, RefineOptions(steps=60, lr=0.1, prior_weight=1e4))
+    assert attraction(held) > 0.8 * before
+    assert torch.equal(refine(z0, img, times, norm, cfg, RefineOptions(steps=0)), z0.double())
+
+
+@pytest.fixture(scope="module")
+def three_hypothesis_run(tmp_path_factory):
+    from img2dmp.data.store import save_dataset
+    from img2dmp.data.synthetic import generate_dataset
+    from img2dmp.training import TrainConfig, train
+
+    root = tmp_path_factory.mktemp("k3")
+    save_dataset(root / "d.safetensors", generate_dataset(12, seed=2, progress=False))
+    cfg = TrainConfig.from_dict(
+        {
+            "model": {"encoder_layers": [48, 20], "hypotheses": 3},
+            "data": {"path": str(root / "d.safetensors")},
+            "optim": {"epochs": 2, "batch_size": 16},
+            "cost": {"ink_weight": 0.5, "coverage_weight": 0.5},
+            "threads": 1,
+            "progress": False,
+        }
+    )
+    res = train(cfg, root / "run")
+    return root, res
+
+
+def test_a_three_hypothesis_network_trains_and_predict_ranks_its_hypotheses(three_hypothesis_run):
+    import json
+
+    from PIL import Image
+
+    from img2dmp import cli
+    from img2dmp.predict import Predictor
+
+    root, res = three_hypothesis_run
+    assert np.isfinite(res.best_val_error_px) and len(res.history) == 2
+    pred = Predictor.load(root / "run")
+    assert pred.n_hypotheses == 3
+    img = np.zeros((80, 80), np.uint8) + 255
+    img[20:60, 38:43] = 0  # a dark "1" on white
+    Image.fromarray(img).save(root / "one.png")
+    out = root / "pred"
+    assert cli.main(["predict", "--model", str(root / "run"), str(root / "one.png"),
+                     "--out", str(out), "--overlay", "--points", "20"]) == 0  # fmt: skip
+    rec = json.loads((out / "one_dmp.json").read_text())
+    probs = [h["probability"] for h in rec["hypotheses"]]
+    assert [h["rank"] for h in rec["hypotheses"]] == [1, 2, 3]
+    assert probs == sorted(probs, reverse=True) and sum(probs) == pytest.approx(1.0)
+    assert rec["dmp"] == rec["hypotheses"][0]["dmp"]  # the top one is the one written
+    rows = (out / "one_trajectory.csv").read_text().splitlines()
+    assert rows[0].startswith("rank,probability,t_s,x_px,y_px") and len(rows) == 1 + 3 * 20
+    assert (out / "one_overlay.png").stat().st_size > 1000
+    # the robot's input (predict_paths) is the top hypothesis
+    [(top, _)] = pred.predict_paths([root / "one.png"])
+    np.testing.assert_allclose(top.to_vector(), rec["vector"], rtol=1e-6)

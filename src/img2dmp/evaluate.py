@@ -327,6 +327,7 @@ def evaluate(
     digits: list[int] | None = None,
     batch_size: int = 2048,
     seed: int = 0,
+    refine: int = 0,
 ) -> dict:
     """Table I's statistics and the path measures of a trained network on a data set.
 
@@ -346,6 +347,9 @@ def evaluate(
         Samples drawn in ``examples.png`` (chosen at random with ``seed``; 0 = none).
     digits : list of int, optional
         Keep only these labels.
+    refine : int
+        Refine every prediction on its image with this many gradient steps
+        (:func:`img2dmp.nn.refine.refine`, default options); 0 = the network's output.
 
     Returns
     -------
@@ -358,6 +362,10 @@ def evaluate(
     """
     t0 = time.perf_counter()
     predictor = _load_predictor(model_path)
+    if refine:
+        from .nn.refine import RefineOptions
+
+        predictor.refine_options = RefineOptions(steps=int(refine))
     data = _evaluation_data(predictor, dataset_path, split, digits)
     y_all, probs = predict_hypotheses(predictor, data.images, data.times, batch_size)
     measures = hypothesis_metrics(y_all, probs, data.trajectories, data.images, data.labels)
@@ -373,6 +381,7 @@ def evaluate(
         trained_on=predictor.meta.get("dataset"),
         cost=predictor.meta.get("train_config", {}).get("cost", {}).get("name"),
         fit_error_px=error_statistics(data.fit_error_px),
+        refine_steps=int(refine),
     )
     result.update(measures)
     result["wall_s"] = time.perf_counter() - t0

@@ -215,15 +215,20 @@ class Predictor:
         With ``match_stroke_width`` (and a model that recorded it) the strokes are brought
         to the training images' pen width, see :func:`prepare_image`.
         """
+        images = self.prepare_paths(paths, match_stroke_width)
+        params = self.predict_images(images)
+        return [(params[i], images[i]) for i in range(len(images))]
+
+    def prepare_paths(self, paths, match_stroke_width: bool = True) -> np.ndarray:
+        """Image files as the model's input ``[B, H, W]`` (:func:`prepare_image` with the
+        training images' framing and, with ``match_stroke_width``, their pen width)."""
         width = self.stroke_width if match_stroke_width else None
-        images = np.stack(
+        return np.stack(
             [
                 prepare_image(p, self.image_size, margin=self.margin, stroke_width_px=width)
                 for p in paths
             ]
         )
-        params = self.predict_images(images)
-        return [(params[i], images[i]) for i in range(len(images))]
 
     def trajectories(self, params: DMPParams, times=None, n_points: int = 100):
         """Roll DMPs out (exact solution, eqs. 3-7).
@@ -263,14 +268,52 @@ class Predictor:
         return y.numpy()  # [B, T, d]
 
 
-def prediction_record(params: DMPParams, times: np.ndarray, y: np.ndarray, source: str) -> dict:
-    """JSON-ready description of one predicted DMP and its sampled trajectory."""
-    return {
+def prediction_record(
+    params: DMPParams,
+    times: np.ndarray,
+    y: np.ndarray,
+    source: str,
+    hypotheses: list[dict] | None = None,
+) -> dict:
+    """JSON-ready description of one predicted DMP and its sampled trajectory.
+
+    ``hypotheses`` (a network with several): one :func:`hypothesis_record` per hypothesis,
+    ranked; the top-level ``dmp`` and ``trajectory`` are then the top one's.
+    """
+    rec = {
         "image": source,
         "dmp": params.to_dict(),
         "vector": np.asarray(params.to_vector()).tolist(),
         "trajectory": {"t": times.tolist(), "y": y.tolist()},
     }
+    if hypotheses is not None:
+        rec["hypotheses"] = hypotheses
+    return rec
+
+
+def hypothesis_record(rank: int, probability: float, params: DMPParams, times, y) -> dict:
+    """One ranked hypothesis (rank 1 = the most probable, the one a robot writes)."""
+    return {
+        "rank": int(rank),
+        "probability": float(probability),
+        "dmp": params.to_dict(),
+        "trajectory": {"t": np.asarray(times).tolist(), "y": np.asarray(y).tolist()},
+    }
+
+
+def _trajectory_csv(record: dict) -> str:
+    """``t_s,x_px,y_px[,y2...]``; with several hypotheses a ``rank,probability`` column
+    pair first and one block of rows per hypothesis."""
+    hyps = record.get("hypotheses")
+    rows = hyps if hyps else [{"trajectory": record["trajectory"]}]
+    d = np.asarray(rows[0]["trajectory"]["y"]).shape[1]
+    cols = ["t_s", "x_px", "y_px"] + [f"y{k}" for k in range(2, d)]
+    lines = [",".join((["rank", "probability"] if hyps else []) + cols)]
+    for h in rows:
+        t, y = np.asarray(h["trajectory"]["t"]), np.asarray(h["trajectory"]["y"])
+        head = [str(h["rank"]), f"{h['probability']:.6g}"] if hyps else []
+        lines += [",".join(head + [f"{v:.6g}" for v in (t[i], *y[i])]) for i in range(len(t))]
+    return "\n".join(lines) + "\n"
 
 
 def write_prediction(
@@ -280,34 +323,27 @@ def write_prediction(
     image: np.ndarray | None = None,
 ) -> list[Path]:
     """Write ``<stem>_dmp.json``, ``<stem>_trajectory.csv`` and, with ``image``, an overlay
-    ``<stem>_overlay.png`` (the image with the DMP path in red). Atomic writes."""
+    ``<stem>_overlay.png`` (the image with the DMP path in red; with several hypotheses
+    all of them, ranked, the top one bold). Atomic writes."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    written = []
-    p = out / f"{stem}_dmp.json"
-    atomic_write_text(p, json.dumps(record, indent=1) + "\n")
-    written.append(p)
-    t = np.asarray(record["trajectory"]["t"])
-    y = np.asarray(record["trajectory"]["y"])
-    cols = ["t_s", "x_px", "y_px"] + [f"y{k}" for k in range(2, y.shape[1])]
-    lines = [",".join(cols)] + [",".join(f"{v:.6g}" for v in (t[i], *y[i])) for i in range(len(t))]
-    p = out / f"{stem}_trajectory.csv"
-    atomic_write_text(p, "\n".join(lines) + "\n")
-    written.append(p)
+    written = [out / f"{stem}_dmp.json", out / f"{stem}_trajectory.csv"]
+    atomic_write_text(written[0], json.dumps(record, indent=1) + "\n")
+    atomic_write_text(written[1], _trajectory_csv(record))
     if image is not None:
         # Imported here: matplotlib starts only when an overlay is asked for.
-        from .data.plotting import overlay_figure
+        from .data.plotting import hypotheses_figure, overlay_figure
 
         p = out / f"{stem}_overlay.png"
-        overlay_figure(
-            p,
-            image[None],
-            None,
-            y[None],
-            titles=[stem],
-            cell_inches=3.0,
-            labels=("demonstration", "prediction"),
-        )
+        hyps = record.get("hypotheses")
+        if hyps:
+            ys = np.stack([np.asarray(h["trajectory"]["y"]) for h in hyps])  # [K, T, d]
+            probs = np.array([h["probability"] for h in hyps])
+            hypotheses_figure(p, image, ys, probs, title=stem)
+        else:
+            y = np.asarray(record["trajectory"]["y"])
+            overlay_figure(p, image[None], None, y[None], titles=[stem], cell_inches=3.0,
+                           labels=("demonstration", "prediction"))  # fmt: skip
         written.append(p)
     return written
 
@@ -316,6 +352,7 @@ __all__ = [
     "DEFAULT_MARGIN",
     "INK_THRESHOLD",
     "Predictor",
+    "hypothesis_record",
     "ink_margin",
     "prediction_record",
     "prepare_image",

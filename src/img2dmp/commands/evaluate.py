@@ -55,6 +55,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=16,
         help="samples drawn in examples.png (0 = no picture)",
     )
+    _add_refine(p)
+
+
+def _add_refine(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--refine",
+        metavar="STEPS",
+        type=_args.int_at_least(0),
+        default=0,
+        help="refine every prediction on its image with this many gradient steps towards "
+        "the ink (as img2dmp predict --refine); 0 = the network's output",
+    )
 
 
 def model_and_data(args: argparse.Namespace) -> tuple[str, str]:
@@ -95,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
         out_dir=out,
         n_figures=args.figures,
         digits=list(args.digits) if args.digits is not None else None,
+        refine=args.refine,
     )
     # Table I's table, then (in the same text) the path measures' table.
     print(format_table(res, f"trajectory error (px), {data} [{args.split}]"))

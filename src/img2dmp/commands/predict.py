@@ -6,6 +6,12 @@ training images' pen width, resize, ink = 1). Without --out the
 predictions are printed as JSON; with --out each image gets NAME_dmp.json (parameters and
 sampled trajectory), NAME_trajectory.csv and, with --overlay, NAME_overlay.png.
 
+A network with several hypotheses (model.hypotheses) gives all of them, ranked by
+probability: the JSON's "dmp" and "trajectory" are the top one's (the one `img2dmp write`
+writes) and "hypotheses" lists every one; the CSV gets rank and probability columns; the
+overlay draws the top one bold. --refine N pulls each DMP onto the ink of its image with N
+gradient steps near the network's output (img2dmp.nn.refine).
+
   img2dmp predict --model runs/paper my_digit.jpg --out pred --overlay
 """
 
@@ -35,6 +41,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="trajectory samples over [0, tau]",
     )
     p.add_argument(
+        "--refine",
+        metavar="STEPS",
+        type=_args.int_at_least(0),
+        default=0,
+        help="refine each predicted DMP on its image with this many gradient steps that pull "
+        "it onto the ink near the network's output (0 = the network's output as it is)",
+    )
+    p.add_argument(
         "--keep-stroke-width",
         action="store_true",
         help="do not bring the strokes to the training images' pen width",
@@ -42,20 +56,40 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..predict import Predictor, prediction_record, write_prediction
+    from ..nn.refine import RefineOptions
+    from ..predict import Predictor, write_prediction
 
     predictor = Predictor.load(args.model)
-    results = predictor.predict_paths(args.images, not args.keep_stroke_width)
+    if args.refine:
+        predictor.refine_options = RefineOptions(steps=args.refine)
+    images = predictor.prepare_paths(args.images, not args.keep_stroke_width)
     records = []
-    for path, (params, image) in zip(args.images, results, strict=True):
-        t, y = predictor.trajectories(params, n_points=args.points)
-        rec = prediction_record(params, t, y, str(path))
+    for path, image in zip(args.images, images, strict=True):
+        rec = _record(predictor, image, str(path), args.points)
         records.append(rec)
         if args.out:
             files = write_prediction(
                 args.out, Path(path).stem, rec, image if args.overlay else None
             )
-            print(f"{path}: tau = {float(params.tau):.3f} s -> " + ", ".join(str(f) for f in files))
+            tau = rec["dmp"]["tau"]
+            print(f"{path}: tau = {float(tau):.3f} s -> " + ", ".join(str(f) for f in files))
     if not args.out:
         print(json.dumps(records if len(records) > 1 else records[0], indent=1))
     return 0
+
+
+def _record(predictor, image, source: str, points: int) -> dict:
+    """The prediction record of one prepared image: the top DMP, and with a
+    multi-hypothesis network every hypothesis ranked."""
+    from ..predict import hypothesis_record, prediction_record
+
+    params, probs = predictor.predict_hypotheses(image[None])  # [1, K], ranked
+    ranked = []
+    for k in range(params.batch_shape[1]):
+        t, y = predictor.trajectories(params[0, k], n_points=points)
+        ranked.append((params[0, k], t, y, float(probs[0, k])))
+    top, t, y, _ = ranked[0]
+    hyps = None
+    if len(ranked) > 1:
+        hyps = [hypothesis_record(k + 1, p, q, tk, yk) for k, (q, tk, yk, p) in enumerate(ranked)]
+    return prediction_record(top, t, y, source, hyps)

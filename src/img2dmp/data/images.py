@@ -83,7 +83,9 @@ def _match_stroke_width(crop: np.ndarray, scale: float, target_px: float) -> np.
     """
     from scipy.ndimage import grey_dilation, grey_erosion
 
-    width_out = stroke_width(crop, upsample=1 if scale < 0.5 else 4) * scale
+    # A crop is the ink's bounding box: a border of background lets the width measure see
+    # the strokes' edges (a crisp bar filling its box would otherwise measure as huge).
+    width_out = stroke_width(np.pad(crop, 1), upsample=1 if scale < 0.5 else 4) * scale
     if width_out <= 0 or abs(width_out - target_px) < 0.25:
         return crop
     radius = abs(target_px - width_out) / 2.0 / scale  # in crop pixels
@@ -157,9 +159,11 @@ def _ink_levels(grey: np.ndarray, label: str) -> np.ndarray:
     return np.clip(ink / top, 0.0, 1.0)
 
 
-def _crop_to_ink(ink: np.ndarray) -> np.ndarray:
+def _crop_to_ink(ink: np.ndarray, label: str = "the image") -> np.ndarray:
     """The bounding box of the pixels above ``INK_THRESHOLD``."""
     rows, cols = np.nonzero(ink > INK_THRESHOLD)
+    if rows.size == 0:
+        raise ValueError(f"{label} has no pixel darker than half the ink's contrast")
     return ink[rows.min() : rows.max() + 1, cols.min() : cols.max() + 1]
 
 
@@ -236,12 +240,12 @@ def prepare_image(
     if stroke_width_px is not None and not (np.isfinite(stroke_width_px) and stroke_width_px > 0):
         raise ValueError(f"stroke_width_px must be a positive number, got {stroke_width_px!r}")
     h_out, w_out = (int(s) for s in image_size)
-    crop = _crop_to_ink(_ink_levels(grey, label))
+    crop = _crop_to_ink(_ink_levels(grey, label), label)
     if stroke_width_px is not None:
         # The pen width is matched at the output's scale, which the framing fixes.
         side = max(crop.shape) / (1.0 - 2.0 * margin)
         crop = _match_stroke_width(crop, max(h_out, w_out) / side, float(stroke_width_px))
-        crop = _crop_to_ink(crop)  # the widened ink may reach past the old box
+        crop = _crop_to_ink(crop, label)  # the widened ink may reach past the old box
     return _frame(crop, (h_out, w_out), margin)
 
 

@@ -69,7 +69,7 @@ def _draw_path(ax, xy: np.ndarray, style: dict, start_marker: bool, arrow_pt: fl
     """One path ``[T, 2]`` (NaN = pen up) with its start dot and, for ``arrow_pt > 0``, an
     arrowhead of about that size (points) in the direction of writing."""
     colour = style["colour"]
-    ax.plot(xy[:, 0], xy[:, 1], color=colour, linewidth=1.0)
+    ax.plot(xy[:, 0], xy[:, 1], color=colour, linewidth=style.get("linewidth", 1.0))
     finite = np.flatnonzero(np.isfinite(xy).all(axis=1))
     if start_marker and finite.size:
         x0, y0 = xy[finite[0]]
@@ -275,3 +275,42 @@ def overlay_figure(
 
 
 __all__ = ["DEFAULT_LABELS", "overlay_figure", "plot_grid", "save_grid"]
+
+
+#: Colours of ranked hypotheses (rank 1 first); more hypotheses cycle through them.
+_HYPOTHESIS_COLOURS = ("tab:red", "tab:orange", "tab:green", "tab:purple", "tab:brown")
+
+
+def hypotheses_figure(
+    path: str | os.PathLike,
+    image: np.ndarray,  # [H, W]
+    paths: np.ndarray,  # [K, T, d], ranked: the top hypothesis first
+    probs: np.ndarray,  # [K]
+    title: str = "",
+    cell_inches: float = 3.0,
+    dpi: int = 100,
+) -> Path:
+    """One image with its K ranked predicted paths: the top one bold, the others thin, each
+    with its start dot and direction arrow; the legend gives each rank's probability."""
+    fig, ax = plt.subplots(figsize=(cell_inches, cell_inches))
+    ax.set_axis_off()
+    arrow_pt = 4.5 + 1.5 * cell_inches
+    handles = []
+    for k in range(len(paths) - 1, -1, -1):  # the top hypothesis drawn last, on top
+        colour = _HYPOTHESIS_COLOURS[k % len(_HYPOTHESIS_COLOURS)]
+        width = 2.2 if k == 0 else 0.9
+        style = {"colour": colour, "start_size": 4.0 if k == 0 else 2.5, "arrow_at": 0.5,
+                 "linewidth": width}  # fmt: skip
+        _draw_path(ax, _pen_down_xy(paths[k]), style, True, arrow_pt if k == 0 else 0.7 * arrow_pt)
+        label = f"#{k + 1}: p = {float(probs[k]):.2f}" + (" (written)" if k == 0 else "")
+        handles.insert(0, Line2D([], [], color=colour, linewidth=width, label=label))
+    h, w = np.asarray(image).shape
+    ax.imshow(image, cmap="gray_r", vmin=0, vmax=1, extent=(-0.5, w - 0.5, h - 0.5, -0.5),
+              zorder=0)  # fmt: skip
+    ax.set_xlim(-0.5, w - 0.5)
+    ax.set_ylim(h - 0.5, -0.5)
+    if title:
+        ax.set_title(title, fontsize=_FONT + 1)
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.02), ncol=2,
+              frameon=False, fontsize=_FONT)  # fmt: skip
+    return save_figure(fig, path, dpi=dpi)
