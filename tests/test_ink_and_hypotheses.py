@@ -206,3 +206,44 @@ def test_a_three_hypothesis_network_trains_and_predict_ranks_its_hypotheses(thre
     # the robot's input (predict_paths) is the top hypothesis
     [(top, _)] = pred.predict_paths([root / "one.png"])
     np.testing.assert_allclose(top.to_vector(), rec["vector"], rtol=1e-6)
+
+
+def test_unlabelled_images_add_their_ink_terms_to_a_training_step():
+    from img2dmp.training import train_step
+
+    cfg, norm, model = _setup(2)
+    cost = Cost("trajectory", norm, cfg, hypotheses=2, ink_weight=1.0, coverage_weight=1.0)
+    x = torch.zeros(4, 16, 16)
+    x[:, 8, 3:13] = 1.0  # a stroke on every image
+    t = torch.linspace(0, 3, 30).expand(4, 30)
+    traj = torch.stack([torch.linspace(3, 12, 30), torch.full((30,), 8.0)], -1).expand(4, 30, 2)
+    zt = torch.zeros(4, cfg.n_params)
+    extra = cost.image_terms(model(x).detach(), x, t)
+    assert float(extra) > 0.0  # a random network does not write on the ink
+    grads = []
+    for unlabelled in (None, x.clone()):
+        m = build_model(ModelConfig(image_size=[16, 16], encoder_layers=[32, 8], hypotheses=2))
+        m.load_state_dict(model.state_dict())
+        opt = torch.optim.SGD(m.parameters(), lr=0.0)  # measure, do not move
+        train_step(m, opt, cost, x, t, traj, zt, unlabelled=unlabelled)
+        grads.append(torch.cat([p.grad.flatten() for p in m.parameters()]))
+    assert not torch.allclose(grads[0], grads[1])
+
+
+def test_unlabelled_mnist_images_never_come_from_the_validation_or_test_part():
+    from pathlib import Path
+
+    from img2dmp.data.mnist import load_mnist, unlabelled_images
+    from img2dmp.data.recorded import split_of_index
+
+    mnist = Path(__file__).resolve().parents[2] / "shared" / "data" / "mnist"
+    if not mnist.is_dir():
+        pytest.skip(f"MNIST not found at {mnist} (../shared/data/mnist)")
+    train, _ = load_mnist(mnist, "train")
+    part = split_of_index(range(len(train)))
+    images = unlabelled_images(mnist, seed=3)
+    assert len(images) == int((part == 0).sum()) + 10_000
+    seen = {a.tobytes() for a in images}
+    held_out = np.flatnonzero(part != 0)[:300]
+    assert not any(train[i].tobytes() in seen for i in held_out)
+    assert sum(train[i].tobytes() in seen for i in np.flatnonzero(part == 0)[:300]) == 300

@@ -157,6 +157,31 @@ def load_mnist(directory: str | os.PathLike, split: str = "train") -> tuple[np.n
     return images.astype(np.float32) / 255.0, labels.astype(np.int64)
 
 
+def unlabelled_images(
+    directory: str | os.PathLike, count: int | None = None, seed: int = 0
+) -> np.ndarray:
+    """MNIST images that may train without a recorded path, ``float32 [n, 28, 28]``.
+
+    Every test image (``t10k``) and every training image whose index falls in the
+    training part of the recorded paths' split rule
+    (:func:`img2dmp.data.recorded.split_of_index` = 0): never an image of the validation
+    or test part, so evaluation stays inductive. Shuffled with ``seed``; the first
+    ``count`` (all if None).
+    """
+    from .recorded import split_of_index
+
+    train, _ = load_mnist(directory, "train")
+    test, _ = load_mnist(directory, "test")
+    keep = split_of_index(range(len(train))) == 0
+    images = np.concatenate([train[keep], test])
+    order = np.random.default_rng(seed).permutation(len(images))
+    if count is not None:
+        if isinstance(count, bool) or int(count) < 1:
+            raise ValueError(f"count must be an integer >= 1 or None, got {count!r}")
+        order = order[: int(count)]
+    return images[order]
+
+
 def write_idx(path: str | os.PathLike, array: np.ndarray, compress: bool | None = None) -> None:
     """Write a uint8 array as an IDX file (gzip if ``compress`` or the name ends in .gz).
 

@@ -353,9 +353,10 @@ class Cost:
         1)`` on each other), plus ``score_weight`` times the cross-entropy that teaches
         the scores which hypothesis wins. K = 1 is the single-head cost, exactly.
     ink_weight, coverage_weight : float
-        Weights of the image-consistency terms (:mod:`img2dmp.nn.ink`, px^2, on every
-        hypothesis): :func:`~img2dmp.nn.ink.ink_attraction` and
-        :func:`~img2dmp.nn.ink.ink_coverage`. 0 (default) = off. They need the images.
+        Weights of the image-consistency terms (:mod:`img2dmp.nn.ink`, px^2):
+        :func:`~img2dmp.nn.ink.ink_attraction` on every hypothesis and
+        :func:`~img2dmp.nn.ink.ink_coverage` on each sample's winning one (the one that
+        is to write the whole digit). 0 (default) = off. They need the images.
     """
 
     def __init__(
@@ -435,33 +436,56 @@ class Cost:
         return c10, y.detach()
 
     def _general(self, z_pred, z_target, times, trajectories, images):
-        from .ink import ink_attraction, ink_coverage, ink_distance_map
         from .model import split_hypotheses
 
         z, logits = split_hypotheses(z_pred, self.hypotheses)  # [B, K, P], [B, K]
-        b, k, p = z.shape
+        b = z.shape[0]
         y = None
         if self.name != "parameter" or self.uses_images:
-            t = times.repeat_interleave(k, dim=0)  # [B K, T]
-            y = dmp_trajectory(z.reshape(b * k, p), t, self.normaliser, self.config)
-            y = y.reshape(b, k, *y.shape[1:])  # [B, K, T, d]
+            y = self._rollouts(z, times)  # [B, K, T, d]
         per = self._per_hypothesis(z, z_target, y, trajectories)  # [B, K]
         cost = self._winner_takes_all(per, logits)
         if self.uses_images:
             if images is None:
                 raise ValueError("the ink terms of the cost need the images")
-            flat = y.reshape(b * k, *y.shape[2:])  # [B K, T, d]
-            imgs = images.repeat_interleave(k, dim=0)  # [B K, H, W]
-            if self.ink_weight > 0:
-                dist = ink_distance_map(imgs)
-                cost = cost + self.ink_weight * ink_attraction(flat, dist).mean()
-            if self.coverage_weight > 0:
-                cov = ink_coverage(flat, imgs, tolerance_px=self.coverage_tolerance_px)
-                cost = cost + self.coverage_weight * cov.mean()
+            cost = cost + self._ink_terms(y, images, per.detach().argmin(dim=1))
         if y is None:
             return cost, None
         top = logits.argmax(dim=1)  # [B]
         return cost, y[torch.arange(b), top].detach()
+
+    def image_terms(self, z_pred: torch.Tensor, images: torch.Tensor, times: torch.Tensor):
+        """The ink terms alone (no demonstration needed): for images without a recorded
+        path. ``z_pred [B, ...]`` network outputs, ``images [B, H, W]``, ``times [B, T]``."""
+        from .model import split_hypotheses
+
+        z, logits = split_hypotheses(z_pred, self.hypotheses)
+        return self._ink_terms(self._rollouts(z, times), images, logits.detach().argmax(dim=1))
+
+    def _rollouts(self, z: torch.Tensor, times: torch.Tensor) -> torch.Tensor:
+        """Every hypothesis ``z [B, K, P]`` rolled out at ``times [B, T]``: ``[B, K, T, d]``."""
+        b, k, p = z.shape
+        t = times.repeat_interleave(k, dim=0)  # [B K, T]
+        y = dmp_trajectory(z.reshape(b * k, p), t, self.normaliser, self.config)
+        return y.reshape(b, k, *y.shape[1:])
+
+    def _ink_terms(self, y: torch.Tensor, images: torch.Tensor, chosen: torch.Tensor):
+        """Weighted ink terms of hypotheses ``y [B, K, T, d]``: attraction on every one,
+        coverage on the ``chosen [B]`` one (the winner, or the top-scored one without a
+        demonstration), which is the path that is to write the whole digit."""
+        from .ink import ink_attraction, ink_coverage, ink_distance_map
+
+        b, k = y.shape[:2]
+        cost = y.new_zeros(())
+        if self.ink_weight > 0:
+            flat = y.reshape(b * k, *y.shape[2:])  # [B K, T, d]
+            dist = ink_distance_map(images).repeat_interleave(k, dim=0)  # once per image
+            cost = cost + self.ink_weight * ink_attraction(flat, dist).mean()
+        if self.coverage_weight > 0:
+            one = y[torch.arange(b, device=y.device), chosen]  # [B, T, d]
+            cov = ink_coverage(one, images, tolerance_px=self.coverage_tolerance_px)
+            cost = cost + self.coverage_weight * cov.mean()
+        return cost
 
     def _per_hypothesis(self, z, z_target, y, trajectories) -> torch.Tensor:
         """Each sample's cost (9), (10) or their sum for each of its hypotheses, [B, K]."""

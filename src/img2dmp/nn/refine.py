@@ -35,7 +35,7 @@ class RefineOptions:
 
     steps: int = 30
     lr: float = 0.02
-    prior_weight: float = 1.0
+    prior_weight: float = 5.0
     ink_weight: float = 1.0
     coverage_weight: float = 1.0
     coverage_tolerance_px: float = 1.0

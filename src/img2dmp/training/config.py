@@ -47,6 +47,15 @@ class DataConfig:
         ``{rotation_deg: [-3, 3], scale: [0.97, 1.03], translation_rel: [-0.02, 0.02],
         shear_deg: [-3, 3]}``; a missing key means no change of that kind. The
         validation split is never augmented. None (default): off.
+    unlabelled_mnist : str or None
+        Folder of the MNIST IDX files: also train on MNIST images that have no recorded
+        path, with the cost's ink terms alone (``cost.unlabelled_weight``), semi-supervised.
+        Only t10k images and training images in the training part of the split rule
+        (:func:`img2dmp.data.mnist.unlabelled_images`). None (default): off.
+    unlabelled_count : int
+        How many of those images (a fixed random choice).
+    unlabelled_per_batch : int
+        Unlabelled images beside each batch of examples with paths.
     """
 
     path: str | None = None
@@ -56,9 +65,17 @@ class DataConfig:
     val_fraction: float = 0.1
     digits: list[int] | None = None
     augment: dict | None = None
+    unlabelled_mnist: str | None = None
+    unlabelled_count: int = 20000
+    unlabelled_per_batch: int = 64
 
     def __post_init__(self) -> None:
-        for name in ("samples_per_epoch", "val_samples"):
+        for name in (
+            "samples_per_epoch",
+            "val_samples",
+            "unlabelled_count",
+            "unlabelled_per_batch",
+        ):
             if int(getattr(self, name)) < 1:
                 raise ConfigError(f"data.{name} must be >= 1, got {getattr(self, name)!r}")
         if not 0 <= self.val_fraction < 1:
@@ -153,7 +170,8 @@ class CostConfig:
     :func:`img2dmp.nn.ink.ink_coverage` (the ink reached by the path, beyond
     ``coverage_tolerance_px``). ``wta_relax`` and ``score_weight``: the winner-takes-all
     cost of a network with several hypotheses (``model.hypotheses``), see
-    :class:`img2dmp.nn.Cost`.
+    :class:`img2dmp.nn.Cost`. ``unlabelled_weight``: weight of those ink terms on images
+    without a path (``data.unlabelled_mnist``).
     """
 
     name: str = "trajectory"
@@ -167,6 +185,7 @@ class CostConfig:
     coverage_tolerance_px: float = 1.0
     wta_relax: float = 0.05
     score_weight: float = 0.1
+    unlabelled_weight: float = 1.0
 
     def __post_init__(self) -> None:
         from ..nn.costs import PARAMETER_WEIGHTINGS, canonical_cost_name
@@ -175,7 +194,8 @@ class CostConfig:
         self.name = canonical_cost_name(self.name)
         check_positive("cost.parameter_weight", self.parameter_weight, allow_zero=True)
         check_positive("cost.trajectory_weight", self.trajectory_weight, allow_zero=True)
-        for name in ("ink_weight", "coverage_weight", "coverage_tolerance_px", "score_weight"):
+        for name in ("ink_weight", "coverage_weight", "coverage_tolerance_px", "score_weight",
+                     "unlabelled_weight"):  # fmt: skip
             check_positive(f"cost.{name}", getattr(self, name), allow_zero=True)
         if not 0 <= self.wta_relax < 1:
             raise ConfigError(f"cost.wta_relax must be in [0, 1), got {self.wta_relax!r}")

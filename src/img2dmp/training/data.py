@@ -129,6 +129,7 @@ class TrainingData:
             self._from_file(cfg, normaliser)
         else:
             self._from_generator(cfg, normaliser)
+        self.unlabelled = self._unlabelled(cfg)
         sample = self.val.images[:_FRAMING_SAMPLES].numpy()
         self.ink_margin = ink_margin(sample)
         self.stroke_width_px = typical_stroke_width(sample)
@@ -162,6 +163,28 @@ class TrainingData:
         self.fit_arrays = (first.params, first.times)
         self.val = Split.of(val, np.arange(len(val.labels)), self.normaliser)
         self._first = first
+
+    def _unlabelled(self, cfg: TrainConfig) -> torch.Tensor | None:
+        """Images without a path for the ink terms (``data.unlabelled_mnist``), [U, H, W]."""
+        d = cfg.data
+        if d.unlabelled_mnist is None:
+            return None
+        from ..data.mnist import unlabelled_images
+
+        images = unlabelled_images(d.unlabelled_mnist, d.unlabelled_count, seed=cfg.seed)
+        if list(images.shape[1:]) != self.image_size:
+            raise ValueError(
+                f"data.unlabelled_mnist: MNIST images are {list(images.shape[1:])} pixels, the "
+                f"training images {self.image_size}"
+            )
+        return torch.as_tensor(images, dtype=torch.float32)
+
+    def unlabelled_batch(self, rng: np.random.Generator) -> torch.Tensor | None:
+        """A random batch of the unlabelled images (None without them)."""
+        if self.unlabelled is None:
+            return None
+        n = min(self.cfg.data.unlabelled_per_batch, len(self.unlabelled))
+        return self.unlabelled[torch.as_tensor(rng.choice(len(self.unlabelled), n, replace=False))]
 
     def _generated(self, epoch: int) -> DigitData:
         n = self.cfg.data.samples_per_epoch

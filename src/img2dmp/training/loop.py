@@ -171,6 +171,7 @@ def train_epoch(run: Run, epoch: int) -> tuple[float, float]:
     mine = order[run.rank :: run.world]  # every process sees the same order, its own share
     per_rank = max(1, cfg.optim.batch_size // run.world)
     rng = np.random.default_rng([cfg.seed, epoch, run.rank])  # augmentation, resumable
+    rng_unlabelled = np.random.default_rng([cfg.seed, epoch, run.rank, 1])
     state.model.train()
     totals = torch.zeros(3, dtype=torch.float64)  # sum of cost * b, sum of error, samples
     batches = bar(
@@ -192,6 +193,8 @@ def train_epoch(run: Run, epoch: int) -> tuple[float, float]:
                 paths,
                 z_target,
                 grad_clip=cfg.optim.grad_clip,
+                unlabelled=run.data.unlabelled_batch(rng_unlabelled),
+                unlabelled_weight=cfg.cost.unlabelled_weight,
             )
         except TrainingDiverged as e:
             raise _diverged(run, f"{e} at epoch {epoch}, step {state.step}") from None
@@ -223,19 +226,29 @@ def train_step(
     z_target: torch.Tensor,  # [b, P], normalised DMP vector (cost 9's target)
     *,
     grad_clip: float | None = None,
+    unlabelled: torch.Tensor | None = None,  # [u, H, W], images without a path
+    unlabelled_weight: float = 1.0,
 ) -> StepResult:
     """One optimiser step on one batch: network, cost (9) or (10), backward, update.
 
     Also measures the batch's Table I error (the DMP rolled out at the demonstration's
     time stamps; for cost (10) the cost's own rollout, for cost (9) one more).
+    ``unlabelled`` images (semi-supervised) add ``unlabelled_weight`` times the cost's
+    ink terms (:meth:`img2dmp.nn.Cost.image_terms`), at the batch's first time stamps.
 
     Raises
     ------
     TrainingDiverged
         The cost is NaN or infinite; the weights are left as they were.
     """
-    z = model(images)  # [b, P]
+    b = len(images)
+    both = images if unlabelled is None else torch.cat([images, unlabelled])
+    out = model(both)  # one forward pass for both: [b (+ u), P | K (P + 1)]
+    z = out[:b]
     loss, y = cost(z, z_target, times, trajectories, images if cost.uses_images else None)
+    if unlabelled is not None and cost.uses_images and unlabelled_weight > 0:
+        t_u = times[:1].expand(len(unlabelled), -1)  # [u, T]
+        loss = loss + unlabelled_weight * cost.image_terms(out[b:], unlabelled, t_u)
     if not torch.isfinite(loss):
         raise TrainingDiverged(f"training cost is {float(loss.detach())}")
     optimizer.zero_grad(set_to_none=True)
