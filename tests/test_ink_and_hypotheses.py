@@ -247,3 +247,27 @@ def test_unlabelled_mnist_images_never_come_from_the_validation_or_test_part():
     held_out = np.flatnonzero(part != 0)[:300]
     assert not any(train[i].tobytes() in seen for i in held_out)
     assert sum(train[i].tobytes() in seen for i in np.flatnonzero(part == 0)[:300]) == 300
+
+
+def test_the_path_cost_ignores_timing_and_passes_gradcheck():
+    from img2dmp.metrics import path_error_px
+    from img2dmp.metrics import resample_by_arc_length as resample_numpy
+    from img2dmp.nn.costs import path_cost, resample_by_arc_length
+
+    u = torch.linspace(0, 1, 120, dtype=torch.float64)
+
+    def circle(s):
+        return torch.stack([10 + 6 * torch.cos(6 * s), 10 + 6 * torch.sin(6 * s)], -1)
+
+    even, uneven = circle(u)[None], circle(u**2)[None]  # one curve, two speeds
+    assert float(path_cost(uneven, even)) < 1e-3
+    assert float(((uneven - even) ** 2).sum(-1).mean()) > 1.0  # cost (10) sees the timing
+    rng = torch.Generator().manual_seed(0)
+    a = torch.randn(3, 50, 2, generator=rng, dtype=torch.float64).cumsum(1)
+    b = torch.randn(3, 50, 2, generator=rng, dtype=torch.float64).cumsum(1)
+    np.testing.assert_allclose(  # the metric's own resampling, in torch
+        resample_by_arc_length(a, 64).numpy(), resample_numpy(a.numpy(), 64), atol=1e-9
+    )
+    assert (path_cost(a, b).sqrt() >= torch.as_tensor(path_error_px(a.numpy(), b.numpy()))).all()
+    a.requires_grad_()
+    assert torch.autograd.gradcheck(lambda p: path_cost(p, b), (a,), eps=1e-6, atol=1e-5)

@@ -422,24 +422,27 @@ def _evaluation_data(predictor: Predictor, dataset_path, split: str, digits):
 
 
 def _write_evaluation(out: Path, result: dict, data, y, errors, n_figures: int, seed: int):
-    """``evaluation.json``, ``evaluation.txt`` and (``n_figures`` > 0) ``examples.png``."""
+    """``evaluation.json``, ``evaluation.txt`` and (``n_figures`` > 0) ``examples.png``
+    (random samples) and ``worst.png`` (the 12 largest path errors)."""
     from .data.plotting import overlay_figure
 
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "evaluation.json", json.dumps(result, indent=1) + "\n")
     atomic_write_text(out / "evaluation.txt", format_table(result) + "\n")
-    if n_figures > 0:
-        rng = np.random.default_rng(seed)
-        pick = np.sort(rng.choice(len(data), size=min(n_figures, len(data)), replace=False))
-        titles = [f"{int(data.labels[i])}: {errors[i]:.3f} px" for i in pick]
-        overlay_figure(
-            out / "examples.png",
-            data.images[pick],
-            data.trajectories[pick],
-            y[pick],
-            titles,
-            labels=("demonstration", "network's DMP"),
-        )
+    if n_figures <= 0:
+        return
+    rng = np.random.default_rng(seed)
+    pick = np.sort(rng.choice(len(data), size=min(n_figures, len(data)), replace=False))
+    titles = [f"{int(data.labels[i])}: {errors[i]:.3f} px" for i in pick]
+    labels = ("demonstration", "network's DMP")
+    overlay_figure(out / "examples.png", data.images[pick], data.trajectories[pick], y[pick],
+                   titles, labels=labels)  # fmt: skip
+    # The samples the network does worst on, by the timing-free path error.
+    path_errors = np.asarray(result["path_errors_px"])
+    worst = np.argsort(-path_errors)[: min(n_figures, 12, len(data))]
+    titles = [f"{int(data.labels[i])}: path {path_errors[i]:.2f} px" for i in worst]
+    overlay_figure(out / "worst.png", data.images[worst], data.trajectories[worst], y[worst],
+                   titles, labels=labels)  # fmt: skip
 
 
 def __getattr__(name: str):

@@ -311,6 +311,40 @@ def _mean_squared_distance(y: torch.Tensor, y_demo: torch.Tensor) -> torch.Tenso
     return ((y - y_demo) ** 2).sum(-1).mean()  # [B, T, d] -> scalar
 
 
+def resample_by_arc_length(y: torch.Tensor, n_points: int = 64) -> torch.Tensor:
+    """Paths ``[B, T, >=2]`` at ``n_points`` evenly spaced arc lengths, ``[B, n, 2]``
+    (x, y; linear between the samples), differentiable in the positions.
+
+    The torch twin of :func:`img2dmp.metrics.resample_by_arc_length` for d = 2: which
+    segment holds each arc length is found without gradient, the point on it is a
+    differentiable interpolation, so the gradient moves the shape, not the timing.
+    """
+    xy = y[..., :2]
+    seg = torch.sqrt(((xy[:, 1:] - xy[:, :-1]) ** 2).sum(-1) + 1e-12)  # [B, T-1]
+    s = torch.cat([seg.new_zeros(seg.shape[0], 1), torch.cumsum(seg, dim=1)], dim=1)  # [B, T]
+    u = s / s[:, -1:]  # [B, T], 0 .. 1
+    grid = torch.linspace(0.0, 1.0, n_points, dtype=u.dtype, device=u.device)
+    grid = grid.expand(u.shape[0], n_points).contiguous()
+    idx = torch.searchsorted(u.detach().contiguous(), grid, right=True)
+    idx = idx.clamp(1, u.shape[1] - 1)  # [B, n]: the segment [idx - 1, idx]
+    u0, u1 = torch.gather(u, 1, idx - 1), torch.gather(u, 1, idx)
+    w = ((grid - u0) / (u1 - u0).clamp_min(1e-12)).clamp(0.0, 1.0)[..., None]  # [B, n, 1]
+    p0 = torch.gather(xy, 1, (idx - 1)[..., None].expand(-1, -1, 2))
+    p1 = torch.gather(xy, 1, idx[..., None].expand(-1, -1, 2))
+    return p0 + w * (p1 - p0)
+
+
+def path_cost(y: torch.Tensor, y_demo: torch.Tensor, n_points: int = 64) -> torch.Tensor:
+    """Timing-free squared path distance (px^2) per sample, ``[B]``: both paths resampled
+    by arc length (:func:`resample_by_arc_length`) and compared point by point, the
+    square of :func:`img2dmp.metrics.path_error_px`'s distances. It rewards the right
+    shape written in the right order whatever the speed, which an image does not show."""
+    a = resample_by_arc_length(y, n_points)
+    with torch.no_grad():
+        b = resample_by_arc_length(y_demo.to(a.dtype), n_points)
+    return ((a - b) ** 2).sum(-1).mean(-1)
+
+
 def trajectory_error_px(y_dmp: torch.Tensor, y_demo: torch.Tensor) -> torch.Tensor:
     """Per-sample mean Euclidean distance (px) on x, y only (the metric of Table I).
 
@@ -357,6 +391,9 @@ class Cost:
         :func:`~img2dmp.nn.ink.ink_attraction` on every hypothesis and
         :func:`~img2dmp.nn.ink.ink_coverage` on each sample's winning one (the one that
         is to write the whole digit). 0 (default) = off. They need the images.
+    path_weight : float
+        Weight of :func:`path_cost` (px^2), the timing-free distance between the paths,
+        added to each hypothesis' cost. 0 (default) = off.
     """
 
     def __init__(
@@ -374,6 +411,7 @@ class Cost:
         ink_weight: float = 0.0,
         coverage_weight: float = 0.0,
         coverage_tolerance_px: float = 1.0,
+        path_weight: float = 0.0,
     ):
         self.name = canonical_cost_name(name)
         for k, v in (
@@ -382,6 +420,7 @@ class Cost:
             ("ink_weight", ink_weight),
             ("coverage_weight", coverage_weight),
             ("score_weight", score_weight),
+            ("path_weight", path_weight),
         ):
             if not (float(v) >= 0):
                 raise ValueError(f"cost.{k} must be >= 0, got {v!r}")
@@ -396,6 +435,7 @@ class Cost:
         self.wta_relax, self.score_weight = float(wta_relax), float(score_weight)
         self.ink_weight, self.coverage_weight = float(ink_weight), float(coverage_weight)
         self.coverage_tolerance_px = float(coverage_tolerance_px)
+        self.path_weight = float(path_weight)
         self.weighting = weighting
         self._weights = None
         if weighting is not None:
@@ -420,7 +460,7 @@ class Cost:
     ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """Return ``(cost, y_dmp)``: ``y_dmp [B, T, d]`` (detached, the top hypothesis)
         when the cost rolled the DMPs out anyway, else ``None``."""
-        if self.hypotheses == 1 and not self.uses_images:
+        if self.hypotheses == 1 and not self.uses_images and not self.path_weight:
             return self._single(z_pred, z_target, times, trajectories)
         return self._general(z_pred, z_target, times, trajectories, images)
 
@@ -441,7 +481,7 @@ class Cost:
         z, logits = split_hypotheses(z_pred, self.hypotheses)  # [B, K, P], [B, K]
         b = z.shape[0]
         y = None
-        if self.name != "parameter" or self.uses_images:
+        if self.name != "parameter" or self.uses_images or self.path_weight:
             y = self._rollouts(z, times)  # [B, K, T, d]
         per = self._per_hypothesis(z, z_target, y, trajectories)  # [B, K]
         cost = self._winner_takes_all(per, logits)
@@ -503,6 +543,11 @@ class Cost:
         if self.name in ("trajectory", "combined"):
             c10 = ((y - trajectories[:, None]) ** 2).sum(-1).mean(-1)  # [B, K]
             per = per + (c10 if self.name == "trajectory" else self.trajectory_weight * c10)
+        if self.path_weight:
+            b, k = y.shape[:2]
+            demo = trajectories.repeat_interleave(k, dim=0)  # [B K, T, d]
+            cp = path_cost(y.reshape(b * k, *y.shape[2:]), demo).reshape(b, k)
+            per = per + self.path_weight * cp
         return per
 
     def _winner_takes_all(self, per: torch.Tensor, logits: torch.Tensor) -> torch.Tensor:

@@ -171,7 +171,8 @@ class CostConfig:
     ``coverage_tolerance_px``). ``wta_relax`` and ``score_weight``: the winner-takes-all
     cost of a network with several hypotheses (``model.hypotheses``), see
     :class:`img2dmp.nn.Cost`. ``unlabelled_weight``: weight of those ink terms on images
-    without a path (``data.unlabelled_mnist``).
+    without a path (``data.unlabelled_mnist``). ``path_weight``: weight of the
+    timing-free path cost (:func:`img2dmp.nn.costs.path_cost`, px^2) beside the cost.
     """
 
     name: str = "trajectory"
@@ -186,6 +187,7 @@ class CostConfig:
     wta_relax: float = 0.05
     score_weight: float = 0.1
     unlabelled_weight: float = 1.0
+    path_weight: float = 0.0
 
     def __post_init__(self) -> None:
         from ..nn.costs import PARAMETER_WEIGHTINGS, canonical_cost_name
@@ -195,7 +197,7 @@ class CostConfig:
         check_positive("cost.parameter_weight", self.parameter_weight, allow_zero=True)
         check_positive("cost.trajectory_weight", self.trajectory_weight, allow_zero=True)
         for name in ("ink_weight", "coverage_weight", "coverage_tolerance_px", "score_weight",
-                     "unlabelled_weight"):  # fmt: skip
+                     "unlabelled_weight", "path_weight"):  # fmt: skip
             check_positive(f"cost.{name}", getattr(self, name), allow_zero=True)
         if not 0 <= self.wta_relax < 1:
             raise ConfigError(f"cost.wta_relax must be in [0, 1), got {self.wta_relax!r}")

@@ -176,6 +176,7 @@ def make_cost(cfg: TrainConfig, normaliser, dmp_config, weighting=None) -> Cost:
         ink_weight=c.ink_weight,
         coverage_weight=c.coverage_weight,
         coverage_tolerance_px=c.coverage_tolerance_px,
+        path_weight=c.path_weight,
     )
 
 
