@@ -18,15 +18,24 @@ its own duration (tau in [2.5, 3.5] s), loss = sum of squared positions.
 Each method's largest deviation from a scipy ``solve_ivp`` solution (rtol 1e-10) of the
 first 4 samples is printed too: speed is only worth comparing at equal accuracy.
 
-The methods are timed in alternation (:func:`interleaved`), and each ratio is taken
-round by round, so that a slow drift of a shared machine does not favour one side.
+The fused kernels are also timed at a fixed 1 and 2 threads (torch's and numba's),
+next to the default, which follows the thread rule of ``img2dmp.dmp.rollout.fused_threads``
+(no more threads than idle cores). ``--load`` runs the whole benchmark next to a busy-loop
+process on one core, to show how each method degrades on a loaded machine.
 
-Run: ``.venv/bin/python benchmarks/bench_rollout.py [--repeats 10]``
+The methods are timed in alternation (:func:`interleaved`), and each ratio is taken
+round by round, so that a slow drift of a shared machine does not favour one side. The
+CPU, the threads, the load averages at start and end and whether the response tables
+hold subnormal numbers are printed with the table.
+
+Run: ``.venv/bin/python benchmarks/bench_rollout.py [--repeats 10] [--load]``
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import importlib
 import statistics
 import time
 
@@ -34,6 +43,7 @@ import numpy as np
 import torch
 from scipy.integrate import solve_ivp
 
+import _machine
 from img2dmp.dmp import (
     DMPConfig,
     DMPIntegrator,
@@ -44,6 +54,8 @@ from img2dmp.dmp import (
     rollout,
     rollout_sensitivity,
 )
+
+_rollout = importlib.import_module("img2dmp.dmp.rollout")  # the module, not the function
 
 
 def make_batch(b=128, n=25, t_count=301, seed=0):
@@ -142,30 +154,90 @@ def forward_backward(roll, p, t):
     return run
 
 
-def interleaved(methods, rounds: int, fast_calls: int):
+@contextlib.contextmanager
+def fixed_threads(n: int | None):
+    """Inside: torch and the fused kernels on ``n`` threads (None: leave them alone)."""
+    if n is None:
+        yield
+        return
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    _rollout.fix_fused_threads(n)
+    try:
+        yield
+    finally:
+        _rollout.fix_fused_threads(None)
+        torch.set_num_threads(before)
+
+
+def interleaved(methods, rounds: int, fast_calls: int, threads=None):
     """Time the methods in alternation: ``rounds`` rounds, each timing every method once.
 
     A method faster than 20 ms counts as the median of ``fast_calls`` consecutive calls
     in its round. Alternating keeps slow drifts of the machine (other tenants, clock
-    changes) out of the ratios. Returns ``{name: [seconds per round]}`` and each method's
-    last output.
+    changes) out of the ratios. ``threads`` maps a method's name to the thread count it
+    runs at (set outside the timed calls; default: unchanged). Returns
+    ``{name: [seconds per round]}`` and each method's last output.
     """
+    threads = threads or {}
     outs, per_round = {}, {name: [] for name in methods}
     for name, fn in methods.items():  # warm-up (builds cached tables, compiles kernels)
-        outs[name] = fn()
+        with fixed_threads(threads.get(name)):
+            outs[name] = fn()
     for _ in range(rounds):
         for name, fn in methods.items():
             n = fast_calls if (not per_round[name] or per_round[name][-1] < 0.02) else 1
             times = []
-            for _ in range(n):
-                t0 = time.perf_counter()
-                fn()
-                times.append(time.perf_counter() - t0)
+            with fixed_threads(threads.get(name)):
+                for _ in range(n):
+                    t0 = time.perf_counter()
+                    fn()
+                    times.append(time.perf_counter() - t0)
             per_round[name].append(statistics.median(times))
     return per_round, outs
 
 
-def main():
+def subnormal_entries(cfg: DMPConfig) -> str:
+    """How many entries of the fused kernels' response tables are subnormal, per dtype."""
+    parts = []
+    for dtype in (torch.float32, torch.float64):
+        tab = _rollout._kernel_table(cfg, dtype)[3]
+        n = int(((np.abs(tab) < np.finfo(tab.dtype).tiny) & (tab != 0)).sum())
+        parts.append(f"{str(dtype)[6:]} {n} of {tab.size}")
+    return "subnormal table entries: " + ", ".join(parts)
+
+
+def rule_threads(b: int) -> str:
+    return (
+        f"fused kernels' default threads for B={b}: {_rollout.fused_threads(b)} "
+        f"(idle cores seen: {_rollout.idle_cores()})"
+    )
+
+
+def build_methods(cfg, p_np, t_np):
+    """The timed methods, and the thread counts of those that run at a fixed one."""
+    methods, threads = {}, {}
+    for backend in ("fused", "torch"):
+        for dtype in (torch.float32, torch.float64):
+            p, t = p_np.to_torch(dtype), torch.as_tensor(t_np, dtype=dtype)
+            name = f"fast rollout, {backend} ({str(dtype)[6:]})"
+            fb = forward_backward(lambda q, tt, b=backend: rollout(q, tt, cfg, backend=b), p, t)
+            methods[name] = fb
+            if backend == "fused":
+                for n in (1, 2):
+                    methods[f"{name}, {n} thread{'s' if n > 1 else ''}"] = fb
+                    threads[f"{name}, {n} thread{'s' if n > 1 else ''}"] = n
+    for name, fn, dtype in (
+        ("Euler loop + autograd, NDP layout (float32)", euler_rollout_ndp, torch.float32),
+        ("Euler loop + autograd, NDP layout (float64)", euler_rollout_ndp, torch.float64),
+        ("Euler loop + autograd, lean (float64)", euler_rollout, torch.float64),
+    ):
+        p, t = p_np.to_torch(dtype), torch.as_tensor(t_np, dtype=dtype)
+        methods[name] = forward_backward(lambda q, tt, fn=fn: fn(q, tt, cfg), p, t)
+    return methods, threads
+
+
+def parse_args():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=10, help="rounds of alternated timings")
     ap.add_argument(
@@ -182,27 +254,35 @@ def main():
         "its time is scaled to the batch",
     )
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
-    args = ap.parse_args()
+    ap.add_argument(
+        "--load",
+        action="store_true",
+        help="run next to a busy-loop process on one core (killed at the end, at most 15 min)",
+    )
+    return ap.parse_args()
+
+
+def main():
+    args = parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     torch.manual_seed(0)
     cfg, p_np, t_np = make_batch()
     b = t_np.shape[0]
-    methods = {}
-    for backend in ("fused", "torch"):
-        for dtype in (torch.float32, torch.float64):
-            p, t = p_np.to_torch(dtype), torch.as_tensor(t_np, dtype=dtype)
-            name = f"fast rollout, {backend} ({str(dtype)[6:]})"
-            fb = forward_backward(lambda q, tt, b=backend: rollout(q, tt, cfg, backend=b), p, t)
-            methods[name] = fb
-    for name, fn, dtype in (
-        ("Euler loop + autograd, NDP layout (float32)", euler_rollout_ndp, torch.float32),
-        ("Euler loop + autograd, NDP layout (float64)", euler_rollout_ndp, torch.float64),
-        ("Euler loop + autograd, lean (float64)", euler_rollout, torch.float64),
-    ):
-        p, t = p_np.to_torch(dtype), torch.as_tensor(t_np, dtype=dtype)
-        methods[name] = forward_backward(lambda q, tt, fn=fn: fn(q, tt, cfg), p, t)
-    per_round, outs = interleaved(methods, args.repeats, args.fast_calls)
+    with _machine.busy_neighbour(900.0, enabled=args.load) as neighbour:
+        print(_machine.describe())
+        print(f"neighbour: {neighbour or 'none started (--load starts one)'}")
+        print(f"{subnormal_entries(cfg)}; {rule_threads(b)}")
+        per_round, rows = run_methods(cfg, p_np, t_np, args)
+        print(f"at the end: load average {_machine.load_average()}; {rule_threads(b)}\n")
+    print_table(rows, per_round, cfg, p_np, t_np, args)
+
+
+def run_methods(cfg, p_np, t_np, args):
+    """Time every method; ``(per_round, rows)`` with rows ``(name, seconds, output)``."""
+    b = t_np.shape[0]
+    methods, threads = build_methods(cfg, p_np, t_np)
+    per_round, outs = interleaved(methods, args.repeats, args.fast_calls, threads)
     rows = [(name, statistics.median(per_round[name]), outs[name]) for name in methods]
     p, t = p_np.to_torch(torch.float64), torch.as_tensor(t_np)
     fb = forward_backward(lambda q, tt: rollout_sensitivity(q, tt, cfg), p, t)
@@ -214,32 +294,40 @@ def main():
 
     sec, out = timed(ref_run, 1)
     rows.append((f"reference integrator, forward only (x{b}/{k})", sec * b / k, out))
+    return per_round, rows
 
+
+def print_table(rows, per_round, cfg, p_np, t_np, args):
+    b = t_np.shape[0]
     refs = np.stack([reference(p_np[i], t_np[i], cfg) for i in range(4)])
     base = rows[0][1]
     print(
         f"B={b}, d=2, N=25, T={t_np.shape[1]}, forward + backward, median of "
         f"{args.repeats} alternated rounds, torch threads={torch.get_num_threads()}"
+        f"{', next to a busy neighbour' if args.load else ''}"
     )
     print(f"{'method':46s} {'time (ms)':>10s} {'/ fused f32':>11s} {'max err px':>11s}")
     for name, sec, out in rows:
         err = np.abs(np.asarray(out[:4], dtype=np.float64) - refs[: len(out)]).max()
         print(f"{name:46s} {sec * 1e3:10.2f} {sec / base:10.1f}x {err:11.2e}")
 
-    def ratio(slow: str, fast: str) -> str:
+    def ratio(slow: str, fast: str, digits: int = 0) -> str:
         # Per round, so that both sides of each ratio saw the same machine state.
         r = sorted(a / b for a, b in zip(per_round[slow], per_round[fast], strict=True))
-        return f"{statistics.median(r):.0f}x (rounds {r[0]:.0f}-{r[-1]:.0f}x)"
+        return f"{statistics.median(r):.{digits}f}x (rounds {r[0]:.{digits}f}-{r[-1]:.{digits}f}x)"
 
-    euler = "Euler loop + autograd, NDP layout"
+    euler, fused = "Euler loop + autograd, NDP layout", "fast rollout, fused"
     print(
         f"\nfused rollout vs the Euler loop in NDP's layout, same dtype, median over rounds:"
-        f"\n  float32 {ratio(f'{euler} (float32)', 'fast rollout, fused (float32)')}, "
-        f"float64 {ratio(f'{euler} (float64)', 'fast rollout, fused (float64)')} "
+        f"\n  float32 {ratio(f'{euler} (float32)', f'{fused} (float32)')}, "
+        f"float64 {ratio(f'{euler} (float64)', f'{fused} (float64)')} "
         "(target >= 100x)"
         f"\ntorch-operations rollout, same comparison:"
         f"\n  float32 {ratio(f'{euler} (float32)', 'fast rollout, torch (float32)')}, "
         f"float64 {ratio(f'{euler} (float64)', 'fast rollout, torch (float64)')}"
+        f"\nfused rollout, time on 1 thread / time on 2 threads (above 1: 2 threads are faster):"
+        f"\n  float32 {ratio(f'{fused} (float32), 1 thread', f'{fused} (float32), 2 threads', 2)}, "
+        f"float64 {ratio(f'{fused} (float64), 1 thread', f'{fused} (float64), 2 threads', 2)}"
     )
 
 

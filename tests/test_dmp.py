@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import collections
+import importlib
+
 import numpy as np
 import pytest
 import torch
 from scipy.integrate import solve_ivp
+from torch.utils._python_dispatch import TorchDispatchMode
+from torch.utils._pytree import tree_flatten
 
 from img2dmp.dmp import (
     DMPConfig,
@@ -20,6 +25,9 @@ from img2dmp.dmp import (
     rollout_sensitivity,
     sensitivity_rollout,
 )
+from img2dmp.dmp import basis as basis_module
+
+rollout_module = importlib.import_module("img2dmp.dmp.rollout")  # the module, not rollout()
 
 
 def _random_params(rng, batch, config, span=40.0, tau_range=(0.5, 5.0), w_scale=None):
@@ -328,6 +336,9 @@ def test_fused_and_torch_rollouts_agree(dtype, scaling, n_kernels, d, batch):
     tol = dict(rtol=2e-5, atol=2e-4) if dtype == torch.float32 else dict(rtol=1e-9, atol=1e-9)
     threads = torch.get_num_threads()
     torch.set_num_threads(2)
+    # Batch 40 on 2 threads, even when the machine is loaded (the default rule would
+    # then run the kernels serially).
+    rollout_module.fix_fused_threads(2 if batch >= 32 else None)
     try:
         out = {}
         for backend in BACKENDS:
@@ -336,6 +347,7 @@ def test_fused_and_torch_rollouts_agree(dtype, scaling, n_kernels, d, batch):
             (y * weights).sum().backward()
             out[backend] = [y.detach()] + [leaf.grad for leaf in leaves]
     finally:
+        rollout_module.fix_fused_threads(None)
         torch.set_num_threads(threads)
     for name, a, b in zip(["y", "w", "tau", "g", "y0"], out["fused"], out["torch"], strict=True):
         assert a.dtype == dtype, name
@@ -388,3 +400,249 @@ def test_forked_child_of_a_parallel_process_gets_serial_kernels(monkeypatch):
     monkeypatch.setattr(_kernels, "_parallel_pid", None)
     assert _kernels.kernels(32, 2, n_threads=2) is _kernels._kernel_pairs(32, 2, True)
     assert _kernels.kernels(32, 2, n_threads=1) is serial
+
+
+# --- Subnormal numbers --------------------------------------------------------------
+# Arithmetic on subnormal numbers (below finfo.tiny) takes microcode assists on many x86
+# CPUs: a float32 response table holding them made the fused rollout 5x slower.
+
+SUBNORMAL_CONFIGS = [
+    DMPConfig(),
+    DMPConfig(n_kernels=10, alpha_x=1.0),
+    DMPConfig(n_kernels=50, alpha_x=4.0, width_factor=1.0),
+]
+
+
+def _subnormals(x) -> int:
+    x = x.detach().cpu().numpy() if torch.is_tensor(x) else np.asarray(x)
+    return int(((np.abs(x) < np.finfo(x.dtype).tiny) & (x != 0)).sum())
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("cfg", SUBNORMAL_CONFIGS, ids=["default", "N10-ax1", "N50-ax4-wf1"])
+def test_response_tables_hold_no_subnormal_numbers(cfg, dtype):
+    poly = rollout_module._response_table(cfg, dtype, "cpu")[2]  # the torch backend's
+    tab = rollout_module._kernel_table(cfg, dtype)[3]  # the fused kernels'
+    assert _subnormals(poly) == 0, f"{_subnormals(poly)} subnormal entries in the {dtype} table"
+    assert _subnormals(tab) == 0, f"{_subnormals(tab)} subnormal entries in the kernels' table"
+    # what is left is normal: flushed entries are 0, the others at least negligible(dtype)
+    kept = np.abs(tab[tab != 0])
+    assert kept.min() >= basis_module.negligible(dtype) and kept.max() <= 1.0
+
+
+def test_negligible_threshold_keeps_products_normal_and_is_below_rounding():
+    for dtype in (torch.float32, torch.float64, torch.bfloat16, np.float32, np.float64):
+        fi = torch.finfo(dtype) if isinstance(dtype, torch.dtype) else np.finfo(dtype)
+        thr = basis_module.negligible(dtype)
+        assert thr * thr >= fi.tiny * 0.99  # a product of two kept numbers is normal
+        assert thr <= fi.eps**2  # far below rounding of numbers near 1
+    assert basis_module.negligible(torch.float16) == torch.finfo(torch.float16).tiny
+    assert basis_module.negligible(torch.float32) == pytest.approx(1.0842e-19, rel=1e-4)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_kernels_never_return_subnormal_numbers(dtype):
+    cfg = DMPConfig()
+    x = torch.exp(-cfg.alpha_x * torch.linspace(0, 12, 2000, dtype=dtype))
+    c, h = kernel_centres(cfg), kernel_widths(cfg)
+    phi, dphi = basis_module.basis_functions_and_derivative(x, c, h)
+    assert _subnormals(phi) == _subnormals(dphi) == 0
+    assert _subnormals(basis_module.basis_functions(x, c, h)) == 0
+    assert _subnormals(basis_module.basis_functions(x.numpy(), c, h)) == 0
+    # far from its centre a kernel is exactly 0 (its true value is below rounding), but
+    # every kernel is active somewhere and some kernel everywhere
+    assert (phi == 0).any() and (phi > 0).any(0).all() and (phi > 0).any(1).all()
+
+
+class _SubnormalWatch(TorchDispatchMode):
+    """Counts subnormal values in the output of every torch operation run inside it.
+
+    Views and uninitialised buffers (``empty``) are skipped: they compute nothing.
+    """
+
+    def __init__(self):
+        super().__init__()
+        self.found = collections.Counter()
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        out = func(*args, **(kwargs or {}))
+        returns = func._schema.returns
+        is_view = bool(returns) and returns[0].alias_info is not None
+        is_view = is_view and not returns[0].alias_info.is_write
+        if "empty" in str(func) or is_view:
+            return out
+        for x in tree_flatten(out)[0]:
+            if torch.is_tensor(x) and x.is_floating_point() and _subnormals(x):
+                self.found[str(func)] += _subnormals(x)
+        return out
+
+
+def _typical_batch(dtype, b=12, span=1.3, t_count=120, seed=12):
+    """A batch like a training step's: 40 px movements, times up to ``span`` * tau."""
+    cfg = DMPConfig()
+    rng = np.random.default_rng(seed)
+    p = _random_params(rng, b, cfg, tau_range=(0.5, 3.5), w_scale=3.0)
+    t = np.linspace(0, span, t_count)[None] * p.tau[:, None]
+    return cfg, p.to_torch(dtype), torch.tensor(t, dtype=dtype)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_rollouts_compute_no_subnormal_intermediates(dtype):
+    """Every intermediate of the torch backend and of the sensitivity equations (float32
+    too, for 6 movement durations, where the sensitivities decay by e^-140), and the
+    fused rollout's outputs and gradients."""
+    for backend, fn, span in (
+        ("torch", lambda q, t, c: rollout(q, t, c, backend="torch"), 1.3),
+        ("fused", lambda q, t, c: rollout(q, t, c, backend="fused"), 1.3),
+        ("sensitivity", lambda q, t, c: rollout_sensitivity(q, t, c, max_step=0.02), 6.0),
+    ):
+        cfg, p, t = _typical_batch(dtype, span=span)
+        rollout(p, t, cfg, backend="torch")  # tables built outside the watch
+        watch = _SubnormalWatch()
+        with watch:
+            leaves = [a.clone().requires_grad_(True) for a in (p.w, p.tau, p.g, p.y0)]
+            y = fn(DMPParams(*leaves), t, cfg)
+            (y**2).sum().backward()
+        assert not watch.found, f"{backend}: subnormal results of {dict(watch.found)}"
+        assert sum(_subnormals(a) for a in [y] + [leaf.grad for leaf in leaves]) == 0
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_fused_kernel_products_stay_normal(dtype):
+    """The products the fused kernels form (coefficient x table entry, and the Horner
+    steps u x entry) on a typical batch: none is subnormal. The compiled loops cannot
+    be watched from Python, so their arithmetic is redone here in NumPy."""
+    cfg, p, t = _typical_batch(dtype)
+    inv_h, s_max, _, tab = rollout_module._kernel_table(cfg, dtype)
+    s = np.clip((t / p.tau[:, None]).numpy(), 0, s_max) * inv_h
+    pieces = np.minimum(np.floor(s), tab.shape[0] - 1).astype(int)
+    u = (s - pieces)[..., None, None]  # [B, T, 1, 1]
+    entries = tab[pieces]  # [B, T, 4, C]
+    w = p.w.numpy()
+    scale = (p.g - p.y0).numpy()[:, None, :]
+    coef = np.concatenate([(p.y0 - p.g).numpy()[:, None, :], scale * w], axis=1)  # [B, N+1, d]
+    n_c = coef.shape[1]
+    products = [
+        entries[..., 3, :] * u[..., 0],
+        (entries[..., 2, :] + entries[..., 3, :] * u[..., 0]) * u[..., 0],
+    ]
+    v = entries[..., 0, :] + u[..., 0] * (
+        entries[..., 1, :] + u[..., 0] * (entries[..., 2, :] + u[..., 0] * entries[..., 3, :])
+    )  # [B, T, C]
+    products.append(v[..., :n_c, None] * coef[:, None])  # [B, T, C, d]
+    for i, x in enumerate(products):
+        assert _subnormals(x.astype(tab.dtype)) == 0, f"product {i}"
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_flushing_the_tables_changes_no_result_beyond_rounding(backend, monkeypatch):
+    """Rollout and gradients with the flushed tables and kernels against those without
+    (as before the flush): equal to rounding, in both dtypes."""
+    results = {}
+    monkeypatch.setenv("IMG2DMP_NO_TABLE_CACHE", "1")  # never keep the unflushed tables
+    for flush in (True, False):
+        monkeypatch.setattr(rollout_module, "_FLUSH", flush)
+        if not flush:
+            monkeypatch.setattr(basis_module, "_kernel_exp", np.exp)
+        for cache in (rollout_module._response_table_f64, rollout_module._response_table):
+            cache.cache_clear()
+        rollout_module._kernel_table.cache_clear()
+        for dtype in (torch.float32, torch.float64):
+            cfg, p, t = _typical_batch(dtype, span=3.0)
+            leaves = [a.clone().requires_grad_(True) for a in (p.w, p.tau, p.g, p.y0)]
+            y = rollout(DMPParams(*leaves), t, cfg, backend=backend)
+            (y**2).sum().backward()
+            results[flush, dtype] = [y.detach()] + [leaf.grad for leaf in leaves]
+    monkeypatch.undo()
+    for cache in (rollout_module._response_table_f64, rollout_module._response_table):
+        cache.cache_clear()
+    rollout_module._kernel_table.cache_clear()
+    for dtype in (torch.float32, torch.float64):
+        eps = torch.finfo(dtype).eps
+        pairs = zip(results[True, dtype], results[False, dtype], strict=True)
+        for name, (a, b) in zip("y w tau g y0".split(), pairs, strict=True):
+            scale = b.abs().max()
+            assert (a - b).abs().max() <= 8 * eps * scale, f"{dtype} {name}"
+
+
+def test_fused_threads_follow_the_rule(monkeypatch):
+    monkeypatch.setattr(torch, "get_num_threads", lambda: 4)
+    monkeypatch.setattr(rollout_module, "idle_cores", lambda: 3)
+    assert rollout_module.fused_threads(1) == 1
+    assert rollout_module.fused_threads(31) == 1  # fewer than 16 samples per thread
+    assert rollout_module.fused_threads(48) == 3
+    assert rollout_module.fused_threads(1000) == 4  # torch's thread count caps it
+    monkeypatch.setattr(rollout_module, "idle_cores", lambda: 0)
+    assert rollout_module.fused_threads(1000) == 1  # a loaded machine: serial
+    rollout_module.fix_fused_threads(2)
+    try:
+        assert rollout_module.fused_threads(1) == 2
+    finally:
+        rollout_module.fix_fused_threads(None)
+    with pytest.raises(ValueError, match="threads must be"):
+        rollout_module.fix_fused_threads(0)
+
+
+def test_idle_cores_sees_a_busy_neighbour(monkeypatch):
+    real_own_running = rollout_module._own_running
+    monkeypatch.setattr(rollout_module.os, "sched_getaffinity", lambda pid: {0, 1}, raising=False)
+    monkeypatch.setattr(rollout_module, "_load", {"at": -np.inf, "cpu": 0.0, "idle": 0})
+    cases = [  # (running now incl. the caller, 1-min load average) -> idle cores
+        ((1, 1.0), 1),  # only this process
+        ((2, 1.0), 0),  # a neighbour that just started
+        ((1, 2.0), 0),  # one that has run for a minute (and sleeps this instant)
+    ]
+    monkeypatch.setattr(rollout_module, "_own_running", lambda: 1)
+    for (running, load), idle in cases:
+        monkeypatch.setattr(rollout_module, "_running_now", lambda r=running: r)
+        monkeypatch.setattr(rollout_module, "_load_average", lambda a=load: a)
+        rollout_module._load["at"] = -np.inf  # look again now
+        assert rollout_module.idle_cores() == idle, (running, load)
+    # this process's own spinning threads are not a neighbour
+    monkeypatch.setattr(rollout_module, "_running_now", lambda: 3)
+    monkeypatch.setattr(rollout_module, "_own_running", lambda: 3)
+    monkeypatch.setattr(rollout_module, "_load_average", lambda: 1.0)
+    rollout_module._load["at"] = -np.inf
+    assert rollout_module.idle_cores() == 1
+    assert real_own_running() >= 1  # at least the caller
+    # looked up at most every 0.5 s: a change within that time is not seen yet
+    monkeypatch.setattr(rollout_module, "_running_now", lambda: 9)
+    assert rollout_module.idle_cores() == 1
+
+
+def test_response_table_is_kept_on_disk_and_a_bad_file_is_ignored(tmp_path, monkeypatch):
+    cfg = DMPConfig(n_kernels=7)
+    path = tmp_path / "table.npy"
+    monkeypatch.setattr(rollout_module, "_table_cache_file", lambda config: str(path))
+    solved = []
+    real_solve = rollout_module._solve_responses
+    monkeypatch.setattr(
+        rollout_module, "_solve_responses", lambda *a: solved.append(1) or real_solve(*a)
+    )
+    tables = []
+    for content in (None, "keep", b"not a table"):
+        if isinstance(content, bytes):
+            path.write_bytes(content)
+        rollout_module._response_table_f64.cache_clear()
+        tables.append(rollout_module._response_table_f64(cfg))
+    rollout_module._response_table_f64.cache_clear()
+    assert len(solved) == 2  # solved, then loaded, then solved again over the bad file
+    for h, s_max, table in tables[1:]:
+        assert (h, s_max) == tables[0][:2]
+        np.testing.assert_array_equal(table, tables[0][2])
+    assert rollout_module._load_table(str(path), tables[0][2].shape) is not None
+
+
+def test_auto_backend_takes_torch_operations_for_small_calls_until_the_kernels_ran(monkeypatch):
+    from img2dmp.dmp import _kernels
+
+    if not _kernels.available():
+        pytest.skip("numba missing: 'auto' always takes the torch operations")
+    w = torch.zeros(2, 25, 2)
+    small, big = torch.zeros(2, 100), torch.zeros(64, 100)
+    monkeypatch.setattr(rollout_module, "_fused_loaded", False)
+    assert not rollout_module._use_fused("auto", w, small)  # ~0.3 s to load: not worth it
+    assert rollout_module._use_fused("auto", w, big)
+    assert rollout_module._use_fused("fused", w, small)  # asked for: always
+    monkeypatch.setattr(rollout_module, "_fused_loaded", True)
+    assert rollout_module._use_fused("auto", w, small)  # loaded anyway

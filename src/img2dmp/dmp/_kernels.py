@@ -19,7 +19,9 @@ user cache when that is not writable): the first call on a fresh machine compile
 about 8 s per dtype, later processes load it in well under a second.
 
 Numba is a dependency, but the package keeps working without it: :func:`available`
-says whether it imported, and the rollout falls back to the torch path.
+says whether it imported, and the rollout falls back to the torch path. It is imported
+on the first call of :func:`available` (about 0.15 s), not with this module, so that a
+process that never runs the kernels (a one-image prediction) does not pay for it.
 """
 
 from __future__ import annotations
@@ -27,18 +29,12 @@ from __future__ import annotations
 import functools
 import importlib
 import os
+import threading
 
 import numpy as np
 
-try:  # numba is a dependency, but a broken or missing install must not break the package
-    import numba
-except Exception:  # pragma: no cover - exercised only on machines without numba
-    numba = None
-
-
-def available() -> bool:
-    """True when numba imported and the fused kernels can be used."""
-    return numba is not None
+numba = None  # the module, once available() has imported it
+_numba_tried = False
 
 
 # Reassociation lets LLVM vectorise the sums over the table's columns; no "nnan"/"ninf",
@@ -237,14 +233,34 @@ def time_stamp_faults(t):
     return faults
 
 
-_locate_row = _jit(_locate_row)
-time_stamp_faults = _jit(time_stamp_faults)
-_cubic = _jit(_cubic)
-_coefficients = _jit(_coefficients)
+def available() -> bool:
+    """True when numba imports and the fused kernels can be used (imports it once)."""
+    global numba, _numba_tried, _locate_row, time_stamp_faults, _cubic, _coefficients
+    if _numba_tried:
+        return numba is not None
+    with _import_lock:
+        if _numba_tried:
+            return numba is not None
+        try:  # a dependency, but a broken or missing install must not break the package
+            import numba as nb
+        except Exception:  # pragma: no cover - exercised only on machines without numba
+            nb = None
+        if nb is not None:
+            numba = nb
+            # The helpers the kernels call, compiled (lazily, on their first call).
+            _locate_row, time_stamp_faults = _jit(_locate_row), _jit(time_stamp_faults)
+            _cubic, _coefficients = _jit(_cubic), _jit(_coefficients)
+        _numba_tried = True
+    return numba is not None
+
+
+_import_lock = threading.Lock()
 
 
 @functools.cache
 def _kernel_pairs(n_columns: int, n_dims: int, parallel: bool):
+    if not available():  # pragma: no cover - callers check first
+        raise RuntimeError("the fused kernels need numba")
     return _build(n_columns, n_dims, parallel)
 
 
@@ -281,7 +297,7 @@ MIN_SAMPLES_PER_THREAD = 16
 @functools.lru_cache(maxsize=1)
 def _parallel_safe() -> bool:
     """True when numba will run parallel kernels on OpenMP or TBB (thread-safe layers)."""
-    if numba is None or numba.config.THREADING_LAYER == "workqueue":
+    if not available() or numba.config.THREADING_LAYER == "workqueue":
         return False
     for layer in ("omppool", "tbbpool"):
         try:

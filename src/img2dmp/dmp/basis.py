@@ -6,6 +6,8 @@ number of leading batch dimensions.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 
@@ -14,6 +16,35 @@ from .config import DMPConfig
 
 def _exp(a):
     return torch.exp(a) if isinstance(a, torch.Tensor) else np.exp(a)
+
+
+def negligible(dtype) -> float:
+    """Magnitude below which a DMP table entry or kernel value is replaced by exactly 0.
+
+    ``sqrt(tiny)`` of the dtype (1.1e-19 for float32 and bfloat16, 1.5e-154 for float64),
+    for two reasons. A product of two numbers above it is a normal number, never a
+    subnormal one (arithmetic on subnormals takes microcode assists, up to ~100x slower
+    per instruction, on many x86 CPUs). And it is far below rounding: below
+    ``eps ** 2`` of the dtype, where the unit responses and kernels it is applied to
+    peak near 1e-3 to 1. float16, whose exponent range is too narrow for both, flushes
+    only its subnormal numbers (``max(tiny, ...)``).
+
+    ``dtype``: a torch or NumPy floating dtype.
+    """
+    fi = torch.finfo(dtype) if isinstance(dtype, torch.dtype) else np.finfo(dtype)
+    return max(float(fi.tiny), min(math.sqrt(float(fi.tiny)), float(fi.eps) ** 2))
+
+
+def _kernel_exp(e):
+    """``exp(e)`` for ``e <= 0``, exactly 0 where it would be below :func:`negligible`.
+
+    The argument is masked to -inf first, so that no subnormal result is ever made (an
+    exponent down to -745 in float64, -103 in float32, would give one).
+    """
+    lo = math.log(negligible(e.dtype))
+    if isinstance(e, torch.Tensor):
+        return torch.exp(e.masked_fill(e < lo, -math.inf))
+    return np.exp(np.where(e < lo, -np.inf, e))
 
 
 def phase(t, tau, alpha_x: float = 2.0):
@@ -75,14 +106,13 @@ def basis_functions(x, centres, widths):
         centres = torch.as_tensor(centres, dtype=x.dtype, device=x.device)
         widths = torch.as_tensor(widths, dtype=x.dtype, device=x.device)
     d = x[..., None] - centres
-    # Subtracting the largest exponent keeps the ratio exact far from every centre.
+    # Subtracting the largest exponent keeps the ratio exact far from every centre; the
+    # kernels below negligible() of the largest (which is 1) are exactly 0.
     e = -widths * d * d
     if isinstance(e, torch.Tensor):
-        e = e - e.amax(dim=-1, keepdim=True)
-        psi = torch.exp(e)
+        psi = _kernel_exp(e - e.amax(dim=-1, keepdim=True))
         return psi * x[..., None] / psi.sum(dim=-1, keepdim=True)
-    e = e - e.max(axis=-1, keepdims=True)
-    psi = np.exp(e)
+    psi = _kernel_exp(e - e.max(axis=-1, keepdims=True))
     return psi * x[..., None] / psi.sum(axis=-1, keepdims=True)
 
 
@@ -123,7 +153,7 @@ def basis_functions_and_derivative(x: torch.Tensor, centres, widths):
     widths = torch.as_tensor(widths, dtype=x.dtype, device=x.device)
     d = x[..., None] - centres
     e = -widths * d * d
-    psi = torch.exp(e - e.amax(dim=-1, keepdim=True))
+    psi = _kernel_exp(e - e.amax(dim=-1, keepdim=True))  # no subnormal kernel values
     p = psi / psi.sum(dim=-1, keepdim=True)
     q = -2.0 * widths * d
     qbar = (p * q).sum(dim=-1, keepdim=True)

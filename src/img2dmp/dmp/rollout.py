@@ -13,18 +13,21 @@ affine function of ``y0``, ``g`` and the weights::
 where ``a`` is the free response to a unit initial offset and ``R_k`` the response to the
 k-th normalised kernel ``phi_k(x(s))`` (see :func:`basis.basis_functions`). These N + 1
 scalar functions depend only on the DMP constants, so they are solved once, to 1e-12
-relative accuracy, on a fine grid and interpolated with cubic Hermite polynomials (values
-and exact derivatives at the nodes). A batch rollout is then one small matrix product and
+relative accuracy, on a fine grid (and kept on disk) and interpolated with cubic Hermite
+polynomials (values and exact derivatives at the nodes); entries below ``negligible``
+are exactly 0, never subnormal numbers. A batch rollout is then one small matrix product and
 a gather, and its backward pass (written by hand, checked by gradcheck) gives the exact
 derivatives of that interpolant for w, g, y0 and tau; tau enters only through
 ``s = t / tau``, so ``dy/dtau = -(t / tau^2) y'(s)``.
 
 Two implementations of that one interpolant (``rollout(..., backend=...)``):
 
-- ``"fused"`` (the default for float32/float64 CPU tensors): one compiled loop (numba,
+- ``"fused"`` (the default for float32/float64 CPU tensors, but for calls of fewer than
+  4096 time stamps made before any larger one): one compiled loop (numba,
   :mod:`img2dmp.dmp._kernels`) for the forward and one for the backward pass, over the
-  samples in parallel on ``torch.get_num_threads()`` threads; nothing of the batch's size
-  is materialised besides the output. Fastest on the CPU.
+  samples, on as many threads as :func:`fused_threads` allows (no more than the idle
+  cores); nothing of the batch's size is materialised besides the output. Fastest on
+  the CPU.
 - ``"torch"``: torch operations (one GEMM of the coefficients with the pieces the batch
   reaches, a gather, a hand-written backward); any device and dtype.
 
@@ -33,15 +36,18 @@ They agree to rounding, and both are checked by gradcheck.
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import hashlib
 import math
+import os
+import time
 
 import numpy as np
 import torch
-from scipy.integrate import solve_ivp
 
 from . import _kernels
-from .basis import basis_functions, kernel_centres, kernel_widths
+from .basis import basis_functions, kernel_centres, kernel_widths, negligible
 from .config import DMPConfig
 from .params import DMPParams, all_finite, as_host_array
 
@@ -50,6 +56,9 @@ from .params import DMPParams, all_finite, as_host_array
 _NODES_PER_SCALE = 16
 # The table ends where the phase and the free response have decayed below this.
 _TAIL = 1e-10
+# Flush negligible table entries to 0 (see _response_table). Only a test turns it off,
+# to show what the flush prevents.
+_FLUSH = True
 
 
 @functools.lru_cache(maxsize=16)
@@ -57,10 +66,12 @@ def _response_table_f64(config: DMPConfig) -> tuple[float, float, np.ndarray]:
     """Solve the N + 1 unit responses on a uniform grid of s.
 
     Returns ``(h, s_max, table)`` where ``table`` is ``[G, 2, N + 1]``: values and
-    s-derivatives of ``[a, R_1, ..., R_N]`` at ``s = 0, h, 2h, ...``.
+    s-derivatives of ``[a, R_1, ..., R_N]`` at ``s = 0, h, 2h, ...``. Solved once per
+    configuration and kept on disk (:func:`_table_cache_file`): solving takes about
+    0.5 s and importing the solver as long again, which a one-image prediction would
+    otherwise pay in every process.
     """
     n, az, bz, ax = config.n_kernels, config.alpha_z, config.beta, config.alpha_x
-    c, hw = kernel_centres(config), kernel_widths(config)
     scale = min(1.0 / (n - 1), 1.0 / math.sqrt(az * bz), 2.0 / az)
     h = scale / _NODES_PER_SCALE
     # Slowest decay of the free response: the real part of the slower characteristic root.
@@ -69,7 +80,20 @@ def _response_table_f64(config: DMPConfig) -> tuple[float, float, np.ndarray]:
     s_max = max(-math.log(_TAIL) / ax, (-math.log(_TAIL) + 5.0) / slow, 1.0)
     g = int(math.ceil(s_max / h)) + 1
     s_grid = np.arange(g) * h
-    s_max = float(s_grid[-1])
+    cache = _table_cache_file(config)
+    table = _load_table(cache, (g, 2, n + 1))
+    if table is None:
+        table = _solve_responses(config, s_grid)
+        _save_table(cache, table)
+    return h, float(s_grid[-1]), table
+
+
+def _solve_responses(config: DMPConfig, s_grid: np.ndarray) -> np.ndarray:
+    """``[G, 2, N + 1]`` values and derivatives of the unit responses (scipy DOP853)."""
+    from scipy.integrate import solve_ivp  # here: importing it costs ~0.4 s
+
+    n, az, bz, ax = config.n_kernels, config.alpha_z, config.beta, config.alpha_x
+    c, hw = kernel_centres(config), kernel_widths(config)
 
     def rhs(s, u):
         y, yd = u[: n + 1], u[n + 1 :]
@@ -79,11 +103,76 @@ def _response_table_f64(config: DMPConfig) -> tuple[float, float, np.ndarray]:
 
     u0 = np.zeros(2 * (n + 1))
     u0[0] = 1.0  # a(0) = 1: unit initial offset; every R_k starts at rest
-    sol = solve_ivp(rhs, (0.0, s_max), u0, method="DOP853", t_eval=s_grid, rtol=1e-12, atol=1e-16)
+    span = (0.0, float(s_grid[-1]))
+    sol = solve_ivp(rhs, span, u0, method="DOP853", t_eval=s_grid, rtol=1e-12, atol=1e-16)
     if not sol.success:  # pragma: no cover - depends on scipy internals
         raise RuntimeError(f"could not tabulate DMP responses: {sol.message}")
-    table = np.stack([sol.y[: n + 1].T, sol.y[n + 1 :].T], axis=1)  # [G, 2, N+1]
-    return h, s_max, table
+    return np.stack([sol.y[: n + 1].T, sol.y[n + 1 :].T], axis=1)  # [G, 2, N+1]
+
+
+def _table_cache_file(config: DMPConfig) -> str | None:
+    """Where the table of ``config`` is kept: named by a hash of the constants and of
+    the code that computes it (this file and basis.py), so that a change of either
+    makes a new one. In ``__pycache__`` next to this file (as numba's cache), else in
+    ``$XDG_CACHE_HOME/img2dmp`` (``~/.cache/img2dmp``); None when neither is writable
+    or ``IMG2DMP_NO_TABLE_CACHE`` is set."""
+    if os.environ.get("IMG2DMP_NO_TABLE_CACHE"):
+        return None
+    here = os.path.dirname(os.path.abspath(__file__))
+    constants = (config.n_kernels, config.alpha_z, config.beta, config.alpha_x)
+    constants += (config.width_factor, _NODES_PER_SCALE, _TAIL)
+    code = hashlib.sha1()
+    try:
+        for name in ("rollout.py", "basis.py"):
+            with open(os.path.join(here, name), "rb") as f:
+                code.update(f.read())
+    except OSError:  # pragma: no cover - installed without sources
+        return None
+    name = f"dmp_responses_{hashlib.sha1(repr(constants).encode()).hexdigest()[:12]}"
+    name += f"_{code.hexdigest()[:12]}.npy"  # the other code's files go when this is saved
+    user = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    for folder in (os.path.join(here, "__pycache__"), os.path.join(user, "img2dmp")):
+        try:
+            os.makedirs(folder, exist_ok=True)
+        except OSError:
+            continue
+        if os.access(folder, os.W_OK):
+            return os.path.join(folder, name)
+    return None
+
+
+def _load_table(path: str | None, shape: tuple) -> np.ndarray | None:
+    """The cached table, or None if absent, unreadable or not what was expected."""
+    if path is None:
+        return None
+    try:
+        table = np.load(path, allow_pickle=False)
+    except (OSError, ValueError):
+        return None
+    ok = table.shape == shape and table.dtype == np.float64 and np.isfinite(table).all()
+    return table if ok else None
+
+
+def _save_table(path: str | None, table: np.ndarray) -> None:
+    """Write atomically (a temporary file renamed), so that readers never see half of it."""
+    if path is None:
+        return
+    tmp = f"{path}.{os.getpid()}.tmp"
+    try:
+        with open(tmp, "wb") as f:
+            np.save(f, table, allow_pickle=False)
+        os.replace(tmp, path)
+    except OSError:  # a read-only or full disk: solve again next time
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        return
+    # Tables of these constants made by an earlier version of the code are stale.
+    folder, name = os.path.split(path)
+    stale, sep, _ = name.rpartition("_")  # "dmp_responses_<constants>" "_" "<code>.npy"
+    for other in os.listdir(folder) if sep else ():
+        if other.startswith(stale + sep) and other.endswith(".npy") and other != name:
+            with contextlib.suppress(OSError):
+                os.remove(os.path.join(folder, other))
 
 
 @functools.lru_cache(maxsize=32)
@@ -94,11 +183,20 @@ def _response_table(config: DMPConfig, dtype: torch.dtype, device: str):
     columns ``[a, R_1..R_N]``): on ``[s_i, s_i + h]`` column c is
     ``sum_k poly[c, i, k] * u**k`` with ``u = (s - s_i) / h``. The pieces match the
     tabulated values and derivatives at both ends, so the interpolant is C^1.
+
+    Entries below ``negligible(dtype)`` (1.1e-19 in float32, 1.5e-154 in float64) are
+    exactly 0: the responses of far-away kernels and the decayed tails reach 1e-300
+    and below, which the cast would turn into subnormal numbers (tens of thousands in
+    float32), and arithmetic on those is very slow on many x86 CPUs (the float32 fused
+    rollout was 5x slower). Both backends share this table. The flushed entries are far
+    below the ODE solver's own absolute tolerance (1e-16), so no accuracy is lost.
     """
     h, s_max, table = _response_table_f64(config)
     v, dv = table[:, 0], h * table[:, 1]  # [G, C]
     v0, v1, d0, d1 = v[:-1], v[1:], dv[:-1], dv[1:]
     poly = np.stack([v0, d0, 3 * (v1 - v0) - 2 * d0 - d1, 2 * (v0 - v1) + d0 + d1], -1)
+    if _FLUSH:
+        poly[np.abs(poly) < negligible(dtype)] = 0.0
     poly = torch.as_tensor(poly.transpose(1, 0, 2), dtype=dtype, device=device)
     return h, s_max, poly.contiguous()  # [C, G-1, 4]
 
@@ -150,7 +248,8 @@ def check_time_stamps(t, name: str = "t", *, non_negative: bool = False) -> None
         x = t.detach().to("cpu", torch.float64).numpy()
     if x.size == 0 or x.shape[-1] == 0:
         raise ValueError(f"{name} is empty: a trajectory needs at least one time stamp")
-    if _kernels.available() and x.dtype in (np.float32, np.float64):
+    big = x.size >= _FUSED_MIN_STAMPS  # else NumPy: loading compiled code costs ~0.3 s
+    if big and _kernels.available() and x.dtype in (np.float32, np.float64):
         faults = _kernels.time_stamp_faults(np.ascontiguousarray(x.reshape(-1, x.shape[-1])))
         if faults == 0 or (faults == 4 and not non_negative):
             return
@@ -191,7 +290,9 @@ def rollout(
         ``"fused"``: one compiled loop (numba) for the forward and one for the backward
         pass, float32/float64 on CPU; ``"torch"``: the same maths in torch operations
         (any device and dtype). ``"auto"`` (default) takes the fused kernels where they
-        apply. Both give the same numbers to rounding and the same gradients.
+        apply, except for calls of fewer than 4096 time stamps (over the batch) until
+        the kernels have run once in the process (loading them takes ~0.3 s). Both give
+        the same numbers to rounding and the same gradients.
 
     Returns
     -------
@@ -294,6 +395,8 @@ def _use_fused(backend: str, w: torch.Tensor, t: torch.Tensor) -> bool:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if backend == "torch":
         return False
+    if backend == "auto" and not _fused_loaded and t.numel() < _FUSED_MIN_STAMPS:
+        return False  # a small call before any large one: not worth loading the kernels
     ok = (
         _kernels.available()
         and w.device.type == "cpu"
@@ -307,6 +410,15 @@ def _use_fused(backend: str, w: torch.Tensor, t: torch.Tensor) -> bool:
             f"device={w.device}, dtype={w.dtype}"
         )
     return ok
+
+
+# "auto" takes the torch operations for calls of fewer time stamps than this (over the
+# whole batch) until the fused kernels have run once in the process: loading numba's
+# compiled code from its disk cache takes ~0.3 s once per process, which a one-image
+# prediction would feel, while the torch operations roll out a few thousand stamps in
+# about a millisecond. The time-stamp check takes NumPy below this size for that reason.
+_FUSED_MIN_STAMPS = 4096
+_fused_loaded = False  # set by the first fused rollout
 
 
 @functools.lru_cache(maxsize=16)
@@ -326,22 +438,124 @@ def _np(x: torch.Tensor, dtype: torch.dtype) -> np.ndarray:
 
 
 def _fused_kernels(config_table, n_samples: int, n_dims: int):
-    threads = torch.get_num_threads()
-    if n_samples < 2 * _kernels.MIN_SAMPLES_PER_THREAD:
-        threads = 1
-    return _kernels.kernels(config_table.shape[2], n_dims, threads)
+    threads = fused_threads(n_samples)
+    if threads == 1:
+        return _kernels.kernels(config_table.shape[2], n_dims, 1)
+    # numba's first start of its thread pool can set the OpenMP thread count that torch
+    # shares with it (when torch read it before) to numba's own limit: keep torch's.
+    torch_threads = torch.get_num_threads()
+    pair = _kernels.kernels(config_table.shape[2], n_dims, threads)
+    if torch.get_num_threads() != torch_threads:
+        torch.set_num_threads(torch_threads)
+    return pair
+
+
+# How many threads the fused kernels use. A parallel region with a thread on a core that
+# another process keeps busy waits for the scheduler: 15-30 ms per region on a 2-core
+# machine with one busy neighbour, against ~1 ms for the whole rollout on one thread
+# (benchmarks/bench_rollout.py --load). Idle cores halve the time at best, so threads
+# are only added for cores that look idle.
+_fixed_threads: int | None = None  # set by fix_fused_threads
+_LOOK_EVERY = 0.5  # seconds between two looks at the machine's load
+_load = {"at": -math.inf, "cpu": 0.0, "idle": 0}
+
+
+def fix_fused_threads(n: int | None) -> None:
+    """Make the fused kernels use ``n`` threads for every batch (``None``: the rule).
+
+    For benchmarks and tests; numba's own limit still caps ``n``.
+    """
+    global _fixed_threads
+    if n is not None and (not isinstance(n, int) or n < 1):
+        raise ValueError(f"threads must be an integer >= 1 or None, got {n!r}")
+    _fixed_threads = n
+
+
+def fused_threads(n_samples: int) -> int:
+    """Threads the fused kernels spread a batch of ``n_samples`` over.
+
+    ``min(torch.get_num_threads(), n_samples // 16, 1 + idle_cores())``, at least 1:
+    one thread per 16 samples at most (fewer samples per thread cost more to hand out
+    than they save), and one more than the cores no other process seems to be using
+    (:func:`idle_cores`), so that a loaded machine runs the kernels serially instead of
+    waiting for a busy core.
+    """
+    if _fixed_threads is not None:
+        return _fixed_threads
+    n = min(torch.get_num_threads(), n_samples // _kernels.MIN_SAMPLES_PER_THREAD)
+    return 1 if n <= 1 else max(1, min(n, 1 + idle_cores()))
+
+
+def idle_cores() -> int:
+    """Cores available to this process, besides the calling thread's, that look idle.
+
+    ``cores - 1 - others`` rounded, where ``cores`` is the CPU affinity set and
+    ``others`` the larger of two estimates of the cores other processes keep busy: the
+    tasks running right now (``/proc/loadavg``) less this process's running threads
+    (its own thread pools may still be spinning after a parallel region), which sees a
+    neighbour start at once, and the one-minute load average less this process's own
+    CPU use since the last look, which remembers a neighbour that is only sometimes
+    running. Looked up at most every 0.5 s (a few tens of us); 0 when unknown.
+    """
+    now = time.monotonic()
+    if now - _load["at"] < _LOOK_EVERY:
+        return _load["idle"]
+    cpu = time.process_time()  # all threads of this process
+    own = (cpu - _load["cpu"]) / (now - _load["at"]) if math.isfinite(_load["at"]) else 1.0
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        cores = os.cpu_count() or 1
+    others = max(_running_now() - _own_running(), _load_average() - own)
+    _load.update(at=now, cpu=cpu, idle=max(0, int(cores - 1 - others + 0.5)))
+    return _load["idle"]
+
+
+def _running_now() -> int:
+    """Tasks running or runnable this instant, system-wide, this one included (0: unknown)."""
+    try:
+        with open("/proc/loadavg") as f:  # "0.52 0.58 0.59 2/345 12345"
+            return int(f.read().split()[3].split("/")[0])
+    except (OSError, ValueError, IndexError):  # pragma: no cover - not Linux
+        return 0
+
+
+def _own_running() -> int:
+    """Threads of this process running or runnable this instant (at least this one)."""
+    n = 0
+    try:
+        tids = os.listdir("/proc/self/task")
+    except OSError:  # pragma: no cover - not Linux
+        return 1
+    for tid in tids:
+        try:
+            with open(f"/proc/self/task/{tid}/stat") as f:  # "pid (name) R ..."
+                stat = f.read()
+        except OSError:  # the thread has ended
+            continue
+        n += stat[stat.rindex(")") + 2] == "R"
+    return max(n, 1)
+
+
+def _load_average() -> float:
+    try:
+        return os.getloadavg()[0]
+    except (AttributeError, OSError):  # pragma: no cover - not Unix
+        return 0.0
 
 
 class _FusedRollout(torch.autograd.Function):
     """The whole rollout (forward and backward) in two compiled loops; see ``_kernels``.
 
-    Large batches are spread over ``torch.get_num_threads()`` threads. Only the inputs
-    are kept for the backward pass. The Python around the kernels is kept to a few
+    Large batches are spread over :func:`fused_threads` threads. Only the inputs are kept
+    for the backward pass. The Python around the kernels is kept to a few
     microseconds: it is paid on every call.
     """
 
     @staticmethod
     def forward(ctx, t, tau, w, g, y0, config):
+        global _fused_loaded
+        _fused_loaded = True
         dtype = w.dtype
         inv_h, s_max, one, tab = _kernel_table(config, dtype)
         y = torch.empty(*t.shape, w.shape[-1], dtype=dtype)

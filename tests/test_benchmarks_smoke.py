@@ -1,0 +1,70 @@
+"""The benchmark scripts' helpers run (the full benchmarks take minutes and are not tests)."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+
+
+@pytest.fixture
+def bench(monkeypatch):
+    """``load(name)``: ``benchmarks/<name>.py`` imported as the script would import it."""
+    monkeypatch.syspath_prepend(str(BENCHMARKS))
+
+    def load(name: str):
+        sys.modules.pop(name, None)
+        return importlib.import_module(name)
+
+    return load
+
+
+def test_machine_description_names_cpu_threads_and_load(bench):
+    machine = bench("_machine")
+    before = torch.get_num_threads()
+    line = machine.describe()
+    assert torch.get_num_threads() == before  # looking at numba's threads changed nothing
+    for part in ("CPU: ", "cores", "torch threads", "load average"):
+        assert part in line
+    assert machine.cpu_model()
+
+
+def test_busy_neighbour_runs_inside_the_block_only(bench):
+    machine = bench("_machine")
+    with machine.busy_neighbour(max_seconds=30.0) as what:
+        pid = int(what.split("pid ")[1].split(")")[0])
+        time.sleep(0.2)
+        os.kill(pid, 0)  # alive (raises if not)
+    time.sleep(0.1)
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)
+    with machine.busy_neighbour(enabled=False) as what:
+        assert what is None
+
+
+def test_rollout_benchmark_times_fixed_threads_and_restores_them(bench):
+    br = bench("bench_rollout")
+    cfg, p_np, t_np = br.make_batch(b=8, t_count=21)
+    methods, threads = br.build_methods(cfg, p_np, t_np)
+    assert threads["fast rollout, fused (float32), 2 threads"] == 2
+    fused = {k: v for k, v in methods.items() if k.startswith("fast rollout, fused")}
+    before = torch.get_num_threads()
+    per_round, outs = br.interleaved(fused, rounds=1, fast_calls=1, threads=threads)
+    assert torch.get_num_threads() == before
+    assert set(per_round) == set(fused) and all(len(v) == 1 for v in per_round.values())
+    assert "float32 0 of" in br.subnormal_entries(cfg)
+    assert "default threads for B=128" in br.rule_threads(128)
+
+
+def test_latency_benchmark_finds_the_command_line(bench):
+    bl = bench("bench_latency")
+    cmd = bl.img2dmp_command()
+    assert cmd and ("img2dmp" in cmd[0] or cmd[-1] == "img2dmp")
+    assert bl.TARGETS["img2dmp --help"] == 0.5
