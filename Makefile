@@ -6,8 +6,11 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
 OUT    ?= out/demo
+# make model-real: the recommended real-handwriting model, from the data in ../shared/data.
+DATA   ?= ../shared/data
+REAL   ?= runs/real
 
-.PHONY: setup demo test lint bench clean
+.PHONY: setup demo test lint bench clean model-real
 
 setup: $(STAMP)
 
@@ -22,6 +25,23 @@ demo: setup
 
 test: setup
 	$(BIN)/python -m pytest -q -m "not slow"
+
+# Prepare MNIST with the recorded pen paths (durations normalised to 1 s), train the
+# recommended network (configs/real.yaml), evaluate it on the test part with refinement.
+# Each step is skipped when its result exists; an interrupted training resumes.
+model-real: $(REAL)/evaluation/evaluation.json
+
+$(REAL)/data.safetensors: | setup
+	$(BIN)/img2dmp prepare --data $(DATA) --augment 10 --scaling none --duration 1 --out $@
+
+$(REAL)/run/checkpoints/best.safetensors: $(REAL)/data.safetensors configs/real.yaml | setup
+	if [ -f $(REAL)/run/checkpoints/last.safetensors ]; then \
+	  $(BIN)/img2dmp train --run-dir $(REAL)/run --resume; else \
+	  $(BIN)/img2dmp train --config configs/real.yaml --data $< --run-dir $(REAL)/run; fi
+
+$(REAL)/evaluation/evaluation.json: $(REAL)/run/checkpoints/best.safetensors
+	$(BIN)/img2dmp evaluate --model $(REAL)/run --data $(REAL)/data.safetensors --split test \
+	  --refine 30 --out $(REAL)/evaluation
 
 lint: setup
 	$(BIN)/ruff check src tests benchmarks experiments examples
