@@ -43,6 +43,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--frame-interval-s", type=float, default=0.1, help="simulated time between frames"
     )
+    parser.add_argument(
+        "--refine",
+        metavar="STEPS",
+        type=int,
+        default=0,
+        help="with IMAGE: refine the predicted DMP on its image with this many gradient steps "
+        "towards the ink, as img2dmp predict --refine (0 = the network's output)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -69,6 +77,12 @@ def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
     from img2dmp.predict import Predictor
 
     predictor = Predictor.load(args.model)
+    if args.refine < 0:
+        raise ValueError(f"--refine must be >= 0, got {args.refine}")
+    if args.refine:
+        from img2dmp.nn.refine import RefineOptions
+
+        predictor.refine_options = RefineOptions(steps=args.refine)
     config = predictor.dmp_config
     out = []
     for path, (params, image) in zip(
