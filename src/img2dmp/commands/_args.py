@@ -180,3 +180,16 @@ __all__ = [
     "positive_float",
     "same_path",
 ]
+
+
+def add_refine(p: argparse.ArgumentParser) -> None:
+    """``--refine STEPS``: gradient steps that pull each predicted DMP onto the ink of its
+    image near the network's output (:mod:`img2dmp.nn.refine`); 0 = the network's output."""
+    p.add_argument(
+        "--refine",
+        metavar="STEPS",
+        type=int_at_least(0),
+        default=0,
+        help="refine each predicted DMP on its image with this many gradient steps that "
+        "pull it onto the ink near the network's output (0 = the network's output as it is)",
+    )

@@ -55,18 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=16,
         help="samples drawn in examples.png (0 = no picture)",
     )
-    _add_refine(p)
-
-
-def _add_refine(p: argparse.ArgumentParser) -> None:
-    p.add_argument(
-        "--refine",
-        metavar="STEPS",
-        type=_args.int_at_least(0),
-        default=0,
-        help="refine every prediction on its image with this many gradient steps towards "
-        "the ink (as img2dmp predict --refine); 0 = the network's output",
-    )
+    _args.add_refine(p)
 
 
 def model_and_data(args: argparse.Namespace) -> tuple[str, str]:

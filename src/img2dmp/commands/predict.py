@@ -40,14 +40,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=100,
         help="trajectory samples over [0, tau]",
     )
-    p.add_argument(
-        "--refine",
-        metavar="STEPS",
-        type=_args.int_at_least(0),
-        default=0,
-        help="refine each predicted DMP on its image with this many gradient steps that pull "
-        "it onto the ink near the network's output (0 = the network's output as it is)",
-    )
+    _args.add_refine(p)
     p.add_argument(
         "--keep-stroke-width",
         action="store_true",

@@ -15,6 +15,8 @@ import argparse
 import os
 import sys
 
+from . import _args
+
 HELP = "write a digit with a simulated KUKA arm (pybullet) and measure how well it went"
 
 
@@ -43,14 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--frame-interval-s", type=float, default=0.1, help="simulated time between frames"
     )
-    parser.add_argument(
-        "--refine",
-        metavar="STEPS",
-        type=int,
-        default=0,
-        help="with IMAGE: refine the predicted DMP on its image with this many gradient steps "
-        "towards the ink, as img2dmp predict --refine (0 = the network's output)",
-    )
+    _args.add_refine(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -77,8 +72,6 @@ def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
     from img2dmp.predict import Predictor
 
     predictor = Predictor.load(args.model)
-    if args.refine < 0:
-        raise ValueError(f"--refine must be >= 0, got {args.refine}")
     if args.refine:
         from img2dmp.nn.refine import RefineOptions
 
