@@ -127,3 +127,20 @@ def _imports_of_text(path: Path) -> set[str]:
         for n in ast.walk(tree)
         if isinstance(n, ast.ImportFrom) and n.module and n.module.startswith("img2dmp")
     }
+
+
+#: Functions allowed past the limit: the numba kernel builder (its kernels are one unit).
+LONG_ALLOWED = {("dmp/_kernels.py", "_build")}
+MAX_FUNCTION_LINES = 80
+
+
+def test_no_function_is_longer_than_a_screen():
+    long = []
+    for path in sorted(SRC.rglob("*.py")):
+        rel = path.relative_to(SRC).as_posix()
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = node.end_lineno - node.lineno + 1  # def line to last line, docstring too
+                if n > MAX_FUNCTION_LINES and (rel, node.name) not in LONG_ALLOWED:
+                    long.append(f"{rel}:{node.lineno} {node.name} ({n} lines)")
+    assert not long, "functions longer than 80 lines:\n" + "\n".join(long)
