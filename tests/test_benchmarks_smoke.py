@@ -68,3 +68,22 @@ def test_latency_benchmark_finds_the_command_line(bench):
     cmd = bl.img2dmp_command()
     assert cmd and ("img2dmp" in cmd[0] or cmd[-1] == "img2dmp")
     assert bl.TARGETS["img2dmp --help"] == 0.5
+
+
+def test_time_to_accuracy_writes_curve_and_table(bench, tmp_path, capsys):
+    tta = bench("time_to_accuracy")
+    before = torch.get_num_threads()
+    tiny = ["model.conv_channels=[4]", "model.encoder_layers=[8]", "model.decoder_layers=[8]"]
+    small = ["data.samples_per_epoch=64", "data.val_samples=16", "optim.batch_size=32"]
+    argv = ["--set", *tiny, *small, "--eval-per-digit", "2", "--budget-min", "0.03"]
+    try:
+        assert tta.main([*argv, "--out", str(tmp_path)]) == 0
+    finally:
+        torch.set_num_threads(before)  # the config's threads: 1
+    out = capsys.readouterr().out
+    assert out.startswith("CPU: ") and "load average at start" in out
+    assert "target (px)  reached  wall min  epoch" in out
+    assert "0.23" in out and "0.15" in out and "2 per digit" in out
+    rows = (tmp_path / "metrics.csv").read_text().splitlines()
+    assert rows[0] == "train_wall_s,epoch,eval_error_px,eval_s" and len(rows) >= 2
+    assert (tmp_path / "learning_curve.png").stat().st_size > 0
