@@ -122,6 +122,12 @@ def check_positive(name: str, value, *, allow_zero: bool = False) -> float:
     return v
 
 
+def check_positive_fields(obj, names, *, allow_zero: bool = False) -> None:
+    """:func:`check_positive` for each attribute of ``obj`` named in ``names``."""
+    for name in names:
+        check_positive(name, getattr(obj, name), allow_zero=allow_zero)
+
+
 def _describe(tp) -> str:
     return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
 
@@ -268,6 +274,7 @@ __all__ = [
     "ConfigError",
     "apply_overrides",
     "check_positive",
+    "check_positive_fields",
     "from_mapping",
     "load",
     "merge",

@@ -41,9 +41,13 @@ from .data.images import (  # noqa: F401  (re-exported: their home was this modu
 )
 from .dmp import DMPConfig, DMPParams, rollout
 from .nn import ModelConfig, ParamNormaliser, build_model
-from .nn.costs import dmp_trajectory
-from .nn.inference import dmp_trajectories, hypothesis_trajectories, network_outputs
-from .nn.model import split_hypotheses, top_hypothesis
+from .nn.inference import (
+    dmp_trajectories,
+    hypothesis_trajectories,
+    network_outputs,
+    rollout_outputs,
+)
+from .nn.model import split_hypotheses
 from .nn.refine import RefineOptions, refine
 
 #: Instants over a DMP's duration at which refinement compares its path with the ink.
@@ -144,12 +148,23 @@ class Predictor:
         """K, the DMPs the network proposes per image (1: the paper's network)."""
         return int(getattr(self.model, "n_hypotheses", 1))
 
+    def _outputs(self, images, batch_size: int):
+        """Checked images ``x [B, H, W]``, the hypotheses ``z [B, K, P]`` and their scores."""
+        x = self._check_images(images)
+        z, logits = split_hypotheses(network_outputs(self.model, x, batch_size), self.n_hypotheses)
+        return x, z, logits
+
+    def _refined_all(self, z: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        """Every hypothesis ``z [B, K, P]`` refined on its image (see :meth:`_refined`)."""
+        b, k, p = z.shape
+        return self._refined(z.reshape(b * k, p), x.repeat_interleave(k, 0)).reshape(b, k, p)
+
     def predict_normalised(self, images, batch_size: int = 4096) -> torch.Tensor:
         """Network output ``[B, P]`` (normalised units; the top hypothesis of a network
         with several) for prepared images ``[B, H, W]`` (:func:`img2dmp.nn.network_outputs`)."""
-        x = self._check_images(images)
-        out = network_outputs(self.model, x, batch_size)
-        return self._refined(top_hypothesis(out, self.n_hypotheses), x)
+        x, z, logits = self._outputs(images, batch_size)
+        top = z[torch.arange(z.shape[0]), logits.argmax(dim=1)]  # [B, P]
+        return self._refined(top, x)
 
     def predict_hypotheses(self, images, batch_size: int = 4096) -> tuple[DMPParams, np.ndarray]:
         """All K hypotheses for prepared images, ranked by probability (highest first).
@@ -161,10 +176,8 @@ class Predictor:
         probs : ndarray [B, K]
             Their probabilities (softmax of the scores), descending along K.
         """
-        x = self._check_images(images)
-        z, logits = split_hypotheses(network_outputs(self.model, x, batch_size), self.n_hypotheses)
-        b, k, p = z.shape  # [B, K, P], scores [B, K]
-        z = self._refined(z.reshape(b * k, p), x.repeat_interleave(k, 0)).reshape(b, k, p)
+        x, z, logits = self._outputs(images, batch_size)
+        z = self._refined_all(z, x)  # [B, K, P]
         probs = torch.softmax(logits.double(), dim=1)
         order = torch.argsort(probs, dim=1, descending=True)  # [B, K]
         z = torch.gather(z, 1, order[..., None].expand_as(z))
@@ -176,18 +189,16 @@ class Predictor:
         """Every hypothesis rolled out at time stamps ``[B, T]``, in the network's order:
         ``y [B, K, T, d]`` and ``probs [B, K]`` (NumPy arrays), see
         :func:`img2dmp.nn.hypothesis_trajectories`."""
-        x = self._check_images(images)
         t = torch.as_tensor(np.asarray(times), dtype=torch.float32)
         if self.refine_options is None:
+            x = self._check_images(images)
             y, probs = hypothesis_trajectories(
                 self.model, self.normaliser, self.dmp_config, x, t, batch_size
             )
             return y.numpy(), probs.numpy()
-        z, logits = split_hypotheses(network_outputs(self.model, x, batch_size), self.n_hypotheses)
-        b, k, p = z.shape
-        z = self._refined(z.reshape(b * k, p), x.repeat_interleave(k, 0))  # [B K, P]
-        y = dmp_trajectory(z.float(), t.repeat_interleave(k, 0), self.normaliser, self.dmp_config)
-        return y.reshape(b, k, *y.shape[1:]).detach().numpy(), torch.softmax(logits, 1).numpy()
+        x, z, logits = self._outputs(images, batch_size)
+        y = rollout_outputs(self._refined_all(z, x), t, self.normaliser, self.dmp_config)
+        return y.numpy(), torch.softmax(logits, dim=1).numpy()
 
     def predict_images(self, images, batch_size: int = 4096) -> DMPParams:
         """DMPs for prepared images.
@@ -262,8 +273,8 @@ class Predictor:
         t = torch.as_tensor(np.asarray(times), dtype=torch.float32)  # [B, T], like training
         if self.refine_options is not None:
             z = self.predict_normalised(x, batch_size)  # [B, P], refined
-            y = dmp_trajectory(z.float(), t, self.normaliser, self.dmp_config)
-            return y.detach().numpy()
+            y = rollout_outputs(z[:, None], t, self.normaliser, self.dmp_config)[:, 0]
+            return y.numpy()
         y = dmp_trajectories(self.model, self.normaliser, self.dmp_config, x, t, batch_size)
         return y.numpy()  # [B, T, d]
 

@@ -25,6 +25,8 @@ import math
 import numpy as np
 import torch
 
+from ..config import check_positive
+
 # Floats per rendering chunk (bounds the [chunk, T, H + W] footprint tensors).
 _MAX_ELEMENTS = 1 << 20
 # Points along a segment are at most this many sigmas apart (ripple of the sum ~1e-8).
@@ -84,9 +86,8 @@ def render_paths(
         Ink = 1, background = 0.
     """
     h, w = _size2(image_size)
-    for name, v in (("pen_width_px", pen_width_px), ("edge_sigma_px", edge_sigma_px)):
-        if not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
-            raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+    check_positive("pen_width_px", pen_width_px)
+    check_positive("edge_sigma_px", edge_sigma_px)
     pts = _tensor(points).to(torch.float32)
     if pts.ndim < 2 or pts.shape[-1] not in (2, 3):
         raise ValueError(f"points must have shape [*batch, T, 2 or 3], got {tuple(pts.shape)}")

@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from .._progress import bar
+from ..config import check_positive
 
 #: Added to the cumulative x and y to reach the centre convention (see module docstring).
 FRAME_OFFSET_PX = -1.0
@@ -111,8 +112,7 @@ class SpeedProfile:
 
     def __post_init__(self) -> None:
         for name, v in asdict(self).items():
-            if not np.isfinite(v) or v <= 0:
-                raise ValueError(f"SpeedProfile.{name} must be a finite number > 0, got {v!r}")
+            check_positive(f"SpeedProfile.{name}", v)
 
     def to_dict(self) -> dict:
         return asdict(self)

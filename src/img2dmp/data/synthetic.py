@@ -56,7 +56,7 @@ import numpy as np
 import torch
 
 from .._progress import bar as progress_bar
-from ..config import ConfigError, from_mapping
+from ..config import ConfigError, check_positive_fields, from_mapping
 from ..dmp import DMPConfig, fit_dmp
 from .affine import AffineRanges, sample_affine, warp_images, warp_points
 from .render import gaussian_filter, render_paths, salt_and_pepper
@@ -278,16 +278,10 @@ class SyntheticConfig:
             "min_end_clearance_rel",
             "ridge",
         )
-        for name in positive + non_negative + ("noise_amount", "salt_fraction"):
-            v = getattr(self, name)
-            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
-                raise ValueError(f"{name} must be a finite number, got {v!r}")
-        for name in positive:
-            if getattr(self, name) <= 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
-        for name in non_negative:
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        check_positive_fields(self, positive)
+        check_positive_fields(
+            self, (*non_negative, "noise_amount", "salt_fraction"), allow_zero=True
+        )
         for name in ("line_length_rel", "arc_axis_rel"):
             if getattr(self, name) >= 1:
                 v = getattr(self, name)

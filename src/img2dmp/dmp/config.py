@@ -12,15 +12,11 @@ with ``S = diag(g - y0)`` (the paper's scaling, ``scaling="goal-start"``) or ``S
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, field
 
+from ..config import check_positive
+
 SCALINGS = ("goal-start", "none")
-
-
-def _check_positive(name: str, value: float) -> None:
-    if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -63,11 +59,11 @@ class DMPConfig:
             raise ValueError(f"n_kernels must be an integer >= 2, got {self.n_kernels!r}")
         if not isinstance(self.n_dims, int) or self.n_dims < 1:
             raise ValueError(f"n_dims must be an integer >= 1, got {self.n_dims!r}")
-        _check_positive("alpha_z", self.alpha_z)
-        _check_positive("alpha_x", self.alpha_x)
-        _check_positive("width_factor", self.width_factor)
+        check_positive("alpha_z", self.alpha_z)
+        check_positive("alpha_x", self.alpha_x)
+        check_positive("width_factor", self.width_factor)
         beta = self.alpha_z / 4.0 if self.beta_z is None else self.beta_z
-        _check_positive("beta_z", beta)
+        check_positive("beta_z", beta)
         if self.scaling not in SCALINGS:
             raise ValueError(f"scaling must be one of {SCALINGS}, got {self.scaling!r}")
         object.__setattr__(self, "_beta", float(beta))

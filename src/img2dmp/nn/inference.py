@@ -120,24 +120,10 @@ def dmp_trajectories(
     tensor [B, T, d]
         Positions (px); float32 for a float32 network and float32 time stamps.
     """
-    batch_size = _check_batch_size(batch_size)
-    _check_images(images)
-    times = torch.as_tensor(times)
-    if times.ndim != 2 or times.shape[0] != images.shape[0]:
-        raise ValueError(
-            f"times must have shape [B, T] with B = {images.shape[0]} (the images), got "
-            f"{tuple(times.shape)}"
-        )
     k = getattr(model, "n_hypotheses", 1)
+    times = _check_times(images, times)
     z = top_hypothesis(network_outputs(model, images, batch_size), k)  # [B, P]
-    if z.shape[0] == 0:
-        return z.new_zeros(0, times.shape[1], dmp_config.n_dims)
-    out = []
-    with torch.no_grad():
-        for lo in range(0, z.shape[0], batch_size):
-            t = times[lo : lo + batch_size]  # [b, T]
-            out.append(dmp_trajectory(z[lo : lo + batch_size], t, normaliser, dmp_config))
-    return torch.cat(out)  # [B, T, d]
+    return rollout_outputs(z[:, None], times, normaliser, dmp_config, batch_size)[:, 0]
 
 
 def hypothesis_trajectories(
@@ -157,23 +143,47 @@ def hypothesis_trajectories(
     probs : tensor [B, K]
         Softmax of the scores; 1 for a one-hypothesis network.
     """
-    batch_size = _check_batch_size(batch_size)
-    _check_images(images)
-    times = torch.as_tensor(times)
-    k = getattr(model, "n_hypotheses", 1)
+    times = _check_times(images, times)
     out = network_outputs(model, images, batch_size)  # [B, K (P + 1)] or [B, P]
-    z, logits = split_hypotheses(out, k)  # [B, K, P], [B, K]
-    b, _, p = z.shape
+    z, logits = split_hypotheses(out, getattr(model, "n_hypotheses", 1))  # [B, K, P], [B, K]
+    y = rollout_outputs(z, times, normaliser, dmp_config, batch_size)
+    return y, torch.softmax(logits, dim=1)
+
+
+def rollout_outputs(
+    z: torch.Tensor,
+    times: torch.Tensor,
+    normaliser: ParamNormaliser,
+    dmp_config: DMPConfig,
+    batch_size: int = 4096,
+) -> torch.Tensor:
+    """Normalised DMP vectors ``z [B, K, P]`` (K per sample) rolled out at the samples'
+    time stamps ``[B, T]``, in batches, without gradients: ``[B, K, T, d]``."""
+    batch_size = _check_batch_size(batch_size)
+    b, k, p = z.shape
+    if b == 0:
+        return z.new_zeros(0, k, times.shape[-1], dmp_config.n_dims)
+    flat_z = z.reshape(b * k, p)
+    flat_t = times.repeat_interleave(k, dim=0) if k > 1 else times  # [B K, T]
     with torch.no_grad():
-        flat_t = times.repeat_interleave(k, dim=0)  # [B K, T]
-        flat_z = z.reshape(b * k, p)
         parts = [
             dmp_trajectory(flat_z[lo : lo + batch_size], flat_t[lo : lo + batch_size],
                            normaliser, dmp_config)
             for lo in range(0, b * k, batch_size)
         ]  # fmt: skip
-    y = torch.cat(parts) if parts else z.new_zeros(0, times.shape[-1], dmp_config.n_dims)
-    return y.reshape(b, k, *y.shape[1:]), torch.softmax(logits, dim=1)
+    y = torch.cat(parts)  # [B K, T, d]
+    return y.reshape(b, k, *y.shape[1:])
 
 
-__all__ = ["dmp_trajectories", "hypothesis_trajectories", "network_outputs"]
+def _check_times(images: torch.Tensor, times) -> torch.Tensor:
+    _check_images(images)
+    times = torch.as_tensor(times)
+    if times.ndim != 2 or times.shape[0] != images.shape[0]:
+        raise ValueError(
+            f"times must have shape [B, T] with B = {images.shape[0]} (the images), got "
+            f"{tuple(times.shape)}"
+        )
+    return times
+
+
+__all__ = ["dmp_trajectories", "hypothesis_trajectories", "network_outputs", "rollout_outputs"]

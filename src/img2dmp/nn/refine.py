@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import torch
 
+from ..config import check_positive
 from ..dmp import DMPConfig
 from .costs import dmp_trajectory
 from .ink import ink_attraction, ink_coverage, ink_distance_map
@@ -44,9 +45,7 @@ class RefineOptions:
         if isinstance(self.steps, bool) or int(self.steps) < 0:
             raise ValueError(f"refine steps must be an integer >= 0, got {self.steps!r}")
         for name in ("lr", "prior_weight", "ink_weight", "coverage_weight"):
-            v = float(getattr(self, name))
-            if not v >= 0 or v == float("inf"):
-                raise ValueError(f"refine {name} must be a finite number >= 0, got {v!r}")
+            check_positive(f"refine {name}", getattr(self, name), allow_zero=True)
 
 
 def refine(

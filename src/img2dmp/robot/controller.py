@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._checks import check_positive
+from ..config import check_positive_fields
 
 
 @dataclass(frozen=True)
@@ -85,7 +85,7 @@ class ControllerConfig:
     lift_height_m: float = 0.006
 
     def __post_init__(self) -> None:
-        check_positive(
+        check_positive_fields(
             self,
             (
                 "force_set_n",

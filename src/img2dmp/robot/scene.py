@@ -24,8 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config import check_positive_fields
 from . import _pybullet
-from ._checks import check_positive
 
 # A comfortable writing posture: elbow up, wrist above the paper, pen vertical.
 HOME_JOINTS_RAD = (0.0, 0.55, 0.0, -1.6, 0.0, 1.0, 0.0)
@@ -66,7 +66,9 @@ class SceneConfig:
 
     def __post_init__(self) -> None:
         names = ("paper_thickness_m", "pen_length_m", "pen_tip_radius_m")
-        check_positive(self, (*names, "contact_stiffness_n_per_m", "contact_damping_n_s_per_m"))
+        check_positive_fields(
+            self, (*names, "contact_stiffness_n_per_m", "contact_damping_n_s_per_m")
+        )
         if len(self.paper_center_m) != 2 or not all(map(math.isfinite, self.paper_center_m)):
             raise ValueError(
                 f"paper_center_m must be two finite numbers, got {self.paper_center_m}"

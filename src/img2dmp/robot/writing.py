@@ -27,6 +27,7 @@ from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from ..config import check_positive
 from ..dmp import DMPConfig, DMPIntegrator, DMPParams
 from .controller import ControllerConfig, WritingController
 from .scene import HOME_JOINTS_RAD, SceneConfig, WritingScene
@@ -69,8 +70,7 @@ class PaperMapping:
         h, w = self.image_size
         if not (int(h) == h and int(w) == w and h > 0 and w > 0):
             raise ValueError(f"image_size must be two positive integers, got {self.image_size}")
-        if not (math.isfinite(self.writing_height_mm) and self.writing_height_mm > 0):
-            raise ValueError(f"writing_height_mm must be > 0, got {self.writing_height_mm!r}")
+        check_positive("writing_height_mm", self.writing_height_mm)
 
     @property
     def metres_per_px(self) -> float:
@@ -146,8 +146,8 @@ class WritingOptions:
         rate = self.control_rate_hz
         if not (math.isfinite(rate) and 100.0 <= rate <= 10000.0):
             raise ValueError(f"control_rate_hz must be in [100, 10000], got {rate!r}")
-        if self.frame_interval_s is not None and not (self.frame_interval_s > 0):
-            raise ValueError(f"frame_interval_s must be > 0, got {self.frame_interval_s!r}")
+        if self.frame_interval_s is not None:
+            check_positive("frame_interval_s", self.frame_interval_s)
 
     @property
     def dt_s(self) -> float:
