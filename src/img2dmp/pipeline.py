@@ -125,7 +125,7 @@ def _generate(out: Path, samples_per_digit: int, seed: int, progress: bool) -> P
 def _train_config(data_path, epochs, cost, seed, progress, overrides):
     from .training import TrainConfig
 
-    d = merge(demo_config(), overrides or {})
+    d = merge(DEMO_CONFIG, overrides or {})  # merge copies: DEMO_CONFIG stays as read
     d = merge(d, {"data": {"path": str(data_path)}, "optim": {"epochs": int(epochs)}})
     d = merge(d, {"cost": {"name": cost}, "seed": int(seed), "progress": bool(progress)})
     return TrainConfig.from_dict(d)

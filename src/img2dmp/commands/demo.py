@@ -13,15 +13,12 @@ from __future__ import annotations
 
 import argparse
 
+# The pipeline module imports neither torch nor NumPy at module level (its demo config is
+# a YAML file), so --help can show the real defaults.
+from ..pipeline import DEMO_EPOCHS, DEMO_SAMPLES_PER_DIGIT
 from . import _args
 
 HELP = "generate -> train -> evaluate -> pictures, on a small built-in example"
-
-# Literal copies of img2dmp.pipeline's DEMO_SAMPLES_PER_DIGIT and DEMO_EPOCHS, shown in
-# --help without importing the pipeline; tests check them against the library, which
-# supplies the actual defaults.
-DEMO_SAMPLES_PER_DIGIT = 300
-DEMO_EPOCHS = 60
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

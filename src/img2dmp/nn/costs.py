@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..config import check_positive
 from ..dmp import DMPConfig, rollout
 from .normalise import ParamNormaliser
 
@@ -422,8 +423,7 @@ class Cost:
             ("score_weight", score_weight),
             ("path_weight", path_weight),
         ):
-            if not (float(v) >= 0):
-                raise ValueError(f"cost.{k} must be >= 0, got {v!r}")
+            check_positive(f"cost.{k}", v, allow_zero=True)
         if not 0 <= float(wta_relax) < 1:
             raise ValueError(f"cost.wta_relax must be in [0, 1), got {wta_relax!r}")
         self.normaliser, self.config = normaliser, config

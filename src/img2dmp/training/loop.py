@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .._progress import bar, say
+from .._progress import bar, live, say
 from ..errors import TrainingDiverged
 from ..nn import Cost, top_hypothesis, trajectory_error_px
 from ..nn.costs import dmp_trajectory
@@ -325,8 +325,6 @@ def _stopping(run: Run) -> bool:
 def _report(run: Run, epochs, s: EpochStats) -> None:
     if not run.show_progress:
         return
-    from .._progress import live
-
     if live():
         epochs.set_postfix(
             train_px=f"{s.train_error_px:.3f}",
