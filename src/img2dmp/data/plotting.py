@@ -294,6 +294,7 @@ def hypotheses_figure(
     with its start dot and direction arrow; the legend gives each rank's probability."""
     fig, ax = plt.subplots(figsize=(cell_inches, cell_inches))
     ax.set_axis_off()
+    _draw_cell(ax, np.asarray(image), [], True, 0.0)  # the image, framed as every cell
     arrow_pt = 4.5 + 1.5 * cell_inches
     handles = []
     for k in range(len(paths) - 1, -1, -1):  # the top hypothesis drawn last, on top
@@ -304,11 +305,6 @@ def hypotheses_figure(
         _draw_path(ax, _pen_down_xy(paths[k]), style, True, arrow_pt if k == 0 else 0.7 * arrow_pt)
         label = f"#{k + 1}: p = {float(probs[k]):.2f}" + (" (written)" if k == 0 else "")
         handles.insert(0, Line2D([], [], color=colour, linewidth=width, label=label))
-    h, w = np.asarray(image).shape
-    ax.imshow(image, cmap="gray_r", vmin=0, vmax=1, extent=(-0.5, w - 0.5, h - 0.5, -0.5),
-              zorder=0)  # fmt: skip
-    ax.set_xlim(-0.5, w - 0.5)
-    ax.set_ylim(h - 0.5, -0.5)
     if title:
         ax.set_title(title, fontsize=_FONT + 1)
     ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.02), ncol=2,
