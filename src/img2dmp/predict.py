@@ -41,12 +41,7 @@ from .data.images import (  # noqa: F401  (re-exported: their home was this modu
 )
 from .dmp import DMPConfig, DMPParams, rollout
 from .nn import ModelConfig, ParamNormaliser, build_model
-from .nn.inference import (
-    dmp_trajectories,
-    hypothesis_trajectories,
-    network_outputs,
-    rollout_outputs,
-)
+from .nn.inference import dmp_trajectories, network_outputs, rollout_outputs
 from .nn.model import split_hypotheses
 from .nn.refine import RefineOptions, refine
 
@@ -190,14 +185,9 @@ class Predictor:
         ``y [B, K, T, d]`` and ``probs [B, K]`` (NumPy arrays), see
         :func:`img2dmp.nn.hypothesis_trajectories`."""
         t = torch.as_tensor(np.asarray(times), dtype=torch.float32)
-        if self.refine_options is None:
-            x = self._check_images(images)
-            y, probs = hypothesis_trajectories(
-                self.model, self.normaliser, self.dmp_config, x, t, batch_size
-            )
-            return y.numpy(), probs.numpy()
         x, z, logits = self._outputs(images, batch_size)
-        y = rollout_outputs(self._refined_all(z, x), t, self.normaliser, self.dmp_config)
+        z = self._refined_all(z, x)  # unchanged without refinement
+        y = rollout_outputs(z, t, self.normaliser, self.dmp_config, batch_size)
         return y.numpy(), torch.softmax(logits, dim=1).numpy()
 
     def predict_images(self, images, batch_size: int = 4096) -> DMPParams:
@@ -268,15 +258,16 @@ class Predictor:
 
     def trajectories_for_images(self, images, times, batch_size: int = 4096) -> np.ndarray:
         """The network's DMP trajectories ``[B, T, d]`` at given time stamps ``[B, T]``
-        (seconds, each row shifted to start at 0; :func:`img2dmp.nn.dmp_trajectories`)."""
+        (seconds, each row shifted to start at 0; :func:`img2dmp.nn.dmp_trajectories`,
+        training's validation), the top hypothesis, refined on its image if asked."""
         x = self._check_images(images)
         t = torch.as_tensor(np.asarray(times), dtype=torch.float32)  # [B, T], like training
-        if self.refine_options is not None:
-            z = self.predict_normalised(x, batch_size)  # [B, P], refined
-            y = rollout_outputs(z[:, None], t, self.normaliser, self.dmp_config)[:, 0]
-            return y.numpy()
-        y = dmp_trajectories(self.model, self.normaliser, self.dmp_config, x, t, batch_size)
-        return y.numpy()  # [B, T, d]
+        if self.refine_options is None:
+            y = dmp_trajectories(self.model, self.normaliser, self.dmp_config, x, t, batch_size)
+            return y.numpy()  # [B, T, d]
+        z = self.predict_normalised(x, batch_size)  # [B, P], refined
+        y = rollout_outputs(z[:, None], t, self.normaliser, self.dmp_config, batch_size)
+        return y[:, 0].numpy()
 
 
 def prediction_record(
