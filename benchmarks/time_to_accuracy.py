@@ -5,7 +5,8 @@ Trains the synthetic ten-digit model from scratch through :mod:`img2dmp.training
 epoch and the learning-rate schedule, i.e. :func:`~img2dmp.training.fit`'s epoch body
 without its checkpoints, ``metrics.csv`` and internal validation, which have no hook for
 an outside evaluation). Data come from the generator (``data.path: null``): every epoch
-draws ``data.samples_per_epoch`` fresh samples seeded by ``(seed, epoch)``.
+draws ``data.samples_per_epoch`` fresh samples seeded by ``(seed, epoch)``, or every
+``data.refresh_epochs`` epochs (0: once; drawing them then counts once, in the setup).
 
 What counts as training wall time: everything from just before ``open_run`` (generating
 the fixed validation set and epoch 0's samples, fitting the output normalisation, numba's
@@ -227,6 +228,12 @@ def format_table(curve: Curve, budget_min: float) -> str:
     return "\n".join(lines)
 
 
+def _refresh(every: int) -> str:
+    if every == 1:
+        return "drawn fresh every epoch"
+    return "drawn once" if every == 0 else f"drawn fresh every {every} epochs"
+
+
 def main(argv=None) -> int:
     """Run the benchmark; print the machine, the progress and the table."""
     from img2dmp.training import load_config
@@ -237,7 +244,9 @@ def main(argv=None) -> int:
     cfg = load_config(args.config, ["optim.patience=0", "progress=false", *args.set])
     print(
         f"config {args.config} with --set {' '.join(args.set) or '(none)'}; generator mode, "
-        f"{cfg.data.samples_per_epoch} fresh samples per epoch; budget {args.budget_min:g} "
+        f"{cfg.data.samples_per_epoch} samples {_refresh(cfg.data.refresh_epochs)}; "
+        f"{cfg.optim.epochs} epochs at most, {cfg.optim.schedule} schedule, "
+        f"{cfg.threads} threads; budget {args.budget_min:g} "
         f"min of training; evaluation set: {args.eval_per_digit} per digit "
         f"(Table I: 2000), seed 2",
         flush=True,

@@ -514,3 +514,22 @@ def test_a_diverging_run_ends_with_one_line_and_exit_2(small_data, tmp_path, cap
     # it says truthfully whether an earlier epoch's checkpoint exists
     best = tmp_path / "run" / "checkpoints" / "best.safetensors"
     assert ("is kept" in err[0]) == best.is_file()
+
+
+@pytest.mark.parametrize(
+    ("every", "drawn"), [(1, [0, 1, 2, 3]), (2, [0, 0, 2, 2]), (0, [0, 0, 0, 0])]
+)
+def test_generator_refreshes_its_samples_every_k_epochs(every, drawn):
+    from img2dmp.training.data import TrainingData
+
+    data = {"samples_per_epoch": 12, "val_samples": 8, "refresh_epochs": every}
+    cfg = TrainConfig.from_dict({"model": dict(TINY_MODEL), "data": data, "progress": False})
+    td = TrainingData(cfg)
+    epochs = [td.train_for_epoch(e).images for e in range(4)]
+    # the same draw gives the same images, a new draw different ones; a fresh object
+    # (a resumed run) sees for epoch 3 what the first one saw
+    for e in range(1, 4):
+        assert bool(torch.equal(epochs[e], epochs[e - 1])) == (drawn[e] == drawn[e - 1])
+    assert torch.equal(TrainingData(cfg).train_for_epoch(3).images, epochs[3])
+    with pytest.raises(ValueError, match="data.refresh_epochs must be >= 0, got -1"):
+        TrainConfig.from_dict({"data": {"refresh_epochs": -1}})

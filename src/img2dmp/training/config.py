@@ -31,7 +31,14 @@ class DataConfig:
         Options passed to the on-the-fly synthetic generator (generator mode):
         :class:`~img2dmp.data.synthetic.SyntheticConfig` fields and ``dmp_config``.
     samples_per_epoch : int
-        Generator mode: fresh samples drawn for every epoch.
+        Generator mode: samples drawn for an epoch.
+    refresh_epochs : int
+        Generator mode: draw fresh samples every this many epochs and train on the same
+        ones in between (their ``data.augment`` transforms are still new every epoch);
+        0: draw them once, for epoch 0, and keep them. Drawing 20,000 samples takes
+        about as long as an epoch of training on them, so a larger value trades sample
+        variety for speed (``benchmarks/time_to_accuracy.py`` measures both). Default 1:
+        fresh samples every epoch.
     val_samples : int
         Generator mode: size of the fixed validation set.
     val_fraction : float
@@ -61,6 +68,7 @@ class DataConfig:
     path: str | None = None
     generator: dict = field(default_factory=dict)
     samples_per_epoch: int = 20000
+    refresh_epochs: int = 1
     val_samples: int = 1000
     val_fraction: float = 0.1
     digits: list[int] | None = None
@@ -78,6 +86,8 @@ class DataConfig:
         ):
             if int(getattr(self, name)) < 1:
                 raise ConfigError(f"data.{name} must be >= 1, got {getattr(self, name)!r}")
+        if int(self.refresh_epochs) < 0:
+            raise ConfigError(f"data.refresh_epochs must be >= 0, got {self.refresh_epochs!r}")
         if not 0 <= self.val_fraction < 1:
             raise ConfigError(f"data.val_fraction must be in [0, 1), got {self.val_fraction!r}")
         if self.digits is not None and (
@@ -138,12 +148,9 @@ class OptimConfig:
         check_positive("optim.gamma", self.gamma)
         if self.grad_clip is not None:
             check_positive("optim.grad_clip", self.grad_clip)
-        if self.batch_size < 1 or self.epochs < 1 or self.patience < 0 or self.step_size < 1:
-            raise ConfigError(
-                "optim.batch_size, optim.epochs and optim.step_size must be >= 1 and "
-                f"optim.patience >= 0, got {self.batch_size!r}, {self.epochs!r}, "
-                f"{self.step_size!r}, {self.patience!r}"
-            )
+        for name, lo in (("batch_size", 1), ("epochs", 1), ("step_size", 1), ("patience", 0)):
+            if getattr(self, name) < lo:
+                raise ConfigError(f"optim.{name} must be >= {lo}, got {getattr(self, name)!r}")
         if self.schedule not in SCHEDULES:
             raise ConfigError(f"optim.schedule must be one of {SCHEDULES}, got {self.schedule!r}")
 

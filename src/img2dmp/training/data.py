@@ -125,6 +125,7 @@ class TrainingData:
         self.dataset_sha256 = None
         self._train: Split | None = None
         self._first: DigitData | None = None
+        self._pool: tuple[int, Split] | None = None  # (epoch drawn for, samples)
         if cfg.data.path is not None:
             self._from_file(cfg, normaliser)
         else:
@@ -191,12 +192,22 @@ class TrainingData:
         return generate_arrays(self._generator, n, seed=self.cfg.seed, epoch=epoch)
 
     def train_for_epoch(self, epoch: int) -> Split:
-        """The training split of ``epoch`` (stored mode: always the same)."""
+        """The training split of ``epoch`` (stored mode: always the same).
+
+        Generator mode: the samples drawn for the last refresh epoch at or before
+        ``epoch`` (``data.refresh_epochs``), so that a resumed run sees the same ones.
+        """
         if self._train is not None:
             return self._train
-        a = self._first if epoch == 0 and self._first is not None else self._generated(epoch)
+        every = int(self.cfg.data.refresh_epochs)
+        drawn_at = 0 if every == 0 else epoch - epoch % every
+        if self._pool is not None and self._pool[0] == drawn_at:
+            return self._pool[1]
+        a = self._first if drawn_at == 0 and self._first is not None else self._generated(drawn_at)
         self._first = None
-        return Split.of(a, np.arange(len(a.labels)), self.normaliser)
+        split = Split.of(a, np.arange(len(a.labels)), self.normaliser)
+        self._pool = (drawn_at, split) if every != 1 else None
+        return split
 
     def parameter_weighting(self, stored: dict | None, resumed: bool) -> ParameterWeighting | None:
         """Weights of cost (9): a resumed run's stored ones (a checkpoint without the record
