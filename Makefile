@@ -21,7 +21,7 @@ $(STAMP): pyproject.toml
 	rm -f $(VENV)/.installed-* && touch $@
 
 demo: setup
-	$(BIN)/img2dmp demo --out $(OUT)
+	$(BIN)/img2dmp demo --out $(OUT) --force
 
 test: setup
 	$(BIN)/python -m pytest -q -m "not slow"
@@ -41,7 +41,7 @@ $(REAL)/run/checkpoints/best.safetensors: $(REAL)/data.safetensors configs/real.
 
 $(REAL)/evaluation/evaluation.json: $(REAL)/run/checkpoints/best.safetensors
 	$(BIN)/img2dmp evaluate --model $(REAL)/run --data $(REAL)/data.safetensors --split test \
-	  --refine 30 --out $(REAL)/evaluation
+	  --refine 30 --out $(REAL)/evaluation --force
 
 lint: setup
 	$(BIN)/ruff check src tests benchmarks experiments examples

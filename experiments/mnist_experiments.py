@@ -384,7 +384,7 @@ def run_experiment(name: str, out: Path, args, record: dict) -> dict:
     commands.append(train(run_dir, exp.config, data, exp.cost, epochs, extra, log, args.progress))
     stages["train"] = _metrics(run_dir)
     ev_cmd = [*_cli(), "evaluate", str(run_dir), str(data), "--split", "test"]
-    ev_cmd += ["--out", str(exp_dir / "evaluation")]
+    ev_cmd += ["--out", str(exp_dir / "evaluation"), "--force"]
     _run(ev_cmd, log)
     commands.append(_shown(ev_cmd))
     ev = json.loads((exp_dir / "evaluation" / "evaluation.json").read_text())

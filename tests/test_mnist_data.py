@@ -528,7 +528,7 @@ def test_cli_prepare_writes_a_valid_file_and_reports_bad_input(fake_data, tmp_pa
     assert "wrote" in capsys.readouterr().out
     bad = fake_data / "mnist" / "train-labels-idx1-ubyte.gz"
     bad.write_bytes(bad.read_bytes()[:-6])
-    assert main(argv) == 2
+    assert main([*argv, "--force"]) == 2
     assert "train-labels-idx1-ubyte.gz" in capsys.readouterr().err
 
 

@@ -1,16 +1,37 @@
 """Files written so that a crash never leaves a half-written file that looks valid.
 
 The one atomic writer of img2dmp (temporary file in the same directory, fsync,
-``os.replace``) and the file hash stored with models. No dependencies on the rest of the
-package, so every layer (data sets, checkpoints, robot logs) can use it.
+``os.replace``), the cleaning of the temporaries a killed writer leaves, the check of an
+input file before it is read, the advisory lock of a directory, and the file hash stored
+with models. No dependencies on the rest of the package, so every layer (data sets,
+checkpoints, robot logs) can use it.
+
+A temporary is named ``.NAME.PID.XXXXXXXX.tmp`` beside ``NAME`` (PID: the writing process).
+A kill between its creation and the final ``os.replace`` leaves it behind, never ``NAME``
+half-written; the first write of a process into a directory removes the temporaries there
+whose writer is gone (untouched for :data:`DEAD_WRITER_GRACE_S`) or that are older than
+:data:`STALE_TEMPORARY_S`.
 """
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import os
+import stat
 import tempfile
+import time
+from contextlib import contextmanager
 from pathlib import Path
+
+#: A temporary untouched this long (seconds) is abandoned, whoever wrote it.
+STALE_TEMPORARY_S = 3600.0
+#: A temporary whose writing process is gone is abandoned once untouched this long.
+DEAD_WRITER_GRACE_S = 60.0
+#: The lock file :func:`lock_directory` holds inside the directory it locks.
+LOCK_NAME = ".lock"
+
+_cleaned_dirs: set[str] = set()
 
 
 def file_digest(path: str | os.PathLike) -> str:
@@ -29,11 +50,109 @@ def _readable(tmp: str) -> None:
     os.chmod(tmp, 0o666 & ~umask)
 
 
+# --- temporaries of killed writers ----------------------------------------------------
+
+
+def _writer_pid(name: str, siblings: set[str]) -> int | None | bool:
+    """The writer's pid in a temporary's name ``.NAME.PID.XXXXXXXX.tmp``; None for the
+    name of earlier versions, ``.NAME.XXXXXXXX.tmp``, whose ``NAME`` is in ``siblings``;
+    False for any other file (never touched)."""
+    if not (name.startswith(".") and name.endswith(".tmp")):
+        return False
+    parts = name[1:-4].split(".")
+    if len(parts) < 2 or len(parts[-1]) != 8 or not parts[-1].replace("_", "").isalnum():
+        return False
+    if len(parts) >= 3 and parts[-2].isdigit():
+        return int(parts[-2])
+    return None if ".".join(parts[:-1]) in siblings else False
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process (EPERM): alive
+        return True
+    return True
+
+
+def clean_stale_temporaries(directory: str | os.PathLike, *, now: float | None = None) -> list:
+    """Remove the temporaries in ``directory`` that a killed writer left (see the module
+    docstring); the paths removed. Files that are not such temporaries are never touched,
+    nor are those of a writer still at work."""
+    now = time.time() if now is None else now
+    removed = []
+    try:
+        entries = list(os.scandir(directory))
+    except OSError:
+        return removed
+    names = {e.name for e in entries}
+    for entry in entries:
+        pid = _writer_pid(entry.name, names)
+        if pid is False:
+            continue
+        try:
+            st = entry.stat(follow_symlinks=False)
+        except OSError:
+            continue
+        if not stat.S_ISREG(st.st_mode):
+            continue
+        age = now - st.st_mtime
+        dead = pid is not None and not _alive(pid) and age >= DEAD_WRITER_GRACE_S
+        if dead or age >= STALE_TEMPORARY_S:
+            try:
+                os.unlink(entry.path)
+            except OSError:
+                continue
+            removed.append(Path(entry.path))
+    return removed
+
+
+def _clean_once(directory: Path) -> None:
+    # Once per process and directory: a directory of many outputs is not listed per file.
+    key = os.path.abspath(directory)
+    if key not in _cleaned_dirs:
+        _cleaned_dirs.add(key)
+        clean_stale_temporaries(directory)
+
+
+# --- writing --------------------------------------------------------------------------
+
+
+def _about(e: OSError, path: Path) -> OSError:
+    """``e`` re-stated about the file being written (not its hidden temporary)."""
+    if e.errno is None:
+        return e
+    return OSError(e.errno, e.strerror or os.strerror(e.errno), str(path))
+
+
+def _make_parent(path: Path) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except FileExistsError as e:  # a file where the directory belongs
+        raise NotADirectoryError(errno.ENOTDIR, "Not a directory", str(path.parent)) from e
+
+
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    """Write ``data`` to ``path`` via a temporary file in the same directory + ``os.replace``."""
+    """Write ``data`` to ``path`` via a temporary file in the same directory + ``os.replace``.
+
+    A failure (a full disk, no permission) leaves an earlier ``path`` as it was and raises
+    an ``OSError`` naming ``path``; a directory at ``path`` is refused.
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    if path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "Is a directory, not a file", str(path))
+    _make_parent(path)
+    _clean_once(path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(
+            prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp", dir=path.parent
+        )
+    except OSError as e:
+        raise _about(e, path) from e
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
@@ -41,9 +160,11 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
             os.fsync(f.fileno())
         _readable(tmp)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(e, OSError):
+            raise _about(e, path) from e
         raise
 
 
@@ -68,3 +189,108 @@ def save_figure(fig, path: str | os.PathLike, *, dpi: int = 100) -> Path:
         plt.close(fig)
     atomic_write_bytes(path, buf.getvalue())
     return Path(path)
+
+
+# --- reading --------------------------------------------------------------------------
+
+
+def check_readable(path: str | os.PathLike, what: str = "file") -> Path:
+    """``path`` if it is a regular file this process can read; otherwise an ``OSError``
+    whose message names ``what``, the file and the reason (no such file, a directory,
+    not a regular file, permission denied), before any slow work starts."""
+    p = Path(path)
+    try:
+        st = p.stat()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{what} {p} does not exist") from None
+    except PermissionError:
+        raise PermissionError(f"{what} {p} cannot be reached: permission denied") from None
+    except OSError as e:
+        raise OSError(f"{what} {p} cannot be read: {e.strerror or e}") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise IsADirectoryError(f"{what} {p} is a directory, not a file")
+    if not stat.S_ISREG(st.st_mode):
+        raise OSError(f"{what} {p} is not a regular file")
+    try:
+        with open(p, "rb") as f:
+            f.read(1)
+    except PermissionError:
+        raise PermissionError(f"{what} {p} cannot be read: permission denied") from None
+    except OSError as e:
+        raise OSError(f"{what} {p} cannot be read: {e.strerror or e}") from None
+    return p
+
+
+# --- locking --------------------------------------------------------------------------
+
+
+class DirectoryBusy(OSError):
+    """Another process holds the lock of a directory (:func:`lock_directory`)."""
+
+
+@contextmanager
+def lock_directory(directory: str | os.PathLike, what: str = "directory"):
+    """Hold an advisory lock (``fcntl.flock`` on ``directory/.lock``) for the block.
+
+    The directory is created if needed (and removed again if the block left nothing else
+    in it). A second holder, in this process or another, gets :class:`DirectoryBusy` at
+    once, naming the directory and the holder's pid; the lock goes with its holder (the
+    end of the block, an exception, a kill). The lock file itself stays: removing it
+    while others may have it open would let two processes lock two different files.
+    Without ``fcntl`` (not a POSIX system) the block runs unlocked.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - POSIX only
+        yield None
+        return
+    d = Path(directory)
+    if d.exists() and not d.is_dir():
+        raise NotADirectoryError(errno.ENOTDIR, "Not a directory", str(d))
+    created = not d.exists()
+    d.mkdir(parents=True, exist_ok=True)
+    lock = d / LOCK_NAME
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode("ascii", "replace").strip()
+            by = f" (process {holder})" if holder.isdigit() else ""
+            raise DirectoryBusy(
+                f"{what} {d} is in use by another img2dmp process{by}; wait for it to end "
+                "or choose another directory"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
+        try:
+            yield lock
+        finally:
+            if created:
+                _remove_if_only_lock(d, lock)
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _remove_if_only_lock(d: Path, lock: Path) -> None:
+    try:
+        if os.listdir(d) == [LOCK_NAME]:
+            lock.unlink()
+            d.rmdir()
+    except OSError:
+        pass
+
+
+__all__ = [
+    "DEAD_WRITER_GRACE_S",
+    "LOCK_NAME",
+    "STALE_TEMPORARY_S",
+    "DirectoryBusy",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "check_readable",
+    "clean_stale_temporaries",
+    "file_digest",
+    "lock_directory",
+    "save_figure",
+]

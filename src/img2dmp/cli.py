@@ -7,9 +7,16 @@ import only the standard library (and the light :mod:`img2dmp.config`,
 the parser (``img2dmp --help``) does not load torch; each ``run`` imports what it needs.
 
 Exit status: 0 done; 2 a usage error or an anticipated failure (bad input, a missing,
-existing or unwritable file, a full disk, a diverged training), reported as one line
-``img2dmp COMMAND: error: ...`` on standard error; 1 a bug (traceback, then a request to
-report it); 130 interrupted.
+unreadable, existing or unwritable file, a directory where a file belongs, a full disk, an
+image too large to decode, a run directory in use by another run, a diverged training),
+reported as one line ``img2dmp COMMAND: error: ...`` naming the file, field or value on
+standard error; 1 a bug (traceback, then a request to report it); 130 interrupted.
+
+One rule for every command that writes (generate, prepare, train, predict, evaluate,
+write, preview, demo): an existing output is never replaced without ``--force``, and this,
+like the inputs, is checked before any slow work starts (:mod:`img2dmp.commands._args`).
+Two inputs that would give one output file are refused, naming both. Files are written
+atomically (:mod:`img2dmp._files`): a failure or a kill leaves the earlier file whole.
 """
 
 from __future__ import annotations
@@ -26,8 +33,19 @@ from .errors import Img2dmpError
 
 #: Failures that are the user's input or the machine's state, not bugs: one line, exit 2.
 #: ``ValueError`` covers ``img2dmp.config.ConfigError`` and ``CheckpointError``;
-#: ``OSError`` covers missing, existing and unreadable files and a full disk.
+#: ``OSError`` covers missing, existing and unreadable files, a full disk and a run
+#: directory in use; PIL's decompression-bomb error (an ``Exception``) is one too.
 ANTICIPATED = (ValueError, OSError, Img2dmpError)
+
+
+def anticipated(e: BaseException) -> bool:
+    """Whether ``e`` is an anticipated failure (:data:`ANTICIPATED`, or PIL's refusal of a
+    decompression bomb, looked up only if PIL is loaded: the CLI does not import it)."""
+    if isinstance(e, ANTICIPATED):
+        return True
+    pil = sys.modules.get("PIL.Image")
+    bomb = getattr(pil, "DecompressionBombError", None)
+    return bomb is not None and isinstance(e, bomb)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -98,10 +116,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
-    except ANTICIPATED as e:
-        print(f"{prog}: error: {describe(e)}", file=sys.stderr)
-        return 2
-    except Exception:
+    except Exception as e:
+        if anticipated(e):
+            print(f"{prog}: error: {describe(e)}", file=sys.stderr)
+            return 2
         traceback.print_exc()
         print(
             f"{prog}: internal error, a bug in img2dmp; please report it with the traceback "

@@ -1,18 +1,25 @@
 """Options that several commands share, defined and parsed in one place.
 
-``--model``, ``--data``, ``--digits``, ``--config``, ``--set`` and ``--no-progress`` mean
-the same in every command that takes them, and every number that must lie in a range is
-checked while the command line is read, so that a bad value gives one line and exit
-status 2 before anything slow starts.
+``--model``, ``--data``, ``--digits``, ``--config``, ``--set``, ``--force`` and
+``--no-progress`` mean the same in every command that takes them, and every number that
+must lie in a range is checked while the command line is read, so that a bad value gives
+one line and exit status 2 before anything slow starts. So are the files: the inputs
+(:func:`check_inputs`: there, a file, readable) and the outputs (:func:`check_outputs`:
+the overwrite rule, no directory where a file belongs, no two outputs with one name).
 
-Standard library only: building the parser must not import torch, NumPy or matplotlib.
+Standard library only (and :mod:`img2dmp._files`, which is too): building the parser
+must not import torch, NumPy or matplotlib.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 from collections.abc import Iterable
+from contextlib import contextmanager
 from pathlib import Path
+
+from .._files import check_readable
 
 DIGITS_EXAMPLES = '2, 2,3, "1 4 7", 0-9 or 0-3,8'
 
@@ -133,27 +140,121 @@ def add_no_progress(p: argparse.ArgumentParser) -> None:
     )
 
 
+def add_force(p: argparse.ArgumentParser, what: str = "output files") -> None:
+    """``--force``: the one way to replace an existing output (the rule of every command
+    that writes, see :func:`check_outputs`)."""
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help=f"replace existing {what}; without it an existing output is never replaced "
+        "and the command stops before doing anything",
+    )
+
+
 def same_path(a, b) -> bool:
     """Whether two command-line paths name the same file (``runs/x/`` = ``runs/x``)."""
     return Path(a) == Path(b) or Path(a).resolve() == Path(b).resolve()
 
 
+# --- files ----------------------------------------------------------------------------
+
+
+def check_inputs(paths: Iterable, what: str) -> None:
+    """Every path a regular file this process can read, else one clear ``OSError``
+    (no such file, a directory, permission denied) naming ``what`` and the file."""
+    for path in paths:
+        check_readable(path, what)
+
+
+@contextmanager
+def reading_image(path):
+    """Failures of reading the image file ``path`` in the block as one ``ValueError``
+    naming it: a file that is no image, and PIL's refusal of a decompression bomb (an
+    ``Exception`` that is neither ``OSError`` nor ``ValueError``)."""
+    from PIL import Image
+
+    try:
+        yield
+    except Image.DecompressionBombError as e:
+        raise ValueError(f"image file {path} is refused as too large: {e}") from e
+    except OSError as e:  # PIL's UnidentifiedImageError is one
+        raise ValueError(f"image file {path} cannot be read as an image: {e}") from e
+
+
+def check_images(paths: Iterable) -> None:
+    """Each path opens as an image (its header only, which is where PIL refuses a
+    decompression bomb), else one ``ValueError`` naming it, before any slow work."""
+    from PIL import Image
+
+    for path in paths:
+        with reading_image(path), Image.open(path):
+            pass
+
+
+def _first_existing(path: Path) -> Path:
+    for p in (path, *path.parents):
+        if p.exists():
+            return p
+    return Path(".")
+
+
+def check_output_dir(path, what: str = "output directory") -> None:
+    """``path`` is a directory or can become one: no file at it or above it."""
+    p = Path(path)
+    there = _first_existing(p)
+    if there == p and not p.is_dir():
+        raise NotADirectoryError(f"{what} {p} is a file, not a directory")
+    if not there.is_dir():
+        raise NotADirectoryError(f"{what} {p} cannot be made: {there} is a file")
+
+
+def check_outputs(outputs: Iterable, force: bool) -> None:
+    """The overwrite rule, checked before any work starts.
+
+    ``outputs``: pairs (a file to write, the input it is made from or None). Two
+    outputs of one name (``A/x.png`` and ``C/x.png`` both giving ``x_dmp.json``) are
+    refused, naming both inputs; so is a directory where a file belongs or a file where
+    its directory belongs; and an existing output is refused unless ``force``.
+    """
+    seen: dict[Path, object] = {}
+    for out, source in outputs:
+        p = Path(out)
+        key = Path(os.path.abspath(p))
+        if key in seen:
+            first = seen[key]
+            if first is not None and source is not None and same_path(first, source):
+                raise ValueError(f"{source} is given twice; give each input once")
+            raise ValueError(
+                f"{first} and {source} would both be written to {p}; give inputs of "
+                "different names, or run them with different output directories"
+            )
+        seen[key] = source
+        if p.is_dir():
+            raise IsADirectoryError(f"output {p} is a directory, not a file")
+        there = _first_existing(p.parent)
+        if not there.is_dir():
+            raise NotADirectoryError(f"output {p} cannot be written: {there} is a file")
+        if p.exists() and not force:
+            raise FileExistsError(f"{p} exists; pass --force to replace it")
+
+
 # --- numbers --------------------------------------------------------------------------
 
 
-def int_at_least(lo: int):
-    """An argparse ``type``: an integer ``>= lo``."""
+def int_at_least(lo: int, hi: int | None = None):
+    """An argparse ``type``: an integer ``>= lo`` (and ``<= hi`` when given)."""
 
     def parse(text: str) -> int:
         try:
             v = int(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
-        if v < lo:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {lo}, got {v}")
+        if v < lo or (hi is not None and v > hi):
+            bound = f">= {lo}" if hi is None else f"from {lo} to {hi}"
+            raise argparse.ArgumentTypeError(f"must be an integer {bound}, got {v}")
         return v
 
-    parse.__name__ = f"integer >= {lo}"
+    parse.__name__ = f"integer >= {lo}" if hi is None else f"integer in [{lo}, {hi}]"
     return parse
 
 
@@ -170,6 +271,11 @@ def positive_float(text: str) -> float:
 
 __all__ = [
     "add_config",
+    "add_force",
+    "check_images",
+    "check_inputs",
+    "check_output_dir",
+    "check_outputs",
     "add_data",
     "add_digits",
     "add_model",
@@ -178,6 +284,7 @@ __all__ = [
     "int_at_least",
     "parse_digits",
     "positive_float",
+    "reading_image",
     "same_path",
 ]
 

@@ -4,7 +4,8 @@ a small network briefly, evaluate it and draw the pictures (a few minutes on 2 c
 The network and optimiser are the demo's own (the package's configs/demo.yaml);
 --config FILE (TrainConfig sections) and --set section.key=value change them, checked as
 img2dmp train checks its configuration before anything is generated. The data set, the
-number of epochs, the cost, the seed and progress are the options below.
+number of epochs, the cost, the seed and progress are the options below. An earlier demo in
+--out is replaced only with --force (checked before anything starts).
 
   img2dmp demo --out runs/demo --epochs 20 --set optim.lr=3e-4
 """
@@ -12,6 +13,7 @@ number of epochs, the cost, the seed and progress are the options below.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 # The pipeline module imports neither torch nor NumPy at module level (its demo config is
 # a YAML file), so --help can show the real defaults.
@@ -23,6 +25,7 @@ HELP = "generate -> train -> evaluate -> pictures, on a small built-in example"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="runs/demo", metavar="DIR", help="output directory")
+    _args.add_force(p, "an earlier demo in --out")
     p.add_argument(
         "--samples-per-digit",
         metavar="N",
@@ -41,6 +44,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     _args.add_set(p, "--set optim.lr=3e-4 --set model.activation=tanh")
     _args.add_no_progress(p)
 
+
+#: Files of an earlier demo that only --force replaces.
+DEMO_OUTPUTS = (
+    "data.safetensors",
+    "summary.json",
+    "run/checkpoints/best.safetensors",
+    "run/checkpoints/last.safetensors",
+    "evaluation/evaluation.json",
+)
 
 #: Settings the demo fixes itself -> the option that sets them.
 OWN_SETTINGS = {
@@ -74,6 +86,8 @@ def run(args: argparse.Namespace) -> int:
     over = demo_overrides(args)
     if args.config or args.set:
         load_config(args.config, args.set)  # unknown keys and wrong types fail here
+    _args.check_output_dir(args.out, "--out")
+    _args.check_outputs([(Path(args.out) / f, None) for f in DEMO_OUTPUTS], args.force)
     given = {
         k: v
         for k, v in (("samples_per_digit", args.samples_per_digit), ("epochs", args.epochs))

@@ -9,7 +9,8 @@ network / demonstration for the closed digits 0, 6, 8, 9, and the distance betwe
 start points. A model with several hypotheses is judged on its most probable one, with a
 best-of-K line. Writes evaluation.json (every statistic and the per-sample values),
 evaluation.txt and examples.png (image, demonstrated path in blue, DMP path in red, like
-Fig. 4 of the paper) to --out.
+Fig. 4 of the paper) to --out; those files, if already there, are replaced only with
+--force (checked before the evaluation starts).
 
   img2dmp evaluate --model runs/paper --data digits.safetensors --digits 2,3
   img2dmp evaluate runs/paper digits.safetensors --digits 2 3     (the older form)
@@ -48,6 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--out", metavar="DIR", help="output directory (default: MODEL/evaluation for a run dir)"
     )
+    _args.add_force(p, "evaluation files in --out")
     p.add_argument(
         "--figures",
         metavar="N",
@@ -89,6 +91,11 @@ def run(args: argparse.Namespace) -> int:
     out = args.out
     if out is None:
         out = Path(model) / "evaluation" if Path(model).is_dir() else "evaluation"
+    if Path(data).exists():  # a missing one the library names itself
+        _args.check_inputs([data], "data set")
+    _args.check_output_dir(out, "--out")
+    names = ["evaluation.json", "evaluation.txt"] + (["examples.png"] if args.figures else [])
+    _args.check_outputs([(Path(out) / n, None) for n in names], args.force)
     res = evaluate(
         model,
         data,

@@ -8,7 +8,8 @@ The file format is described in docs/DATASET.md. The same seed gives identical d
 The generator's settings (img2dmp.data.synthetic.SyntheticConfig: digits, image_size,
 duration_s, dt_s, ranges of the template parameters, pen width, blur, noise_amount,
 affine ranges, ridge ...) come from the defaults, then --config FILE, then --digits and
---image-size (when given), then --set KEY=VALUE. Examples:
+--image-size (when given), then --set KEY=VALUE. An existing --out file is replaced only
+with --force (checked before anything is generated). Examples:
 
   img2dmp generate --out twos.safetensors --digits 2 --per-digit 500
   img2dmp generate --out d.safetensors --config synth.yaml --set noise_amount=0.1 \\
@@ -73,7 +74,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=min(2, os.cpu_count() or 1),
         help="parallel processes (the data do not depend on it)",
     )
-    p.add_argument("--force", action="store_true", help="overwrite an existing file")
+    _args.add_force(p, "an existing --out file")
     _args.add_no_progress(p)
 
 
@@ -91,13 +92,25 @@ def synthetic_config(args: argparse.Namespace):
     return SyntheticConfig.from_dict(apply_overrides(fields, args.set))
 
 
-def run(args: argparse.Namespace) -> int:
+def save_new_dataset(out, data, force: bool) -> None:
+    """``data`` to ``out`` atomically; without ``force`` not over a file that appeared
+    while the data were made (the overwrite rule holds to the end)."""
     from ..data.store import save_dataset
+
+    try:
+        save_dataset(out, data, overwrite=force)
+    except FileExistsError:
+        raise FileExistsError(
+            f"{out} was created by someone else while the data were made; pass --force to "
+            "replace it"
+        ) from None
+
+
+def run(args: argparse.Namespace) -> int:
     from ..data.synthetic import generate_dataset
 
     config = synthetic_config(args)
-    if os.path.exists(args.out) and not args.force:
-        raise FileExistsError(f"{args.out} exists; pass --force to overwrite it")
+    _args.check_outputs([(args.out, None)], args.force)
     data = generate_dataset(
         args.per_digit,
         config,
@@ -106,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         workers=args.workers,
     )
-    save_dataset(args.out, data)
+    save_new_dataset(args.out, data, args.force)
     err = data.fit_error_px
     summary = {
         "file": args.out,

@@ -6,6 +6,11 @@ training images' pen width, resize, ink = 1). Without --out the
 predictions are printed as JSON; with --out each image gets NAME_dmp.json (parameters and
 sampled trajectory), NAME_trajectory.csv and, with --overlay, NAME_overlay.png.
 
+NAME is the image file's name without its extension, so two images of one name from
+different folders (A/x.png and C/x.png) would write the same files: that is refused, naming
+both, before anything is predicted; predict them into different --out directories. Files
+already in --out are replaced only with --force, also checked before anything is done.
+
 A network with several hypotheses (model.hypotheses) gives all of them, ranked by
 probability: the JSON's "dmp" and "trajectory" are the top one's (the one `img2dmp write`
 writes) and "hypotheses" lists every one; the CSV gets rank and probability columns; the
@@ -24,6 +29,8 @@ from pathlib import Path
 from . import _args
 
 HELP = "DMP parameters and trajectory for image files"
+#: Largest --points (img2dmp.predict.MAX_POINTS; a literal: this module must not import torch).
+MAX_POINTS = 100_000
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -33,10 +40,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--out", metavar="DIR", help="write JSON/CSV (and PNG) files here instead of printing"
     )
     p.add_argument("--overlay", action="store_true", help="also draw NAME_overlay.png")
+    _args.add_force(p, "files in --out")
     p.add_argument(
         "--points",
         metavar="N",
-        type=_args.int_at_least(2),
+        type=_args.int_at_least(2, MAX_POINTS),
         default=100,
         help="trajectory samples over [0, tau]",
     )
@@ -48,14 +56,34 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+def output_files(args: argparse.Namespace) -> list[tuple[Path, str]]:
+    """(file written, its image) for every image, in order; none without --out."""
+    if not args.out:
+        return []
+    suffixes = ["_dmp.json", "_trajectory.csv"] + (["_overlay.png"] if args.overlay else [])
+    return [
+        (Path(args.out) / f"{Path(path).stem}{suffix}", path)
+        for path in args.images
+        for suffix in suffixes
+    ]
+
+
 def run(args: argparse.Namespace) -> int:
     from ..nn.refine import RefineOptions
     from ..predict import Predictor, write_prediction
 
+    _args.check_inputs(args.images, "image")
+    if args.out:
+        _args.check_output_dir(args.out, "--out")
+    _args.check_outputs(output_files(args), args.force)
+    _args.check_images(args.images)
     predictor = Predictor.load(args.model)
     if args.refine:
         predictor.refine_options = RefineOptions(steps=args.refine)
-    images = predictor.prepare_paths(args.images, not args.keep_stroke_width)
+    images = []
+    for path in args.images:  # all read before anything is written
+        with _args.reading_image(path):
+            images.append(predictor.prepare_paths([path], not args.keep_stroke_width)[0])
     records = []
     for path, image in zip(args.images, images, strict=True):
         rec = _record(predictor, image, str(path), args.points)

@@ -13,7 +13,8 @@ speed_profile (pen_speed_px_s, min_stroke_s, pen_up_s).
 
 Note: here --data is the ROOT DIRECTORY of the real data (holding mnist/,
 ijs-mnist-trajectories/ and mnist-stroke-sequences/), not a data-set file as in the other
-commands; --out names the data-set file written.
+commands; --out names the data-set file written, and an existing one is replaced only with
+--force (checked before the data are read).
 
   img2dmp prepare --digits 3,5 --augment 10 --out mnist35.safetensors
   img2dmp prepare --config prep.yaml --set augment=4 --set 'affine.rotation_deg=[-5, 5]' \\
@@ -92,6 +93,7 @@ def _paths(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="output .safetensors file (required unless --check-frames)",
     )
+    _args.add_force(parser, "an existing --out file")
     parser.add_argument(
         "--check-frames",
         action="store_true",
@@ -219,13 +221,15 @@ def _check_frames(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     from img2dmp.data.prepare import prepare_dataset
-    from img2dmp.data.store import save_dataset
+
+    from .generate import save_new_dataset
 
     if args.check_frames:
         return _check_frames(args)
     if not args.out:
         raise ValueError("--out is required (the data-set file to write)")
     options = prepare_options(args)
+    _args.check_outputs([(args.out, None)], args.force)
     data = prepare_dataset(
         options,
         data_dir=args.data,
@@ -236,7 +240,7 @@ def run(args: argparse.Namespace) -> int:
     )
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    save_dataset(out, data)
+    save_new_dataset(out, data, args.force)
     fit = data.meta["fit"]
     counts = data.meta["counts_by_split"]
     print(

@@ -2,7 +2,8 @@
 
 Reads a stored data set (--data), or, without one, generates a few fresh synthetic
 samples. The demonstrated path is blue with a dot at its start; with --dmp the fitted
-DMP's rollout is drawn over it in red. One column per digit of --digits.
+DMP's rollout is drawn over it in red. One column per digit of --digits. An existing
+--out file is replaced only with --force.
 
   img2dmp preview --data digits.safetensors --out digits.png --dmp --digits 2,3
 """
@@ -19,6 +20,7 @@ SPLITS = ("train", "validation", "test")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="PNG", help="output PNG file")
+    _args.add_force(p, "an existing --out file")
     _args.add_data(p, help="data-set file (.safetensors); default: fresh synthetic digits")
     p.add_argument(
         "--per-digit",
@@ -71,6 +73,9 @@ def run(args: argparse.Namespace) -> int:
 
     from ..data.plotting import save_grid
 
+    _args.check_outputs([(args.out, None)], args.force)
+    if args.data:
+        _args.check_inputs([args.data], "data set")
     digits = args.digits or tuple(range(10))
     rng = np.random.default_rng(args.seed)
     if args.data:
@@ -80,8 +85,11 @@ def run(args: argparse.Namespace) -> int:
         if args.split:
             data = data.select_split(args.split)
     else:
+        from ..data.plotting import check_grid_size
         from ..data.synthetic import SyntheticConfig, generate
 
+        # before the samples are made: a grid too large to draw is refused at once
+        check_grid_size(args.per_digit * len(digits), "--per-digit x digits")
         config = SyntheticConfig(digits=digits, image_size=(args.image_size, args.image_size))
         data = generate(np.tile(np.array(digits), args.per_digit), config, rng)
     idx = _pick(data.labels, digits, args.per_digit, rng)

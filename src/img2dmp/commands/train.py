@@ -12,7 +12,11 @@ checkpoints/{best,last}.safetensors (+ .json).
 
 --resume continues the run in --run-dir from its last checkpoint with the configuration
 stored there; only --epochs (train on to this many epochs) and --no-progress may be given
-with it. Data-parallel: torchrun --nproc_per_node 2 -m img2dmp train ...
+with it. A run directory that holds a model is never replaced without --force (the rule of
+every command that writes; --overwrite is its older name). While a run trains, its
+directory is locked (the file DIR/.lock): a second run on the same --run-dir stops at once
+with an error, and the lock goes with the first run (its end, an error or a kill).
+Data-parallel: torchrun --nproc_per_node 2 -m img2dmp train ...
 """
 
 from __future__ import annotations
@@ -52,7 +56,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="continue the run in --run-dir from its last checkpoint, with its stored "
         "configuration (only --epochs may extend it)",
     )
-    p.add_argument("--overwrite", action="store_true", help="start afresh in an existing run dir")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="start afresh in a run directory that holds a model, replacing it (without it "
+        "an existing model is never replaced)",
+    )
+    p.add_argument("--overwrite", action="store_true", help="the older name of --force")
     p.add_argument(
         "--init-from",
         metavar="RUN",
@@ -89,13 +99,12 @@ def check_resume(args: argparse.Namespace) -> None:
         for name in CONFIG_OPTIONS
         if getattr(args, name) is not None and getattr(args, name) != []
     ]
-    if args.overwrite:
-        given.append("--overwrite")
+    given += [f"--{flag}" for flag in ("force", "overwrite") if getattr(args, flag)]
     if given:
         raise ValueError(
             f"--resume continues the run in {args.run_dir} with the configuration stored in "
             f"its checkpoint, so {', '.join(given)} cannot be used with it (only --epochs can "
-            "extend the run); start a new run with another --run-dir or --overwrite instead"
+            "extend the run); start a new run with another --run-dir or --force instead"
         )
 
 
@@ -103,8 +112,12 @@ def run(args: argparse.Namespace) -> int:
     check_resume(args)
     from ..train import load_config, train
 
+    _args.check_output_dir(args.run_dir, "--run-dir")
+    if args.data is not None:
+        _args.check_inputs([args.data], "data set")
     cfg = load_config(args.config, overrides(args))
-    res = train(cfg, args.run_dir, resume=args.resume, overwrite=args.overwrite, epochs=args.epochs)
+    force = args.force or args.overwrite
+    res = train(cfg, args.run_dir, resume=args.resume, overwrite=force, epochs=args.epochs)
     print(
         f"{res.epochs_run} epoch{'s' if res.epochs_run != 1 else ''} in {res.wall_s:.1f} s; "
         "best validation trajectory error "

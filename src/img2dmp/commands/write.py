@@ -5,7 +5,10 @@ Input is either images and a trained model (``IMAGE ... --model CKPT``) or one D
 (``--dmp params.json``; format in docs/ROBOT.md). For each input it writes
 ``NAME_paper.png`` (the ink next to the commanded path and the input), ``NAME_render.png``
 (camera: the arm at the end | the paper), ``NAME_log.csv`` and with ``--video``
-``NAME.gif``, and prints tracking-error and contact-force metrics.
+``NAME.gif``, and prints tracking-error and contact-force metrics. NAME is the input
+file's name without its extension: two inputs of one name are refused, naming both, and
+files already in ``--out-dir`` are replaced only with ``--force``; both are checked before
+the simulation starts.
 Needs the optional extra: ``pip install img2dmp[robot]``.
 """
 
@@ -28,6 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--image", metavar="PNG", help="with --dmp: an image to show next to the result"
     )
     parser.add_argument("--out-dir", default="robot_out", help="directory for the outputs")
+    _args.add_force(parser, "files in --out-dir")
     parser.add_argument(
         "--writing-height-mm", type=float, default=40.0, help="height of the image on paper"
     )
@@ -55,20 +59,10 @@ def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
 
     from img2dmp.robot import load_dmp_json
 
-    if args.dmp and args.images:
-        raise ValueError("give either IMAGE ... --model or --dmp, not both")
     if args.dmp:
         params, config, size = load_dmp_json(args.dmp)
         image = _read_image(args.image) if args.image else None
-        name = os.path.splitext(os.path.basename(args.dmp))[0]
-        return [(name, params, config, size, image)]
-    if not args.images:
-        raise ValueError("nothing to write: give IMAGE ... --model CKPT, or --dmp params.json")
-    if not args.model:
-        raise ValueError("IMAGE input needs --model CKPT (a trained network)")
-    for path in args.images:
-        if not os.path.exists(path):
-            raise FileNotFoundError(f"no such image: {path}")
+        return [(_name(args.dmp), params, config, size, image)]
     from img2dmp.predict import Predictor
 
     predictor = Predictor.load(args.model)
@@ -82,9 +76,36 @@ def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
         args.images, predictor.predict_paths(args.images), strict=True
     ):
         image = np.asarray(image, dtype=np.float32)
-        name = os.path.splitext(os.path.basename(path))[0]
-        out.append((name, params, config, tuple(image.shape[-2:]), image))
+        out.append((_name(path), params, config, tuple(image.shape[-2:]), image))
     return out
+
+
+def _name(path) -> str:
+    return os.path.splitext(os.path.basename(path))[0]
+
+
+def check_files(args) -> None:
+    """The inputs (there, readable, images that open) and the outputs (the overwrite rule,
+    one name per input), before anything is loaded or simulated."""
+    if args.dmp and args.images:
+        raise ValueError("give either IMAGE ... --model or --dmp, not both")
+    if not args.dmp and not args.images:
+        raise ValueError("nothing to write: give IMAGE ... --model CKPT, or --dmp params.json")
+    if args.images and not args.model:
+        raise ValueError("IMAGE input needs --model CKPT (a trained network)")
+    inputs = [args.dmp] if args.dmp else list(args.images)
+    _args.check_inputs(inputs, "--dmp file" if args.dmp else "image")
+    images = list(args.images) + ([args.image] if args.image else [])
+    _args.check_inputs(images, "image")
+    _args.check_images(images)
+    _args.check_output_dir(args.out_dir, "--out-dir")
+    suffixes = ["_paper.png", "_render.png", "_log.csv"] + ([".gif"] if args.video else [])
+    outputs = [
+        (os.path.join(args.out_dir, _name(path) + suffix), path)
+        for path in inputs
+        for suffix in suffixes
+    ]
+    _args.check_outputs(outputs, args.force)
 
 
 def _read_image(path):
@@ -92,13 +113,8 @@ def _read_image(path):
     import numpy as np
     from PIL import Image
 
-    if not os.path.exists(path):
-        raise FileNotFoundError(f"no such image: {path}")
-    try:
-        with Image.open(path) as im:
-            a = np.asarray(im.convert("L"), dtype=np.float32) / 255.0
-    except OSError as e:  # PIL's UnidentifiedImageError is one
-        raise ValueError(f"--image {path}: cannot read it as an image ({e})") from e
+    with _args.reading_image(path), Image.open(path) as im:
+        a = np.asarray(im.convert("L"), dtype=np.float32) / 255.0
     # Show ink dark whatever the file's polarity: ink is the minority of pixels.
     return a if a.mean() < 0.5 else 1.0 - a
 
@@ -123,6 +139,7 @@ def run(args) -> int:
 
     if args.frame_interval_s <= 0:
         raise ValueError(f"--frame-interval-s must be > 0, got {args.frame_interval_s}")
+    check_files(args)
     scene_cfg = SceneConfig(paper_center_m=tuple(args.center_m))
     ctl_cfg = ControllerConfig(force_set_n=args.force_n)
     os.makedirs(args.out_dir, exist_ok=True)

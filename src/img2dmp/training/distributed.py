@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import os
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 
 import torch
+
+from ..errors import Img2dmpError
 
 
 def _rank_and_world() -> tuple[int, int]:
@@ -30,9 +32,31 @@ def process_group():
             torch.distributed.destroy_process_group()
 
 
+@contextmanager
+def on_rank0(make, rank: int, world: int):
+    """Enter the context ``make()`` (a lock of the run directory) on rank 0 alone, for the
+    block; if rank 0 fails to enter it, every rank raises (rank 0 its own error), so that
+    no rank waits for the others in vain."""
+    failure = None
+    with ExitStack() as stack:
+        if rank == 0:
+            try:
+                stack.enter_context(make())
+            except Exception as e:  # noqa: BLE001 - told to every rank, then re-raised
+                failure = e
+        if world > 1:
+            flag = torch.tensor([0 if failure is None else 1])
+            torch.distributed.broadcast(flag, src=0)
+            if failure is None and int(flag.item()):
+                failure = Img2dmpError(f"rank 0 could not start the run (rank {rank} stops too)")
+        if failure is not None:
+            raise failure
+        yield
+
+
 def epoch_generator(seed: int, epoch: int, stream: int = 0) -> torch.Generator:
     """An independent, reproducible stream per ``(seed, epoch, purpose)``."""
     return torch.Generator().manual_seed((seed * 1_000_003 + epoch * 7919 + stream) % (2**63))
 
 
-__all__ = ["epoch_generator", "process_group"]
+__all__ = ["epoch_generator", "on_rank0", "process_group"]

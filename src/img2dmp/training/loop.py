@@ -22,6 +22,11 @@ epoch under way.
 Data-parallel: launched by ``torchrun`` (``WORLD_SIZE`` > 1) every process takes every
 ``world_size``-th sample of the same shuffled order, gradients are averaged by
 ``DistributedDataParallel`` over gloo, and rank 0 alone writes files.
+
+One run at a time in a run directory: :func:`train` holds an advisory lock on
+``run_dir/.lock`` (:func:`img2dmp._files.lock_directory`) from before it reads the
+directory until it returns or fails; a second :func:`train` on that directory, in any
+process, raises :class:`img2dmp._files.DirectoryBusy` at once.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .._files import lock_directory
 from .._progress import bar, live, say
 from ..errors import TrainingDiverged
 from ..nn import Cost, top_hypothesis, trajectory_error_px
@@ -41,7 +47,7 @@ from ..nn.costs import dmp_trajectory
 from ..nn.inference import dmp_trajectories
 from .config import TrainConfig
 from .data import Augmenter, Split, TrainingData
-from .distributed import epoch_generator, process_group
+from .distributed import epoch_generator, on_rank0, process_group
 from .records import plot_training_curve, write_metrics_csv
 from .setup import Run, open_run
 from .state import EpochStats, checkpoint_meta, save_state
@@ -106,10 +112,16 @@ def train(
     ------
     TrainingDiverged
         The cost or the validation error became NaN or infinite.
+    img2dmp._files.DirectoryBusy
+        Another run holds ``run_dir`` (an ``OSError``).
     """
     t_start = time.perf_counter()
-    with process_group() as (rank, world):
-        run = open_run(config, Path(run_dir), resume, overwrite, epochs, rank, world)
+    run_dir = Path(run_dir)
+    with (
+        process_group() as (rank, world),
+        on_rank0(lambda: lock_directory(run_dir, "run directory"), rank, world),
+    ):
+        run = open_run(config, run_dir, resume, overwrite, epochs, rank, world)
         return fit(run, t_start)
 
 
@@ -294,12 +306,19 @@ def validate(run: Run, epoch: int, fallback: float) -> float:
 
 
 def _diverged(run: Run, what: str) -> TrainingDiverged:
-    best = run.run_dir / "checkpoints" / "best.safetensors"
-    kept = (
-        f"the best epoch's checkpoint {best} is kept"
-        if best.is_file() and run.state.history
-        else "no epoch finished, so no checkpoint was written"
-    )
+    """The error of a diverged run, saying truly which checkpoints it leaves."""
+    ckpt = run.run_dir / "checkpoints"
+    best, last = ckpt / "best.safetensors", ckpt / "last.safetensors"
+    state = run.state
+    if state.history and best.is_file() and last.is_file():
+        kept = (
+            f"the checkpoints of the best epoch ({state.best_epoch}), {best}, and of the "
+            f"last good epoch ({state.history[-1].epoch}), {last}, are kept"
+        )
+    elif best.is_file() or last.is_file():
+        kept = f"no epoch of this run finished; the earlier checkpoints in {ckpt} are as they were"
+    else:
+        kept = "no epoch finished, so no checkpoint was written"
     return TrainingDiverged(
         f"{what}: training diverged (lower optim.lr = {run.cfg.optim.lr:g} or set "
         f"optim.grad_clip); {kept}"

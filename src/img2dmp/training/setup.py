@@ -86,9 +86,11 @@ def _configuration(config, run_dir, resume, overwrite, epochs):
     """The run's configuration (a copy; the stored one to resume) and its last checkpoint."""
     last_path = run_dir / CHECKPOINT_DIR / "last.safetensors"
     if not resume:
-        if last_path.is_file() and not overwrite:
+        held = [p for p in (last_path, last_path.with_name("best.safetensors")) if p.is_file()]
+        if held and not overwrite:
             raise FileExistsError(
-                f"{run_dir} already holds a run; pass --resume to continue it or --overwrite"
+                f"{run_dir} already holds a run ({held[0]}); pass --resume to continue it or "
+                "--force (overwrite=True) to start afresh, replacing it"
             )
         cfg = copy.deepcopy(config)
         if epochs is not None:
