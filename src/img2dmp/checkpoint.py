@@ -2,12 +2,30 @@
 
 A checkpoint is one ``NAME.safetensors`` file. Its tensors are the model's weights
 (``model.*``) and, for a resumable checkpoint, the optimiser's state (``optim.*``). Its
-header's ``__metadata__`` holds one key ``"img2dmp"`` with a JSON object: format and
-version, the architecture (:class:`~img2dmp.nn.ModelConfig`), the output normalisation,
-the DMP constants, the training configuration, the data set's SHA-256, the epoch and
-errors, and a SHA-256 of the weights. The same JSON is written beside it as
-``NAME.json`` for people and tools; the copy inside the weights file is the one that is
-read, so the pair can never disagree.
+header's ``__metadata__`` holds one key ``"img2dmp"`` with a JSON object (the *record*):
+format and version, the architecture (:class:`~img2dmp.nn.ModelConfig`), the output
+normalisation, the DMP constants, the training configuration, the data set's SHA-256, the
+epoch and errors, a SHA-256 of the weights (``weights_sha256``), one of the optimiser's
+tensors (``optim_sha256``, resumable checkpoints only) and a SHA-256 of the whole record
+(``record_sha256``). The same JSON is written beside it as ``NAME.json`` for people and
+tools; the copy inside the weights file is the one that is read, so the pair can never
+disagree. No code is ever stored or unpickled: tensors in safetensors, the rest JSON.
+
+**Integrity.** ``record_sha256`` is the SHA-256 of the record without that one key, as
+compact JSON with sorted keys (``json.dumps(r, sort_keys=True, separators=(",", ":"))``);
+since the record holds ``weights_sha256`` and ``optim_sha256``, it covers every byte that
+changes what the checkpoint does. :func:`read_checkpoint_meta` checks it and
+:func:`load_checkpoint` checks it and the tensors' digests; an edited field (say the
+normaliser's centre) or a flipped bit gives one :class:`CheckpointError` naming the file
+and saying it was modified or is corrupt. These are checksums against accidents (an edit,
+a bad disk, a truncated copy), not signatures: whoever edits a record on purpose can
+recompute them.
+
+**Versions.** Version 2 (this one) has the record digest and requires it. Version 1
+checkpoints (img2dmp up to the introduction of ``record_sha256``) are still read: their
+weights are verified against ``weights_sha256`` as before, but their record cannot be, and
+their optimiser state is not verified; retraining or re-saving makes a version 2
+checkpoint. Other versions are refused.
 
 Both files are written to a temporary file in the same directory and moved into place
 with ``os.replace``, so a process killed at any moment leaves either the old or the new
@@ -28,10 +46,17 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save
 
 from . import __version__
-from ._files import atomic_write_bytes, atomic_write_text, file_digest  # noqa: F401 (re-exported)
+from ._files import (  # noqa: F401 (file_digest re-exported)
+    atomic_write_bytes,
+    atomic_write_text,
+    check_readable,
+    file_digest,
+)
 
 FORMAT = "img2dmp-checkpoint"
-VERSION = 1
+VERSION = 2
+READABLE_VERSIONS = (1, 2)  # see "Versions" in the module docstring
+RECORD_DIGEST = "record_sha256"
 SUFFIX = ".safetensors"
 # Where a run directory keeps its checkpoints, and which one a run directory stands for.
 CHECKPOINT_DIR = "checkpoints"
@@ -75,6 +100,13 @@ def weights_digest(state: dict) -> str:
     return h.hexdigest()
 
 
+def record_digest(record: dict) -> str:
+    """SHA-256 of a record without its ``record_sha256`` key (see the module docstring)."""
+    body = {k: v for k, v in record.items() if k != RECORD_DIGEST}
+    text = json.dumps(body, sort_keys=True, separators=(",", ":"), ensure_ascii=True)
+    return hashlib.sha256(text.encode("ascii")).hexdigest()
+
+
 def _jsonable(obj):
     """Turn tensors and numpy scalars inside optimiser/scheduler records into JSON values."""
     if isinstance(obj, dict):
@@ -104,7 +136,8 @@ def save_checkpoint(
         The network's ``state_dict``.
     meta : dict
         JSON-serialisable record; ``format``, ``version``, ``created``,
-        ``img2dmp_version`` and ``weights_sha256`` are added.
+        ``img2dmp_version``, ``weights_sha256``, ``optim_sha256`` (with ``extra``) and
+        ``record_sha256`` are added (replacing any given).
     extra : dict[str, Tensor], optional
         Further tensors (e.g. optimiser state), stored as ``optim.<name>``.
     """
@@ -112,7 +145,10 @@ def save_checkpoint(
     if path.suffix != SUFFIX:
         raise ValueError(f"checkpoint path must end in {SUFFIX}, got {str(path)!r}")
     state = {k: v.detach().cpu().contiguous() for k, v in model_state.items()}
+    optim = {k: v.detach().cpu().contiguous() for k, v in (extra or {}).items()}
     record = dict(_jsonable(meta))
+    for key in ("weights_sha256", "optim_sha256", RECORD_DIGEST):
+        record.pop(key, None)  # a loaded record passed back in: its digests are stale
     record.update(
         format=FORMAT,
         version=VERSION,
@@ -120,9 +156,15 @@ def save_checkpoint(
         img2dmp_version=__version__,
         weights_sha256=weights_digest(state),
     )
+    if optim:
+        record["optim_sha256"] = weights_digest(optim)
+    try:  # the digest is taken of the record as a reader will parse it
+        record = json.loads(json.dumps(record))
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"checkpoint {path}: the record is not JSON-serialisable: {e}") from e
+    record[RECORD_DIGEST] = record_digest(record)
     tensors = {f"model.{k}": v for k, v in state.items()}
-    for k, v in (extra or {}).items():
-        tensors[f"optim.{k}"] = v.detach().cpu().contiguous()
+    tensors.update({f"optim.{k}": v for k, v in optim.items()})
     text = json.dumps(record, indent=1, sort_keys=True)
     atomic_write_bytes(path, save(tensors, metadata={"img2dmp": text}))
     atomic_write_text(path.with_suffix(".json"), text + "\n")
@@ -136,19 +178,17 @@ def resolve_checkpoint(path: str | os.PathLike, name: str = DEFAULT_NAME) -> Pat
     if p.is_dir():
         for cand in (p / CHECKPOINT_DIR / f"{name}{SUFFIX}", p / f"{name}{SUFFIX}"):
             if cand.is_file():
-                return cand
+                return check_readable(cand, "checkpoint")
         raise FileNotFoundError(
             f"{p} holds no checkpoint: expected {p / CHECKPOINT_DIR / (name + SUFFIX)}"
         )
     if p.suffix == ".json":
         p = p.with_suffix(SUFFIX)
-    if not p.is_file():
-        raise FileNotFoundError(f"checkpoint {p} does not exist")
-    return p
+    return check_readable(p, "checkpoint")
 
 
 def read_checkpoint_meta(path: str | os.PathLike) -> dict:
-    """The JSON record inside a checkpoint, without reading the weights."""
+    """The JSON record inside a checkpoint, verified, without reading the weights."""
     from safetensors import safe_open
 
     p = resolve_checkpoint(path)
@@ -156,7 +196,9 @@ def read_checkpoint_meta(path: str | os.PathLike) -> dict:
         with safe_open(str(p), framework="pt") as f:
             raw = (f.metadata() or {}).get("img2dmp")
     except (SafetensorError, OSError, ValueError) as e:
-        raise CheckpointError(f"checkpoint {p} is corrupt or truncated: {e}") from e
+        raise CheckpointError(
+            f"checkpoint {p} is corrupt or truncated, or not a safetensors file: {e}"
+        ) from e
     return _parse_meta(p, raw)
 
 
@@ -169,13 +211,30 @@ def _parse_meta(p: Path, raw) -> dict:
         meta = json.loads(raw)
     except json.JSONDecodeError as e:
         raise CheckpointError(f"checkpoint {p}: metadata is not valid JSON ({e})") from e
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        fmt = meta.get("format") if isinstance(meta, dict) else None
-        raise CheckpointError(f"{p}: metadata format is {fmt!r}, expected {FORMAT!r}")
-    if meta.get("version") != VERSION:
+    except RecursionError:
+        raise CheckpointError(f"checkpoint {p}: metadata is JSON nested too deeply") from None
+    if not isinstance(meta, dict):
         raise CheckpointError(
-            f"{p}: checkpoint version {meta.get('version')!r} is not supported "
-            f"(this img2dmp reads version {VERSION})"
+            f"checkpoint {p}: metadata is a JSON {type(meta).__name__}, expected an object"
+        )
+    if meta.get("format") != FORMAT:
+        raise CheckpointError(
+            f"{p}: metadata format is {meta.get('format')!r}, expected {FORMAT!r}"
+        )
+    version = meta.get("version")
+    if (
+        not isinstance(version, int)
+        or isinstance(version, bool)
+        or version not in READABLE_VERSIONS
+    ):
+        raise CheckpointError(
+            f"{p}: checkpoint version {version!r} is not supported "
+            f"(this img2dmp reads versions {', '.join(map(str, READABLE_VERSIONS))})"
+        )
+    if version >= 2 and meta.get(RECORD_DIGEST) != record_digest(meta):
+        raise CheckpointError(
+            f"checkpoint {p} was modified or is corrupt: its record (architecture, "
+            f"normaliser, configuration) does not match its {RECORD_DIGEST}"
         )
     return meta
 
@@ -188,26 +247,31 @@ def load_checkpoint(path: str | os.PathLike, name: str = DEFAULT_NAME) -> Checkp
     FileNotFoundError
         Nothing at ``path``.
     CheckpointError
-        The file is truncated or corrupt (unreadable header, or weights whose SHA-256 does
-        not match the record), or not an img2dmp checkpoint.
+        The file is truncated, corrupt or modified (unreadable header, a record or tensors
+        whose SHA-256 does not match the record), or not an img2dmp checkpoint.
     """
     p = resolve_checkpoint(path, name)
+    meta = read_checkpoint_meta(p)  # before the tensors: a foreign file is not read whole
     try:
         tensors = load_file(str(p))
     except (SafetensorError, OSError, ValueError, RuntimeError) as e:
         raise CheckpointError(f"checkpoint {p} is corrupt or truncated: {e}") from e
-    meta = read_checkpoint_meta(p)
     model_state = {k[6:]: v for k, v in tensors.items() if k.startswith("model.")}
     extra = {k[6:]: v for k, v in tensors.items() if k.startswith("optim.")}
     if not model_state:
         raise CheckpointError(f"checkpoint {p} holds no model weights")
-    digest = weights_digest(model_state)
-    if digest != meta.get("weights_sha256"):
-        raise CheckpointError(
-            f"checkpoint {p} is corrupt: its weights' SHA-256 {digest[:12]}... does not match "
-            f"the recorded {str(meta.get('weights_sha256'))[:12]}..."
-        )
+    _check_digest(p, "weights", weights_digest(model_state), meta.get("weights_sha256"))
+    if meta["version"] >= 2 and (extra or "optim_sha256" in meta):
+        _check_digest(p, "optimiser state", weights_digest(extra), meta.get("optim_sha256"))
     return Checkpoint(p, meta, model_state, extra)
+
+
+def _check_digest(p: Path, what: str, digest: str, recorded) -> None:
+    if digest != recorded:
+        raise CheckpointError(
+            f"checkpoint {p} was modified or is corrupt: the SHA-256 of its {what} "
+            f"{digest[:12]}... does not match the recorded {str(recorded)[:12]}..."
+        )
 
 
 def load_weights_into(model: torch.nn.Module, ckpt: Checkpoint) -> None:

@@ -111,7 +111,9 @@ def check_positive(name: str, value, *, allow_zero: bool = False) -> float:
     The package's one such check: the error names ``name`` and the value given.
     """
     bound = ">= 0" if allow_zero else "> 0"
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    if isinstance(value, (bool, str, bytes)):
+        raise ConfigError(f"{name} must be a number {bound}, got {value!r}")
+    if not isinstance(value, (int, float)):
         try:  # NumPy and torch scalars
             value = float(value)
         except (TypeError, ValueError):

@@ -16,11 +16,24 @@ JSON object with at least ``format``, ``version``, ``dmp_config``, ``source``, `
 ``image_size`` and ``created``. Files are written atomically: to a temporary file in the
 target's directory, flushed to disk, then moved over the target with :func:`os.replace`,
 so a reader never sees half a file.
+
+**Checksum.** A second metadata key, ``"img2dmp_sha256"``, holds the SHA-256 of the
+``"img2dmp"`` JSON text exactly as stored and of the seven tensors (name, dtype, shape and
+little-endian bytes, in the order above): :func:`content_digest`. :func:`load_dataset`
+verifies it before anything else, so a flipped bit in the arrays or an edited metadata
+field gives one :class:`DatasetError` naming the file and saying it was modified or is
+corrupt. It is a checksum against accidents, not a signature. Files written before the
+checksum was introduced (same format version 1, no ``"img2dmp_sha256"`` key) are still
+read, unverified beyond the checks of :meth:`DigitData.validate`; saving such a data set
+again adds the checksum.
+
+Every value check names the file, the field and the first row at fault.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
 import os
 from dataclasses import dataclass, field
@@ -30,12 +43,13 @@ import numpy as np
 from safetensors import SafetensorError, safe_open
 from safetensors.numpy import save as _st_save
 
-from .._files import atomic_write_bytes
-from ..dmp import DMPConfig
+from .._files import atomic_write_bytes, check_readable
+from ..dmp import DMPConfig, DMPParams
 
 FORMAT = "img2dmp-dataset"
 VERSION = 1
 META_KEY = "img2dmp"
+CHECKSUM_KEY = "img2dmp_sha256"
 SPLITS = {"train": 0, "validation": 1, "test": 2}
 
 # name -> (dtype, rank); the shapes' consistency is checked in DigitData.validate.
@@ -49,6 +63,25 @@ _FIELDS: dict[str, tuple[np.dtype, int]] = {
     "split": (np.dtype(np.uint8), 1),
 }
 _REQUIRED_META = ("format", "version", "dmp_config", "source", "seed", "image_size", "created")
+
+
+class DatasetError(ValueError):
+    """A data set (file or arrays) that is corrupt, modified, truncated or invalid."""
+
+
+def content_digest(meta_text: str, arrays: dict) -> str:
+    """SHA-256 of a data set's metadata JSON text and its seven tensors (module docstring)."""
+    h = hashlib.sha256(meta_text.encode("utf-8") + b"\0")
+    for name in _FIELDS:
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}|{a.dtype.name}|{list(a.shape)}|".encode())
+        h.update(a.astype(a.dtype.newbyteorder("<"), copy=False).reshape(-1).view(np.uint8))
+    return h.hexdigest()
+
+
+def _first_row(bad: np.ndarray) -> int:
+    """The first row (index along the first axis) where ``bad`` holds a True."""
+    return int(np.argmax(bad.reshape(bad.shape[0], -1).any(axis=1)))
 
 
 @dataclass
@@ -81,6 +114,10 @@ class DigitData:
     fit_error_px: np.ndarray
     split: np.ndarray
     meta: dict = field(default_factory=dict)
+    # Where the rows came from, for error messages: the file (set by load_dataset) and
+    # each row's number in it (None: the rows are the file's, in order).
+    origin: str | None = field(default=None, repr=False, compare=False)
+    file_rows: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def __len__(self) -> int:
         return int(self.labels.shape[0])
@@ -100,7 +137,42 @@ class DigitData:
 
     def subset(self, index) -> DigitData:
         """Rows selected by an index, slice or boolean mask; the metadata is shared."""
-        return DigitData(**{k: v[index] for k, v in self.arrays().items()}, meta=self.meta)
+        rows = self._file_rows()[index] if self.origin is not None else None
+        return DigitData(
+            **{k: v[index] for k, v in self.arrays().items()},
+            meta=self.meta,
+            origin=self.origin,
+            file_rows=rows,
+        )
+
+    def _file_rows(self) -> np.ndarray:
+        return self.file_rows if self.file_rows is not None else np.arange(len(self))
+
+    def _row_name(self, row: int) -> str:
+        """``"data.safetensors: row 17"``: a row as the file numbers it."""
+        if self.origin is None:
+            return f"data set: row {row}"
+        return f"{self.origin}: row {int(self._file_rows()[row])}"
+
+    def dmp_params(self, index=slice(None)) -> DMPParams:
+        """The fitted DMPs of the selected rows, checked (tau > 0, finite).
+
+        :meth:`validate` does not require tau > 0 (the file format stores any finite
+        vectors), this does: a row that is no DMP raises a :class:`DatasetError` naming
+        the file and its row (``data.safetensors: row 17: field 'params' ...``).
+        """
+        config = self.dmp_config
+        rows = np.arange(len(self))[index]
+        v = self.params[rows]
+        tau_col = config.n_kernels * config.n_dims
+        bad = ~(np.isfinite(v).all(axis=-1) & (v[..., tau_col] > 0))
+        if bad.any():
+            row = int(np.atleast_1d(rows)[_first_row(np.atleast_1d(bad))])
+            raise DatasetError(
+                f"{self._row_name(row)}: field 'params' has tau (column {tau_col}) = "
+                f"{self.params[row, tau_col].item()!r}; a DMP's duration must be > 0 s"
+            )
+        return DMPParams.from_vector(v, config.n_kernels, config.n_dims)
 
     def select_split(self, split: str | int) -> DigitData:
         """Only the samples of one split (``"train"``, ``"validation"``, ``"test"`` or 0-2)."""
@@ -112,74 +184,91 @@ class DigitData:
     def validate(self, where: str = "data set") -> DigitData:
         """Check dtypes, shapes, value ranges and metadata.
 
-        Raises ``ValueError`` whose message starts with ``where`` (e.g. the file name)
-        and names the field at fault.
+        Raises :class:`DatasetError` (a ``ValueError``) whose message starts with
+        ``where`` (e.g. the file name) and names the field and the first row at fault.
         """
         arrays = self.arrays()
         for name, (dtype, rank) in _FIELDS.items():
             a = arrays[name]
             if not isinstance(a, np.ndarray):
-                raise ValueError(f"{where}: field {name!r} must be a NumPy array, got {type(a)}")
+                raise DatasetError(
+                    f"{where}: field {name!r} must be a NumPy array, got {type(a).__name__}"
+                )
             if a.dtype != dtype:
-                raise ValueError(f"{where}: field {name!r} has dtype {a.dtype}, expected {dtype}")
+                raise DatasetError(f"{where}: field {name!r} has dtype {a.dtype}, expected {dtype}")
             if a.ndim != rank:
-                raise ValueError(
+                raise DatasetError(
                     f"{where}: field {name!r} has shape {a.shape}, expected {rank} dimensions"
                 )
         m = self.labels.shape[0]
         for name, a in arrays.items():
             if a.shape[0] != m:
-                raise ValueError(
+                raise DatasetError(
                     f"{where}: field {name!r} has {a.shape[0]} rows but 'labels' has {m}"
                 )
         t = self.trajectories.shape[1]
         if self.times.shape[1] != t:
-            raise ValueError(
+            raise DatasetError(
                 f"{where}: field 'times' has {self.times.shape[1]} time stamps per sample "
                 f"but 'trajectories' has {t}"
             )
-        for name in ("images", "trajectories", "times", "params", "fit_error_px"):
-            if not np.isfinite(arrays[name]).all():
-                raise ValueError(f"{where}: field {name!r} contains NaN or inf")
-        if m and (self.images.min() < 0 or self.images.max() > 1):
-            raise ValueError(f"{where}: field 'images' has values outside [0, 1]")
-        if m and ((self.labels < 0).any() or (self.labels > 9).any()):
-            raise ValueError(f"{where}: field 'labels' has values outside the digits 0-9")
-        if m and (self.split > 2).any():
-            raise ValueError(f"{where}: field 'split' has values other than 0, 1, 2")
-        if m and t > 1 and not (np.diff(self.times, axis=1) > 0).all():
-            raise ValueError(f"{where}: field 'times' is not strictly increasing in every row")
+        if m:
+            self._validate_values(where)
         self._validate_meta(where)
         return self
 
+    def _validate_values(self, where: str) -> None:
+        for name in ("images", "trajectories", "times", "params", "fit_error_px"):
+            a = getattr(self, name)
+            if not np.isfinite(a).all():
+                row = _first_row(~np.isfinite(a))
+                raise DatasetError(f"{where}: field {name!r} row {row} contains NaN or inf")
+        if self.images.min() < 0 or self.images.max() > 1:
+            row = _first_row((self.images < 0) | (self.images > 1))
+            raise DatasetError(f"{where}: field 'images' row {row} has values outside [0, 1]")
+        checks = (
+            ("labels", (self.labels < 0) | (self.labels > 9), "is not a digit 0-9"),
+            ("split", self.split > 2, "is not 0 (train), 1 (validation) or 2 (test)"),
+            ("fit_error_px", self.fit_error_px < 0, "is negative (an error in pixels)"),
+            ("times", self.times[:, 0] < 0, "starts before 0 (seconds since the start)"),
+        )
+        for name, bad, why in checks:
+            if bad.any():
+                row = _first_row(bad)
+                value = getattr(self, name)[row].reshape(-1)[0].item()
+                raise DatasetError(f"{where}: field {name!r} row {row} is {value!r}: {why}")
+        if self.times.shape[1] > 1 and not (np.diff(self.times, axis=1) > 0).all():
+            row = _first_row(np.diff(self.times, axis=1) <= 0)
+            raise DatasetError(f"{where}: field 'times' is not strictly increasing in row {row}")
+
     def _validate_meta(self, where: str) -> None:
         if not isinstance(self.meta, dict):
-            raise ValueError(f"{where}: metadata must be a dict, got {type(self.meta)}")
+            raise DatasetError(f"{where}: metadata must be a dict, got {type(self.meta).__name__}")
         for key in ("dmp_config", "source", "seed"):
             if key not in self.meta:
-                raise ValueError(f"{where}: metadata field {key!r} is missing")
+                raise DatasetError(f"{where}: metadata field {key!r} is missing")
         try:
             config = DMPConfig.from_dict(self.meta["dmp_config"])
         except (TypeError, ValueError) as e:
-            raise ValueError(f"{where}: metadata field 'dmp_config' is invalid: {e}") from e
+            raise DatasetError(f"{where}: metadata field 'dmp_config' is invalid: {e}") from e
         if not isinstance(self.meta["source"], dict):
-            raise ValueError(f"{where}: metadata field 'source' must be a JSON object")
+            raise DatasetError(f"{where}: metadata field 'source' must be a JSON object")
         seed = self.meta["seed"]
         if seed is not None and (not isinstance(seed, int) or isinstance(seed, bool)):
-            raise ValueError(f"{where}: metadata field 'seed' must be an integer or null")
+            raise DatasetError(f"{where}: metadata field 'seed' must be an integer or null")
         if self.params.shape[1] != config.n_params:
-            raise ValueError(
+            raise DatasetError(
                 f"{where}: field 'params' has {self.params.shape[1]} numbers per sample, "
                 f"dmp_config expects {config.n_params}"
             )
         if self.trajectories.shape[2] != config.n_dims:
-            raise ValueError(
+            raise DatasetError(
                 f"{where}: field 'trajectories' has d={self.trajectories.shape[2]}, "
                 f"dmp_config expects n_dims={config.n_dims}"
             )
         size = self.meta.get("image_size")
-        if size is not None and list(size) != list(self.images.shape[1:]):
-            raise ValueError(
+        if size is not None and size != list(self.images.shape[1:]):
+            raise DatasetError(
                 f"{where}: metadata field 'image_size' is {size} but 'images' are "
                 f"{list(self.images.shape[1:])}"
             )
@@ -218,57 +307,79 @@ def save_dataset(path: str | os.PathLike, data: DigitData, *, overwrite: bool = 
     )
     data = DigitData(**data.arrays(), meta=meta).validate(str(path))
     try:
-        header = json.dumps(meta, sort_keys=True)
+        header = json.dumps(meta, sort_keys=True, allow_nan=False)
     except (TypeError, ValueError) as e:
-        raise ValueError(f"{path}: metadata is not JSON-serialisable: {e}") from e
-    blob = _st_save(
-        {k: np.ascontiguousarray(v) for k, v in data.arrays().items()},
-        metadata={META_KEY: header},
-    )
+        raise DatasetError(f"{path}: metadata is not JSON-serialisable: {e}") from e
+    arrays = {k: np.ascontiguousarray(v) for k, v in data.arrays().items()}
+    digest = content_digest(header, arrays)
+    blob = _st_save(arrays, metadata={META_KEY: header, CHECKSUM_KEY: digest})
     atomic_write_bytes(path, blob)
     return path
 
 
-def load_dataset(path: str | os.PathLike) -> DigitData:
-    """Read and validate a data-set file written by :func:`save_dataset`.
-
-    Raises
-    ------
-    FileNotFoundError
-        If ``path`` does not exist.
-    ValueError
-        If the file is not a valid img2dmp data set; the message names the file and the
-        field at fault.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such data-set file")
+def _read_file(path: Path) -> tuple[dict, dict]:
+    """The header's metadata strings and the seven arrays of a data-set file."""
+    check_readable(path, "data-set file")  # missing, a directory, no permission: OSError
     try:
         with safe_open(str(path), framework="np") as f:
             header = f.metadata() or {}
             keys = set(f.keys())
             missing = [k for k in _FIELDS if k not in keys]
             if missing:
-                raise ValueError(f"{path}: tensor field(s) {missing} are missing")
+                raise DatasetError(f"{path}: tensor field(s) {missing} are missing")
             arrays = {k: f.get_tensor(k) for k in _FIELDS}
     except (SafetensorError, OSError) as e:
-        raise ValueError(f"{path}: not a readable safetensors file ({e})") from e
+        raise DatasetError(
+            f"{path}: not a safetensors data-set file, or truncated or corrupt ({e})"
+        ) from e
+    return header, arrays
+
+
+def _parse_header(path: Path, header: dict) -> dict:
     if META_KEY not in header:
-        raise ValueError(f"{path}: header metadata has no {META_KEY!r} entry")
+        raise DatasetError(f"{path}: header metadata has no {META_KEY!r} entry")
     try:
         meta = json.loads(header[META_KEY])
     except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: metadata field {META_KEY!r} is not valid JSON ({e})") from e
+        raise DatasetError(f"{path}: metadata field {META_KEY!r} is not valid JSON ({e})") from e
+    except RecursionError:
+        raise DatasetError(f"{path}: metadata field {META_KEY!r} is nested too deeply") from None
     if not isinstance(meta, dict):
-        raise ValueError(f"{path}: metadata field {META_KEY!r} must be a JSON object")
+        raise DatasetError(f"{path}: metadata field {META_KEY!r} must be a JSON object")
     for key in _REQUIRED_META:
         if key not in meta:
-            raise ValueError(f"{path}: metadata field {key!r} is missing")
+            raise DatasetError(f"{path}: metadata field {key!r} is missing")
     if meta["format"] != FORMAT:
-        raise ValueError(f"{path}: metadata field 'format' is {meta['format']!r}, not {FORMAT!r}")
-    if meta["version"] != VERSION:
-        raise ValueError(
+        raise DatasetError(f"{path}: metadata field 'format' is {meta['format']!r}, not {FORMAT!r}")
+    if meta["version"] != VERSION or isinstance(meta["version"], bool):
+        raise DatasetError(
             f"{path}: metadata field 'version' is {meta['version']!r}; this img2dmp reads "
             f"version {VERSION}"
         )
-    return DigitData(**arrays, meta=meta).validate(str(path))
+    return meta
+
+
+def load_dataset(path: str | os.PathLike) -> DigitData:
+    """Read, verify and validate a data-set file written by :func:`save_dataset`.
+
+    Raises
+    ------
+    FileNotFoundError, IsADirectoryError, PermissionError
+        If ``path`` does not exist, is a directory or cannot be read.
+    DatasetError
+        A ``ValueError``: the file is not a valid img2dmp data set, is truncated, or
+        does not match its checksum (modified or corrupt); the message names the file
+        and the field (and row) at fault.
+    """
+    path = Path(path)
+    header, arrays = _read_file(path)
+    if CHECKSUM_KEY in header:
+        digest = content_digest(header.get(META_KEY, ""), arrays)
+        if header[CHECKSUM_KEY] != digest:
+            raise DatasetError(
+                f"{path} was modified or is corrupt: its arrays and metadata do not match "
+                f"its SHA-256 checksum ({digest[:12]}... against the recorded "
+                f"{str(header[CHECKSUM_KEY])[:12]}...)"
+            )
+    meta = _parse_header(path, header)
+    return DigitData(**arrays, meta=meta, origin=str(path)).validate(str(path))

@@ -55,9 +55,13 @@ class DMPConfig:
     _beta: float = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.n_kernels, int) or self.n_kernels < 2:
+        if (
+            isinstance(self.n_kernels, bool)
+            or not isinstance(self.n_kernels, int)
+            or self.n_kernels < 2
+        ):
             raise ValueError(f"n_kernels must be an integer >= 2, got {self.n_kernels!r}")
-        if not isinstance(self.n_dims, int) or self.n_dims < 1:
+        if isinstance(self.n_dims, bool) or not isinstance(self.n_dims, int) or self.n_dims < 1:
             raise ValueError(f"n_dims must be an integer >= 1, got {self.n_dims!r}")
         check_positive("alpha_z", self.alpha_z)
         check_positive("alpha_x", self.alpha_x)

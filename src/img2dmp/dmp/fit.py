@@ -18,8 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..config import check_positive
 from .config import DMPConfig
-from .params import DMPParams
+from .params import DMPParams, first_index
 from .rollout import check_time_stamps, unit_responses
 
 
@@ -76,27 +77,8 @@ def fit_dmp(
     """
     config = config or DMPConfig()
     as_numpy = not isinstance(y, torch.Tensor)
-    y = torch.as_tensor(np.asarray(y) if as_numpy else y).to(torch.float64)
-    t = torch.as_tensor(np.asarray(t) if not isinstance(t, torch.Tensor) else t)
-    t = t.to(torch.float64)
-    if not np.isfinite(ridge) or ridge < 0:
-        raise ValueError(f"ridge must be a finite number >= 0, got {ridge!r}")
-    if y.ndim < 2:
-        raise ValueError(f"y must have shape [*batch, T, d], got {tuple(y.shape)}")
-    if y.shape[-2] < 2:
-        raise ValueError(
-            f"a trajectory needs at least 2 points to fit a DMP, got {y.shape[-2]} (empty?)"
-        )
-    if y.shape[-1] != config.n_dims:
-        raise ValueError(f"y has d={y.shape[-1]} dimensions, the config expects {config.n_dims}")
-    if not bool(torch.isfinite(y).all()):
-        raise ValueError("y contains NaN or inf")
-    check_time_stamps(t)
-    if t.shape[-1] != y.shape[-2]:
-        raise ValueError(f"t has {t.shape[-1]} time stamps but y has {y.shape[-2]} points")
+    t, y, ridge = _check_inputs(t, y, config, ridge, chunk_size)
     batch = tuple(y.shape[:-2])
-    if t.ndim > 1 and tuple(t.shape[:-1]) != batch:
-        raise ValueError(f"t has batch shape {tuple(t.shape[:-1])}, y has {batch}")
 
     yf = y.reshape(-1, *y.shape[-2:])  # [B, T, d]
     shared = t.ndim == 1
@@ -107,6 +89,7 @@ def fit_dmp(
         tc = tf if shared else tf[lo : lo + step]
         outs.append(_fit_chunk(tc, yf[lo : lo + step], config, ridge))
     w, tau, g, y0, err, emax = (torch.cat(parts) for parts in zip(*outs, strict=True))
+    _check_fit(w, tau, yf, shared, batch)
     params = DMPParams(
         w=w.reshape(*batch, *w.shape[1:]),
         tau=tau.reshape(batch),
@@ -143,3 +126,75 @@ def _fit_chunk(t: torch.Tensor, y: torch.Tensor, config: DMPConfig, ridge: float
     dist = torch.linalg.vector_norm(fitted - y, dim=-1)  # [B, T]
     tau_b = tau.expand(y.shape[0])
     return w, tau_b, g, y0, dist.mean(-1), dist.amax(-1)
+
+
+def _as_real_tensor(name: str, a) -> torch.Tensor:
+    """``a`` as a float64 tensor; refuse booleans, complex numbers, text and objects."""
+    if not isinstance(a, torch.Tensor):
+        try:
+            a = np.asarray(a)
+        except (TypeError, ValueError) as e:  # ragged nested lists
+            raise ValueError(f"{name} must be an array of numbers: {e}") from None
+        if a.dtype.kind not in "iuf":
+            raise ValueError(f"{name} must hold real numbers, got an array of dtype {a.dtype}")
+        a = torch.from_numpy(a)
+    elif a.is_complex() or a.dtype == torch.bool:
+        raise ValueError(f"{name} must hold real numbers, got a tensor of dtype {a.dtype}")
+    return a.to(torch.float64)
+
+
+def _check_inputs(t, y, config: DMPConfig, ridge, chunk_size) -> tuple:
+    """``(t, y, ridge)``: float64 tensors and a float, every argument of :func:`fit_dmp`
+    checked."""
+    if isinstance(ridge, (str, bytes)):
+        raise ValueError(f"ridge must be a finite number >= 0, got {ridge!r}")
+    ridge = check_positive("ridge", ridge, allow_zero=True)
+    if isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1:
+        raise ValueError(f"chunk_size must be an integer >= 1, got {chunk_size!r}")
+    y = _as_real_tensor("y", y)
+    t = _as_real_tensor("t", t)
+    if y.ndim < 2:
+        raise ValueError(f"y must have shape [*batch, T, d], got {tuple(y.shape)}")
+    if y.shape[-2] < 2:
+        raise ValueError(
+            f"a trajectory needs at least 2 points to fit a DMP, got {y.shape[-2]} (empty?)"
+        )
+    if y.shape[-1] != config.n_dims:
+        raise ValueError(f"y has d={y.shape[-1]} dimensions, the config expects {config.n_dims}")
+    if not bool(torch.isfinite(y).all()):
+        idx = first_index(~torch.isfinite(y))
+        raise ValueError(
+            f"y contains NaN or inf: y[{', '.join(map(str, idx))}] is {float(y[idx])} "
+            f"(point {idx[-2]}, coordinate {idx[-1]}{_of_demo(idx[:-2])})"
+        )
+    check_time_stamps(t)
+    if t.shape[-1] != y.shape[-2]:
+        raise ValueError(f"t has {t.shape[-1]} time stamps but y has {y.shape[-2]} points")
+    batch = tuple(y.shape[:-2])
+    if t.ndim > 1 and tuple(t.shape[:-1]) != batch:
+        raise ValueError(f"t has batch shape {tuple(t.shape[:-1])}, y has {batch}")
+    return t, y, ridge
+
+
+def _of_demo(batch_index: tuple) -> str:
+    return f" of demonstration {list(batch_index)}" if batch_index else ""
+
+
+def _check_fit(w, tau, y, shared: bool, batch: tuple) -> None:
+    """Name the demonstration (and the input at fault) whose fit left float64's range."""
+    ok_tau = torch.isfinite(tau)
+    ok = torch.isfinite(w).flatten(1).all(1) & ok_tau
+    if bool(ok.all()):
+        return
+    b = int(torch.nonzero(~ok)[0, 0])
+    where = _of_demo(tuple(int(i) for i in np.unravel_index(b, batch)) if batch else ())
+    if not bool(ok_tau[b]):
+        which = "t" if shared else f"t{where}"
+        raise ValueError(
+            f"{which}: the duration t[-1] - t[0] overflows float64; give times in seconds"
+        )
+    big = float(y[b].abs().max())
+    raise ValueError(
+        f"y{where}: its magnitude (up to {big:.3g}) overflows float64 in the fit; "
+        "scale the trajectory down (e.g. to pixels or metres)"
+    )

@@ -9,10 +9,20 @@ nowhere else::
       y0[0] .. y0[d-1] ]                                  # start
 
 which for N = 25 kernels and d = 2 dimensions is 50 + 1 + 2 + 2 = 55 numbers.
+
+The four fields are NumPy arrays or torch tensors, all of one kind, of real numbers
+(float or integer; booleans, complex numbers and text are refused). Python numbers and
+(nested) lists given for a field are converted: to float64 NumPy arrays, or, beside
+torch fields, to tensors of their floating dtype on their device. A NumPy array beside a
+torch tensor is refused with an error naming both fields. :meth:`DMPParams.from_dict`
+(the reader of JSON-like records) is strict: every number must be a JSON number (not a
+boolean or a string), finite, and only the fields ``w``, ``tau``, ``g``, ``y0`` may be
+present.
 """
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,6 +62,112 @@ def all_finite(a) -> bool:
     return bool(np.isfinite(x).all())
 
 
+_FIELDS = ("w", "tau", "g", "y0")
+_MAX_DEPTH = 8  # nesting of lists a parameter field may have (batch dims + 2)
+
+
+def show_value(v, limit: int = 60) -> str:
+    """A short JSON-style rendering of a value for an error message (``true``, ``"2.0"``)."""
+    try:
+        text = json.dumps(v, allow_nan=True)
+    except (TypeError, ValueError):
+        text = repr(v)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(
+        x, (bool, np.bool_)
+    )
+
+
+def _nested_shape(what: str, v, flat: list, depth: int = 0) -> tuple:
+    """Shape of nested lists of numbers, their leaves appended to ``flat``."""
+    if _is_number(v):
+        flat.append(v)
+        return ()
+    if not isinstance(v, (list, tuple)):
+        raise ValueError(f"{what} must be a number or a list of numbers, got {show_value(v)}")
+    if depth >= _MAX_DEPTH:
+        raise ValueError(f"{what} is nested more than {_MAX_DEPTH} lists deep")
+    shapes = [_nested_shape(what, x, flat, depth + 1) for x in v]
+    if any(sh != shapes[0] for sh in shapes):
+        raise ValueError(f"{what} is ragged: its lists have different lengths or depths")
+    return (len(v), *(shapes[0] if shapes else ()))
+
+
+def strict_numbers(what: str, value, *, finite: bool = True) -> np.ndarray:
+    """``value`` (a number, nested lists of numbers or a real NumPy array) as float64.
+
+    Booleans, strings, ``None`` and ragged lists are refused (``np.asarray`` would read
+    ``True`` as 1 and ``"2.0"`` as 2); with ``finite`` also NaN and inf. Errors start
+    with ``what`` (e.g. ``"field 'tau'"``) and show the offending value.
+    """
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind not in "iuf":
+            raise ValueError(f"{what} must hold real numbers, got an array of dtype {value.dtype}")
+        arr = value.astype(np.float64)
+    else:
+        flat: list = []
+        shape = _nested_shape(what, value, flat)
+        arr = np.array(flat, dtype=np.float64).reshape(shape)
+    if finite and not np.isfinite(arr).all():
+        idx = first_index(~np.isfinite(arr))
+        at = f" at index {list(idx)}" if idx else ""
+        raise ValueError(f"{what} must be finite, got {show_value(float(arr[idx]))}{at}")
+    return arr
+
+
+def first_index(mask) -> tuple:
+    """Index of the first True element of a boolean array or tensor (C order)."""
+    if _is_torch(mask):
+        mask = mask.detach().cpu().numpy()
+    mask = np.asarray(mask)
+    return tuple(int(i) for i in np.unravel_index(int(np.argmax(mask)), mask.shape))
+
+
+def _real_dtype(a) -> bool:
+    if _is_torch(a):
+        return a.dtype.is_floating_point or not (a.is_complex() or a.dtype == torch.bool)
+    return a.dtype.kind in "iuf"
+
+
+def _coerce_fields(p) -> None:
+    """Make Python numbers and lists arrays (or tensors beside tensors); refuse a mix of
+    NumPy arrays and torch tensors and booleans given as numbers."""
+    fields = (p.w, p.tau, p.g, p.y0)
+    if all(_is_torch(v) for v in fields) or all(type(v) is np.ndarray for v in fields):
+        return  # the usual case, kept to a few hundred nanoseconds
+    values = dict(zip(_FIELDS, fields, strict=True))
+    tensors = {k: v for k, v in values.items() if _is_torch(v)}
+    arrays = {k: v for k, v in values.items() if isinstance(v, np.ndarray)}
+    if tensors and arrays:
+        t, a = next(iter(tensors)), next(iter(arrays))
+        raise ValueError(
+            f"DMPParams mixes torch tensors and NumPy arrays: {t} is a torch.Tensor, "
+            f"{a} is a numpy.ndarray; make all four one kind (to_torch() or to_numpy())"
+        )
+    ref = next((v for v in tensors.values() if v.dtype.is_floating_point), None)
+    for k, v in values.items():
+        if isinstance(v, (bool, np.bool_)):
+            raise ValueError(f"DMPParams.{k} must be a number, got the boolean {v!r}")
+        if not isinstance(v, (np.generic, int, float, list, tuple)):
+            continue
+        arr = strict_numbers(f"DMPParams.{k}", v, finite=False)
+        if tensors:
+            dtype = ref.dtype if ref is not None else torch.float64
+            device = next(iter(tensors.values())).device
+            arr = torch.as_tensor(arr, dtype=dtype, device=device)
+        setattr(p, k, arr)
+
+
+def _at(idx: tuple, a) -> str:
+    """``", got -1.0 at index [3]"``: the value at ``idx`` and, in a batch, where."""
+    v = a[idx] if idx else a
+    value = float(v.item() if hasattr(v, "item") else v)
+    return f", got {value!r}" + (f" at index {list(idx)}" if idx else "")
+
+
 def _cat(parts, like):
     return torch.cat(parts, dim=-1) if _is_torch(like) else np.concatenate(parts, axis=-1)
 
@@ -76,7 +192,8 @@ class DMPParams:
     y0 : array [*batch, d]
         Start position.
 
-    The arrays may be NumPy arrays or torch tensors (all of one kind).
+    The arrays may be NumPy arrays or torch tensors (all of one kind; see the module
+    docstring for what is converted and what is refused).
     """
 
     w: object
@@ -86,11 +203,7 @@ class DMPParams:
 
     def __post_init__(self) -> None:
         # NumPy scalars and Python numbers (e.g. from indexing one sample) become 0-d arrays.
-        if not any(_is_torch(getattr(self, k)) for k in ("w", "tau", "g", "y0")):
-            for k in ("w", "tau", "g", "y0"):
-                v = getattr(self, k)
-                if isinstance(v, (np.generic, int, float, list, tuple)):
-                    setattr(self, k, np.asarray(v, dtype=np.float64))
+        _coerce_fields(self)
         self.validate()
 
     def _values_stamp(self) -> tuple | None:
@@ -132,11 +245,18 @@ class DMPParams:
         return self
 
     def _check_values(self) -> None:
-        names = ("w", "tau", "g", "y0")
+        names = _FIELDS
         for name in names:
             a = getattr(self, name)
             if not (_is_torch(a) or isinstance(a, np.ndarray)):
-                raise ValueError(f"DMPParams.{name} must be an array or tensor, got {type(a)}")
+                raise ValueError(
+                    f"DMPParams.{name} must be an array or tensor, got {type(a).__name__} "
+                    f"{show_value(a)}"
+                )
+            if not _real_dtype(a):
+                raise ValueError(
+                    f"DMPParams.{name} has dtype {a.dtype}; expected real numbers (float or int)"
+                )
         # One finite total decides for all four fields at once (a few microseconds: this
         # runs for every batch a network makes); only a non-finite one, which an
         # overflow can also cause, is looked into field by field to name the culprit.
@@ -147,11 +267,17 @@ class DMPParams:
                 finite = bool(np.isfinite(sum(float(h.sum()) for h in hosts)))
         if not finite:
             for name in names:
-                if not all_finite(getattr(self, name)):
-                    raise ValueError(f"DMPParams.{name} contains NaN or inf")
-        tau_host = hosts[1]
-        if not bool(((tau_host if tau_host is not None else self.tau) > 0).all()):
-            raise ValueError("DMPParams.tau must be > 0 (it is a duration in seconds)")
+                a = getattr(self, name)
+                if not all_finite(a):
+                    bad = ~torch.isfinite(a) if _is_torch(a) else ~np.isfinite(a)
+                    idx = first_index(bad)
+                    raise ValueError(f"DMPParams.{name} contains NaN or inf{_at(idx, a)}")
+        tau = hosts[1] if hosts[1] is not None else self.tau
+        if not bool((tau > 0).all()):
+            idx = first_index(~(tau > 0))
+            raise ValueError(
+                f"DMPParams.tau must be > 0 (it is a duration in seconds){_at(idx, tau)}"
+            )
 
     @property
     def batch_shape(self) -> tuple:
@@ -205,12 +331,47 @@ class DMPParams:
         return {"w": p.w.tolist(), "tau": p.tau.tolist(), "g": p.g.tolist(), "y0": p.y0.tolist()}
 
     @classmethod
-    def from_dict(cls, d: dict) -> DMPParams:
-        missing = [k for k in ("w", "tau", "g", "y0") if k not in d]
+    def from_dict(
+        cls, d: dict, *, config: DMPConfig | None = None, batch_shape: tuple | None = None
+    ) -> DMPParams:
+        """Inverse of :meth:`to_dict`, strict (see the module docstring).
+
+        Errors name the field and the value at fault (``field 'tau' must be a number or a
+        list of numbers, got true``). With ``config`` and ``batch_shape`` the fields'
+        shapes are checked too (``batch_shape=()`` for one DMP).
+        """
+        if not isinstance(d, dict):
+            raise ValueError(
+                f"DMP parameters must be an object with fields w, tau, g, y0, got {show_value(d)}"
+            )
+        missing = [k for k in _FIELDS if k not in d]
         if missing:
             raise ValueError(f"DMP parameters are missing field(s) {missing}")
-        try:
-            arrs = {k: np.asarray(d[k], dtype=np.float64) for k in ("w", "tau", "g", "y0")}
-        except (TypeError, ValueError) as e:
-            raise ValueError(f"DMP parameters are not numeric: {e}") from e
+        unknown = sorted(str(k) for k in d if k not in _FIELDS)
+        if unknown:
+            raise ValueError(f"DMP parameters have unknown field(s) {unknown} (only w, tau, g, y0)")
+        arrs = {k: strict_numbers(f"field {k!r}", d[k]) for k in _FIELDS}
+        if config is not None and batch_shape is not None:
+            _check_shapes(arrs, config, tuple(batch_shape))
+        tau = arrs["tau"]
+        if not (tau > 0).all():
+            idx = first_index(~(tau > 0))
+            raise ValueError(f"field 'tau' must be > 0 (a duration in seconds){_at(idx, tau)}")
         return cls(**arrs)
+
+
+def _check_shapes(arrs: dict, config: DMPConfig, batch: tuple) -> None:
+    n, d = config.n_kernels, config.n_dims
+    expected = {"w": batch + (n, d), "tau": batch, "g": batch + (d,), "y0": batch + (d,)}
+    meaning = {
+        "w": f"n_kernels x n_dims = {n} x {d} of the DMP config",
+        "tau": "one number" if not batch else "one number per DMP",
+        "g": f"n_dims = {d} coordinates",
+        "y0": f"n_dims = {d} coordinates",
+    }
+    for k, shape in expected.items():
+        if arrs[k].shape != shape:
+            raise ValueError(
+                f"field {k!r} has shape {list(arrs[k].shape)}, expected "
+                f"{list(shape)} ({meaning[k]})"
+            )

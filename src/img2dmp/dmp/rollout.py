@@ -278,7 +278,10 @@ def rollout(
     Parameters
     ----------
     params : DMPParams
-        Torch tensors, batch shape ``[*batch]``.
+        Torch tensors on one device, batch shape ``[*batch]``. Integer fields are
+        converted to the fields' floating dtype (float64 if none is floating); NumPy
+        fields, boolean or complex tensors and tensors on different devices are refused
+        with a ``ValueError`` naming the field (``params.to_torch()`` converts NumPy).
     t : tensor [*batch, T] or [T]
         Time stamps in seconds, strictly increasing along the last axis.
     config : DMPConfig
@@ -299,8 +302,9 @@ def rollout(
     tensor [*batch, T, d]
     """
     config = config or DMPConfig()
+    params = _torch_params(params)
     w, tau, g, y0 = params.w, params.tau, params.g, params.y0
-    t = torch.as_tensor(t, dtype=w.dtype, device=w.device)
+    t = _time_tensor(t, w)
     if validate:
         params.validate(config)
         check_time_stamps(t, non_negative=True)
@@ -323,6 +327,53 @@ def rollout(
     coef = coef.reshape(-1, *coef.shape[-2:])  # [B, N+1, d]
     y = _combine_responses(s, coef, config) + g.reshape(-1, 1, g.shape[-1])
     return y.reshape(*batch, *y.shape[-2:])
+
+
+def _torch_params(params: DMPParams) -> DMPParams:
+    """``params`` if its fields are floating tensors on one device (the fast path),
+    else with integer tensors converted, or a ``ValueError`` naming the field at fault."""
+    if not isinstance(params, DMPParams):
+        raise TypeError(f"rollout needs a DMPParams, got {type(params).__name__}")
+    fields = (params.w, params.tau, params.g, params.y0)
+    if all(isinstance(a, torch.Tensor) for a in fields):
+        dev = params.w.device
+        if all(a.dtype.is_floating_point and a.device == dev for a in fields):
+            return params
+    named = dict(zip(("w", "tau", "g", "y0"), fields, strict=True))
+    for name, a in named.items():
+        if not isinstance(a, torch.Tensor):
+            kind = f"a NumPy array ({a.dtype})" if isinstance(a, np.ndarray) else type(a).__name__
+            raise ValueError(
+                f"rollout needs torch tensors, but DMPParams.{name} is {kind}; "
+                "convert the parameters with params.to_torch()"
+            )
+        if a.is_complex() or a.dtype == torch.bool:
+            raise ValueError(
+                f"rollout needs real numbers, but DMPParams.{name} has dtype {a.dtype}"
+            )
+        if a.device != params.w.device:
+            raise ValueError(
+                f"DMPParams.{name} is on {a.device} but DMPParams.w is on {params.w.device}; "
+                "put all four on one device"
+            )
+    floats = [a.dtype for a in fields if a.dtype.is_floating_point]
+    dtype = functools.reduce(torch.promote_types, floats) if floats else torch.float64
+    conv = (a if a.dtype.is_floating_point else a.to(dtype) for a in fields)
+    return DMPParams(*conv)
+
+
+def _time_tensor(t, w: torch.Tensor) -> torch.Tensor:
+    """Time stamps as a tensor of ``w``'s dtype and device; refuse what is not numbers."""
+    dtype = getattr(t, "dtype", None)
+    if dtype is not None and (
+        dtype in (torch.bool, torch.complex64, torch.complex128)
+        or (isinstance(dtype, np.dtype) and dtype.kind not in "iuf")
+    ):
+        raise ValueError(f"t must hold real time stamps in seconds, got dtype {dtype}")
+    try:
+        return torch.as_tensor(t, dtype=w.dtype, device=w.device)
+    except (TypeError, ValueError, RuntimeError) as e:
+        raise ValueError(f"t must be time stamps in seconds (numbers): {e}") from None
 
 
 def _combine_responses(s: torch.Tensor, coef: torch.Tensor, config: DMPConfig) -> torch.Tensor:

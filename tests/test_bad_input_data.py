@@ -1,0 +1,741 @@
+"""Bad and hostile input to the stored files and the DMP parameter API (issue 17).
+
+Checkpoints, data-set files and DMP parameter files that are edited, corrupt, truncated,
+foreign or wrongly typed are refused with one named exception whose one-line message
+names the file, the field and the value; the checksums are verified on load; a refused
+write leaves an earlier file as it was. Everything here is tiny: the whole file runs in
+seconds.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+from safetensors.numpy import save_file
+
+from img2dmp import cli
+from img2dmp.checkpoint import (
+    RECORD_DIGEST,
+    CheckpointError,
+    load_checkpoint,
+    optimizer_to_tensors,
+    read_checkpoint_meta,
+    record_digest,
+    save_checkpoint,
+)
+from img2dmp.data.store import (
+    CHECKSUM_KEY,
+    META_KEY,
+    DatasetError,
+    DigitData,
+    load_dataset,
+    save_dataset,
+)
+from img2dmp.dmp import DMPConfig, DMPParams, fit_dmp, rollout
+from img2dmp.nn import ModelConfig, ParamNormaliser, build_model
+from img2dmp.predict import Predictor
+from img2dmp.robot.dmpfile import MAX_FILE_BYTES, load_dmp_json, save_dmp_json
+
+TINY_MODEL = {"encoder_layers": [64, 20], "decoder_layers": [35], "image_size": [40, 40]}
+
+
+# -- helpers -----------------------------------------------------------------------------
+
+
+def _header(path: Path) -> tuple[int, dict]:
+    raw = path.read_bytes()
+    n = int.from_bytes(raw[:8], "little")
+    return n, json.loads(raw[8 : 8 + n])
+
+
+def _rewrite_metadata(path: Path, edit) -> None:
+    """Apply ``edit`` to the header's ``__metadata__`` dict of a safetensors file, keeping
+    the tensors' bytes (what a hand edit of the file does)."""
+    raw = path.read_bytes()
+    n, header = _header(path)
+    edit(header["__metadata__"])
+    text = json.dumps(header).encode()
+    text += b" " * (-len(text) % 8)
+    path.write_bytes(len(text).to_bytes(8, "little") + text + raw[8 + n :])
+
+
+def _edit_record(path: Path, edit) -> None:
+    """Edit the img2dmp JSON record inside a safetensors file, nothing else."""
+
+    def on_meta(meta: dict) -> None:
+        record = json.loads(meta[META_KEY])
+        edit(record)
+        meta[META_KEY] = json.dumps(record, indent=1, sort_keys=True)
+
+    _rewrite_metadata(path, on_meta)
+
+
+def _flip(path: Path, offset: int) -> None:
+    raw = bytearray(path.read_bytes())
+    raw[offset] ^= 0x01
+    path.write_bytes(bytes(raw))
+
+
+def _tensor_offset(path: Path, name: str) -> int:
+    """File offset of the first byte of tensor ``name``."""
+    n, header = _header(path)
+    return 8 + n + header[name]["data_offsets"][0]
+
+
+def _valid_params(rng, m: int, config: DMPConfig) -> np.ndarray:
+    v = rng.normal(size=(m, config.n_params))
+    v[:, config.n_kernels * config.n_dims] = rng.uniform(0.5, 1.5, m)  # tau > 0
+    return v
+
+
+def _checkpoint(path: Path, *, resumable: bool = False) -> Path:
+    """A real, loadable checkpoint of a tiny network (as training writes it)."""
+    cfg, dmp = ModelConfig(**TINY_MODEL), DMPConfig()
+    model = build_model(cfg, seed=0)
+    norm = ParamNormaliser.fit(_valid_params(np.random.default_rng(0), 40, dmp), dmp)
+    meta = {
+        "kind": "img2dmp-model",
+        "model": cfg.to_dict(),
+        "normaliser": norm.to_dict(),
+        "dmp_config": dmp.to_dict(),
+        "image_size": [40, 40],
+        "ink_margin": 0.15,
+        "dataset": {"path": "d.safetensors", "sha256": "0" * 64},
+    }
+    extra = None
+    if resumable:
+        opt = torch.optim.Adam(model.parameters(), lr=1e-3)
+        model(torch.rand(2, 40, 40)).sum().backward()
+        opt.step()
+        extra, record = optimizer_to_tensors(opt)
+        meta["optimizer"] = record
+    return save_checkpoint(path, model.state_dict(), meta, extra)
+
+
+@pytest.fixture(scope="module")
+def ckpt_bytes(tmp_path_factory) -> bytes:
+    return _checkpoint(tmp_path_factory.mktemp("ckpt") / "best.safetensors").read_bytes()
+
+
+@pytest.fixture
+def ckpt(tmp_path, ckpt_bytes) -> Path:
+    p = tmp_path / "best.safetensors"
+    p.write_bytes(ckpt_bytes)
+    return p
+
+
+def _data(m: int = 6, t: int = 11, seed: int = 0) -> DigitData:
+    rng = np.random.default_rng(seed)
+    return DigitData(
+        images=rng.random((m, 8, 9), dtype=np.float32),
+        trajectories=rng.normal(size=(m, t, 2)).astype(np.float32),
+        times=np.tile(np.arange(t, dtype=np.float32) * 0.01, (m, 1)),
+        labels=rng.integers(0, 10, m).astype(np.int64),
+        params=_valid_params(rng, m, DMPConfig()).astype(np.float32),
+        fit_error_px=rng.random(m, dtype=np.float32),
+        split=np.arange(m, dtype=np.uint8) % 3,
+        meta={"dmp_config": DMPConfig().to_dict(), "source": {"kind": "test"}, "seed": 5},
+    )
+
+
+def _legacy_dataset(path: Path, data: DigitData) -> Path:
+    """A data-set file as the previous img2dmp wrote it: no checksum key."""
+    meta = dict(data.meta, format="img2dmp-dataset", version=1, image_size=[8, 9], created="x")
+    save_file(data.arrays(), str(path), metadata={META_KEY: json.dumps(meta, sort_keys=True)})
+    return path
+
+
+def _one_line(e: pytest.ExceptionInfo) -> str:
+    msg = str(e.value)
+    assert "\n" not in msg
+    return msg
+
+
+# -- 1. checkpoints: the whole record is covered by a digest -------------------------------
+
+
+def test_checkpoint_records_and_verifies_a_digest_of_the_whole_record(tmp_path):
+    ckpt = _checkpoint(tmp_path / "best.safetensors")
+    meta = read_checkpoint_meta(ckpt)
+    assert meta["version"] == 2 and meta[RECORD_DIGEST] == record_digest(meta)
+    assert json.loads(ckpt.with_suffix(".json").read_text()) == meta  # the sidecar agrees
+    loaded = load_checkpoint(ckpt)
+    assert loaded.meta == meta
+    Predictor.load(ckpt).predict_images(np.zeros((1, 40, 40), np.float32))
+
+
+def _times3(values):
+    return [3 * v for v in values]
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        pytest.param(lambda r: r["normaliser"].update(centre=_times3(r["normaliser"]["centre"])),
+                     id="normaliser-centre-x3"),
+        pytest.param(lambda r: r["normaliser"]["scale"].__setitem__(50, 9.0), id="scale"),
+        pytest.param(lambda r: r["model"].update(activation="tanh"), id="architecture"),
+        pytest.param(lambda r: r["dmp_config"].update(alpha_z=12.0), id="dmp-constants"),
+        pytest.param(lambda r: r.update(ink_margin=0.4), id="image-framing"),
+        pytest.param(lambda r: r.update(weights_sha256="0" * 64), id="weights-digest"),
+        pytest.param(lambda r: r.pop(RECORD_DIGEST), id="digest-removed"),
+    ],
+)  # fmt: skip
+def test_an_edited_checkpoint_record_is_refused_by_name(ckpt, edit):
+    _edit_record(ckpt, edit)
+    for load in (load_checkpoint, read_checkpoint_meta, Predictor.load):
+        with pytest.raises(CheckpointError, match="modified or is corrupt") as e:
+            load(ckpt)
+        assert str(ckpt) in _one_line(e)
+
+
+def test_an_edited_checkpoint_is_refused_by_the_cli_with_exit_2(ckpt, tmp_path, capsys):
+    _edit_record(ckpt, lambda r: r["normaliser"].update(centre=_times3(r["normaliser"]["centre"])))
+    image = tmp_path / "one.png"
+    Image.fromarray(np.full((40, 40), 255, np.uint8)).save(image)
+    assert cli.main(["predict", "--model", str(ckpt), str(image), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "modified or is corrupt" in err and len(err.splitlines()) == 1
+    assert not list(tmp_path.glob("*_dmp.json"))
+
+
+def test_a_flipped_weight_bit_is_refused(ckpt):
+    _flip(ckpt, _tensor_offset(ckpt, "model.decoder.0.weight") + 5)
+    with pytest.raises(CheckpointError, match="modified or is corrupt.*weights"):
+        load_checkpoint(ckpt)
+
+
+def test_a_flipped_optimiser_bit_is_refused(tmp_path):
+    p = _checkpoint(tmp_path / "last.safetensors", resumable=True)
+    assert load_checkpoint(p).extra and "optim_sha256" in read_checkpoint_meta(p)
+    _, header = _header(p)
+    name = next(k for k in header if k.startswith("optim."))
+    _flip(p, _tensor_offset(p, name))
+    with pytest.raises(CheckpointError, match="optimiser state"):
+        load_checkpoint(p)
+
+
+def test_a_version_1_checkpoint_of_earlier_img2dmp_still_loads(ckpt):
+    def as_v1(record):
+        for key in (RECORD_DIGEST, "optim_sha256"):
+            record.pop(key, None)
+        record["version"] = 1
+
+    _edit_record(ckpt, as_v1)
+    assert load_checkpoint(ckpt).meta["version"] == 1
+    Predictor.load(ckpt)
+    _flip(ckpt, _tensor_offset(ckpt, "model.decoder.0.weight"))  # its weights still verified
+    with pytest.raises(CheckpointError, match="SHA-256"):
+        load_checkpoint(ckpt)
+
+
+@pytest.mark.parametrize("version", [3, 0, "2", True, 2.5])
+def test_other_checkpoint_versions_are_refused(ckpt, version):
+    _edit_record(ckpt, lambda r: r.update(version=version))
+    with pytest.raises(CheckpointError, match=f"version {version!r} is not supported"):
+        load_checkpoint(ckpt)
+
+
+def test_resaving_a_loaded_record_gives_fresh_digests(ckpt, tmp_path):
+    # Resuming passes a loaded record (with its old digests) back to save_checkpoint.
+    old = load_checkpoint(ckpt)
+    state = {k: v + 1 for k, v in old.model_state.items()}
+    out = save_checkpoint(tmp_path / "again.safetensors", state, old.meta)
+    new = load_checkpoint(out)
+    assert new.meta["weights_sha256"] != old.meta["weights_sha256"]
+    assert new.meta[RECORD_DIGEST] == record_digest(new.meta)
+
+
+@pytest.mark.parametrize("keep", [0, 7, 8, 60, -1])
+def test_a_truncated_checkpoint_is_refused(ckpt, ckpt_bytes, keep):
+    ckpt.write_bytes(ckpt_bytes[: keep if keep >= 0 else len(ckpt_bytes) + keep])
+    with pytest.raises(CheckpointError, match="corrupt or truncated") as e:
+        load_checkpoint(ckpt)
+    assert str(ckpt) in _one_line(e)
+
+
+@pytest.mark.parametrize(
+    ("make", "message"),
+    [
+        (lambda p: save_file({"w": np.zeros(3, np.float32)}, str(p)), "not an img2dmp checkpoint"),
+        (lambda p: save_file({"w": np.zeros(3, np.float32)}, str(p), metadata={"img2dmp": "[1]"}),
+         "metadata is a JSON list, expected an object"),
+        (lambda p: save_file({"w": np.zeros(3, np.float32)}, str(p), metadata={"img2dmp": "{"}),
+         "not valid JSON"),
+        (lambda p: p.write_bytes((1 << 62).to_bytes(8, "little") + b"{}"), "corrupt or truncated"),
+        (lambda p: p.write_bytes(b"\x80\x02pickled torch file, never unpickled"),
+         "corrupt or truncated"),
+    ],
+    ids=["foreign-safetensors", "record-is-a-list", "record-not-json", "huge-header", "pickle"],
+)  # fmt: skip
+def test_foreign_and_malformed_checkpoint_files_are_refused(tmp_path, make, message):
+    p = tmp_path / "x.safetensors"
+    make(p)
+    with pytest.raises(CheckpointError, match=message) as e:
+        load_checkpoint(p)
+    assert str(p) in _one_line(e)
+
+
+def test_a_checkpoint_that_is_not_there_is_named(tmp_path):
+    with pytest.raises(FileNotFoundError, match="holds no checkpoint"):
+        load_checkpoint(tmp_path)
+    with pytest.raises(FileNotFoundError, match="nothing.safetensors"):
+        load_checkpoint(tmp_path / "nothing.safetensors")
+
+
+def test_a_refused_checkpoint_write_leaves_the_earlier_one(ckpt, ckpt_bytes, monkeypatch):
+    state = load_checkpoint(ckpt).model_state
+    with pytest.raises(ValueError, match="not JSON-serialisable"):
+        save_checkpoint(ckpt, state, {"bad": object()})
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(os, "replace", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        save_checkpoint(ckpt, {k: v * 0 for k, v in state.items()}, {"kind": "x"})
+    monkeypatch.undo()
+    assert ckpt.read_bytes() == ckpt_bytes
+    assert sorted(p.name for p in ckpt.parent.iterdir()) == ["best.safetensors"]
+    load_checkpoint(ckpt)
+
+
+# -- 2. data-set files: a checksum written with the file, verified on load ------------------
+
+
+def test_a_data_set_carries_a_checksum_that_load_verifies(tmp_path):
+    p = save_dataset(tmp_path / "d.safetensors", _data())
+    _, header = _header(p)
+    assert len(header["__metadata__"][CHECKSUM_KEY]) == 64
+    back = load_dataset(p)
+    assert back.origin == str(p)
+    # Saving a loaded data set again (e.g. a subset) writes a fresh, valid checksum.
+    load_dataset(save_dataset(tmp_path / "sub.safetensors", back.select_split("train")))
+
+
+@pytest.mark.parametrize(
+    ("field", "byte"), [("images", 3), ("labels", 0), ("params", 17), ("split", -1)]
+)
+def test_a_flipped_bit_in_a_data_set_is_refused(tmp_path, field, byte):
+    p = save_dataset(tmp_path / "d.safetensors", _data())
+    _, header = _header(p)
+    lo, hi = header[field]["data_offsets"]
+    _flip(p, _tensor_offset(p, field) + (byte if byte >= 0 else hi - lo + byte))
+    with pytest.raises(DatasetError, match="modified or is corrupt") as e:
+        load_dataset(p)
+    assert str(p) in _one_line(e)
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda m: m.update(seed=6),
+        lambda m: m["dmp_config"].update(alpha_z=12.0),
+        lambda m: m["source"].update(kind="edited"),
+    ],
+    ids=["seed", "dmp-constants", "source"],
+)
+def test_an_edited_data_set_field_is_refused(tmp_path, edit):
+    p = save_dataset(tmp_path / "d.safetensors", _data())
+    _edit_record(p, edit)
+    with pytest.raises(DatasetError, match=f"{p.name} was modified or is corrupt"):
+        load_dataset(p)
+
+
+def test_a_data_set_of_the_previous_version_without_checksum_still_loads(tmp_path):
+    p = _legacy_dataset(tmp_path / "old.safetensors", _data())
+    data = load_dataset(p)
+    assert len(data) == 6 and data.meta["version"] == 1
+
+
+@pytest.mark.parametrize("keep", [0, 8, 100, -1])
+def test_a_truncated_data_set_is_refused(tmp_path, keep):
+    p = save_dataset(tmp_path / "d.safetensors", _data())
+    raw = p.read_bytes()
+    p.write_bytes(raw[: keep if keep >= 0 else len(raw) + keep])
+    with pytest.raises(DatasetError, match="truncated") as e:
+        load_dataset(p)
+    assert str(p) in _one_line(e)
+
+
+def test_a_huge_declared_header_or_a_list_record_is_refused(tmp_path):
+    p = tmp_path / "huge.safetensors"
+    p.write_bytes((1 << 62).to_bytes(8, "little") + b"{}")
+    with pytest.raises(DatasetError, match="huge.safetensors"):
+        load_dataset(p)
+    q = save_dataset(tmp_path / "list.safetensors", _data())
+    _rewrite_metadata(q, lambda m: (m.update({META_KEY: "[1, 2]"}), m.pop(CHECKSUM_KEY)))
+    with pytest.raises(DatasetError, match="must be a JSON object"):
+        load_dataset(q)
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda m: m.update(image_size=40), "'image_size' is 40"),
+        (lambda m: m.update(seed=True), "'seed' must be an integer or null"),
+        (lambda m: m.update(version=True), "'version' is True"),
+        (lambda m: m.update(format="img2dmp-checkpoint"), "'format' is 'img2dmp-checkpoint'"),
+        (lambda m: m.pop("dmp_config"), "'dmp_config' is missing"),
+        (lambda m: m["dmp_config"].update(n_kernels=24), "'params' has 55 numbers per sample"),
+        (lambda m: m.update(source="synthetic"), "'source' must be a JSON object"),
+    ],
+    ids=["image-size", "seed", "version", "format", "no-config", "kernels", "source"],
+)
+def test_bad_metadata_is_named(tmp_path, edit, message):
+    p = _legacy_dataset(tmp_path / "old.safetensors", _data())  # no checksum to stop at
+    _edit_record(p, edit)
+    with pytest.raises(DatasetError, match=message) as e:
+        load_dataset(p)
+    assert _one_line(e).startswith(str(p))
+
+
+def test_a_directory_or_nothing_where_a_data_set_belongs_is_named(tmp_path):
+    with pytest.raises(IsADirectoryError, match="is a directory"):
+        load_dataset(tmp_path)
+    with pytest.raises(FileNotFoundError, match="missing.safetensors"):
+        load_dataset(tmp_path / "missing.safetensors")
+
+
+def _set(field, row, value):
+    def change(d: DigitData) -> None:
+        getattr(d, field)[row] = value
+
+    return change
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (_set("labels", 4, 11), "'labels' row 4 is 11: is not a digit 0-9"),
+        (_set("labels", 2, -1), "'labels' row 2 is -1"),
+        (_set("split", 5, 7), "'split' row 5 is 7"),
+        (_set("fit_error_px", 1, -0.5), "'fit_error_px' row 1 is -0.5"),
+        (_set("times", 3, np.linspace(1.0, 0.0, 11)), "not strictly increasing in row 3"),
+        (_set("times", 2, np.arange(11) * 0.01 - 0.5), "'times' row 2 is -0.5: starts before 0"),
+        (_set("images", 5, 2.0), "'images' row 5 has values outside"),
+        (_set("trajectories", 3, np.nan), "'trajectories' row 3 contains NaN"),
+        (lambda d: setattr(d, "split", d.split[:4]), "'split' has 4 rows but 'labels' has 6"),
+        (lambda d: setattr(d, "times", d.times[:, :5]), "'times' has 5 time stamps"),
+    ],
+    ids=["label-11", "label-neg", "split", "fit-error", "times-order", "times-neg",
+         "images", "nan", "rows", "stamps"],
+)  # fmt: skip
+def test_bad_rows_are_named_on_load_and_on_save(tmp_path, change, message):
+    data = _data()
+    change(data)
+    # A file of the previous version (no checksum to stop at): the load names file and row.
+    old = _legacy_dataset(tmp_path / "old.safetensors", data)
+    with pytest.raises(DatasetError, match=message) as e:
+        load_dataset(old)
+    assert str(old) in _one_line(e)
+    # Saving over an earlier file refuses before writing anything.
+    target = save_dataset(tmp_path / "d.safetensors", _data(seed=1))
+    before = target.read_bytes()
+    with pytest.raises(DatasetError, match=message):
+        save_dataset(target, data)
+    assert target.read_bytes() == before
+
+
+def test_a_non_json_record_is_refused_before_the_earlier_file_is_touched(tmp_path):
+    target = save_dataset(tmp_path / "d.safetensors", _data())
+    before = target.read_bytes()
+    for meta in ({"note": float("nan")}, {"note": object()}):
+        data = _data(seed=1)
+        data.meta.update(meta)
+        with pytest.raises(DatasetError, match="not JSON-serialisable"):
+            save_dataset(target, data)
+    assert target.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.safetensors"]
+
+
+def test_a_duration_that_is_no_duration_is_named_by_file_and_row(tmp_path):
+    data = _data(m=9)
+    tau = DMPConfig().n_kernels * DMPConfig().n_dims
+    data.params[7, tau] = -2.0
+    p = save_dataset(tmp_path / "d.safetensors", data)
+    loaded = load_dataset(p)
+    assert loaded.dmp_params(slice(0, 7)).batch_shape == (7,)
+    # row 7 of the file is row 2 of the validation split (rows 1, 4, 7)
+    with pytest.raises(DatasetError, match=rf"d.safetensors: row 7: .*tau \(column {tau}\) = -2.0"):
+        loaded.select_split("validation").dmp_params()
+
+
+# -- 3. DMP parameter files ----------------------------------------------------------------
+
+
+@pytest.fixture
+def dmp_doc(tmp_path) -> tuple[Path, dict]:
+    path = tmp_path / "dmp.json"
+    config = DMPConfig()
+    params = DMPParams(np.zeros((25, 2)), 1.5, np.array([30.0, 20.0]), np.array([5.0, 6.0]))
+    save_dmp_json(path, params, config, (40, 40), label=3)
+    return path, json.loads(path.read_text())
+
+
+def _ragged(p):
+    p["w"][3] = [1.0]
+
+
+@pytest.mark.parametrize(
+    ("edit", "message"),
+    [
+        (lambda d: d["params"].update(tau=True), "field 'tau' must be a number .*got true"),
+        (lambda d: d["params"].update(tau="2.0"), "field 'tau' must be a number .*got \"2.0\""),
+        (lambda d: d["params"].update(g=["1", "2"]), "field 'g' must be .*got \"1\""),
+        (lambda d: d["params"]["w"][0].__setitem__(1, False), "field 'w' must be .*got false"),
+        (lambda d: d["params"].update(y0=[1.0, None]), "field 'y0' must be .*got null"),
+        (lambda d: d["params"].update(tau=float("nan")), "field 'tau' must be finite, got NaN"),
+        (lambda d: d["params"].update(g=[1.0, float("inf")]), "'g' must be finite, got Infinity"),
+        (lambda d: d["params"].update(tau=0.0), "field 'tau' must be > 0 .*got 0.0"),
+        (lambda d: d["params"].update(tau=[1.5]), r"'tau' has shape \[1\], expected \[\]"),
+        (lambda d: d["params"].update(g=[1.0, 2.0, 3.0]), r"'g' has shape \[3\], expected \[2\]"),
+        (lambda d: _ragged(d["params"]), "field 'w' is ragged"),
+        (lambda d: d["params"].pop("y0"), r"missing field\(s\) \['y0'\]"),
+        (lambda d: d["params"].update(tua=1.0), r"unknown field\(s\) \['tua'\]"),
+        (lambda d: d.update(params=[1, 2]), "must be an object with fields"),
+        (lambda d: d["dmp_config"].pop("alpha_z"), "'dmp_config' is missing alpha_z"),
+        (lambda d: d["dmp_config"].update(n_dims=True), "n_dims must be a number, got true"),
+        (lambda d: d["dmp_config"].update(alpha_z="48"), "alpha_z must be a number, got \"48\""),
+        (lambda d: d["dmp_config"].update(speed=2), r"unknown DMP config field\(s\): \['speed'\]"),
+        (lambda d: d["dmp_config"].update(n_kernels=100_000), "at most 200 kernels"),
+        (lambda d: d["dmp_config"].update(n_dims=7), "n_dims must be 2 .* or 3"),
+        (lambda d: d.update(image_size=[40, True]), r"'image_size' must be \[H, W\]"),
+    ],
+    ids=["tau-bool", "tau-str", "g-str", "w-bool", "null", "nan", "inf", "tau-zero",
+         "tau-list", "g-shape", "ragged", "missing", "unknown", "params-list", "config-missing",
+         "config-bool", "config-str", "config-unknown", "kernels", "dims", "image-size"],
+)  # fmt: skip
+def test_dmp_file_fields_are_strict(dmp_doc, edit, message):
+    path, doc = dmp_doc
+    edit(doc)
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=message) as e:
+        load_dmp_json(path)
+    assert _one_line(e).startswith(f"{path}: field '")
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"[1, 2, 3]", "expected a JSON object at the top level, got a list"),
+        (b'"params"', "got a string"),
+        (b"", "not a valid JSON file"),
+        (b'{"tau": 1', "not a valid JSON file"),
+        (b"\xff\xfe{}", "not a UTF-8 text file"),
+        (b"[" * 100_000 + b"]" * 100_000, "nested too deeply"),
+        (b" " * (MAX_FILE_BYTES + 1), "larger than 16 MiB"),
+    ],
+    ids=["list", "string", "empty", "cut", "binary", "deep", "huge"],
+)
+def test_malformed_dmp_files_are_refused_by_name(tmp_path, content, message):
+    path = tmp_path / "dmp.json"
+    path.write_bytes(content)
+    with pytest.raises(ValueError, match=message) as e:
+        load_dmp_json(path)
+    assert _one_line(e).startswith(str(path))
+
+
+def test_a_directory_or_nothing_where_a_dmp_file_belongs_is_named(tmp_path):
+    with pytest.raises(IsADirectoryError, match=str(tmp_path)):
+        load_dmp_json(tmp_path)
+    with pytest.raises(FileNotFoundError, match="nothing.json"):
+        load_dmp_json(tmp_path / "nothing.json")
+
+
+def test_a_prediction_record_given_as_a_dmp_file_is_named(tmp_path):
+    path = tmp_path / "x_dmp.json"
+    path.write_text(json.dumps({"image": "x.png", "dmp": {}, "vector": [], "trajectory": {}}))
+    with pytest.raises(ValueError, match="a prediction record of 'img2dmp predict'"):
+        load_dmp_json(path)
+
+
+def test_unknown_top_level_keys_are_notes(dmp_doc):
+    path, doc = dmp_doc
+    doc["source"] = {"image": "x.png"}
+    path.write_text(json.dumps(doc))
+    params, _, size = load_dmp_json(path)
+    assert float(params.tau) == 1.5 and size == (40, 40)
+
+
+def test_a_refused_dmp_write_leaves_the_earlier_file(dmp_doc):
+    path, _ = dmp_doc
+    before = path.read_bytes()
+    good = load_dmp_json(path)[0]
+    config = DMPConfig()
+    with pytest.raises(ValueError, match="image_size"):
+        save_dmp_json(path, good, config, (40, "40"))
+    with pytest.raises(ValueError, match="not plain JSON"):
+        save_dmp_json(path, good, config, (40, 40), note=float("nan"))
+    with pytest.raises(ValueError, match="not plain JSON"):
+        save_dmp_json(path, good, config, (40, 40), note=object())
+    with pytest.raises(ValueError, match="at most 200 kernels"):
+        save_dmp_json(path, DMPParams(np.zeros((300, 2)), 1.0, [1.0, 1.0], [0.0, 0.0]),
+                      DMPConfig(n_kernels=300), (40, 40))  # fmt: skip
+    assert path.read_bytes() == before
+    assert [p.name for p in path.parent.iterdir()] == [path.name]
+
+
+# -- 4. fit_dmp names the user's input ------------------------------------------------------
+
+
+def _demo(n: int = 40) -> tuple[np.ndarray, np.ndarray]:
+    t = np.linspace(0.0, 1.0, n)
+    return t, np.stack([10 * np.sin(3 * t), 20 * t], axis=-1)
+
+
+def test_fit_names_an_overflowing_trajectory_not_an_internal_field():
+    t, y = _demo()
+    with pytest.raises(ValueError, match=r"^y: its magnitude \(up to 2e\+201\) overflows") as e:
+        fit_dmp(t, y * 1e200)
+    assert "DMPParams" not in str(e.value)
+    batch = np.stack([y, y * 1e200, y])
+    with pytest.raises(ValueError, match=r"^y of demonstration \[1\]: its magnitude"):
+        fit_dmp(t, batch)
+
+
+def test_fit_names_where_a_trajectory_holds_nan():
+    t, y = _demo()
+    y = np.stack([y, y])
+    y[1, 17, 0] = np.nan
+    with pytest.raises(
+        ValueError, match=r"y\[1, 17, 0\] is nan \(point 17, coordinate 0 of demonstration \[1\]\)"
+    ):
+        fit_dmp(t, y)
+
+
+def test_fit_names_an_overflowing_duration():
+    _, y = _demo(3)
+    with pytest.raises(ValueError, match=r"^t: the duration .* overflows"):
+        fit_dmp(np.array([-1e308, 0.0, 1e308]), y)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"y": np.array([["1", "2"], ["3", "4"]])}, "y must hold real numbers, .* dtype <U1"),
+        ({"y": np.ones((2, 2), bool)}, "y must hold real numbers, got an array of dtype bool"),
+        ({"t": torch.tensor([0.0, 1.0], dtype=torch.complex128)}, "t must hold real numbers"),
+        ({"ridge": "1e-9"}, "ridge must be a finite number >= 0, got '1e-9'"),
+        ({"ridge": -1.0}, "ridge must be a finite number >= 0"),
+        ({"chunk_size": 0}, "chunk_size must be an integer >= 1, got 0"),
+        ({"chunk_size": True}, "chunk_size must be an integer >= 1, got True"),
+    ],
+    ids=["y-text", "y-bool", "t-complex", "ridge-text", "ridge-negative", "chunk-0", "chunk-bool"],
+)  # fmt: skip
+def test_fit_refuses_arguments_that_are_not_numbers(kwargs, message):
+    args = {"t": np.array([0.0, 1.0]), "y": np.array([[0.0, 0.0], [1.0, 2.0]]), **kwargs}
+    with pytest.raises(ValueError, match=message):
+        fit_dmp(**args)
+
+
+# -- 5. DMPParams and rollout: kinds and dtypes ----------------------------------------------
+
+
+def _torch_params(dtype=torch.float64) -> DMPParams:
+    rng = np.random.default_rng(3)
+    w = torch.as_tensor(rng.normal(size=(25, 2)), dtype=dtype)
+    return DMPParams(w, torch.tensor(1.0, dtype=dtype), torch.tensor([30.0, 20.0], dtype=dtype),
+                     torch.tensor([5.0, 6.0], dtype=dtype))  # fmt: skip
+
+
+T = torch.linspace(0.0, 1.0, 20, dtype=torch.float64)
+
+
+def test_dmp_params_refuse_a_mix_of_numpy_and_torch_by_field():
+    p = _torch_params()
+    with pytest.raises(ValueError, match="tau is a torch.Tensor, w is a numpy.ndarray"):
+        DMPParams(p.w.numpy(), p.tau, p.g, p.y0)
+    # A field swapped after construction: rollout names it, never a raw TypeError.
+    p.g = p.g.numpy()
+    with pytest.raises(ValueError, match=r"DMPParams.g is a NumPy array \(float64\).*to_torch"):
+        rollout(p, T)
+
+
+def test_rollout_refuses_numpy_params_with_a_hint():
+    with pytest.raises(ValueError, match=r"DMPParams.w is a NumPy array.*params.to_torch\(\)"):
+        rollout(_torch_params().to_numpy(), T)
+
+
+def test_rollout_converts_integer_params_to_floating_point():
+    ints = DMPParams(torch.zeros(25, 2, dtype=torch.int64), torch.tensor(1),
+                     torch.tensor([30, 20]), torch.tensor([5, 6]))  # fmt: skip
+    floats = ints.to_torch(torch.float64)
+    y = rollout(ints, T)
+    assert y.dtype == torch.float64
+    torch.testing.assert_close(y, rollout(floats, T))
+    # beside float32 fields, integers become float32
+    mixed = _torch_params(torch.float32)
+    mixed.g = torch.tensor([30, 20])
+    assert rollout(mixed, T.float()).dtype == torch.float32
+
+
+@pytest.mark.parametrize("dtype", [torch.bool, torch.complex64])
+def test_rollout_and_params_refuse_booleans_and_complex_numbers(dtype):
+    p = _torch_params()
+    with pytest.raises(ValueError, match=f"DMPParams.g has dtype {dtype}"):
+        DMPParams(p.w, p.tau, p.g.to(dtype), p.y0)
+    p.g = p.g.to(dtype)
+    with pytest.raises(ValueError, match=f"DMPParams.g has dtype {dtype}"):
+        rollout(p, T, validate=False)
+
+
+def test_rollout_refuses_time_stamps_that_are_not_numbers():
+    with pytest.raises(ValueError, match="t must"):
+        rollout(_torch_params(), ["0", "1"])
+    with pytest.raises(ValueError, match="t must hold real time stamps"):
+        rollout(_torch_params(), torch.tensor([False, True]))
+    with pytest.raises(TypeError, match="rollout needs a DMPParams, got Tensor"):
+        rollout(torch.zeros(55), T)
+
+
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"tau": True}, "DMPParams.tau must be a number, got the boolean True"),
+        ({"tau": np.bool_(True)}, "DMPParams.tau must be a number, got the boolean"),
+        ({"g": ["1", "2"]}, "DMPParams.g must be a number or a list of numbers, got \"1\""),
+        ({"g": [1.0, True]}, "DMPParams.g must be .*got true"),
+        ({"tau": np.array([1.0, -1.0, 2.0]), "w": np.zeros((3, 25, 2)), "g": np.zeros((3, 2)),
+          "y0": np.zeros((3, 2))}, r"tau must be > 0 .*got -1.0 at index \[1\]"),
+        ({"w": np.array([[np.inf, 0.0]] * 25)}, r"w contains NaN or inf, got inf at index \[0, 0"),
+        ({"tau": "1.0"}, "DMPParams.tau must be an array or tensor, got str \"1.0\""),
+    ],
+    ids=["bool", "numpy-bool", "text-list", "bool-in-list", "tau-negative-row", "inf", "text"],
+)  # fmt: skip
+def test_dmp_params_name_the_field_and_the_value(fields, message):
+    base = {"w": np.zeros((25, 2)), "tau": 1.0, "g": np.ones(2), "y0": np.zeros(2)}
+    with pytest.raises(ValueError, match=message) as e:
+        DMPParams(**{**base, **fields})
+    _one_line(e)
+
+
+def test_from_dict_is_strict_and_round_trips():
+    p = DMPParams(np.zeros((25, 2)), 1.5, [1.0, 2.0], [0.0, 0.0])
+    assert DMPParams.from_dict(p.to_dict()).to_dict() == p.to_dict()
+    with pytest.raises(ValueError, match="field 'tau' must be a number .*got true"):
+        DMPParams.from_dict({**p.to_dict(), "tau": True})
+    with pytest.raises(ValueError, match=r"'w' has shape \[25, 2\], expected \[25, 3\]"):
+        DMPParams.from_dict(p.to_dict(), config=DMPConfig(n_dims=3), batch_shape=())
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("n_dims", True, "n_dims must be an integer >= 1, got True"),
+        ("n_kernels", False, "n_kernels must be an integer >= 2, got False"),
+        ("alpha_z", "48", "alpha_z must be a number > 0, got '48'"),
+        ("alpha_x", b"2", "alpha_x must be a number > 0, got b'2'"),
+        ("width_factor", True, "width_factor must be a number > 0, got True"),
+    ],
+)
+def test_dmp_constants_refuse_booleans_and_text(field, value, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        DMPConfig(**{field: value})
