@@ -50,7 +50,11 @@ from .metrics import (  # noqa: F401  (arc_fractions, points_at_fractions: re-ex
     width_ratio,
 )
 from .nn.costs import trajectory_error_px
-from .predict import Predictor
+from .predict import MAX_BATCH_SIZE, MAX_REFINE_STEPS, Predictor, check_count
+
+#: Most samples drawn in ``examples.png`` (``--figures``): the most one grid holds
+#: (:data:`img2dmp.data.plotting.MAX_GRID_CELLS`, not imported here: matplotlib).
+MAX_FIGURES = 1000
 
 
 def error_statistics(errors_px) -> dict:
@@ -344,7 +348,8 @@ def evaluate(
     out_dir : path, optional
         Where to write ``evaluation.json``, ``evaluation.txt`` and ``examples.png``.
     n_figures : int
-        Samples drawn in ``examples.png`` (chosen at random with ``seed``; 0 = none).
+        Samples drawn in ``examples.png`` (chosen at random with ``seed``; 0 = none), at
+        most ``MAX_FIGURES``.
     digits : list of int, optional
         Keep only these labels.
     refine : int
@@ -361,6 +366,10 @@ def evaluate(
         per-sample lists; ``best_of_k`` for K > 1 hypotheses).
     """
     t0 = time.perf_counter()
+    # Checked before anything slow: each bounds work or memory.
+    n_figures = check_count("n_figures (--figures)", n_figures, 0, MAX_FIGURES)
+    batch_size = check_count("batch_size", batch_size, 1, MAX_BATCH_SIZE)
+    refine = check_count("refine (--refine)", refine, 0, MAX_REFINE_STEPS)
     predictor = _load_predictor(model_path)
     if refine:
         from .nn.refine import RefineOptions

@@ -17,6 +17,7 @@ and training's validation use too.
 from __future__ import annotations
 
 import json
+import numbers
 import os
 from pathlib import Path
 
@@ -47,6 +48,21 @@ from .nn.refine import RefineOptions, refine
 
 #: Instants over a DMP's duration at which refinement compares its path with the ink.
 REFINE_POINTS = 100
+#: Most refinement steps per prediction (``--refine``; 30 is the default of refine).
+MAX_REFINE_STEPS = 10_000
+#: Largest batch the network is run on at once.
+MAX_BATCH_SIZE = 1 << 20
+#: Most samples of one trajectory (``n_points``, ``img2dmp predict --points``): a record
+#: holds them as JSON text, about 60 bytes a sample and hypothesis.
+MAX_POINTS = 100_000
+
+
+def check_count(name: str, value, lo: int, hi: int) -> int:
+    """``value`` as an int if it is a whole number in ``[lo, hi]``, else ``ValueError``
+    naming ``name``, the value and the range."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or not lo <= value <= hi:
+        raise ValueError(f"{name} must be a whole number in [{lo}, {hi}], got {value!r}")
+    return int(value)
 
 
 class Predictor:
@@ -87,6 +103,7 @@ class Predictor:
         o = self.refine_options
         if o is None or o.steps == 0:
             return z
+        check_count("refine steps (--refine)", o.steps, 0, MAX_REFINE_STEPS)
         tau = self.normaliser.denormalise_vector(z.detach().double())[:, self.normaliser.tau_index]
         t = tau[:, None] * torch.linspace(0.0, 1.0, REFINE_POINTS, dtype=torch.float64)
         return refine(z, x, t, self.normaliser, self.dmp_config, o).to(z.dtype)
@@ -145,6 +162,7 @@ class Predictor:
 
     def _outputs(self, images, batch_size: int):
         """Checked images ``x [B, H, W]``, the hypotheses ``z [B, K, P]`` and their scores."""
+        check_count("batch_size", batch_size, 1, MAX_BATCH_SIZE)
         x = self._check_images(images)
         z, logits = split_hypotheses(network_outputs(self.model, x, batch_size), self.n_hypotheses)
         return x, z, logits
@@ -240,14 +258,19 @@ class Predictor:
             Batch shape ``[*batch]``.
         times : array [*batch, T] or [T], optional
             Seconds from the start; default ``n_points`` evenly spaced over ``[0, tau]``.
+        n_points : int
+            In ``[2, MAX_POINTS]`` (``ValueError`` naming the value otherwise).
 
         Returns
         -------
         times : ndarray [*batch, T]
         y : ndarray [*batch, T, d]
         """
+        if not isinstance(params, DMPParams):
+            raise ValueError(f"params must be a DMPParams, got {type(params).__name__}")
         p = params.to_torch(torch.float64)
         if times is None:
+            n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
             u = torch.linspace(0.0, 1.0, n_points, dtype=torch.float64)
             t = p.tau[..., None] * u  # [*batch, T]
         else:
@@ -260,6 +283,7 @@ class Predictor:
         """The network's DMP trajectories ``[B, T, d]`` at given time stamps ``[B, T]``
         (seconds, each row shifted to start at 0; :func:`img2dmp.nn.dmp_trajectories`,
         training's validation), the top hypothesis, refined on its image if asked."""
+        check_count("batch_size", batch_size, 1, MAX_BATCH_SIZE)
         x = self._check_images(images)
         t = torch.as_tensor(np.asarray(times), dtype=torch.float32)  # [B, T], like training
         if self.refine_options is None:
@@ -353,7 +377,11 @@ def write_prediction(
 __all__ = [
     "DEFAULT_MARGIN",
     "INK_THRESHOLD",
+    "MAX_BATCH_SIZE",
+    "MAX_POINTS",
+    "MAX_REFINE_STEPS",
     "Predictor",
+    "check_count",
     "hypothesis_record",
     "ink_margin",
     "prediction_record",

@@ -11,12 +11,20 @@ sees it.
   prepared (training) images, stored with a model so :func:`prepare_image` can match them.
 - :func:`stroke_width` - the pen width of one image.
 
+Work and memory are linear in the image's size: a photo of more than
+``MAX_WORK_PIXELS`` is reduced (area average) as it is read, and the ink's crop is
+reduced to ``WORK_PER_OUTPUT_PX`` working pixels per output pixel before its pen width
+is matched, so a 24-megapixel photo takes about a second and ~0.2 GB.
+
 No torch here: training, prediction and data preparation all use this module.
 """
 
 from __future__ import annotations
 
+import math
+import numbers
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +36,20 @@ import numpy as np
 DEFAULT_MARGIN = 0.175
 # A pixel counts as ink for the bounding box when it is above this share of the range.
 INK_THRESHOLD = 0.2
+# Image preparation works on at most this many pixels: a larger image is reduced by an
+# integer factor (area average) right after it is read.
+MAX_WORK_PIXELS = 4_000_000
+# The ink's crop is reduced to about this many pixels per output pixel (per side) before
+# the pen width is matched and the image framed: the disc of a grey dilation is then at
+# most a few pixels wide, whatever the photo's resolution.
+WORK_PER_OUTPUT_PX = 4
+# Sides of a prepared image, pixels.
+OUTPUT_SIDE_PX = (2, 1024)
+# stroke_width enlarges an image to at most this many pixels.
+_MAX_UPSAMPLED_PIXELS = 4_000_000
+# A grey dilation or erosion compares at most about this many pixel pairs (~0.5 s); a
+# wider disc is applied at a coarser resolution.
+_MAX_MORPHOLOGY_OPS = 2e8
 
 
 def ink_margin(images: np.ndarray) -> float:
@@ -60,6 +82,8 @@ def stroke_width(image: np.ndarray, upsample: int = 4) -> float:
     top = float(a.max()) if a.size else 0.0
     if top <= 0:
         return 0.0
+    # Enlarging a big image would only cost memory: its strokes span pixels already.
+    upsample = max(1, min(int(upsample), math.isqrt(_MAX_UPSAMPLED_PIXELS // a.size)))
     big = Image.fromarray(a / top, mode="F").resize(
         (a.shape[1] * upsample, a.shape[0] * upsample), Image.Resampling.BILINEAR
     )
@@ -75,29 +99,93 @@ def typical_stroke_width(images: np.ndarray, limit: int = 500) -> float:
     return float(np.median(widths)) if widths else 0.0
 
 
-def _match_stroke_width(crop: np.ndarray, scale: float, target_px: float) -> np.ndarray:
+def _reduce(a: np.ndarray, factor: int, how: str = "mean") -> np.ndarray:
+    """``a [H, W]`` reduced ``factor`` times on each side: the mean of every block of
+    ``factor x factor`` pixels (area average; blocks cut by the border are averaged over
+    their pixels) or, with ``how="max"``, its maximum (blocks padded with 0)."""
+    from PIL import Image
+
+    if factor <= 1:
+        return a
+    if how == "mean":
+        return np.asarray(Image.fromarray(a.astype(np.float32), mode="F").reduce(factor), float)
+    h, w = (-(-n // factor) * factor for n in a.shape)
+    padded = np.zeros((h, w), dtype=a.dtype)
+    padded[: a.shape[0], : a.shape[1]] = a
+    return padded.reshape(h // factor, factor, w // factor, factor).max(axis=(1, 3))
+
+
+def _work_factor(crop: np.ndarray, margin: float, out_side: int) -> int:
+    """The integer reduction that leaves about ``WORK_PER_OUTPUT_PX`` crop pixels per
+    output pixel (1: the crop is small enough)."""
+    side = max(crop.shape) / (1.0 - 2.0 * margin)
+    return max(1, math.ceil(side / (WORK_PER_OUTPUT_PX * out_side)))
+
+
+def _match_stroke_width(
+    crop: np.ndarray, scale: float, target_px: float, factor: int = 1
+) -> np.ndarray:
     """Thicken or thin the ink of ``crop`` so that it is ``target_px`` wide after resizing.
 
-    ``scale`` is output pixels per crop pixel. Grey-level dilation (erosion) with a disc
-    widens (narrows) every stroke by twice the disc's radius and keeps its ink profile.
+    ``scale`` is output pixels per crop pixel. The crop is first reduced ``factor`` times
+    (:func:`_work_factor`): by area average, or, when the strokes are to be thickened,
+    by the maximum of each block, so that a hairline keeps its ink (the dilation would
+    spread it anyway). Grey-level dilation (erosion) with a disc then widens (narrows)
+    every stroke by twice the disc's radius and keeps its ink profile. Returns the crop
+    at the reduced resolution.
     """
     from scipy.ndimage import grey_dilation, grey_erosion
 
+    work, scale = _reduce(crop, factor), scale * factor
     # A crop is the ink's bounding box: a border of background lets the width measure see
     # the strokes' edges (a crisp bar filling its box would otherwise measure as huge).
-    width_out = stroke_width(np.pad(crop, 1), upsample=1 if scale < 0.5 else 4) * scale
+    upsample = 1 if scale < 0.5 and factor == 1 else 4
+    width_out = stroke_width(np.pad(work, 1), upsample=upsample) * scale
     if width_out <= 0 or abs(width_out - target_px) < 0.25:
-        return crop
-    radius = abs(target_px - width_out) / 2.0 / scale  # in crop pixels
+        return work
+    if width_out < target_px and factor > 1:
+        work = _reduce(crop, factor, "max")
+        width_out = stroke_width(np.pad(work, 1), upsample=upsample) * scale
+    radius = abs(target_px - width_out) / 2.0 / scale  # in work pixels
     if width_out > target_px:  # never erode a stroke away: keep at least half its width
         radius = min(radius, width_out / scale / 4.0)
+    ops = (work.shape[0] + 2 * radius) * (work.shape[1] + 2 * radius) * math.pi * radius**2
+    coarser = math.ceil((ops / _MAX_MORPHOLOGY_OPS) ** 0.25)
+    if coarser > 1:  # work and disc both shrink with its square
+        work = _reduce(work, coarser, "max" if width_out < target_px else "mean")
+        radius /= coarser
     r = int(np.ceil(radius))
     if r < 1:
-        return crop
+        return work
     yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
     disc = (xx**2 + yy**2) <= radius**2 + 1e-9
     op = grey_dilation if width_out < target_px else grey_erosion
-    return op(np.pad(crop, r), footprint=disc)
+    return op(np.pad(work, r), footprint=disc)
+
+
+class ImageTooLargeError(ValueError):
+    """An image file with more pixels than PIL's decompression-bomb limit."""
+
+
+def _open_reduced(im, path: Path):
+    """A loaded PIL image of at most ``MAX_WORK_PIXELS`` (JPEG: decoded at a reduced
+    scale), and the further integer reduction it needs; ``ValueError`` for an image
+    beyond PIL's decompression-bomb limit."""
+    from PIL import Image
+
+    w, h = im.size
+    limit = Image.MAX_IMAGE_PIXELS
+    if limit is not None and w * h > limit:
+        raise ImageTooLargeError(
+            f"image file {path} has {w} x {h} = {w * h} pixels, more than the {limit} "
+            "an image may have (PIL.Image.MAX_IMAGE_PIXELS)"
+        )
+    factor = math.ceil(math.sqrt(w * h / MAX_WORK_PIXELS))
+    if factor > 1:
+        im.draft(None, (max(1, w // factor), max(1, h // factor)))  # JPEG only
+    im.load()
+    w, h = im.size
+    return im, max(1, math.ceil(math.sqrt(w * h / MAX_WORK_PIXELS)))
 
 
 def _decode(path: Path) -> np.ndarray:
@@ -107,13 +195,24 @@ def _decode(path: Path) -> np.ndarray:
     if not path.is_file():
         raise FileNotFoundError(f"image file {path} does not exist")
     try:
-        with Image.open(path) as im:
-            im.load()
+        with warnings.catch_warnings():  # the size is checked below, with a clear error
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            im = Image.open(path)
+        with im:
+            im, factor = _open_reduced(im, path)
             if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
                 rgba = im.convert("RGBA")
                 bg = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
                 im = Image.alpha_composite(bg, rgba)
+            if factor > 1:  # 8-bit images reduce as 8 bits: a quarter of the memory
+                wide = im.mode.startswith("I") or im.mode == "F"  # more than 8 bits
+                im = im.convert("F" if wide else "L")
+                im = im.reduce(factor)
             grey = np.asarray(im.convert("F"), dtype=np.float64)
+    except ImageTooLargeError:
+        raise
+    except Image.DecompressionBombError as e:
+        raise ImageTooLargeError(f"image file {path} is refused as too large: {e}") from e
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as e:
         raise ValueError(f"cannot decode image file {path}: {e}") from e
     if grey.ndim != 2 or min(grey.shape) < 2:
@@ -127,11 +226,15 @@ def _grey_levels(source, name: str | None) -> tuple[np.ndarray, str]:
     if isinstance(source, (str, os.PathLike)):
         return _decode(Path(source)), str(source)
     label = name or "image array"
-    grey = np.asarray(source, dtype=np.float64)
-    if grey.ndim != 2:
+    grey = np.asarray(source)
+    if grey.dtype.kind not in "buif":
+        raise ValueError(f"{label} must hold numbers, got dtype {grey.dtype}")
+    if grey.ndim != 2 or min(grey.shape) < 2:
         raise ValueError(f"{label} must be a 2-D grey-level array, got shape {grey.shape}")
     if not np.isfinite(grey).all():
         raise ValueError(f"{label} contains NaN or inf")
+    factor = math.ceil(math.sqrt(grey.size / MAX_WORK_PIXELS))
+    grey = _reduce(grey, factor) if factor > 1 else grey.astype(np.float64)
     if grey.max() > 1.0:
         grey = grey / 255.0
     return grey, label
@@ -234,24 +337,61 @@ def prepare_image(
     ndarray float32 [H, W]
         Ink = 1, background = 0.
     """
-    grey, label = _grey_levels(source, name)
-    if not 0 <= margin <= 0.45:
+    h_out, w_out = _output_size(image_size)
+    if not (isinstance(margin, numbers.Real) and 0 <= margin <= 0.45):
         raise ValueError(f"margin must be in [0, 0.45], got {margin!r}")
-    if stroke_width_px is not None and not (np.isfinite(stroke_width_px) and stroke_width_px > 0):
-        raise ValueError(f"stroke_width_px must be a positive number, got {stroke_width_px!r}")
-    h_out, w_out = (int(s) for s in image_size)
+    widest = max(h_out, w_out) / 4.0
+    if stroke_width_px is not None and not (
+        isinstance(stroke_width_px, numbers.Real)
+        and np.isfinite(stroke_width_px)
+        and 0 < stroke_width_px <= widest
+    ):
+        raise ValueError(
+            f"stroke_width_px must be a number in (0, {widest:g}] (a quarter of the "
+            f"image's side), got {stroke_width_px!r}"
+        )
+    grey, label = _grey_levels(source, name)
     crop = _crop_to_ink(_ink_levels(grey, label), label)
+    factor = _work_factor(crop, margin, max(h_out, w_out))
     if stroke_width_px is not None:
         # The pen width is matched at the output's scale, which the framing fixes.
         side = max(crop.shape) / (1.0 - 2.0 * margin)
-        crop = _match_stroke_width(crop, max(h_out, w_out) / side, float(stroke_width_px))
+        scale = max(h_out, w_out) / side
+        crop = _match_stroke_width(crop, scale, float(stroke_width_px), factor)
         crop = _crop_to_ink(crop, label)  # the widened ink may reach past the old box
+    else:
+        crop = _reduce(crop, factor)
     return _frame(crop, (h_out, w_out), margin)
+
+
+def _output_size(image_size) -> tuple[int, int]:
+    """``(H, W)`` of a prepared image, each in ``OUTPUT_SIDE_PX``, else ``ValueError``."""
+    lo, hi = OUTPUT_SIDE_PX
+    try:
+        h, w = image_size
+        ok = all(
+            isinstance(v, numbers.Real)
+            and not isinstance(v, bool)
+            and lo <= v <= hi
+            and int(v) == v
+            for v in (h, w)
+        )
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(
+            f"image_size must be two integers (H, W) in [{lo}, {hi}], got {image_size!r}"
+        )
+    return int(h), int(w)
 
 
 __all__ = [
     "DEFAULT_MARGIN",
     "INK_THRESHOLD",
+    "ImageTooLargeError",
+    "MAX_WORK_PIXELS",
+    "OUTPUT_SIDE_PX",
+    "WORK_PER_OUTPUT_PX",
     "ink_margin",
     "prepare_image",
     "stroke_width",

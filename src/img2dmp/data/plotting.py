@@ -14,6 +14,7 @@ a pen channel (``d = 3``) are drawn only where the pen is down.
 from __future__ import annotations
 
 import math
+import numbers
 import os
 from pathlib import Path
 
@@ -35,6 +36,45 @@ _STYLES = (
 )
 _MARKS = "0.35"  # grey of the "start" and "direction" legend entries
 _FONT = 7  # points, titles and legend
+#: Most images one grid draws (matplotlib takes ~55 ms a cell: about a minute).
+MAX_GRID_CELLS = 1000
+#: Largest figure drawn, in pixels (width x height); matplotlib's own limit is 2^16 a side.
+MAX_FIGURE_PIXELS = 100_000_000
+_MAX_FIGURE_SIDE_PX = (1 << 16) - 1
+
+
+def check_grid_size(n_images: int, what: str = "images") -> int:
+    """``n_images`` if one grid can draw that many, else ``ValueError`` naming ``what``,
+    the number and the limit ``MAX_GRID_CELLS``. For callers to check before they make
+    the images."""
+    if isinstance(n_images, bool) or not isinstance(n_images, numbers.Integral):
+        raise ValueError(f"{what} must be a whole number, got {n_images!r}")
+    if not 0 <= n_images <= MAX_GRID_CELLS:
+        raise ValueError(f"{what} = {n_images}: one grid draws 0 to {MAX_GRID_CELLS} images")
+    return int(n_images)
+
+
+def check_figure_size(width_in: float, height_in: float, dpi: float) -> None:
+    """``ValueError`` unless a figure of ``width_in x height_in`` inches at ``dpi`` has
+    positive finite sides, at most ``MAX_FIGURE_PIXELS`` pixels and under 2^16 a side."""
+    for name, v in (
+        ("dpi", dpi),
+        ("figure width (in)", width_in),
+        ("figure height (in)", height_in),
+    ):
+        if (
+            isinstance(v, bool)
+            or not isinstance(v, numbers.Real)
+            or not (math.isfinite(v) and v > 0)
+        ):
+            raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+    w, h = width_in * dpi, height_in * dpi
+    if w > _MAX_FIGURE_SIDE_PX or h > _MAX_FIGURE_SIDE_PX or w * h > MAX_FIGURE_PIXELS:
+        raise ValueError(
+            f"a figure of {w:.0f} x {h:.0f} px ({width_in:.3g} x {height_in:.3g} in at dpi "
+            f"{dpi:g}) is too large: at most {MAX_FIGURE_PIXELS // 10**6} megapixels and "
+            f"{_MAX_FIGURE_SIDE_PX} px a side; draw fewer or smaller cells, or lower the dpi"
+        )
 
 
 def _pen_down_xy(path: np.ndarray) -> np.ndarray:
@@ -153,6 +193,7 @@ def _check_grid_inputs(images, paths, second_paths, titles, ncols, labels) -> np
     m = images.shape[0]
     if m == 0:
         raise ValueError("images is empty: nothing to plot")
+    check_grid_size(m)
     if not isinstance(ncols, int) or ncols < 1:
         raise ValueError(f"ncols must be an integer >= 1, got {ncols!r}")
     for name, p in (("paths", paths), ("second_paths", second_paths)):
@@ -177,6 +218,7 @@ def plot_grid(
     labels: tuple[str, str] = DEFAULT_LABELS,
     direction_arrow: bool = True,
     legend: bool = True,
+    dpi: float | None = None,
 ):
     """A grid of grey images with paths over them; returns the matplotlib Figure.
 
@@ -205,11 +247,19 @@ def plot_grid(
     legend : bool
         One legend for the whole figure, above the grid, naming the drawn paths (and the
         start dot and arrowhead); only drawn if there is a path.
+    dpi : float, optional
+        Resolution the figure will be saved at (default matplotlib's ``figure.dpi``): the
+        figure's size in pixels is checked against ``MAX_FIGURE_PIXELS`` before drawing.
+
+    At most ``MAX_GRID_CELLS`` images; ``ValueError`` otherwise.
     """
     images = _check_grid_inputs(images, paths, second_paths, titles, ncols, labels)
     m = images.shape[0]
     ncols = min(ncols, m)
     nrows = math.ceil(m / ncols)
+    dpi = plt.rcParams["figure.dpi"] if dpi is None else dpi
+    # The legend band and titles add well under an inch.
+    check_figure_size(cell_inches * ncols, cell_inches * nrows + 1.0, dpi)
     fig, axes = plt.subplots(
         nrows, ncols, figsize=(cell_inches * ncols, cell_inches * nrows), squeeze=False
     )
@@ -241,7 +291,7 @@ def save_grid(path: str | os.PathLike, *args, dpi: int = 100, **kwargs) -> Path:
 
     The file is PNG whatever the suffix of ``path``.
     """
-    return save_figure(plot_grid(*args, **kwargs), path, dpi=dpi)
+    return save_figure(plot_grid(*args, dpi=dpi, **kwargs), path, dpi=dpi)
 
 
 def overlay_figure(
@@ -270,11 +320,21 @@ def overlay_figure(
         ncols=ncols,
         cell_inches=cell_inches,
         labels=labels,
+        dpi=dpi,
     )
     return save_figure(fig, path, dpi=dpi)
 
 
-__all__ = ["DEFAULT_LABELS", "overlay_figure", "plot_grid", "save_grid"]
+__all__ = [
+    "DEFAULT_LABELS",
+    "MAX_FIGURE_PIXELS",
+    "MAX_GRID_CELLS",
+    "check_figure_size",
+    "check_grid_size",
+    "overlay_figure",
+    "plot_grid",
+    "save_grid",
+]
 
 
 #: Colours of ranked hypotheses (rank 1 first); more hypotheses cycle through them.
@@ -292,6 +352,13 @@ def hypotheses_figure(
 ) -> Path:
     """One image with its K ranked predicted paths: the top one bold, the others thin, each
     with its start dot and direction arrow; the legend gives each rank's probability."""
+    check_figure_size(cell_inches, cell_inches + 1.0, dpi)
+    paths = np.asarray(paths)
+    if paths.ndim != 3 or len(probs) != len(paths) or not 1 <= len(paths) <= MAX_GRID_CELLS:
+        raise ValueError(
+            f"paths must be [K, T, d] with 1 <= K <= {MAX_GRID_CELLS} and one probability "
+            f"each, got shape {paths.shape} and {len(probs)} probabilities"
+        )
     fig, ax = plt.subplots(figsize=(cell_inches, cell_inches))
     ax.set_axis_off()
     _draw_cell(ax, np.asarray(image), [], True, 0.0)  # the image, framed as every cell

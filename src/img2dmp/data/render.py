@@ -31,17 +31,25 @@ from ..config import check_positive
 _MAX_ELEMENTS = 1 << 20
 # Points along a segment are at most this many sigmas apart (ripple of the sum ~1e-8).
 _MAX_SPACING_SIGMAS = 1.0
+# Largest side of a rendered image, pixels.
+MAX_IMAGE_SIDE = 4096
+# Most footprints along one path (the points and the sub-points of its segments): a
+# segment far outside the image would otherwise be cut into millions of sub-points.
+MAX_FOOTPRINTS_PER_PATH = 1_000_000
 
 
 def _size2(size) -> tuple[int, int]:
+    bad = ValueError(
+        f"image size must be positive integers (H, W) of at most {MAX_IMAGE_SIDE} px, got {size!r}"
+    )
     if isinstance(size, (int, np.integer)):
         size = (int(size), int(size))
     try:
         h, w = (int(s) for s in size)
     except (TypeError, ValueError):
-        raise ValueError(f"image size must be positive integers (H, W), got {size!r}") from None
-    if h < 1 or w < 1 or tuple(size) != (h, w):
-        raise ValueError(f"image size must be positive integers (H, W), got {size!r}")
+        raise bad from None
+    if not (1 <= h <= MAX_IMAGE_SIDE and 1 <= w <= MAX_IMAGE_SIDE) or tuple(size) != (h, w):
+        raise bad
     return h, w
 
 
@@ -88,6 +96,37 @@ def render_paths(
     h, w = _size2(image_size)
     check_positive("pen_width_px", pen_width_px)
     check_positive("edge_sigma_px", edge_sigma_px)
+    pts, pen, batch = _points_and_pen(points, pen_down)
+    sigma = max(float(edge_sigma_px), pen_width_px / 8.0)
+    gain = 0.5 * math.exp(pen_width_px**2 / (8.0 * sigma**2))  # A: half ink at r = w / 2
+    seg_len = torch.linalg.vector_norm(pts[:, 1:] - pts[:, :-1], dim=-1)  # [B, T-1]
+    drawn = pen[:, 1:] & pen[:, :-1] & (seg_len > 0)  # [B, T-1] segments on paper
+    longest = float(seg_len[drawn].max()) if bool(drawn.any()) else 0.0
+    # Beyond this distance A * exp(-r^2 / (2 sigma^2)) < 1e-3: footprints are cut there.
+    reach = sigma * math.sqrt(2.0 * math.log(1000.0 * max(gain, 1.0)))
+    n_sub = max(1, math.ceil(longest / (_MAX_SPACING_SIGMAS * sigma)))
+    footprints = (pts.shape[1] - 1) * n_sub + 1
+    if footprints > MAX_FOOTPRINTS_PER_PATH:
+        raise ValueError(
+            f"points: paths of {pts.shape[1]} points with a drawn segment {longest:.4g} px "
+            f"long need {footprints} footprints each, more than {MAX_FOOTPRINTS_PER_PATH}; "
+            f"are points far outside the {h} x {w} image?"
+        )
+    out = torch.empty(pts.shape[0], h, w, dtype=torch.float32)
+    per_sample = footprints * (h + w)
+    chunk = max(1, _MAX_ELEMENTS // per_sample)
+    for lo in range(0, pts.shape[0], chunk):
+        sl = slice(lo, lo + chunk)
+        q, wt = _footprints(pts[sl], pen[sl], drawn[sl], seg_len[sl], n_sub, sigma)
+        gx = _footprint_1d(q[..., 0], w, sigma, reach)  # [b, T', W]
+        gy = _footprint_1d(q[..., 1], h, sigma, reach)  # [b, T', H]
+        img = torch.bmm(gy.transpose(1, 2), wt[..., None] * gx)  # [b, H, W]
+        out[sl] = (img * (gain / (math.sqrt(2.0 * math.pi) * sigma))).clamp_(0.0, 1.0)
+    return out.reshape(*batch, h, w)
+
+
+def _points_and_pen(points, pen_down) -> tuple[torch.Tensor, torch.Tensor, tuple]:
+    """Checked points ``[B, T, 2]``, pen states ``[B, T]`` and the batch shape."""
     pts = _tensor(points).to(torch.float32)
     if pts.ndim < 2 or pts.shape[-1] not in (2, 3):
         raise ValueError(f"points must have shape [*batch, T, 2 or 3], got {tuple(pts.shape)}")
@@ -109,27 +148,7 @@ def render_paths(
             )
     if not bool(torch.isfinite(pts).all()):
         raise ValueError("points contain NaN or inf")
-    pts = pts.reshape(-1, *pts.shape[-2:])  # [B, T, 2]
-    pen = pen.reshape(-1, pen.shape[-1])  # [B, T]
-    sigma = max(float(edge_sigma_px), pen_width_px / 8.0)
-    gain = 0.5 * math.exp(pen_width_px**2 / (8.0 * sigma**2))  # A: half ink at r = w / 2
-    seg_len = torch.linalg.vector_norm(pts[:, 1:] - pts[:, :-1], dim=-1)  # [B, T-1]
-    drawn = pen[:, 1:] & pen[:, :-1] & (seg_len > 0)  # [B, T-1] segments on paper
-    longest = float(seg_len[drawn].max()) if bool(drawn.any()) else 0.0
-    # Beyond this distance A * exp(-r^2 / (2 sigma^2)) < 1e-3: footprints are cut there.
-    reach = sigma * math.sqrt(2.0 * math.log(1000.0 * max(gain, 1.0)))
-    n_sub = max(1, math.ceil(longest / (_MAX_SPACING_SIGMAS * sigma)))
-    out = torch.empty(pts.shape[0], h, w, dtype=torch.float32)
-    per_sample = ((pts.shape[1] - 1) * n_sub + 1) * (h + w)
-    chunk = max(1, _MAX_ELEMENTS // per_sample)
-    for lo in range(0, pts.shape[0], chunk):
-        sl = slice(lo, lo + chunk)
-        q, wt = _footprints(pts[sl], pen[sl], drawn[sl], seg_len[sl], n_sub, sigma)
-        gx = _footprint_1d(q[..., 0], w, sigma, reach)  # [b, T', W]
-        gy = _footprint_1d(q[..., 1], h, sigma, reach)  # [b, T', H]
-        img = torch.bmm(gy.transpose(1, 2), wt[..., None] * gx)  # [b, H, W]
-        out[sl] = (img * (gain / (math.sqrt(2.0 * math.pi) * sigma))).clamp_(0.0, 1.0)
-    return out.reshape(*batch, h, w)
+    return pts.reshape(-1, *pts.shape[-2:]), pen.reshape(-1, pen.shape[-1]), batch
 
 
 def _footprint_1d(c: torch.Tensor, n: int, sigma: float, reach: float) -> torch.Tensor:
@@ -209,6 +228,11 @@ def gaussian_filter(images, sigma_px: float) -> torch.Tensor:
     x = _tensor(images).to(torch.float32)
     if x.ndim < 2:
         raise ValueError(f"images must have shape [*batch, H, W], got {tuple(x.shape)}")
+    widest = 4 * max(x.shape[-2:])
+    if sigma_px > widest:  # the kernel's length grows with it
+        raise ValueError(
+            f"sigma_px must be in [0, {widest}] (4 times the image's side), got {sigma_px!r}"
+        )
     if sigma_px == 0:
         return x.clone()
     ky = _gaussian_matrix(x.shape[-2], sigma_px)  # [H, H]

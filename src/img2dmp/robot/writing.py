@@ -2,10 +2,12 @@
 
 The sequence of :func:`write_dmp`:
 
-1. **Plan and check** (before anything moves): integrate the DMP at the control rate,
-   map every point from image pixels to the paper (:class:`PaperMapping`), and raise
-   ``ValueError`` if a point leaves the sheet or the arm cannot reach it with the pen
-   vertical (inverse kinematics along the whole path, within joint limits).
+1. **Plan and check** (before anything moves): check the DMP and the settings
+   (:func:`checked_dmp`, :class:`WritingOptions`: finite numbers, a duration and a video
+   of bounded size), sample its exact path (:func:`img2dmp.dmp.rollout`) at the control
+   rate, map every point from image pixels to the paper (:class:`PaperMapping`), and
+   raise ``ValueError`` if a point leaves the sheet or the arm cannot reach it with the
+   pen vertical (inverse kinematics along the whole path, within joint limits).
 2. **Approach** (:meth:`WritingRun.approach`): the arm starts at rest with the tip
    ``lift_height_m`` above the first point; the admittance law lowers the pen until it
    presses with the set force.
@@ -21,14 +23,16 @@ pen-down time of phase 3.
 from __future__ import annotations
 
 import math
+import numbers
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, fields
 
 import numpy as np
+import torch
 
 from ..config import check_positive
-from ..dmp import DMPConfig, DMPIntegrator, DMPParams
+from ..dmp import DMPConfig, DMPIntegrator, DMPParams, rollout
 from .controller import ControllerConfig, WritingController
 from .scene import HOME_JOINTS_RAD, SceneConfig, WritingScene
 
@@ -41,6 +45,42 @@ IK_TOLERANCE_M = 1e-4
 SETTLE_BAND = 0.05
 # Steps between two calls of the progress callback (0.1 s at 240 Hz).
 PROGRESS_EVERY_STEPS = 24
+# The longest write phase, in control steps (17 min at 240 Hz): the plan, the log and
+# the simulation all grow with it.
+MAX_WRITING_STEPS = 250_000
+# Bounds of the camera pictures: each side of a frame or render, and all video frames.
+IMAGE_SIDE_PX = (16, 4096)
+MAX_VIDEO_BYTES = 1 << 30
+# The longest approach before giving up, seconds of simulated time.
+MAX_APPROACH_TIMEOUT_S = 600.0
+
+
+def _is_finite(v) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _image_size(size) -> tuple[int, int]:
+    """``(H, W)`` as two positive integers, else ``ValueError`` naming the value."""
+    try:
+        h, w = size
+        ok = all(_is_finite(v) and int(v) == v and v > 0 for v in (h, w))
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"image_size must be two positive integers (H, W), got {size!r}")
+    return int(h), int(w)
+
+
+def _side_pair(name: str, size) -> tuple[int, int]:
+    """A picture size ``(w, h)`` with both sides in ``IMAGE_SIDE_PX``."""
+    lo, hi = IMAGE_SIDE_PX
+    try:
+        ok = len(size) == 2 and all(_is_finite(v) and int(v) == v and lo <= v <= hi for v in size)
+    except TypeError:
+        ok = False
+    if not ok:
+        raise ValueError(f"{name} must be two integers (w, h) in [{lo}, {hi}] px, got {size!r}")
+    return int(size[0]), int(size[1])
 
 
 @dataclass(frozen=True)
@@ -67,10 +107,10 @@ class PaperMapping:
     center_m: tuple[float, float] = (0.55, 0.0)
 
     def __post_init__(self) -> None:
-        h, w = self.image_size
-        if not (int(h) == h and int(w) == w and h > 0 and w > 0):
-            raise ValueError(f"image_size must be two positive integers, got {self.image_size}")
+        object.__setattr__(self, "image_size", _image_size(self.image_size))
         check_positive("writing_height_mm", self.writing_height_mm)
+        if not (len(self.center_m) == 2 and all(_is_finite(v) for v in self.center_m)):
+            raise ValueError(f"center_m must be two finite numbers (x, y), got {self.center_m!r}")
 
     @property
     def metres_per_px(self) -> float:
@@ -144,10 +184,47 @@ class WritingOptions:
 
     def __post_init__(self) -> None:
         rate = self.control_rate_hz
-        if not (math.isfinite(rate) and 100.0 <= rate <= 10000.0):
+        if not (_is_finite(rate) and 100.0 <= rate <= 10000.0):
             raise ValueError(f"control_rate_hz must be in [100, 10000], got {rate!r}")
+        check_positive("writing_height_mm", self.writing_height_mm)
+        timeout = check_positive("approach_timeout_s", self.approach_timeout_s)
+        if timeout > MAX_APPROACH_TIMEOUT_S:
+            raise ValueError(
+                f"approach_timeout_s must be in (0, {MAX_APPROACH_TIMEOUT_S:g}] s, got {timeout!r}"
+            )
+        if not check_positive("settle_s", self.settle_s) <= timeout:
+            raise ValueError(
+                f"settle_s must be in (0, approach_timeout_s = {timeout:g}] s, "
+                f"got {self.settle_s!r}"
+            )
         if self.frame_interval_s is not None:
             check_positive("frame_interval_s", self.frame_interval_s)
+        for name in ("scene_config", "controller_config"):
+            kind = SceneConfig if name == "scene_config" else ControllerConfig
+            if not isinstance(getattr(self, name), kind):
+                got = type(getattr(self, name)).__name__
+                raise ValueError(f"{name} must be a {kind.__name__}, got {got}")
+        object.__setattr__(self, "frame_size_px", _side_pair("frame_size_px", self.frame_size_px))
+        if self.render_size_px is not None:
+            size = _side_pair("render_size_px", self.render_size_px)
+            object.__setattr__(self, "render_size_px", size)
+
+    def check_video(self, tau_s: float) -> None:
+        """``ValueError`` if the video frames of a DMP of ``tau_s`` seconds (kept every
+        ``frame_interval_s`` over the approach, the writing and the lift) would take more
+        than ``MAX_VIDEO_BYTES``."""
+        if self.frame_interval_s is None:
+            return
+        lift_s = self.controller_config.lift_height_m / self.controller_config.travel_speed_m_s
+        n = math.ceil((self.approach_timeout_s + tau_s + lift_s + 0.2) / self.frame_interval_s)
+        w, h = self.frame_size_px
+        size = n * 2 * w * h * 3
+        if size > MAX_VIDEO_BYTES:
+            raise ValueError(
+                f"frame_interval_s = {self.frame_interval_s:g} s keeps up to {n} frames of "
+                f"{2 * w} x {h} px for this DMP (tau = {tau_s:g} s), {size / 2**30:.1f} GiB; "
+                f"at most {MAX_VIDEO_BYTES / 2**30:g} GiB: use a longer interval or smaller frames"
+            )
 
     @property
     def dt_s(self) -> float:
@@ -262,21 +339,62 @@ def _pen_channel(y: np.ndarray, n_dims: int) -> np.ndarray:
     return y[..., 2] >= PEN_THRESHOLD
 
 
+def checked_dmp(params: DMPParams, config: DMPConfig) -> DMPParams:
+    """One DMP to write, as float64 NumPy (torch tensors, integers and mixes of them are
+    converted), checked: ``ValueError`` naming the field and its value for anything
+    that is not a DMP of ``config`` with finite numbers and a duration ``tau > 0``."""
+    if not isinstance(params, DMPParams):
+        raise ValueError(f"params must be a DMPParams, got {type(params).__name__}")
+    if not isinstance(config, DMPConfig):
+        raise ValueError(f"config must be a DMPConfig, got {type(config).__name__}")
+    fields_ = {}
+    for name in ("w", "tau", "g", "y0"):
+        a = getattr(params, name)
+        if isinstance(a, torch.Tensor):
+            a = a.detach().cpu().numpy()
+        a = np.asarray(a)
+        if a.dtype.kind not in "iuf":
+            raise ValueError(f"params.{name} must hold numbers, got dtype {a.dtype}")
+        a = a.astype(np.float64)
+        bad = np.flatnonzero(~np.isfinite(a.ravel()))
+        if bad.size:
+            where = [int(i) for i in np.unravel_index(bad[0], a.shape)] if a.ndim else ""
+            value = a.ravel()[bad[0]]
+            raise ValueError(f"params.{name}{where} is {value}: a DMP to write needs finite values")
+        fields_[name] = a
+    tau = fields_["tau"]
+    if tau.shape != ():
+        raise ValueError(f"params.tau must be one number (one DMP), got shape {tau.shape}")
+    if not tau > 0:
+        raise ValueError(f"params.tau is {float(tau)!r} s: the duration must be > 0")
+    return DMPParams(**fields_).validate(config)
+
+
 def plan_path(
     params: DMPParams, config: DMPConfig, mapping: PaperMapping, dt_s: float
 ) -> PlannedPath:
-    """Integrate one DMP at steps of ``dt_s`` over ``[0, tau]`` and map it to the paper."""
+    """The exact path of one DMP (:func:`img2dmp.dmp.rollout`) at steps of ``dt_s`` over
+    ``[0, tau]``, mapped to the paper.
+
+    ``ValueError`` (naming the value) for a DMP that :func:`checked_dmp` refuses or that
+    takes more than ``MAX_WRITING_STEPS`` control steps.
+    """
     if config.n_dims not in (2, 3):
         raise ValueError(
             f"a writing DMP has d = 2 (x, y) or d = 3 (x, y, pen), got d = {config.n_dims}"
         )
-    integ = DMPIntegrator(params, config, max_step=dt_s)
-    n = max(1, int(round(integ.tau / dt_s)))
-    ys = [integ.y.copy()]
-    for _ in range(n):
-        ys.append(integ.step(dt_s))
-    y = np.array(ys)  # [T, d]
+    params = checked_dmp(params, config)
+    dt_s = check_positive("dt_s", dt_s)
+    tau = float(params.tau)
+    n = max(1, round(tau / dt_s))
+    if n > MAX_WRITING_STEPS:
+        raise ValueError(
+            f"params.tau is {tau:g} s: {n} control steps at {1 / dt_s:g} Hz, more than the "
+            f"{MAX_WRITING_STEPS} the arm writes (at most {MAX_WRITING_STEPS * dt_s:g} s at "
+            "this rate)"
+        )
     t = np.arange(n + 1) * dt_s
+    y = rollout(params.to_torch(torch.float64), torch.from_numpy(t), config).numpy()  # [T, d]
     return PlannedPath(
         time_s=t,
         xy_px=y[:, :2],
@@ -471,22 +589,22 @@ def write_with_options(
     progress: Callable[[int], object] | None = None,
 ) -> WritingResult:
     """:func:`write_dmp` with its settings in one :class:`WritingOptions`."""
-    params = params.to_numpy()
-    if params.batch_shape != ():
-        raise ValueError(f"write_dmp runs one DMP, got batch shape {params.batch_shape}")
-    params.validate(config)
+    if not isinstance(options, WritingOptions):
+        raise ValueError(f"options must be a WritingOptions, got {type(options).__name__}")
+    params = checked_dmp(params, config)
     scene_cfg, ctl_cfg, dt_s = options.scene_config, options.controller_config, options.dt_s
-    mapping = PaperMapping(tuple(image_size), options.writing_height_mm, scene_cfg.paper_center_m)
+    mapping = PaperMapping(image_size, options.writing_height_mm, scene_cfg.paper_center_m)
+    options.check_video(float(params.tau))
+    plan = plan_path(params, config, mapping, dt_s)  # before the scene: fails fast
     scene = WritingScene(scene_cfg, time_step_s=dt_s)
     try:
-        plan = plan_path(params, config, mapping, dt_s)
         q_start = check_path(scene, plan, ctl_cfg)
         scene.reset_joints(q_start)
         lift_z_m = scene_cfg.paper_top_z + ctl_cfg.lift_height_m
         controller = WritingController(scene, ctl_cfg, PEN_DOWN_ROTATION, q_start, lift_z_m)
-        # One RK4 step per control period: at 240 Hz it differs from 1 ms sub-steps by
-        # about 2e-7 px (DMP time constants are tens of milliseconds and longer).
-        dmp = DMPIntegrator(params, config, max_step=dt_s)
+        # One exact step per control period (stable for any tau); it agrees with the
+        # checked plan to ~1e-6 px.
+        dmp = DMPIntegrator(params, config)
         run = WritingRun(scene, plan, controller, options, dmp, mapping, progress=progress)
         return run.execute()
     finally:
