@@ -1,8 +1,10 @@
 """The ``img2dmp`` command line: one entry point, one module per subcommand.
 
 Each module in :mod:`img2dmp.commands` defines ``HELP`` (one line), ``add_arguments(parser)``
-and ``run(args) -> int``, and stays a thin call into the library. The command modules
-import only the standard library (and the light :mod:`img2dmp.config`,
+and ``run(args) -> int``, and stays a thin call into the library. The command's name is
+the module's (``_`` written ``-``), or the module's ``NAME`` if it sets one (``import`` is
+a Python keyword, so ``img2dmp import`` lives in ``commands/import_data.py``). The command
+modules import only the standard library (and the light :mod:`img2dmp.config`,
 :mod:`img2dmp.errors`, :mod:`img2dmp.commands._args`) at module level, so that building
 the parser (``img2dmp --help``) does not load torch; each ``run`` imports what it needs.
 
@@ -12,9 +14,10 @@ image too large to decode, a run directory in use by another run, a diverged tra
 reported as one line ``img2dmp COMMAND: error: ...`` naming the file, field or value on
 standard error; 1 a bug (traceback, then a request to report it); 130 interrupted.
 
-One rule for every command that writes (generate, prepare, train, predict, evaluate,
-write, preview, demo): an existing output is never replaced without ``--force``, and this,
-like the inputs, is checked before any slow work starts (:mod:`img2dmp.commands._args`).
+One rule for every command that writes (generate, prepare, import, train, predict,
+evaluate, write, preview, demo): an existing output is never replaced without
+``--force``, and this, like the inputs, is checked before any slow work starts
+(:mod:`img2dmp.commands._args`).
 Two inputs that would give one output file are refused, naming both. Files are written
 atomically (:mod:`img2dmp._files`): a failure or a kill leaves the earlier file whole.
 """
@@ -65,9 +68,12 @@ class _HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefa
 
 
 def _command_modules():
+    """``(command name, module)`` of every command, by module name: the module's ``NAME``
+    if it sets one, else its name with ``-`` for ``_``."""
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
         if not info.name.startswith("_"):
-            yield info.name, importlib.import_module(f"{commands.__name__}.{info.name}")
+            module = importlib.import_module(f"{commands.__name__}.{info.name}")
+            yield getattr(module, "NAME", info.name.replace("_", "-")), module
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -81,7 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, module in _command_modules():
         p = sub.add_parser(
-            name.replace("_", "-"),
+            name,
             help=module.HELP,
             description=module.__doc__,
             formatter_class=_HelpFormatter,

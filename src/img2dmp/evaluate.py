@@ -8,6 +8,11 @@ training validates with). Over samples we report the mean and standard deviation
 95th percentile, overall and per digit. :func:`evaluate` writes them as JSON and a text
 table and draws Fig.-4-style pictures: image, demonstrated path in blue, DMP path in red.
 
+A data set with class names (letters, symbols, shapes: ``img2dmp import``, the
+``class_names`` of :mod:`img2dmp.data.store`) is summarised per class instead: the
+statistics are keyed by the class names under ``per_class`` (``per_digit`` for a data set
+of digits), and the tables and pictures show the names.
+
 Beside Table I's metric it reports measures that ignore the writer's speed, which an
 image does not show (on recorded human paths the timing alone can cost more than a
 pixel, see docs/MNIST.md), all from :mod:`img2dmp.metrics`, overall and per digit:
@@ -43,6 +48,7 @@ from .metrics import (  # noqa: F401  (arc_fractions, points_at_fractions: re-ex
     arc_fractions,
     area_ratio,
     chamfer_px,
+    closed_labels,
     on_ink_share,
     path_error_px,
     points_at_fractions,
@@ -72,29 +78,54 @@ def error_statistics(errors_px) -> dict:
     }
 
 
-def summarise(errors_px, labels) -> dict:
-    """Statistics overall and per digit label (keys ``"0"`` .. ``"9"`` present in ``labels``)."""
+def summarise(errors_px, labels, class_names=None) -> dict:
+    """Statistics overall and per label.
+
+    Without ``class_names`` the labels are digits: ``per_digit`` with keys ``"0"`` ..
+    ``"9"`` (those present in ``labels``). With ``class_names`` (the names the labels
+    index into) ``per_class`` with the names of the classes present, in label order.
+    """
     e = np.asarray(errors_px, dtype=np.float64)
     lab = np.asarray(labels)
-    per = {str(int(d)): error_statistics(e[lab == d]) for d in np.unique(lab)}
-    return {"overall": error_statistics(e), "per_digit": per}
+    if class_names is None:
+        per = {str(int(d)): error_statistics(e[lab == d]) for d in np.unique(lab)}
+        return {"overall": error_statistics(e), "per_digit": per}
+    per = {str(class_names[int(c)]): error_statistics(e[lab == c]) for c in np.unique(lab)}
+    return {"overall": error_statistics(e), "per_class": per}
+
+
+def per_label(summary: dict) -> dict:
+    """The per-label statistics of a :func:`summarise` output: ``per_class`` (keyed by
+    class name) if it has them, else ``per_digit``."""
+    return summary.get("per_class", summary.get("per_digit", {}))
+
+
+def _label_column(summary: dict, width: int) -> tuple[str, int]:
+    """The first column's title (``digit`` or ``class``) and its width (class names may
+    be longer than the title)."""
+    if "per_class" not in summary:
+        return "digit", width
+    longest = max((len(k) for k in summary["per_class"]), default=0)
+    return "class", max(width, min(longest, 24))
 
 
 def format_table(summary: dict, title: str = "trajectory error (px)") -> str:
     """A plain-text table of :func:`summarise`'s output; for a result of :func:`evaluate`
-    (or :func:`hypothesis_metrics`) followed by :func:`format_metrics_table`'s."""
-    head = f"{'digit':>7} {'n':>6} {'mean':>8} {'std':>8} {'median':>8} {'p95':>8} {'max':>8}"
+    (or :func:`hypothesis_metrics`) followed by :func:`format_metrics_table`'s. Its rows
+    are the digits, or the class names of a data set that has them."""
+    what, w = _label_column(summary, 7)
+    head = f"{what:>{w}} {'n':>6} {'mean':>8} {'std':>8} {'median':>8} {'p95':>8} {'max':>8}"
     lines = [title, head, "-" * len(head)]
 
     def row(name, s):
         if not s["n"]:
-            return f"{name:>7} {0:>6}"
+            return f"{name:>{w}} {0:>6}"
         return (
-            f"{name:>7} {s['n']:>6} {s['mean']:>8.4f} {s['std']:>8.4f} {s['median']:>8.4f} "
+            f"{name:>{w}} {s['n']:>6} {s['mean']:>8.4f} {s['std']:>8.4f} {s['median']:>8.4f} "
             f"{s['p95']:>8.4f} {s['max']:>8.4f}"
         )
 
-    for d, s in summary["per_digit"].items():
+    for d, s in per_label(summary).items():
         lines.append(row(d, s))
     lines.append("-" * len(head))
     lines.append(row("all", summary["overall"]))
@@ -112,15 +143,16 @@ def _cell(stats: dict | None, key: str, width: int, scale: float = 1.0, digits: 
 
 
 def format_metrics_table(result: dict) -> str:
-    """The path measures of :func:`evaluate` per digit and overall, one line each.
+    """The path measures of :func:`evaluate` per digit (or class) and overall, one line each.
 
     Columns: samples, Table I's mean error, mean path error, mean Chamfer distance (px),
     on-ink share of the network's path and of the demonstration's (%), median area
     ratio (closed digits only, ``-`` otherwise), mean start error (px); for K > 1
     hypotheses a line with the best-of-K means.
     """
+    what, w = _label_column(result, 7)
     head = (
-        f"{'digit':>7} {'n':>6} {'TableI':>8} {'path':>8} {'Chamfer':>8} {'ink %':>6} "
+        f"{what:>{w}} {'n':>6} {'TableI':>8} {'path':>8} {'Chamfer':>8} {'ink %':>6} "
         f"{'human%':>6} {'area':>6} {'start':>8}"
     )
     lines = ["path measures (px; ink: % of the path on the image's ink)", head, "-" * len(head)]
@@ -128,10 +160,10 @@ def format_metrics_table(result: dict) -> str:
     def row(name: str, d: str | None = None) -> str:
         def stats(key: str | None = None):  # None: Table I's statistics
             block = result if key is None else (result.get(key) or {})
-            return block.get("overall") if d is None else block.get("per_digit", {}).get(d)
+            return block.get("overall") if d is None else per_label(block).get(d)
 
         return (
-            f"{name:>7} {(stats() or {}).get('n', 0):>6} {_cell(stats(), 'mean', 8)} "
+            f"{name:>{w}} {(stats() or {}).get('n', 0):>6} {_cell(stats(), 'mean', 8)} "
             f"{_cell(stats('path_error'), 'mean', 8)} {_cell(stats('chamfer'), 'mean', 8)} "
             f"{_cell(stats('on_ink'), 'mean', 6, 100, 1)} "
             f"{_cell(stats('on_ink_human'), 'mean', 6, 100, 1)} "
@@ -139,11 +171,12 @@ def format_metrics_table(result: dict) -> str:
             f"{_cell(stats('start_error'), 'mean', 8)}"
         )
 
-    lines += [row(d, d) for d in result["per_digit"]]
+    lines += [row(d, d) for d in per_label(result)]
     lines += ["-" * len(head), row("all")]
     lines.append(
         "(means; area: median of enclosed area network / demonstration, closed digits "
-        f"{', '.join(map(str, CLOSED_DIGITS))})"
+        f"{', '.join(map(str, CLOSED_DIGITS))}"
+        + (" only: classes of those names)" if what == "class" else ")")
     )
     best = result.get("best_of_k")
     if best:
@@ -210,15 +243,17 @@ METRIC_SUMMARIES = {
 }
 
 
-def sample_metrics(y, reference, images, labels) -> dict[str, np.ndarray]:
+def sample_metrics(y, reference, images, labels, class_names=None) -> dict[str, np.ndarray]:
     """The timing-free measures ``[M]`` of paths ``y [M, T, d]`` against the
     demonstrations ``reference [M, T', d]`` drawn in ``images [M, H, W]``.
 
     Keys are those of :data:`METRIC_SUMMARIES`; ``area_ratios`` is NaN for digits not in
-    :data:`~img2dmp.metrics.CLOSED_DIGITS` (and where the demonstration encloses nothing).
+    :data:`~img2dmp.metrics.CLOSED_DIGITS` (and where the demonstration encloses nothing);
+    with ``class_names``, for classes not named after one of those digits
+    (:func:`~img2dmp.metrics.closed_labels`).
     """
     y, reference = np.asarray(y), np.asarray(reference)
-    closed = np.isin(np.asarray(labels), CLOSED_DIGITS)  # [M]
+    closed = np.isin(np.asarray(labels), closed_labels(class_names))  # [M]
     areas = np.full(len(y), np.nan)
     if closed.any():
         areas[closed] = area_ratio(y[closed], reference[closed])
@@ -233,16 +268,16 @@ def sample_metrics(y, reference, images, labels) -> dict[str, np.ndarray]:
     }
 
 
-def _summarise_finite(values, labels) -> dict:
+def _summarise_finite(values, labels, class_names=None) -> dict:
     ok = np.isfinite(values)
-    return summarise(values[ok], np.asarray(labels)[ok])
+    return summarise(values[ok], np.asarray(labels)[ok], class_names)
 
 
 def _json_list(values) -> list:
     return [float(v) if np.isfinite(v) else None for v in np.asarray(values, dtype=np.float64)]
 
 
-def _best_of_k(y_all, top, reference, labels) -> dict:
+def _best_of_k(y_all, top, reference, labels, class_names=None) -> dict:
     """Per sample the smallest Table I, path and Chamfer errors over the K hypotheses."""
     m, k = y_all.shape[:2]
     flat = y_all.reshape(m * k, *y_all.shape[2:])  # [M K, T, d]
@@ -259,14 +294,14 @@ def _best_of_k(y_all, top, reference, labels) -> dict:
         "chamfer_px": "chamfer",
     }
     out = {"k": int(k), "top_is_best": float(np.mean(np.argmin(table1, axis=1) == top))}
-    out.update({names[key]: summarise(v, labels) for key, v in best.items()})
+    out.update({names[key]: summarise(v, labels, class_names) for key, v in best.items()})
     out.update({key: v.tolist() for key, v in best.items()})
     out["top_hypothesis"] = top.tolist()
     out["best_hypothesis"] = np.argmin(table1, axis=1).tolist()
     return out
 
 
-def hypothesis_metrics(y_all, probs, reference, images, labels) -> dict:
+def hypothesis_metrics(y_all, probs, reference, images, labels, class_names=None) -> dict:
     """Table I's statistics and the path measures of a network's hypotheses.
 
     Parameters
@@ -280,12 +315,14 @@ def hypothesis_metrics(y_all, probs, reference, images, labels) -> dict:
     images : array [M, H, W]
         The images they were written on (ink = 1).
     labels : array [M]
+    class_names : sequence of str, optional
+        The names the labels index into (a data set's ``class_names``); None: digits.
 
     Returns
     -------
     dict
         Statistics (:func:`summarise`) of the top hypothesis: ``overall`` and
-        ``per_digit`` (Table I) and ``path_error``, ``chamfer``, ``on_ink``,
+        ``per_digit`` or ``per_class`` (Table I) and ``path_error``, ``chamfer``, ``on_ink``,
         ``on_ink_human``, ``start_error``, ``area_ratio`` (closed digits only),
         ``width_ratio``; per-sample lists ``errors_px`` and those of
         :data:`METRIC_SUMMARIES` (``None`` where undefined); ``hypotheses`` (K),
@@ -296,10 +333,13 @@ def hypothesis_metrics(y_all, probs, reference, images, labels) -> dict:
     labels = np.asarray(labels)
     top, y = top_hypothesis(y_all, probs)  # [M], [M, T, d]
     errors = _table1_errors(y, reference)  # [M]
-    per_sample = sample_metrics(y, reference, images, labels)
-    out = summarise(errors, labels)
+    per_sample = sample_metrics(y, reference, images, labels, class_names)
+    out = summarise(errors, labels, class_names)
     out.update(
-        {name: _summarise_finite(per_sample[k], labels) for k, name in METRIC_SUMMARIES.items()}
+        {
+            name: _summarise_finite(per_sample[k], labels, class_names)
+            for k, name in METRIC_SUMMARIES.items()
+        }
     )
     out["errors_px"] = errors.tolist()
     out.update({k: _json_list(v) for k, v in per_sample.items()})
@@ -307,7 +347,7 @@ def hypothesis_metrics(y_all, probs, reference, images, labels) -> dict:
     never = ~(y[..., 2] >= 0.5).any(axis=1) if y.shape[-1] >= 3 else np.zeros(len(y), bool)
     out["pen_never_down"] = int(never.sum())
     if y_all.shape[1] > 1:
-        out["best_of_k"] = _best_of_k(y_all, top, reference, labels)
+        out["best_of_k"] = _best_of_k(y_all, top, reference, labels, class_names)
     return out
 
 
@@ -332,6 +372,7 @@ def evaluate(
     batch_size: int = 2048,
     seed: int = 0,
     refine: int = 0,
+    device: str = "cpu",
 ) -> dict:
     """Table I's statistics and the path measures of a trained network on a data set.
 
@@ -351,36 +392,39 @@ def evaluate(
         Samples drawn in ``examples.png`` (chosen at random with ``seed``; 0 = none), at
         most ``MAX_FIGURES``.
     digits : list of int, optional
-        Keep only these labels.
+        Keep only these digits (with class names: the classes named after them).
     refine : int
         Refine every prediction on its image with this many gradient steps
         (:func:`img2dmp.nn.refine.refine`, default options); 0 = the network's output.
+    device : str
+        Where the network runs when loaded from a path (``"cpu"``, ``"cuda"``).
 
     Returns
     -------
     dict
-        ``overall`` and ``per_digit`` statistics (Table I) plus ``errors_px`` (per
-        sample), a description of the model and data, and the path measures of
-        :func:`hypothesis_metrics` (``path_error``, ``chamfer``, ``on_ink``,
-        ``on_ink_human``, ``start_error``, ``area_ratio``, ``width_ratio`` with their
-        per-sample lists; ``best_of_k`` for K > 1 hypotheses).
+        ``overall`` and ``per_digit`` (or ``per_class``) statistics (Table I,
+        :func:`_headline`) plus ``errors_px`` (per sample), a description of the model
+        and data, and the path measures of :func:`hypothesis_metrics` (``path_error``,
+        ``chamfer``, ``on_ink``, ``on_ink_human``, ``start_error``, ``area_ratio``,
+        ``width_ratio`` with their per-sample lists; ``best_of_k`` for K > 1 hypotheses).
     """
     t0 = time.perf_counter()
     # Checked before anything slow: each bounds work or memory.
     n_figures = check_count("n_figures (--figures)", n_figures, 0, MAX_FIGURES)
     batch_size = check_count("batch_size", batch_size, 1, MAX_BATCH_SIZE)
     refine = check_count("refine (--refine)", refine, 0, MAX_REFINE_STEPS)
-    predictor = _load_predictor(model_path)
+    predictor = _load_predictor(model_path, device)
     if refine:
         from .nn.refine import RefineOptions
 
         predictor.refine_options = RefineOptions(steps=int(refine))
     data = _evaluation_data(predictor, dataset_path, split, digits)
     y_all, probs = predict_hypotheses(predictor, data.images, data.times, batch_size)
-    measures = hypothesis_metrics(y_all, probs, data.trajectories, data.images, data.labels)
+    names = data.class_names
+    measures = hypothesis_metrics(y_all, probs, data.trajectories, data.images, data.labels, names)
     _, y = top_hypothesis(y_all, probs)  # [M, T, d]
     errors = np.asarray(measures["errors_px"])  # [M], Table I
-    result = {key: measures.pop(key) for key in ("overall", "per_digit", "path_error")}
+    result = _headline(measures, names)
     result.update(
         model=str(model_path),
         dataset=str(dataset_path),
@@ -399,19 +443,30 @@ def evaluate(
     return result
 
 
-def _load_predictor(model):
+def _headline(measures: dict, class_names) -> dict:
+    """Table I's statistics, taken out of :func:`hypothesis_metrics`' ``measures``:
+    ``overall``, ``per_digit`` and ``path_error``; for a data set with class names
+    ``per_class`` (keyed by class name) and the ``class_names`` instead of ``per_digit``."""
+    per = "per_digit" if class_names is None else "per_class"
+    result = {key: measures.pop(key) for key in ("overall", per, "path_error")}
+    if class_names is not None:
+        result["class_names"] = list(class_names)
+    return result
+
+
+def _load_predictor(model, device: str = "cpu"):
     """A :class:`Predictor` loaded from a path, or ``model`` itself if it is one already
     (any object with ``trajectories_for_images`` or ``hypothesis_trajectories``)."""
     if hasattr(model, "trajectories_for_images") or hasattr(model, "hypothesis_trajectories"):
         return model
-    return Predictor.load(model)
+    return Predictor.load(model, device=device)
 
 
 def _evaluation_data(predictor: Predictor, dataset_path, split: str, digits):
     """The samples of ``split`` (and ``digits``) of a data set, checked against the model."""
     data = _pick_split(load_dataset(dataset_path), split)
     if digits is not None:
-        data = data.subset(np.isin(data.labels, np.asarray(digits)))
+        data = data.subset(np.isin(data.labels, data.labels_of_digits(digits)))
     if len(data) == 0:
         raise ValueError(
             f"data set {dataset_path} has no samples in split {split!r}"
@@ -442,14 +497,15 @@ def _write_evaluation(out: Path, result: dict, data, y, errors, n_figures: int, 
         return
     rng = np.random.default_rng(seed)
     pick = np.sort(rng.choice(len(data), size=min(n_figures, len(data)), replace=False))
-    titles = [f"{int(data.labels[i])}: {errors[i]:.3f} px" for i in pick]
+    names = data.label_names
+    titles = [f"{names[int(data.labels[i])]}: {errors[i]:.3f} px" for i in pick]
     labels = ("demonstration", "network's DMP")
     overlay_figure(out / "examples.png", data.images[pick], data.trajectories[pick], y[pick],
                    titles, labels=labels)  # fmt: skip
     # The samples the network does worst on, by the timing-free path error.
     path_errors = np.asarray(result["path_errors_px"])
     worst = np.argsort(-path_errors)[: min(n_figures, 12, len(data))]
-    titles = [f"{int(data.labels[i])}: path {path_errors[i]:.2f} px" for i in worst]
+    titles = [f"{names[int(data.labels[i])]}: path {path_errors[i]:.2f} px" for i in worst]
     overlay_figure(out / "worst.png", data.images[worst], data.trajectories[worst], y[worst],
                    titles, labels=labels)  # fmt: skip
 

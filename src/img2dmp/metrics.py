@@ -8,7 +8,8 @@ here compare only *where* the pen went (NumPy only, no torch):
 - :func:`path_error_px` - both paths resampled from start to end, point to point;
 - :func:`chamfer_px` - symmetric Chamfer distance, free of order and direction;
 - :func:`on_ink_share` - share of the path that lies on the image's ink;
-- :func:`enclosed_area_px2`, :func:`area_ratio` - the area a closed digit encloses;
+- :func:`enclosed_area_px2`, :func:`area_ratio` - the area a closed digit encloses
+  (:func:`closed_labels`: which labels of a data set are closed digits);
 - :func:`width_ratio`, :func:`start_error_px` - horizontal extent, where writing starts.
 
 Conventions (``docs/CONTRACTS.md``): paths are ``[M, T, d]`` in image pixels, x = column,
@@ -25,6 +26,21 @@ import numpy as np
 
 #: Digits whose usual shape encloses an area (reported by :func:`area_ratio`).
 CLOSED_DIGITS = (0, 6, 8, 9)
+
+
+def closed_labels(label_names=None) -> tuple[int, ...]:
+    """The labels whose class is a closed digit (:data:`CLOSED_DIGITS`).
+
+    ``label_names`` is the name of every label (a data set's ``label_names``); None means
+    the labels are the digits 0-9 themselves. A data set of other classes (letters,
+    shapes) names no closed digit unless a class is called ``"0"``, ``"6"``, ``"8"`` or
+    ``"9"``: its area ratio is not reported.
+    """
+    if label_names is None:
+        return CLOSED_DIGITS
+    closed = {str(d) for d in CLOSED_DIGITS}
+    return tuple(i for i, name in enumerate(label_names) if name in closed)
+
 
 # Elements per chunk of the batched [m, n, n] / [m, R, S] temporaries (~16 MB of float64).
 _CHUNK_ELEMENTS = 1 << 21
@@ -315,6 +331,7 @@ def start_error_px(a, b) -> np.ndarray:
 
 __all__ = [
     "CLOSED_DIGITS",
+    "closed_labels",
     "arc_fractions",
     "area_ratio",
     "bilinear",

@@ -6,7 +6,7 @@ The layout is fixed by ``docs/CONTRACTS.md`` and described for users in
     images        float32 [M, H, W]   ink = 1, background = 0
     trajectories  float32 [M, T, d]   pen path in image pixels (x = column, y = row)
     times         float32 [M, T]      seconds since the start of the movement
-    labels        int64   [M]         digit 0-9
+    labels        int64   [M]         digit 0-9, or an index into ``class_names``
     params        float32 [M, P]      fitted DMP, flat vector (DMPParams.to_vector)
     fit_error_px  float32 [M]         mean error of that fit in pixels
     split         uint8   [M]         0 train, 1 validation, 2 test
@@ -26,6 +26,13 @@ corrupt. It is a checksum against accidents, not a signature. Files written befo
 checksum was introduced (same format version 1, no ``"img2dmp_sha256"`` key) are still
 read, unverified beyond the checks of :meth:`DigitData.validate`; saving such a data set
 again adds the checksum.
+
+**Class names.** A data set of other classes than the digits (letters, symbols, shapes:
+``img2dmp import``) holds their names in the metadata key ``class_names``: a JSON list of
+distinct, non-empty strings, and its ``labels`` index into it (``0 .. len - 1``). Without
+the key, labels are the digits 0-9, as in every file written before the key existed, which
+load unchanged (the format version stays 1). :attr:`DigitData.label_names` gives the name of
+every label either way, :meth:`DigitData.labels_of_digits` maps digits to labels.
 
 Every value check names the file, the field and the first row at fault.
 """
@@ -63,6 +70,12 @@ _FIELDS: dict[str, tuple[np.dtype, int]] = {
     "split": (np.dtype(np.uint8), 1),
 }
 _REQUIRED_META = ("format", "version", "dmp_config", "source", "seed", "image_size", "created")
+#: The metadata key of the class names, and its bounds.
+CLASS_NAMES_KEY = "class_names"
+MAX_CLASSES = 10_000
+MAX_CLASS_NAME_CHARS = 100
+#: The names of the labels of a data set without ``class_names``.
+DIGIT_NAMES = tuple(str(d) for d in range(10))
 
 
 class DatasetError(ValueError):
@@ -77,6 +90,34 @@ def content_digest(meta_text: str, arrays: dict) -> str:
         h.update(f"{name}|{a.dtype.name}|{list(a.shape)}|".encode())
         h.update(a.astype(a.dtype.newbyteorder("<"), copy=False).reshape(-1).view(np.uint8))
     return h.hexdigest()
+
+
+def check_class_names(names, where: str = "data set") -> tuple[str, ...]:
+    """``names`` as a tuple if it is a list of 1 to ``MAX_CLASSES`` distinct class names,
+    each a non-empty string of at most ``MAX_CLASS_NAME_CHARS`` printable characters
+    without surrounding white space; else :class:`DatasetError` naming the entry."""
+    what = f"{where}: metadata field {CLASS_NAMES_KEY!r}"
+    if not isinstance(names, (list, tuple)):
+        raise DatasetError(f"{what} must be a list of strings, got {type(names).__name__}")
+    if not 1 <= len(names) <= MAX_CLASSES:
+        raise DatasetError(f"{what} must hold 1 to {MAX_CLASSES} names, got {len(names)}")
+    seen: dict[str, int] = {}
+    for i, name in enumerate(names):
+        if not isinstance(name, str):
+            raise DatasetError(f"{what} entry {i} is {name!r}, not a string")
+        if not name or name != name.strip() or not name.isprintable():
+            raise DatasetError(
+                f"{what} entry {i} is {name!r}: a class name must be non-empty printable "
+                "text without surrounding spaces"
+            )
+        if len(name) > MAX_CLASS_NAME_CHARS:
+            raise DatasetError(
+                f"{what} entry {i} has {len(name)} characters, more than {MAX_CLASS_NAME_CHARS}"
+            )
+        if name in seen:
+            raise DatasetError(f"{what} entry {i} repeats {name!r} (entry {seen[name]})")
+        seen[name] = i
+    return tuple(names)
 
 
 def _first_row(bad: np.ndarray) -> int:
@@ -102,7 +143,8 @@ class DigitData:
     meta : dict
         JSON-ready metadata; must hold ``dmp_config`` (a ``DMPConfig.to_dict()``),
         ``source`` (a dict saying where the samples came from, e.g. the generator config)
-        and ``seed`` (int or None). ``format``, ``version``, ``image_size`` and
+        and ``seed`` (int or None); may hold ``class_names`` (the labels then index into
+        it, see the module docstring). ``format``, ``version``, ``image_size`` and
         ``created`` are filled in by :func:`save_dataset`.
     """
 
@@ -130,6 +172,37 @@ class DigitData:
     @property
     def image_size(self) -> tuple[int, int]:
         return int(self.images.shape[1]), int(self.images.shape[2])
+
+    @property
+    def class_names(self) -> tuple[str, ...] | None:
+        """The names the labels index into, or None for a data set of digits 0-9."""
+        names = self.meta.get(CLASS_NAMES_KEY) if isinstance(self.meta, dict) else None
+        return None if names is None else tuple(names)
+
+    @property
+    def label_names(self) -> tuple[str, ...]:
+        """The name of every label: ``class_names``, or ``"0"`` .. ``"9"`` for digits."""
+        return self.class_names if self.class_names is not None else DIGIT_NAMES
+
+    def labels_of_digits(self, digits) -> np.ndarray:
+        """The labels of the classes named by ``digits`` (int64 ``[n]``).
+
+        For a data set of digits they are the digits themselves; with ``class_names``
+        the labels of the classes named ``"2"``, ``"3"`` ...; a digit that names no class
+        raises :class:`DatasetError` listing the data set's classes.
+        """
+        names = self.label_names
+        out = []
+        for d in digits:
+            if str(d) not in names:
+                where = self.origin or "the data set"
+                shown = ", ".join(names[:20]) + (", ..." if len(names) > 20 else "")
+                raise DatasetError(
+                    f"{where} has no class named {str(d)!r} (digits select classes by their "
+                    f"names; its classes are {shown})"
+                )
+            out.append(names.index(str(d)))
+        return np.asarray(out, dtype=np.int64)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The seven tensors by their file names."""
@@ -212,6 +285,8 @@ class DigitData:
                 f"{where}: field 'times' has {self.times.shape[1]} time stamps per sample "
                 f"but 'trajectories' has {t}"
             )
+        if isinstance(self.meta, dict) and self.meta.get(CLASS_NAMES_KEY) is not None:
+            check_class_names(self.meta[CLASS_NAMES_KEY], where)
         if m:
             self._validate_values(where)
         self._validate_meta(where)
@@ -226,8 +301,15 @@ class DigitData:
         if self.images.min() < 0 or self.images.max() > 1:
             row = _first_row((self.images < 0) | (self.images > 1))
             raise DatasetError(f"{where}: field 'images' row {row} has values outside [0, 1]")
+        names = self.meta.get(CLASS_NAMES_KEY) if isinstance(self.meta, dict) else None
+        n_classes = len(names) if isinstance(names, (list, tuple)) else 10
+        label_rule = (
+            "is not a digit 0-9"
+            if names is None
+            else f"is not a class index 0-{n_classes - 1} (metadata field 'class_names')"
+        )
         checks = (
-            ("labels", (self.labels < 0) | (self.labels > 9), "is not a digit 0-9"),
+            ("labels", (self.labels < 0) | (self.labels >= n_classes), label_rule),
             ("split", self.split > 2, "is not 0 (train), 1 (validation) or 2 (test)"),
             ("fit_error_px", self.fit_error_px < 0, "is negative (an error in pixels)"),
             ("times", self.times[:, 0] < 0, "starts before 0 (seconds since the start)"),

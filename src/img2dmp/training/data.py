@@ -80,11 +80,12 @@ class Split:
 
 
 def _split_indices(a: DigitData, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Training and validation rows of a stored data set (labels filtered)."""
+    """Training and validation rows of a stored data set (labels filtered: ``data.digits``
+    are digits, or in a data set with class names the classes named after them)."""
     d = cfg.data
     keep = np.ones(len(a.labels), dtype=bool)
     if d.digits is not None:
-        keep = np.isin(a.labels, np.asarray(d.digits))
+        keep = np.isin(a.labels, a.labels_of_digits(d.digits))
     train_idx = np.flatnonzero(keep & (a.split == 0))
     val_idx = np.flatnonzero(keep & (a.split == 1))
     if len(val_idx) == 0:  # no validation split: hold out a share of the training split

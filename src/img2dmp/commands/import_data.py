@@ -1,0 +1,240 @@
+"""Import your own images and pen paths, of any classes, as an img2dmp data set.
+
+SOURCE is a folder with one sub-folder per class (the folder's name is the class: a
+letter, a symbol, a shape, a digit), each holding one image per sample and its
+trajectory file of the same name:
+
+  letters/L/001.png  letters/L/001.csv
+  letters/T/001.png  letters/T/001.json ...
+
+or a manifest: a CSV file with the header image,trajectory,class[,split] (or a JSON list
+of such objects), paths relative to the manifest. Trajectories are in pixels of their own
+image, x = column and y = row (y down), t in seconds (--time-unit ms: milliseconds):
+CSV with the header x,y,t or x,y,t,pen (pen 1 down, 0 up: any number of strokes), JSON
+{"x": [...], "y": [...], "t": [...]} (optionally "pen") or a list of strokes, NumPy .npy
+[T, 3] or [T, 4]. Formats and checks: docs/DATASET.md.
+
+Each image is prepared as `img2dmp predict` prepares one (crop to the ink, square with
+--margin, resized to --image-size) and its path is mapped by the same crop and resize;
+the path is resampled to --n-times instants, --augment affine copies of every training
+sample are added, and a DMP is fitted to every path. The split comes from the manifest's
+split column, or is drawn per class (--val-fraction, --test-fraction, --seed). Classes
+are stored with their names (labels index into the metadata's class_names).
+
+A bad sample (a missing trajectory or image, an unreadable file, NaN, time stamps that do
+not increase, too few points, a path off its image, an unknown class ...) stops the import
+with one line naming the file and what is wrong; --skip-bad leaves such samples out and
+lists them instead. An existing --out file is replaced only with --force (checked before
+anything is read).
+
+The options (img2dmp.data.importer.ImportOptions: image_size, margin, n_times,
+duration_s, time_unit, n_dims, scaling, n_kernels, ridge, augment, affine, seed,
+val_fraction, test_fraction, classes, min_on_ink, stroke_width_px) come from the defaults, then
+--config FILE, then the flags below (each only when given), then --set KEY=VALUE.
+
+  img2dmp import letters --out letters.safetensors --augment 10
+  img2dmp import manifest.csv --out shapes.safetensors --classes circle,square --dims 3
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from . import _args
+
+#: The command's name: ``import`` is a Python keyword, so the module is ``import_data``.
+NAME = "import"
+HELP = "make a data set from your own images and pen paths (any class names)"
+
+# Literal copies of ImportOptions' defaults (shown in --help), so that building the
+# parser does not import the library; ImportOptions validates every value again.
+DEFAULTS = {
+    "image_size": 40,
+    "margin": 0.175,
+    "n_times": 100,
+    "time_unit": "s",
+    "n_kernels": 25,
+    "augment": 0,
+    "seed": 0,
+    "val_fraction": 0.1,
+    "test_fraction": 0.2,
+    "min_on_ink": 0.5,
+}
+
+#: Option flag (its ``args`` name) -> the ImportOptions field it sets.
+FLAG_FIELDS = {
+    "image_size": "image_size",
+    "margin": "margin",
+    "n_times": "n_times",
+    "duration": "duration_s",
+    "time_unit": "time_unit",
+    "dims": "n_dims",
+    "scaling": "scaling",
+    "n_kernels": "n_kernels",
+    "augment": "augment",
+    "seed": "seed",
+    "val_fraction": "val_fraction",
+    "test_fraction": "test_fraction",
+    "classes": "classes",
+    "min_on_ink": "min_on_ink",
+    "stroke_width": "stroke_width_px",
+}
+
+
+def _fraction(text: str) -> float:
+    """An argparse ``type``: a number in [0, 1]."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be a number from 0 to 1, got {text}")
+    return v
+
+
+def _classes(text: str) -> list[str]:
+    """An argparse ``type``: class names separated by commas, in label order."""
+    names = [n.strip() for n in text.split(",")]
+    if not all(names):
+        raise argparse.ArgumentTypeError(f"must be class names separated by commas, got {text!r}")
+    return names
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "source", metavar="SOURCE", help="folder of class folders, or a .csv / .json manifest"
+    )
+    p.add_argument("--out", "-o", required=True, metavar="FILE", help="output .safetensors file")
+    _args.add_force(p, "--out file")
+    p.add_argument(
+        "--skip-bad",
+        action="store_true",
+        help="leave bad samples out and list them (default: stop at the first, naming it)",
+    )
+    _args.add_config(p, "ImportOptions fields, with an affine section")
+    _args.add_set(p, "--set augment=4 --set 'affine.rotation_deg=[-5, 5]'")
+    _options(p)
+    _args.add_no_progress(p)
+
+
+def _options(p: argparse.ArgumentParser) -> None:
+    # Every flag defaults to None: it overrides --config only when given.
+    def add(flag: str, text: str, shown: str | None = None, **kwargs) -> None:
+        key = FLAG_FIELDS[flag[2:].replace("-", "_")]
+        default = shown if shown is not None else DEFAULTS.get(key)
+        suffix = f" (= {key}; default {default})" if default is not None else f" (= {key})"
+        p.add_argument(flag, help=text + suffix, **kwargs)
+
+    n = {"metavar": "N"}
+    add("--image-size", "side of the stored images", type=_args.int_at_least(8, 1024), metavar="PX")
+    add("--margin", "share of the side left empty around the ink", type=_fraction, metavar="X")
+    add("--n-times", "instants per trajectory", type=_args.int_at_least(2), **n)
+    add(
+        "--duration",
+        "rescale every path to last this long (removes the writer's speed, which an image "
+        "does not show)",
+        "recorded timing",
+        type=_args.positive_float,
+        metavar="SECONDS",
+    )
+    add("--time-unit", "unit of the files' t", choices=("s", "ms"))
+    add(
+        "--dims",
+        "2 = (x, y), 3 = (x, y, pen)",
+        "3 if any sample has strokes",
+        type=int,
+        choices=(2, 3),
+    )
+    add(
+        "--scaling",
+        "DMP forcing-term scaling",
+        "goal-start for d=2, none for d=3",
+        choices=("goal-start", "none"),
+    )
+    add("--n-kernels", "DMP kernels per dimension", type=_args.int_at_least(1), **n)
+    add("--augment", "affine copies added per training sample", type=_args.int_at_least(0), **n)
+    add("--seed", "seed of the augmentation and the random split", type=_args.int_at_least(0), **n)
+    add(
+        "--val-fraction",
+        "share of each class in validation (no split given)",
+        type=_fraction,
+        metavar="X",
+    )
+    add(
+        "--test-fraction",
+        "share of each class in test (no split given)",
+        type=_fraction,
+        metavar="X",
+    )
+    add(
+        "--classes",
+        "class names in label order, e.g. L,T,V,O; a sample of another class is refused",
+        "the classes found, sorted",
+        type=_classes,
+        metavar="NAMES",
+    )
+    add(
+        "--stroke-width",
+        "bring every image's strokes to this pen width (as predict does)",
+        "each image's own",
+        type=_args.positive_float,
+        metavar="PX",
+    )
+    add(
+        "--min-on-ink",
+        "least share of each pen-down path on its image's ink (0 = no check)",
+        type=_fraction,
+        metavar="X",
+    )
+
+
+def import_options(args: argparse.Namespace):
+    """The :class:`~img2dmp.data.importer.ImportOptions` of the command line: defaults,
+    then ``--config``, then the flags given, then ``--set``."""
+    from ..config import apply_overrides, from_mapping, merge, read_config_file
+    from ..data.importer import ImportOptions
+
+    d = read_config_file(args.config) if args.config else {}
+    flags = {key: getattr(args, flag) for flag, key in FLAG_FIELDS.items()}
+    flags = {k: v for k, v in flags.items() if v is not None}
+    return from_mapping(ImportOptions, apply_overrides(merge(d, flags), args.set))
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..data.importer import import_dataset
+    from .generate import save_new_dataset
+
+    source = Path(args.source)
+    if not source.exists():
+        raise FileNotFoundError(f"import source {source} does not exist")
+    if _args.same_path(source, args.out):
+        raise ValueError(f"--out {args.out} is the source itself; name another file")
+    options = import_options(args)
+    _args.check_outputs([(args.out, None)], args.force)
+    data = import_dataset(source, options, progress=not args.no_progress, skip_bad=args.skip_bad)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    save_new_dataset(out, data, args.force)
+    meta = data.meta
+    counts = meta["counts_by_split"]
+    classes = ", ".join(f"{k} {v}" for k, v in meta["counts_by_class"].items())
+    print(
+        f"wrote {out}: {len(data)} samples (train {counts['train']}, validation "
+        f"{counts['validation']}, test {counts['test']}), classes: {classes}; images "
+        f"{data.image_size}, d={data.trajectories.shape[-1]}, DMP fit error "
+        f"{meta['fit']['mean_error_px']:.3f} px mean"
+    )
+    poor = meta["fit"]["poor"]
+    if poor["rows"]:
+        print(
+            f"note: {poor['rows']} DMP fit(s) are off by more than {poor['threshold_px']:g} px "
+            f"on average (worst {poor['worst_mean_error_px']:.2f} px, "
+            f"{poor['worst_trajectory']}); where a path ends near its start in x or y the "
+            "goal-start scaling fails: try --scaling none"
+        )
+    for line in meta["source"]["skipped"]:
+        print(f"skipped: {line}")
+    if meta["source"]["skipped"]:
+        print(f"skipped {len(meta['source']['skipped'])} bad sample(s), listed above")
+    return 0
