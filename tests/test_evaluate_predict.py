@@ -13,7 +13,7 @@ from img2dmp import cli
 from img2dmp.data.render import render_paths
 from img2dmp.data.store import load_dataset, save_dataset
 from img2dmp.data.synthetic import generate_dataset
-from img2dmp.dmp import rollout
+from img2dmp.dmp import DMPParams, rollout
 from img2dmp.evaluate import error_statistics, evaluate, format_table, summarise
 from img2dmp.predict import (
     DEFAULT_MARGIN,
@@ -133,9 +133,11 @@ def test_predict_paths_and_cli(model_and_data, tmp_path, capsys):
     assert len(out) == 2 and out[0][1].shape == (40, 40)
     assert out[0][0].batch_shape == () and float(out[0][0].tau) > 0
     assert cli.main(["predict", "--model", str(run), str(files[0]), "--points", "50"]) == 0
-    rec = json.loads(capsys.readouterr().out)
-    assert len(rec["trajectory"]["t"]) == 50 and len(rec["vector"]) == 55
-    assert np.allclose(rec["vector"], out[0][0].to_vector())
+    rec = json.loads(capsys.readouterr().out)  # the one DMP file (docs/ROBOT.md)
+    assert (rec["format"], rec["version"], rec["frame"]) == ("img2dmp-dmp", 2, "model")
+    assert len(rec["hypotheses"][0]["trajectory"]["t_s"]) == 50
+    vector = DMPParams.from_dict(rec["params"]).to_vector()
+    assert len(vector) == 55 and np.allclose(vector, out[0][0].to_vector())
     assert (
         cli.main(
             [
@@ -151,10 +153,11 @@ def test_predict_paths_and_cli(model_and_data, tmp_path, capsys):
         == 0
     )
     for stem in ("d0", "d1"):
-        for suffix in ("_dmp.json", "_trajectory.csv", "_overlay.png"):
+        for suffix in ("_dmp.json", "_trajectory.csv", "_overlay.png", "_overlay_image.png"):
             assert (tmp_path / "o" / f"{stem}{suffix}").is_file()
     csv = (tmp_path / "o" / "d0_trajectory.csv").read_text().splitlines()
-    assert csv[0] == "t_s,x_px,y_px" and len(csv) == 101
+    header = "rank,probability,t_s,x_model_px,y_model_px,x_image_px,y_image_px"
+    assert csv[0] == header and len(csv) == 101
     assert cli.main(["evaluate", str(run), str(data_path), "--out", str(tmp_path / "e")]) == 0
     assert (tmp_path / "e" / "examples.png").is_file()
 

@@ -199,13 +199,17 @@ def test_a_three_hypothesis_network_trains_and_predict_ranks_its_hypotheses(thre
     probs = [h["probability"] for h in rec["hypotheses"]]
     assert [h["rank"] for h in rec["hypotheses"]] == [1, 2, 3]
     assert probs == sorted(probs, reverse=True) and sum(probs) == pytest.approx(1.0)
-    assert rec["dmp"] == rec["hypotheses"][0]["dmp"]  # the top one is the one written
+    assert rec["params"] == rec["hypotheses"][0]["params"]  # the top one is the one written
     rows = (out / "one_trajectory.csv").read_text().splitlines()
-    assert rows[0].startswith("rank,probability,t_s,x_px,y_px") and len(rows) == 1 + 3 * 20
+    assert rows[0].startswith("rank,probability,t_s,x_model_px,y_model_px,x_image_px")
+    assert len(rows) == 1 + 3 * 20
     assert (out / "one_overlay.png").stat().st_size > 1000
     # the robot's input (predict_paths) is the top hypothesis
+    from img2dmp.dmp import DMPParams
+
     [(top, _)] = pred.predict_paths([root / "one.png"])
-    np.testing.assert_allclose(top.to_vector(), rec["vector"], rtol=1e-6)
+    written = DMPParams.from_dict(rec["params"]).to_vector()
+    np.testing.assert_allclose(top.to_vector(), written, rtol=1e-6)
 
 
 def test_unlabelled_images_add_their_ink_terms_to_a_training_step():

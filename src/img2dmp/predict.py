@@ -1,14 +1,33 @@
 """From images to DMPs with a trained network (the inference side of Pahič et al.).
 
+- :func:`load_model` - a trained network from a run directory or checkpoint, ready to
+  predict: ``load_model("runs/paper").predict("my_digit.png")``.
 - :class:`Predictor` - a loaded model: :meth:`Predictor.load` (run directory or
-  checkpoint), :meth:`~Predictor.predict_images` (prepared ``[B, H, W]`` images to
-  :class:`~img2dmp.dmp.DMPParams`), :meth:`~Predictor.predict_paths` (image files),
-  :meth:`~Predictor.trajectories` (rollout at given or evenly spaced time stamps).
+  checkpoint), :meth:`~Predictor.predict` (one image: path, PIL image or array of any
+  size and polarity, to a :class:`Prediction`), :meth:`~Predictor.predict_images`
+  (prepared ``[B, H, W]`` images to :class:`~img2dmp.dmp.DMPParams`),
+  :meth:`~Predictor.predict_paths` (image files), :meth:`~Predictor.trajectories`
+  (rollout at given or evenly spaced time stamps).
+- :class:`Prediction` - the DMP(s) of one image, ranked, with their probabilities and
+  trajectories in both frames (the model's input and the user's image), and
+  :meth:`~Prediction.save`, which writes the one DMP file (:mod:`img2dmp.data.dmpfile`)
+  that ``img2dmp write --dmp`` executes.
 - :func:`prepare_image` - bring an arbitrary PNG/JPEG (any size, dark ink on light paper
   or light on dark) to the model's input the way the training images were made
-  (defined in :mod:`img2dmp.data.images`, with :func:`ink_margin`, :func:`stroke_width`
-  and :func:`typical_stroke_width`; still importable from here).
-- :func:`write_prediction` - JSON + CSV (+ overlay PNG) for one image.
+  (defined in :mod:`img2dmp.data.images`, with :func:`prepare_image_framed`,
+  :func:`ink_margin`, :func:`stroke_width` and :func:`typical_stroke_width`; still
+  importable from here).
+- :func:`write_prediction` - ``NAME_dmp.json`` + ``NAME_trajectory.csv`` (+ overlays) for
+  one prediction.
+
+**Frames.** The network reads the prepared image (the **model frame**: ``image_size``,
+e.g. 40 x 40, the ink cropped, padded to a square with the training images' margin and
+resized), so its DMPs and their paths are in those pixels. ``Prediction.frame`` (an
+:class:`~img2dmp.data.images.ImageFrame`) is the affine map between the user's own image
+(the **image frame**, its own pixels) and the model frame; ``params_image`` and
+``path_image`` are the same DMPs and paths in the image frame (exact: see
+:mod:`img2dmp.dmp.affine`). Both follow docs/CONTRACTS.md: x = column, y = row, the
+centre of pixel ``[i, j]`` at ``(j, i)``.
 
 The network runs through :mod:`img2dmp.nn.inference`, the batched path that evaluation
 and training's validation use too.
@@ -16,7 +35,6 @@ and training's validation use too.
 
 from __future__ import annotations
 
-import json
 import numbers
 import os
 from pathlib import Path
@@ -30,18 +48,24 @@ from .checkpoint import (
     load_checkpoint,
     load_weights_into,
 )
+from .data.dmpfile import dmp_document, dmp_json_text, trajectory_entry, write_dmp_document
 from .data.images import (  # noqa: F401  (re-exported: their home was this module)
     DEFAULT_MARGIN,
     INK_THRESHOLD,
+    ImageFrame,
     _decode,
     _match_stroke_width,
     ink_margin,
+    ink_view,
     prepare_image,
+    prepare_image_framed,
     stroke_width,
     typical_stroke_width,
 )
 from .dmp import DMPConfig, DMPParams, rollout
+from .dmp.affine import affine_dmp
 from .nn import ModelConfig, ParamNormaliser, build_model
+from .nn.device import place_model
 from .nn.inference import dmp_trajectories, network_outputs, rollout_outputs
 from .nn.model import split_hypotheses
 from .nn.refine import RefineOptions, refine
@@ -109,8 +133,11 @@ class Predictor:
         return refine(z, x, t, self.normaliser, self.dmp_config, o).to(z.dtype)
 
     @classmethod
-    def load(cls, path: str | os.PathLike, name: str = "best") -> Predictor:
+    def load(cls, path: str | os.PathLike, name: str = "best", device: str = "cpu") -> Predictor:
         """Load from a run directory (its ``checkpoints/<name>``) or a checkpoint file.
+
+        ``device``: where the network runs (``"cpu"``, ``"cuda"``; inputs and outputs stay
+        on the CPU, :func:`img2dmp.nn.device.place_model`).
 
         Raises ``FileNotFoundError`` if nothing is there and :class:`CheckpointError`
         (a ``ValueError``) if the file is corrupt, truncated or of another architecture.
@@ -129,7 +156,7 @@ class Predictor:
             )
         model = build_model(mcfg)
         load_weights_into(model, ckpt)
-        return cls(model, normaliser, dmp_config, ckpt.meta)
+        return cls(place_model(model, device), normaliser, dmp_config, ckpt.meta)
 
     @property
     def margin(self) -> float:
@@ -249,6 +276,65 @@ class Predictor:
             ]
         )
 
+    def prepare(
+        self, image, match_stroke_width: bool = True, name: str | None = None
+    ) -> tuple[np.ndarray, ImageFrame]:
+        """One image (a path, a PIL image or an array ``[H, W]``, ``[H, W, 3]`` or
+        ``[H, W, 4]`` of any size, either polarity) as the model's input ``[H, W]``, and
+        the :class:`ImageFrame` between it and the image (:func:`prepare_image_framed`
+        with the training images' framing and, with ``match_stroke_width``, pen width)."""
+        width = self.stroke_width if match_stroke_width else None
+        return prepare_image_framed(
+            image, self.image_size, margin=self.margin, stroke_width_px=width, name=name
+        )
+
+    def predict(
+        self,
+        image,
+        *,
+        n_points: int = 100,
+        match_stroke_width: bool = True,
+        name: str | None = None,
+    ) -> Prediction:
+        """The DMP(s) that write the digit in one image: the one call from Python.
+
+        Parameters
+        ----------
+        image : path, PIL image or array
+            A PNG/JPEG file, a ``PIL.Image.Image`` or a NumPy array (grey ``[H, W]``, RGB
+            ``[H, W, 3]``, RGBA ``[H, W, 4]``; values in [0, 1], or [0, 255] when any is
+            above 1), any size, dark ink on light paper or light on dark; brought to the
+            model's input as the training images were made (:meth:`prepare`).
+        n_points : int
+            Samples of each trajectory, evenly spaced over its own ``[0, tau]``.
+        match_stroke_width : bool
+            Bring the strokes to the training images' pen width (default).
+        name : str, optional
+            Names an array or PIL image in error messages.
+
+        Returns
+        -------
+        Prediction
+            All hypotheses, ranked, in both frames; :meth:`Prediction.save` writes them.
+        """
+        n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
+        prepared, frame = self.prepare(image, match_stroke_width, name)
+        params, probs = self.predict_hypotheses(prepared[None])  # [1, K], ranked
+        times, path = self.trajectories(params[0], n_points=n_points)  # [K, T], [K, T, d]
+        o = self.refine_options
+        return Prediction(
+            params=params[0],
+            probabilities=probs[0],
+            times=times,
+            path_model=path,
+            frame=frame,
+            dmp_config=self.dmp_config,
+            image=prepared,
+            source=str(image) if isinstance(image, (str, os.PathLike)) else None,
+            refine_steps=0 if o is None else int(o.steps),
+            user_image=image,
+        )
+
     def trajectories(self, params: DMPParams, times=None, n_points: int = 100):
         """Roll DMPs out (exact solution, eqs. 3-7).
 
@@ -294,83 +380,202 @@ class Predictor:
         return y[:, 0].numpy()
 
 
-def prediction_record(
-    params: DMPParams,
-    times: np.ndarray,
-    y: np.ndarray,
-    source: str,
-    hypotheses: list[dict] | None = None,
-) -> dict:
-    """JSON-ready description of one predicted DMP and its sampled trajectory.
+class Prediction:
+    """The DMP(s) one image shows, as :meth:`Predictor.predict` gives them.
 
-    ``hypotheses`` (a network with several): one :func:`hypothesis_record` per hypothesis,
-    ranked; the top-level ``dmp`` and ``trajectory`` are then the top one's.
+    K hypotheses (1 for the paper's network), ranked by probability; index 0 is the top
+    one, the DMP ``img2dmp write`` executes. Positions are pixels (x = column, y = row)
+    in the frame the name says: ``*_model`` in the model's input (``frame.model_size``),
+    ``*_image`` in the user's own image (``frame.image_size``).
+
+    Attributes
+    ----------
+    params : DMPParams
+        Batch shape ``[K]``, NumPy float64, model frame.
+    params_image : DMPParams
+        The same DMPs in the image frame (:func:`img2dmp.dmp.affine.affine_dmp`: the
+        rollout of ``params_image[k]`` is ``path_image[k]``, exactly).
+    probabilities : ndarray [K]
+        Descending, summing to 1.
+    times : ndarray [K, T]
+        Seconds, evenly spaced over each DMP's own duration.
+    path_model, path_image : ndarray [K, T, d]
+        The rollouts in the model and the image frame (d = 3: the third column is the
+        pen, 1 = down, the same in both).
+    frame : ImageFrame
+        The affine map between the two frames.
+    dmp_config : DMPConfig
+    image : ndarray float32 [H, W]
+        The model's input (the prepared image), ink = 1.
+    source : str or None
+        The image file, or None for an array or PIL image.
+    refine_steps : int
+        Gradient steps on the ink each DMP got (0: the network's output).
+    user_image : path, PIL image, array or None
+        What was predicted from, as given (for pictures on it: :func:`write_prediction`).
     """
-    rec = {
-        "image": source,
-        "dmp": params.to_dict(),
-        "vector": np.asarray(params.to_vector()).tolist(),
-        "trajectory": {"t": times.tolist(), "y": y.tolist()},
-    }
-    if hypotheses is not None:
-        rec["hypotheses"] = hypotheses
-    return rec
+
+    def __init__(
+        self,
+        params: DMPParams,
+        probabilities,
+        times,
+        path_model,
+        frame: ImageFrame,
+        dmp_config: DMPConfig,
+        image: np.ndarray,
+        source: str | None = None,
+        refine_steps: int = 0,
+        user_image=None,
+    ):
+        self.params = params.to_numpy()
+        if len(self.params.batch_shape) != 1:
+            raise ValueError(f"params must have batch shape [K], got {self.params.batch_shape}")
+        self.probabilities = np.asarray(probabilities, dtype=np.float64)
+        self.times = np.asarray(times, dtype=np.float64)
+        self.path_model = np.asarray(path_model, dtype=np.float64)
+        self.frame, self.dmp_config, self.image = frame, dmp_config, image
+        self.source, self.refine_steps = source, int(refine_steps)
+        self.params_image = affine_dmp(self.params, dmp_config, frame.model_to_image)
+        self.path_image = frame.to_image(self.path_model)
+        self.user_image = user_image
+
+    @property
+    def n_hypotheses(self) -> int:
+        return int(self.params.batch_shape[0])
+
+    @property
+    def dmp(self) -> DMPParams:
+        """The top hypothesis (model frame, batch shape ``[]``): what a robot writes."""
+        return self.params[0]
+
+    @property
+    def dmp_image(self) -> DMPParams:
+        """The top hypothesis in the user's image frame."""
+        return self.params_image[0]
+
+    def to_document(self) -> dict:
+        """The version-2 DMP file's content (:mod:`img2dmp.data.dmpfile`)."""
+        hyps = [
+            {
+                "rank": k + 1,
+                "probability": float(self.probabilities[k]),
+                "params": self.params[k].to_dict(),
+                "params_image": self.params_image[k].to_dict(),
+                "trajectory": trajectory_entry(
+                    self.times[k], xy_model=self.path_model[k], xy_image=self.path_image[k]
+                ),
+            }
+            for k in range(self.n_hypotheses)
+        ]
+        return dmp_document(
+            self.dmp,
+            self.dmp_config,
+            self.frame.model_size,
+            frame="model",
+            hypotheses=hyps,
+            image_frame={"image": self.source, **self.frame.to_dict()},
+            refinement={"steps": self.refine_steps},
+        )
+
+    def to_json(self, name: str | os.PathLike = "DMP document") -> str:
+        """The DMP file's text, checked as the reader checks it (errors start with
+        ``name``, e.g. the file it is for)."""
+        return dmp_json_text(self.to_document(), name)
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the one DMP file (format ``img2dmp-dmp`` version 2, docs/ROBOT.md) that
+        ``img2dmp write --dmp`` and :func:`img2dmp.robot.load_dmp_json` read; atomically,
+        checked before anything is written. Returns ``path``."""
+        write_dmp_document(path, self.to_document())
+        return Path(path)
+
+    def trajectory_csv(self) -> str:
+        """``rank,probability,t_s,x_model_px,y_model_px,x_image_px,y_image_px[,pen]``:
+        one block of rows per hypothesis, ranked."""
+        d = self.path_model.shape[-1]
+        extra = ["pen"] if d == 3 else [f"channel_{k}" for k in range(2, d)]
+        cols = ["rank", "probability", "t_s", "x_model_px", "y_model_px", "x_image_px",
+                "y_image_px", *extra]  # fmt: skip
+        lines = [",".join(cols)]
+        for k in range(self.n_hypotheses):
+            head = [str(k + 1), f"{self.probabilities[k]:.6g}"]
+            m, u = self.path_model[k], self.path_image[k]
+            for i, t in enumerate(self.times[k]):
+                row = [t, m[i, 0], m[i, 1], u[i, 0], u[i, 1], *m[i, 2:]]
+                lines.append(",".join(head + [f"{v:.6g}" for v in row]))
+        return "\n".join(lines) + "\n"
+
+    def __repr__(self) -> str:
+        top = self.dmp
+        return (
+            f"Prediction({self.n_hypotheses} hypothes{'i' if self.n_hypotheses == 1 else 'e'}s, "
+            f"top p = {self.probabilities[0]:.3f}, tau = {float(top.tau):.3f} s, "
+            f"source {self.source or 'in memory'}, {self.frame!r})"
+        )
 
 
-def hypothesis_record(rank: int, probability: float, params: DMPParams, times, y) -> dict:
-    """One ranked hypothesis (rank 1 = the most probable, the one a robot writes)."""
-    return {
-        "rank": int(rank),
-        "probability": float(probability),
-        "dmp": params.to_dict(),
-        "trajectory": {"t": np.asarray(times).tolist(), "y": np.asarray(y).tolist()},
-    }
+def load_model(
+    path: str | os.PathLike, *, refine: int = 0, checkpoint: str = "best", device: str = "cpu"
+) -> Predictor:
+    """A trained network, ready to predict: ``load_model(run).predict(image)``.
+
+    Parameters
+    ----------
+    path : run directory (its ``checkpoints/<checkpoint>``) or checkpoint file
+    refine : int
+        Gradient steps that pull every predicted DMP onto the ink of its image (0: the
+        network's output as it is; ``img2dmp predict --refine``).
+    checkpoint : str
+        Which checkpoint of a run directory ("best" or "last").
+    device : str
+        Where the network runs ("cpu", "cuda"; :meth:`Predictor.load`).
+
+    Raises ``FileNotFoundError`` if nothing is there, :class:`CheckpointError` (a
+    ``ValueError``) for a corrupt or foreign file and ``ValueError`` for a bad ``refine``.
+    """
+    steps = check_count("refine", refine, 0, MAX_REFINE_STEPS)
+    predictor = Predictor.load(path, checkpoint, device)
+    if steps:
+        predictor.refine_options = RefineOptions(steps=steps)
+    return predictor
 
 
-def _trajectory_csv(record: dict) -> str:
-    """``t_s,x_px,y_px[,y2...]``; with several hypotheses a ``rank,probability`` column
-    pair first and one block of rows per hypothesis."""
-    hyps = record.get("hypotheses")
-    rows = hyps if hyps else [{"trajectory": record["trajectory"]}]
-    d = np.asarray(rows[0]["trajectory"]["y"]).shape[1]
-    cols = ["t_s", "x_px", "y_px"] + [f"y{k}" for k in range(2, d)]
-    lines = [",".join((["rank", "probability"] if hyps else []) + cols)]
-    for h in rows:
-        t, y = np.asarray(h["trajectory"]["t"]), np.asarray(h["trajectory"]["y"])
-        head = [str(h["rank"]), f"{h['probability']:.6g}"] if hyps else []
-        lines += [",".join(head + [f"{v:.6g}" for v in (t[i], *y[i])]) for i in range(len(t))]
-    return "\n".join(lines) + "\n"
+def _overlay(path: Path, image: np.ndarray, paths: np.ndarray, probs, title: str) -> None:
+    """A picture of ``paths [K, T, d]`` (ranked) over ``image``; imported here so that
+    matplotlib starts only when an overlay is asked for."""
+    from .data.plotting import hypotheses_figure, overlay_figure
+
+    if len(paths) > 1:
+        hypotheses_figure(path, image, paths, probs, title=title)
+    else:
+        overlay_figure(path, image[None], None, paths[:1], titles=[title], cell_inches=3.0,
+                       labels=("demonstration", "prediction"))  # fmt: skip
 
 
 def write_prediction(
-    out_dir: str | os.PathLike,
-    stem: str,
-    record: dict,
-    image: np.ndarray | None = None,
+    out_dir: str | os.PathLike, stem: str, prediction: Prediction, overlay: bool = False
 ) -> list[Path]:
-    """Write ``<stem>_dmp.json``, ``<stem>_trajectory.csv`` and, with ``image``, an overlay
-    ``<stem>_overlay.png`` (the image with the DMP path in red; with several hypotheses
-    all of them, ranked, the top one bold). Atomic writes."""
+    """Write ``<stem>_dmp.json`` (:meth:`Prediction.save`), ``<stem>_trajectory.csv``
+    (:meth:`Prediction.trajectory_csv`) and, with ``overlay``, ``<stem>_overlay.png``
+    (the model's input with the paths in the model frame) and
+    ``<stem>_overlay_image.png`` (the user's own image with the paths in the image frame;
+    several hypotheses ranked, the top one bold). Atomic writes."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = [out / f"{stem}_dmp.json", out / f"{stem}_trajectory.csv"]
-    atomic_write_text(written[0], json.dumps(record, indent=1) + "\n")
-    atomic_write_text(written[1], _trajectory_csv(record))
-    if image is not None:
-        # Imported here: matplotlib starts only when an overlay is asked for.
-        from .data.plotting import hypotheses_figure, overlay_figure
-
-        p = out / f"{stem}_overlay.png"
-        hyps = record.get("hypotheses")
-        if hyps:
-            ys = np.stack([np.asarray(h["trajectory"]["y"]) for h in hyps])  # [K, T, d]
-            probs = np.array([h["probability"] for h in hyps])
-            hypotheses_figure(p, image, ys, probs, title=stem)
-        else:
-            y = np.asarray(record["trajectory"]["y"])
-            overlay_figure(p, image[None], None, y[None], titles=[stem], cell_inches=3.0,
-                           labels=("demonstration", "prediction"))  # fmt: skip
-        written.append(p)
+    atomic_write_text(written[0], prediction.to_json(written[0]))  # checked first
+    atomic_write_text(written[1], prediction.trajectory_csv())
+    if overlay:
+        p = prediction.probabilities
+        written.append(out / f"{stem}_overlay.png")
+        _overlay(written[-1], prediction.image, prediction.path_model, p, f"{stem} (model frame)")
+        if prediction.user_image is not None:
+            view, scale = ink_view(prediction.user_image, name=stem)
+            xy = prediction.path_image.copy()
+            xy[..., :2] = (xy[..., :2] + 0.5) * scale - 0.5
+            written.append(out / f"{stem}_overlay_image.png")
+            _overlay(written[-1], view, xy, p, f"{stem} (your image)")
     return written
 
 
@@ -380,12 +585,14 @@ __all__ = [
     "MAX_BATCH_SIZE",
     "MAX_POINTS",
     "MAX_REFINE_STEPS",
+    "ImageFrame",
+    "Prediction",
     "Predictor",
     "check_count",
-    "hypothesis_record",
     "ink_margin",
-    "prediction_record",
+    "load_model",
     "prepare_image",
+    "prepare_image_framed",
     "stroke_width",
     "typical_stroke_width",
     "write_prediction",

@@ -5,11 +5,13 @@ an arbitrary photo or scan is brought to the same framing and width before the n
 sees it.
 
 - :func:`prepare_image` - an arbitrary PNG/JPEG (any size, dark ink on light paper or
-  light on dark) or grey-level array to the model's input, the way the training images
-  were made.
+  light on dark), PIL image or array to the model's input, the way the training images
+  were made; :func:`prepare_image_framed` - the same and the :class:`ImageFrame` that
+  maps positions between the user's image and the model's input.
 - :func:`ink_margin`, :func:`typical_stroke_width` - the framing and pen width of a set of
   prepared (training) images, stored with a model so :func:`prepare_image` can match them.
 - :func:`stroke_width` - the pen width of one image.
+- :func:`ink_view` - a whole image as ink levels, small enough for a picture.
 
 Work and memory are linear in the image's size: a photo of more than
 ``MAX_WORK_PIXELS`` is reduced (area average) as it is read, and the ink's crop is
@@ -50,6 +52,95 @@ _MAX_UPSAMPLED_PIXELS = 4_000_000
 # A grey dilation or erosion compares at most about this many pixel pairs (~0.5 s); a
 # wider disc is applied at a coarser resolution.
 _MAX_MORPHOLOGY_OPS = 2e8
+
+
+def _size_pair(what: str, value) -> tuple[int, int]:
+    try:
+        h, w = value
+        ok = all(
+            isinstance(v, numbers.Integral) and not isinstance(v, bool) and v > 0 for v in (h, w)
+        )
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError(f"{what} must be (H, W), two positive integers, got {value!r}")
+    return int(h), int(w)
+
+
+class ImageFrame:
+    """Where the model's input sits in the user's own image: an affine map of positions.
+
+    Both frames follow docs/CONTRACTS.md: ``(x, y)`` = (column, row) in pixels, the centre
+    of pixel ``[i, j]`` at ``(x=j, y=i)``. The **image frame** is the user's image as
+    given (the file's own pixels, before any reduction); the **model frame** is the
+    prepared image the network reads (``model_size``, e.g. 40 x 40).
+
+    Attributes
+    ----------
+    image_to_model : float64 [2, 3]
+        ``[x_m, y_m] = A @ [x, y] + b`` with ``A = image_to_model[:, :2]``,
+        ``b = image_to_model[:, 2]`` (the convention of :mod:`img2dmp.data.affine`).
+        :func:`prepare_image_framed` makes an axis-aligned scaling and shift (``A``
+        diagonal and positive); any invertible ``A`` is accepted.
+    model_to_image : float64 [2, 3]
+        The inverse map.
+    image_size, model_size : (H, W)
+        The user's image and the model's input, pixels.
+    """
+
+    def __init__(self, image_to_model, image_size, model_size):
+        m = np.array(image_to_model, dtype=np.float64)
+        if m.shape != (2, 3) or not np.isfinite(m).all():
+            raise ValueError(
+                f"image_to_model must be a finite 2 x 3 matrix, got {np.asarray(image_to_model)!r}"
+            )
+        det = float(np.linalg.det(m[:, :2]))
+        if not abs(det) > 1e-12 * max(1.0, float(np.abs(m[:, :2]).max()) ** 2):
+            raise ValueError(f"image_to_model is not invertible: det(A) = {det!r}")
+        inv = np.empty((2, 3))
+        inv[:, :2] = np.linalg.inv(m[:, :2])
+        inv[:, 2] = -inv[:, :2] @ m[:, 2]
+        m.setflags(write=False)
+        inv.setflags(write=False)
+        self.image_to_model, self.model_to_image = m, inv
+        self.image_size = _size_pair("image_size", image_size)
+        self.model_size = _size_pair("model_size", model_size)
+
+    @staticmethod
+    def _apply(matrix: np.ndarray, points) -> np.ndarray:
+        p = np.asarray(points, dtype=np.float64)
+        if p.ndim < 1 or p.shape[-1] < 2:
+            raise ValueError(f"points must have shape [..., d >= 2] (x, y first), got {p.shape}")
+        out = p.copy()
+        out[..., :2] = p[..., :2] @ matrix[:, :2].T + matrix[:, 2]
+        return out
+
+    def to_model(self, points) -> np.ndarray:
+        """Points ``[..., d]`` (x, y first; further columns such as the pen pass through)
+        from the user's image to the model's input."""
+        return self._apply(self.image_to_model, points)
+
+    def to_image(self, points) -> np.ndarray:
+        """Points ``[..., d]`` from the model's input to the user's image."""
+        return self._apply(self.model_to_image, points)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: both matrices and both sizes."""
+        return {
+            "image_size": list(self.image_size),
+            "model_size": list(self.model_size),
+            "image_to_model": self.image_to_model.tolist(),
+            "model_to_image": self.model_to_image.tolist(),
+        }
+
+    def __repr__(self) -> str:
+        a = self.image_to_model
+        return (
+            f"ImageFrame(image {self.image_size[0]} x {self.image_size[1]} -> model "
+            f"{self.model_size[0]} x {self.model_size[1]}: x_m = {a[0, 0]:.6g} x + "
+            f"{a[0, 1]:.6g} y + {a[0, 2]:.6g}, y_m = {a[1, 0]:.6g} x + {a[1, 1]:.6g} y + "
+            f"{a[1, 2]:.6g})"
+        )
 
 
 def ink_margin(images: np.ndarray) -> float:
@@ -125,6 +216,14 @@ def _work_factor(crop: np.ndarray, margin: float, out_side: int) -> int:
 def _match_stroke_width(
     crop: np.ndarray, scale: float, target_px: float, factor: int = 1
 ) -> np.ndarray:
+    """Thicken or thin the ink of ``crop`` so that it is ``target_px`` wide after resizing
+    (:func:`_match_stroke_width_framed` without the change of frame)."""
+    return _match_stroke_width_framed(crop, scale, target_px, factor)[0]
+
+
+def _match_stroke_width_framed(
+    crop: np.ndarray, scale: float, target_px: float, factor: int = 1
+) -> tuple[np.ndarray, int, int]:
     """Thicken or thin the ink of ``crop`` so that it is ``target_px`` wide after resizing.
 
     ``scale`` is output pixels per crop pixel. The crop is first reduced ``factor`` times
@@ -132,7 +231,9 @@ def _match_stroke_width(
     by the maximum of each block, so that a hairline keeps its ink (the dilation would
     spread it anyway). Grey-level dilation (erosion) with a disc then widens (narrows)
     every stroke by twice the disc's radius and keeps its ink profile. Returns the crop
-    at the reduced resolution.
+    at the reduced resolution, the reduction (crop pixels per returned pixel) and the
+    border added on every side (returned pixels): a position ``u`` of the crop (pixel
+    edges) is at ``u / reduction + border`` in the result.
     """
     from scipy.ndimage import grey_dilation, grey_erosion
 
@@ -142,7 +243,7 @@ def _match_stroke_width(
     upsample = 1 if scale < 0.5 and factor == 1 else 4
     width_out = stroke_width(np.pad(work, 1), upsample=upsample) * scale
     if width_out <= 0 or abs(width_out - target_px) < 0.25:
-        return work
+        return work, factor, 0
     if width_out < target_px and factor > 1:
         work = _reduce(crop, factor, "max")
         width_out = stroke_width(np.pad(work, 1), upsample=upsample) * scale
@@ -154,42 +255,69 @@ def _match_stroke_width(
     if coarser > 1:  # work and disc both shrink with its square
         work = _reduce(work, coarser, "max" if width_out < target_px else "mean")
         radius /= coarser
+    reduction = factor * max(coarser, 1)
     r = int(np.ceil(radius))
     if r < 1:
-        return work
+        return work, reduction, 0
     yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
     disc = (xx**2 + yy**2) <= radius**2 + 1e-9
     op = grey_dilation if width_out < target_px else grey_erosion
-    return op(np.pad(work, r), footprint=disc)
+    return op(np.pad(work, r), footprint=disc), reduction, r
 
 
 class ImageTooLargeError(ValueError):
     """An image file with more pixels than PIL's decompression-bomb limit."""
 
 
-def _open_reduced(im, path: Path):
+def _open_reduced(im, label: str):
     """A loaded PIL image of at most ``MAX_WORK_PIXELS`` (JPEG: decoded at a reduced
-    scale), and the further integer reduction it needs; ``ValueError`` for an image
-    beyond PIL's decompression-bomb limit."""
+    scale), the further integer reduction it needs and the scale the decoder applied
+    (1 unless a JPEG was decoded at 1/2, 1/4 or 1/8); ``ValueError`` for an image beyond
+    PIL's decompression-bomb limit."""
     from PIL import Image
 
     w, h = im.size
     limit = Image.MAX_IMAGE_PIXELS
     if limit is not None and w * h > limit:
         raise ImageTooLargeError(
-            f"image file {path} has {w} x {h} = {w * h} pixels, more than the {limit} "
+            f"{label} has {w} x {h} = {w * h} pixels, more than the {limit} "
             "an image may have (PIL.Image.MAX_IMAGE_PIXELS)"
         )
     factor = math.ceil(math.sqrt(w * h / MAX_WORK_PIXELS))
+    draft = None
     if factor > 1:
-        im.draft(None, (max(1, w // factor), max(1, h // factor)))  # JPEG only
+        draft = im.draft(None, (max(1, w // factor), max(1, h // factor)))  # JPEG only
     im.load()
+    # The decoder's scale, exactly: PIL's box is the image in the drafted pixels.
+    scale = w / draft[1][2] if draft else 1.0
     w, h = im.size
-    return im, max(1, math.ceil(math.sqrt(w * h / MAX_WORK_PIXELS)))
+    return im, max(1, math.ceil(math.sqrt(w * h / MAX_WORK_PIXELS))), scale
 
 
-def _decode(path: Path) -> np.ndarray:
-    """Grey levels in [0, 1] of an image file; transparency is composited on white."""
+def _pil_grey(im, label: str) -> tuple[np.ndarray, float]:
+    """Grey levels in [0, 1] of a PIL image (transparency composited on white), reduced
+    to at most ``MAX_WORK_PIXELS``, and the reduction (its pixels per grey pixel)."""
+    from PIL import Image
+
+    im, factor, scale = _open_reduced(im, label)
+    if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
+        rgba = im.convert("RGBA")
+        bg = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
+        im = Image.alpha_composite(bg, rgba)
+    if factor > 1:  # 8-bit images reduce as 8 bits: a quarter of the memory
+        wide = im.mode.startswith("I") or im.mode == "F"  # more than 8 bits
+        im = im.convert("F" if wide else "L")
+        im = im.reduce(factor)
+    grey = np.asarray(im.convert("F"), dtype=np.float64)
+    if grey.ndim != 2 or min(grey.shape) < 2:
+        raise ValueError(f"{label} has unusable size {grey.shape}")
+    top = grey.max()
+    return grey / (255.0 if top > 1.0 else 1.0), scale * factor
+
+
+def _decode_framed(path: Path) -> tuple[np.ndarray, float, tuple[int, int]]:
+    """Grey levels in [0, 1] of an image file (:func:`_pil_grey`), the reduction (file
+    pixels per grey pixel) and the file's own size ``(H, W)``."""
     from PIL import Image, UnidentifiedImageError
 
     if not path.is_file():
@@ -199,44 +327,84 @@ def _decode(path: Path) -> np.ndarray:
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             im = Image.open(path)
         with im:
-            im, factor = _open_reduced(im, path)
-            if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
-                rgba = im.convert("RGBA")
-                bg = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
-                im = Image.alpha_composite(bg, rgba)
-            if factor > 1:  # 8-bit images reduce as 8 bits: a quarter of the memory
-                wide = im.mode.startswith("I") or im.mode == "F"  # more than 8 bits
-                im = im.convert("F" if wide else "L")
-                im = im.reduce(factor)
-            grey = np.asarray(im.convert("F"), dtype=np.float64)
+            size = (im.size[1], im.size[0])
+            grey, reduction = _pil_grey(im, f"image file {path}")
     except ImageTooLargeError:
         raise
     except Image.DecompressionBombError as e:
         raise ImageTooLargeError(f"image file {path} is refused as too large: {e}") from e
-    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as e:
+    except (UnidentifiedImageError, OSError, SyntaxError) as e:
         raise ValueError(f"cannot decode image file {path}: {e}") from e
-    if grey.ndim != 2 or min(grey.shape) < 2:
-        raise ValueError(f"image file {path} has unusable size {grey.shape}")
-    top = grey.max()
-    return grey / (255.0 if top > 1.0 else 1.0)
+    except ValueError as e:
+        if str(e).startswith(f"image file {path}"):
+            raise
+        raise ValueError(f"cannot decode image file {path}: {e}") from e
+    return grey, reduction, size
 
 
-def _grey_levels(source, name: str | None) -> tuple[np.ndarray, str]:
-    """Grey levels ``[H, W]`` in [0, 1] of a file or array, and a label for messages."""
-    if isinstance(source, (str, os.PathLike)):
-        return _decode(Path(source)), str(source)
-    label = name or "image array"
-    grey = np.asarray(source)
-    if grey.dtype.kind not in "buif":
-        raise ValueError(f"{label} must hold numbers, got dtype {grey.dtype}")
-    if grey.ndim != 2 or min(grey.shape) < 2:
-        raise ValueError(f"{label} must be a 2-D grey-level array, got shape {grey.shape}")
-    if not np.isfinite(grey).all():
+def _decode(path: Path) -> np.ndarray:
+    """Grey levels in [0, 1] of an image file; transparency is composited on white."""
+    return _decode_framed(path)[0]
+
+
+def _array_grey(source, label: str) -> np.ndarray:
+    """A NumPy array ``[H, W]`` (grey), ``[H, W, 3]`` (RGB) or ``[H, W, 4]`` (RGBA,
+    composited on white) as grey levels at full size, checked (``ValueError`` naming
+    ``label``)."""
+    a = np.asarray(source)
+    if a.dtype.kind not in "buif":
+        raise ValueError(f"{label} must hold numbers, got dtype {a.dtype}")
+    if not (a.ndim == 2 or (a.ndim == 3 and a.shape[2] in (3, 4))) or min(a.shape[:2]) < 2:
+        raise ValueError(
+            f"{label} must be a grey-level [H, W], RGB [H, W, 3] or RGBA [H, W, 4] array "
+            f"of at least 2 x 2 pixels, got shape {a.shape}"
+        )
+    if a.dtype.kind == "f" and not np.isfinite(a).all():
         raise ValueError(f"{label} contains NaN or inf")
+    if a.ndim == 2:
+        return a
+    full = 255.0 if a.dtype.kind in "iu" or a.max() > 1.0 else 1.0
+    rgb = a[..., :3].astype(np.float64)
+    grey = rgb @ np.array([0.299, 0.587, 0.114])  # ITU-R 601-2 luma, as PIL's "L"
+    if a.shape[2] == 4:  # composite on white, as for image files
+        alpha = a[..., 3].astype(np.float64) / full
+        grey = grey * alpha + full * (1.0 - alpha)
+    return grey
+
+
+def _grey_levels_framed(source, name: str | None):
+    """Grey levels ``[h, w]`` in [0, 1] of a file, PIL image or array, the reduction (the
+    source's pixels per grey pixel), the source's size ``(H, W)`` and a label for
+    messages."""
+    from PIL import Image
+
+    if isinstance(source, (str, os.PathLike)):
+        grey, reduction, size = _decode_framed(Path(source))
+        return grey, reduction, size, str(source)
+    if isinstance(source, Image.Image):
+        label = name or "PIL image"
+        size = (source.size[1], source.size[0])
+        grey, reduction = _pil_grey(source.copy(), label)
+        return grey, reduction, size, label
+    if not (isinstance(source, (np.ndarray, list, tuple)) or hasattr(source, "__array__")):
+        raise ValueError(
+            f"{name or 'image'} must be a file path, a PIL image or a NumPy array, got "
+            f"{type(source).__name__}"
+        )
+    label = name or "image array"
+    grey = _array_grey(source, label)
+    size = (int(grey.shape[0]), int(grey.shape[1]))
     factor = math.ceil(math.sqrt(grey.size / MAX_WORK_PIXELS))
     grey = _reduce(grey, factor) if factor > 1 else grey.astype(np.float64)
     if grey.max() > 1.0:
         grey = grey / 255.0
+    return grey, float(factor), size, label
+
+
+def _grey_levels(source, name: str | None) -> tuple[np.ndarray, str]:
+    """Grey levels ``[H, W]`` in [0, 1] of a file, PIL image or array, and a label for
+    messages."""
+    grey, _, _, label = _grey_levels_framed(source, name)
     return grey, label
 
 
@@ -262,17 +430,33 @@ def _ink_levels(grey: np.ndarray, label: str) -> np.ndarray:
     return np.clip(ink / top, 0.0, 1.0)
 
 
-def _crop_to_ink(ink: np.ndarray, label: str = "the image") -> np.ndarray:
-    """The bounding box of the pixels above ``INK_THRESHOLD``."""
+def _crop_box(ink: np.ndarray, label: str = "the image") -> tuple[np.ndarray, int, int]:
+    """The bounding box of the pixels above ``INK_THRESHOLD``, and its first row and
+    column in ``ink``."""
     rows, cols = np.nonzero(ink > INK_THRESHOLD)
     if rows.size == 0:
         raise ValueError(f"{label} has no pixel darker than half the ink's contrast")
-    return ink[rows.min() : rows.max() + 1, cols.min() : cols.max() + 1]
+    r0, c0 = int(rows.min()), int(cols.min())
+    return ink[r0 : rows.max() + 1, c0 : cols.max() + 1], r0, c0
+
+
+def _crop_to_ink(ink: np.ndarray, label: str = "the image") -> np.ndarray:
+    """The bounding box of the pixels above ``INK_THRESHOLD``."""
+    return _crop_box(ink, label)[0]
 
 
 def _frame(crop: np.ndarray, image_size: tuple[int, int], margin: float) -> np.ndarray:
     """The crop centred on a square with ``margin`` of its side free on every border,
-    resized to ``image_size`` and scaled so the darkest ink is 1; float32 ``[H, W]``.
+    resized to ``image_size`` and scaled so the darkest ink is 1; float32 ``[H, W]``
+    (:func:`_frame_placed` without the placement)."""
+    return _frame_placed(crop, image_size, margin)[0]
+
+
+def _frame_placed(crop: np.ndarray, image_size: tuple[int, int], margin: float):
+    """The crop centred on a square with ``margin`` of its side free on every border,
+    resized to ``image_size`` and scaled so the darkest ink is 1; float32 ``[H, W]``, and
+    the placement ``(side, top, left)``: the square's side and the crop's offset in it, in
+    crop pixels (the square fills the output, corner to corner).
 
     Shrinking averages over boxes (anti-aliased, as the training strokes are); enlarging
     interpolates bilinearly.
@@ -295,7 +479,17 @@ def _frame(crop: np.ndarray, image_size: tuple[int, int], margin: float) -> np.n
         dtype=np.float64,
     )
     out = np.clip(out / max(out.max(), 1e-12), 0.0, 1.0)
-    return out.astype(np.float32)
+    return out.astype(np.float32), (total, top_off, left_off)
+
+
+def _scaling(sx: float, sy: float | None = None) -> np.ndarray:
+    return np.diag([float(sx), float(sx if sy is None else sy), 1.0])
+
+
+def _shift(dx: float, dy: float) -> np.ndarray:
+    m = np.eye(3)
+    m[:2, 2] = dx, dy
+    return m
 
 
 def prepare_image(
@@ -316,12 +510,15 @@ def prepare_image(
     side on every border; optionally thicken or thin the strokes to the training images'
     pen width (a thin pen photographed at high resolution would otherwise shrink to faint
     hairlines); resize with area averaging (anti-aliased, as the training strokes are);
-    scale so the darkest ink is 1.
+    scale so the darkest ink is 1. :func:`prepare_image_framed` also gives where the
+    result sits in ``source`` (an :class:`ImageFrame`).
 
     Parameters
     ----------
-    source : path or array [H, W]
-        PNG/JPEG file (any size, RGB, grey or with transparency) or a grey-level array.
+    source : path, PIL image or array
+        PNG/JPEG file (any size, RGB, grey or with transparency), a ``PIL.Image.Image``,
+        or an array: grey levels ``[H, W]``, RGB ``[H, W, 3]`` or RGBA ``[H, W, 4]``
+        (values in [0, 1], or [0, 255] when any is above 1).
     image_size : (H, W)
         The model's input size.
     margin : float
@@ -330,13 +527,19 @@ def prepare_image(
         Pen width, in output pixels, to bring the strokes to (a model's
         ``stroke_width_px``, see :func:`typical_stroke_width`); None keeps the width.
     name : str, optional
-        Used in error messages for arrays.
+        Used in error messages for arrays and PIL images.
 
     Returns
     -------
     ndarray float32 [H, W]
         Ink = 1, background = 0.
     """
+    return prepare_image_framed(
+        source, image_size, margin=margin, stroke_width_px=stroke_width_px, name=name
+    )[0]
+
+
+def _check_preparation(image_size, margin, stroke_width_px) -> tuple[int, int]:
     h_out, w_out = _output_size(image_size)
     if not (isinstance(margin, numbers.Real) and 0 <= margin <= 0.45):
         raise ValueError(f"margin must be in [0, 0.45], got {margin!r}")
@@ -350,18 +553,68 @@ def prepare_image(
             f"stroke_width_px must be a number in (0, {widest:g}] (a quarter of the "
             f"image's side), got {stroke_width_px!r}"
         )
-    grey, label = _grey_levels(source, name)
-    crop = _crop_to_ink(_ink_levels(grey, label), label)
+    return h_out, w_out
+
+
+def prepare_image_framed(
+    source,
+    image_size=(40, 40),
+    *,
+    margin: float = DEFAULT_MARGIN,
+    stroke_width_px: float | None = None,
+    name: str | None = None,
+) -> tuple[np.ndarray, ImageFrame]:
+    """:func:`prepare_image` (same arguments), and the :class:`ImageFrame` that maps
+    positions in ``source`` to positions in the prepared image and back.
+
+    Every step that moves pixels is a shift or a scaling (the reduction of a large image,
+    the crop, the pen-width filter's border, the square's padding, the resize), so the
+    map is affine: ``frame.to_model(xy)`` puts a point of the user's image where it is in
+    the returned image, ``frame.to_image(xy)`` the reverse.
+    """
+    h_out, w_out = _check_preparation(image_size, margin, stroke_width_px)
+    grey, reduction, size, label = _grey_levels_framed(source, name)
+    # Positions are tracked on pixel edges (pixel j spans [j, j + 1]), where a reduction
+    # or a resize is a pure scaling; CONTRACTS.md's centres are half a pixel less.
+    edge = _scaling(1.0 / reduction)
+    crop, r0, c0 = _crop_box(_ink_levels(grey, label), label)
+    edge = _shift(-c0, -r0) @ edge
     factor = _work_factor(crop, margin, max(h_out, w_out))
     if stroke_width_px is not None:
         # The pen width is matched at the output's scale, which the framing fixes.
         side = max(crop.shape) / (1.0 - 2.0 * margin)
         scale = max(h_out, w_out) / side
-        crop = _match_stroke_width(crop, scale, float(stroke_width_px), factor)
-        crop = _crop_to_ink(crop, label)  # the widened ink may reach past the old box
+        crop, red, pad = _match_stroke_width_framed(crop, scale, float(stroke_width_px), factor)
+        edge = _shift(pad, pad) @ _scaling(1.0 / red) @ edge
+        crop, r0, c0 = _crop_box(crop, label)  # the widened ink may reach past the old box
+        edge = _shift(-c0, -r0) @ edge
     else:
         crop = _reduce(crop, factor)
-    return _frame(crop, (h_out, w_out), margin)
+        edge = _scaling(1.0 / factor) @ edge
+    out, (total, top, left) = _frame_placed(crop, (h_out, w_out), margin)
+    edge = _scaling(w_out / total, h_out / total) @ _shift(left, top) @ edge
+    centre = _shift(-0.5, -0.5) @ edge @ _shift(0.5, 0.5)
+    return out, ImageFrame(centre[:2], size, (h_out, w_out))
+
+
+def ink_view(source, max_side: int = 600, *, name: str | None = None):
+    """The whole of ``source`` (a path, PIL image or array, as for :func:`prepare_image`)
+    as ink levels for a picture: polarity from the border, background 0, ink 1, reduced
+    (area average) so that its longer side is at most ``max_side`` pixels.
+
+    Returns
+    -------
+    view : ndarray float32 [h, w]
+    scale : float
+        View pixels per pixel of ``source``: a point ``(x, y)`` of the user's image frame
+        is at ``((x + 0.5) * scale - 0.5, (y + 0.5) * scale - 0.5)`` in the view.
+    """
+    if isinstance(max_side, bool) or not isinstance(max_side, int) or max_side < 2:
+        raise ValueError(f"max_side must be a whole number >= 2, got {max_side!r}")
+    grey, reduction, _, label = _grey_levels_framed(source, name)
+    factor = max(1, math.ceil(max(grey.shape) / max_side))
+    view = _reduce(_ink_levels(grey, label), factor)
+    return view.astype(np.float32), 1.0 / (reduction * factor)
 
 
 def _output_size(image_size) -> tuple[int, int]:
@@ -388,12 +641,15 @@ def _output_size(image_size) -> tuple[int, int]:
 __all__ = [
     "DEFAULT_MARGIN",
     "INK_THRESHOLD",
+    "ImageFrame",
     "ImageTooLargeError",
     "MAX_WORK_PIXELS",
     "OUTPUT_SIDE_PX",
     "WORK_PER_OUTPUT_PX",
     "ink_margin",
+    "ink_view",
     "prepare_image",
+    "prepare_image_framed",
     "stroke_width",
     "typical_stroke_width",
 ]
