@@ -9,15 +9,21 @@ OUT    ?= out/demo
 # make model-real: the recommended real-handwriting model, from the data in ../shared/data.
 DATA   ?= ../shared/data
 REAL   ?= runs/real
+# The torch build the set-up installs (the CPU build).
+TORCH  ?= 2.13.0
 
 .PHONY: setup demo test lint bench clean model-real
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml
+# torch first, pinned to the CPU build (on local disk; an unpinned torch would pull a
+# multi-GB CUDA build): the package itself declares only a range (torch>=2.1,<3), which
+# the installed build satisfies, so the second install keeps it.
+$(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev,robot]'
+	$(BIN)/python -m pip install --quiet torch==$(TORCH)
+	$(BIN)/python -m pip install --quiet -e '.[dev,robot,export]'
 	rm -f $(VENV)/.installed-* && touch $@
 
 demo: setup
@@ -27,17 +33,18 @@ test: setup
 	$(BIN)/python -m pytest -q -m "not slow"
 
 # Prepare MNIST with the recorded pen paths (durations normalised to 1 s), train the
-# recommended network (configs/real.yaml), evaluate it on the test part with refinement.
+# recommended network (the shipped configuration real: src/img2dmp/configs/real.yaml),
+# evaluate it on the test part with refinement.
 # Each step is skipped when its result exists; an interrupted training resumes.
 model-real: $(REAL)/evaluation/evaluation.json
 
 $(REAL)/data.safetensors: | setup
 	$(BIN)/img2dmp prepare --data $(DATA) --augment 10 --scaling none --duration 1 --out $@
 
-$(REAL)/run/checkpoints/best.safetensors: $(REAL)/data.safetensors configs/real.yaml | setup
+$(REAL)/run/checkpoints/best.safetensors: $(REAL)/data.safetensors src/img2dmp/configs/real.yaml | setup
 	if [ -f $(REAL)/run/checkpoints/last.safetensors ]; then \
 	  $(BIN)/img2dmp train --run-dir $(REAL)/run --resume; else \
-	  $(BIN)/img2dmp train --config configs/real.yaml --data $< --run-dir $(REAL)/run; fi
+	  $(BIN)/img2dmp train --config real --data $< --run-dir $(REAL)/run; fi
 
 $(REAL)/evaluation/evaluation.json: $(REAL)/run/checkpoints/best.safetensors
 	$(BIN)/img2dmp evaluate --model $(REAL)/run --data $(REAL)/data.safetensors --split test \

@@ -9,7 +9,7 @@ Times, as separate processes (``subprocess``, several runs; min / median / max):
 
 The model is a tiny one trained here, in a temporary directory: a 40-sample synthetic
 data set of one digit (``img2dmp generate``) and one epoch of the demo's network
-(``img2dmp train --config src/img2dmp/configs/demo.yaml``), about 10 s. The image is
+(``img2dmp train --config demo``), about 10 s. The image is
 one of the data set's, written as a PNG. One untimed prediction first warms the caches
 (numba's compiled code, the DMP response table, the OS's file cache).
 

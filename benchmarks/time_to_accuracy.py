@@ -70,7 +70,7 @@ class Curve:
 def parse_args(argv=None) -> argparse.Namespace:
     """Command-line options (see the module docstring)."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--config", type=Path, default=ROOT / "configs" / "conv-wide.yaml")
+    p.add_argument("--config", default="conv-wide", help="shipped configuration name or file")
     p.add_argument(
         "--set",
         nargs="*",
@@ -257,7 +257,7 @@ def main(argv=None) -> int:
           f"{time.perf_counter() - t:.1f} s (not counted)", flush=True)  # fmt: skip
     curve, epochs = train_until(cfg, args, ev)
     csv_path, png_path = write_outputs(
-        args.out, curve, f"{args.config.name}: cost (10), ten digits, {epochs} epochs"
+        args.out, curve, f"{Path(args.config).stem}: cost (10), ten digits, {epochs} epochs"
     )
     print(
         f"\n{epochs} epochs; evaluations: {len(curve.rows)}, {curve.eval_s:.1f} s in all "

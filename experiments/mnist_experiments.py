@@ -12,10 +12,10 @@ stamps; over the test samples mean +- std (ddof 0), median and 95th percentile.
 experiment                                 digits  cost    what
 =========================================  ======  ======  ==========================
 ``35-cost9``, ``35-cost10``                3, 5    (9/10)  paper's setting: FC
-                                                           (configs/mnist.yaml), ten
+                                                           (config mnist), ten
                                                            affine copies
 ``35-cost10-conv``                         3, 5    (10)    conv encoder
-                                                           (configs/mnist-conv.yaml)
+                                                           (config mnist-conv)
 ``all10-cost10``                           0-9     (10)    FC, ten copies
 ``all10-cost10-conv``                      0-9     (10)    conv encoder
 ``all10-cost10-pretrained-strokes``        0-9     (10)    FC pre-trained on the traced
@@ -93,7 +93,8 @@ class Experiment:
     data : str
         Key of :data:`DATASETS` trained and tested on.
     config : str
-        Training config, relative to the repository.
+        Training configuration: the name of one shipped with img2dmp (``mnist``,
+        ``mnist-conv``; ``src/img2dmp/configs/``) or a file.
     cost : str
         ``parameter`` (eq. 9) or ``trajectory`` (eq. 10).
     epochs : int
@@ -122,21 +123,21 @@ class Experiment:
 
 EXPERIMENTS = {
     "35-cost10": Experiment(
-        "mnist35", "configs/mnist.yaml", "trajectory", 60, "FC, 10 affine copies", digits="3, 5"
+        "mnist35", "mnist", "trajectory", 60, "FC, 10 affine copies", digits="3, 5"
     ),
-    "all10-cost10": Experiment("mnist10", "configs/mnist.yaml", "trajectory", 30, "FC, 10 copies"),
+    "all10-cost10": Experiment("mnist10", "mnist", "trajectory", 30, "FC, 10 copies"),
     "35-cost9": Experiment(
-        "mnist35", "configs/mnist.yaml", "parameter", 60, "FC, 10 affine copies", digits="3, 5"
+        "mnist35", "mnist", "parameter", 60, "FC, 10 affine copies", digits="3, 5"
     ),
     "all10-cost10-conv": Experiment(
-        "mnist10", "configs/mnist-conv.yaml", "trajectory", 30, "conv encoder, 10 copies"
+        "mnist10", "mnist-conv", "trajectory", 30, "conv encoder, 10 copies"
     ),
     "35-cost10-conv": Experiment(
-        "mnist35", "configs/mnist-conv.yaml", "trajectory", 60, "conv encoder", digits="3, 5"
+        "mnist35", "mnist-conv", "trajectory", 60, "conv encoder", digits="3, 5"
     ),
     "all10-cost10-pretrained-strokes": Experiment(
         "mnist10",
-        "configs/mnist.yaml",
+        "mnist",
         "trajectory",
         30,
         "FC, pre-trained on traced strokes, then 10 copies",
@@ -145,7 +146,7 @@ EXPERIMENTS = {
     ),
     "all10-cost10-conv-pretrained-strokes": Experiment(
         "mnist10",
-        "configs/mnist-conv.yaml",
+        "mnist-conv",
         "trajectory",
         30,
         "conv, pre-trained on traced strokes, then 10 copies",
@@ -178,7 +179,7 @@ SYNTHETIC_SET = [
 QUICK_SYNTHETIC_SET = ["data.samples_per_epoch=200", "data.val_samples=50"]
 EXPERIMENTS["all10-cost10-conv-pretrained-synthetic-tn"] = Experiment(
     "mnist10-tn",
-    "configs/mnist-conv.yaml",
+    "mnist-conv",
     "trajectory",
     30,
     "conv, pre-trained on synthetic digits, then 10 copies; duration normalised",

@@ -151,7 +151,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=ROOT / "runs" / "table1")
     p.add_argument("--rows", nargs="+", choices=sorted(ROWS), default=list(ROWS))
-    p.add_argument("--config", type=Path, default=ROOT / "configs" / "paper.yaml")
+    p.add_argument("--config", default="paper", help="shipped configuration name or file")
     p.add_argument("--epochs", type=int, default=60)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--samples-per-digit", type=int, default=2000)

@@ -21,7 +21,7 @@ LAYERS = [
     {"nn", "checkpoint"},
     {"training", "train"},
     {"predict"},
-    {"evaluate"},
+    {"evaluate", "export"},
     {"robot"},
     {"pipeline"},
     {"commands", "cli", "__main__"},

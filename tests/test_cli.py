@@ -205,6 +205,7 @@ def test_evaluate_passes_the_digits_to_the_library(monkeypatch, tmp_path, capsys
             "n_figures": 16,
             "digits": [2, 3],
             "refine": 0,
+            "device": "cpu",
         }
 
 

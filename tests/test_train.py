@@ -369,12 +369,16 @@ def test_demo_config_is_shipped_once_and_is_what_the_demo_trains(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "name", sorted(p.name for p in (Path(__file__).resolve().parents[1] / "configs").glob("*.yaml"))
+    "name",
+    sorted(
+        p.stem for p in (Path(__file__).resolve().parents[1] / "src/img2dmp/configs").glob("*.yaml")
+    ),
 )
 def test_shipped_configs_load(name):
+    # Every configuration in the package loads, by its name as --config NAME gives it.
     from img2dmp.train import load_config
 
-    cfg = load_config(Path(__file__).resolve().parents[1] / "configs" / name)
+    cfg = load_config(name)
     assert cfg.optim.epochs >= 1
 
 

@@ -5,7 +5,10 @@ them the same way:
 
 1. the dataclass defaults (:class:`img2dmp.data.synthetic.SyntheticConfig`,
    :class:`img2dmp.data.prepare.PrepareOptions`, :class:`img2dmp.training.TrainConfig`);
-2. a YAML (``.yaml``/``.yml``) or TOML (``.toml``) file, :func:`read_config_file`;
+2. a YAML (``.yaml``/``.yml``), TOML (``.toml``) or JSON file, :func:`read_config_file`,
+   or by its name one of the configurations shipped inside the package
+   (``src/img2dmp/configs/NAME.yaml``: ``paper``, ``conv-wide``, ``real`` ...,
+   :func:`shipped_configs`);
 3. ``section.key=value`` overrides, values parsed as YAML, :func:`apply_overrides`;
 4. :func:`from_mapping`: typed construction from the fields' annotations. Unknown keys
    are rejected, numbers given as text, booleans given as numbers and wrong shapes are
@@ -26,6 +29,7 @@ import re
 import tomllib
 import types
 import typing
+from importlib import resources
 from pathlib import Path
 
 import yaml
@@ -55,13 +59,51 @@ def parse_yaml(text: str):
     return yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
 
 
+#: Where the configurations that ship with img2dmp live (package data).
+SHIPPED_DIR = "configs"
+
+
+def shipped_configs() -> list[str]:
+    """Names of the configurations shipped inside the package (``paper``, ``conv-wide`` ...),
+    each usable as ``--config NAME``."""
+    folder = resources.files("img2dmp").joinpath(SHIPPED_DIR)
+    return sorted(f.name[:-5] for f in folder.iterdir() if f.name.endswith(".yaml"))
+
+
+def shipped_config_path(name: str) -> Path:
+    """The file of the shipped configuration ``name`` (``ConfigError`` naming the shipped
+    ones if there is none of that name)."""
+    known = shipped_configs()
+    if name not in known:
+        raise ConfigError(
+            f"no shipped configuration named {name!r}; the shipped ones are "
+            f"{', '.join(known)} (or give a .yaml, .toml or .json file)"
+        )
+    return Path(str(resources.files("img2dmp").joinpath(SHIPPED_DIR, f"{name}.yaml")))
+
+
+def config_path(path: str | os.PathLike) -> Path:
+    """The file a ``--config`` value means: a bare name without a suffix or a folder
+    (``paper``, ``conv-wide``) is a configuration shipped with img2dmp
+    (:func:`shipped_configs`), anything else a path."""
+    text = os.fspath(path)
+    if text and not Path(text).suffix and os.sep not in text and "/" not in text:
+        if not Path(text).exists():
+            return shipped_config_path(text)
+    return Path(text)
+
+
 def read_config_file(path: str | os.PathLike) -> dict:
-    """A YAML (``.yaml``/``.yml``), TOML (``.toml``) or JSON (``.json``) file as a dict."""
-    p = Path(path)
+    """A YAML (``.yaml``/``.yml``), TOML (``.toml``) or JSON (``.json``) file as a dict;
+    a bare name (``paper``) reads the configuration of that name shipped with img2dmp."""
+    p = config_path(path)
     if p.is_dir():
         raise ConfigError(f"config file {p} is a directory")
     if not p.is_file():
-        raise FileNotFoundError(f"config file {p} does not exist")
+        hint = ""
+        if p.parent.name == SHIPPED_DIR and p.stem in shipped_configs():
+            hint = f"; the configuration {p.stem!r} ships with img2dmp: --config {p.stem}"
+        raise FileNotFoundError(f"config file {p} does not exist{hint}")
     if p.suffix not in (".yaml", ".yml", ".toml", ".json"):
         raise ConfigError(f"config file {p} must end in .yaml, .yml, .toml or .json")
     try:
@@ -277,10 +319,13 @@ __all__ = [
     "apply_overrides",
     "check_positive",
     "check_positive_fields",
+    "config_path",
     "from_mapping",
     "load",
     "merge",
     "parse_yaml",
     "read_config_file",
+    "shipped_config_path",
+    "shipped_configs",
     "to_dict",
 ]

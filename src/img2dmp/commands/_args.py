@@ -1,7 +1,7 @@
 """Options that several commands share, defined and parsed in one place.
 
-``--model``, ``--data``, ``--digits``, ``--config``, ``--set``, ``--force`` and
-``--no-progress`` mean the same in every command that takes them, and every number that
+``--model``, ``--data``, ``--digits``, ``--config``, ``--set``, ``--force``, ``--device``
+and ``--no-progress`` mean the same in every command that takes them, and every number that
 must lie in a range is checked while the command line is read, so that a bad value gives
 one line and exit status 2 before anything slow starts. So are the files: the inputs
 (:func:`check_inputs`: there, a file, readable) and the outputs (:func:`check_outputs`:
@@ -17,6 +17,7 @@ import argparse
 import os
 from collections.abc import Iterable
 from contextlib import contextmanager
+from importlib import resources
 from pathlib import Path
 
 from .._files import check_readable
@@ -110,12 +111,21 @@ def add_data(p: argparse.ArgumentParser, *, help: str = "", dest: str = "data") 
     )
 
 
+def shipped_config_names() -> list[str]:
+    """The configurations shipped inside the package, by name (``paper``, ``conv-wide``
+    ...; :func:`img2dmp.config.shipped_configs`, listed here without importing YAML)."""
+    folder = resources.files("img2dmp").joinpath("configs")
+    return sorted(f.name[:-5] for f in folder.iterdir() if f.name.endswith(".yaml"))
+
+
 def add_config(p: argparse.ArgumentParser, what: str) -> None:
-    """``--config FILE``: a YAML, TOML or JSON file of ``what``'s fields."""
+    """``--config FILE|NAME``: a YAML, TOML or JSON file of ``what``'s fields, or the name
+    of a configuration shipped with img2dmp."""
     p.add_argument(
         "--config",
-        metavar="FILE",
-        help=f"YAML, TOML or JSON file of {what} (unknown keys are refused)",
+        metavar="FILE|NAME",
+        help=f"YAML, TOML or JSON file of {what} (unknown keys are refused), or the name of "
+        f"a configuration shipped with img2dmp: {', '.join(shipped_config_names())}",
     )
 
 
@@ -130,6 +140,38 @@ def add_set(p: argparse.ArgumentParser, example: str) -> None:
         help="override one setting (value read as YAML; nested keys with dots), applied "
         f"after --config and the option shortcuts; may be repeated, e.g. {example}",
     )
+
+
+def _device_type(text: str) -> str:
+    kind, sep, index = text.partition(":")
+    if kind not in ("cpu", "cuda") or (sep and (kind != "cuda" or not index.isdecimal())):
+        raise argparse.ArgumentTypeError(f"must be cpu, cuda or cuda:N, got {text!r}")
+    return text
+
+
+def add_device(p: argparse.ArgumentParser, what: str) -> None:
+    """``--device cpu|cuda|cuda:N``: where ``what`` runs. The spelling is checked while
+    the command line is read; whether the machine has that device by
+    :func:`check_device` (which needs torch) when the command runs."""
+    p.add_argument(
+        "--device",
+        default="cpu",
+        type=_device_type,
+        metavar="DEVICE",
+        help=f"where {what} runs: cpu, or cuda (cuda:N) on a machine with a GPU; the DMP "
+        "maths (rollout, costs) stays on the CPU",
+    )
+
+
+def check_device(name: str) -> str:
+    """``name`` if this machine has that device, else one ``ValueError`` line saying so
+    (:func:`img2dmp.nn.device.resolve_device`; imports torch for a GPU only)."""
+    if name == "cpu":
+        return name
+    from ..nn.device import resolve_device
+
+    resolve_device(name)
+    return name
 
 
 def add_no_progress(p: argparse.ArgumentParser) -> None:
@@ -271,6 +313,8 @@ def positive_float(text: str) -> float:
 
 __all__ = [
     "add_config",
+    "add_device",
+    "check_device",
     "add_force",
     "check_images",
     "check_inputs",

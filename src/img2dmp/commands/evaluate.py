@@ -58,6 +58,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="samples drawn in examples.png (0 = no picture)",
     )
     _args.add_refine(p)
+    _args.add_device(p, "the network")
 
 
 def model_and_data(args: argparse.Namespace) -> tuple[str, str]:
@@ -96,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
     _args.check_output_dir(out, "--out")
     names = ["evaluation.json", "evaluation.txt"] + (["examples.png"] if args.figures else [])
     _args.check_outputs([(Path(out) / n, None) for n in names], args.force)
+    _args.check_device(args.device)
     res = evaluate(
         model,
         data,
@@ -104,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
         n_figures=args.figures,
         digits=list(args.digits) if args.digits is not None else None,
         refine=args.refine,
+        device=args.device,
     )
     # Table I's table, then (in the same text) the path measures' table.
     print(format_table(res, f"trajectory error (px), {data} [{args.split}]"))

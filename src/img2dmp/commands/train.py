@@ -1,13 +1,14 @@
 """Train the encoder-decoder network on a stored data set or the on-the-fly generator.
 
 Settings (img2dmp.training.TrainConfig: model, data, optim, cost, seed ...) come from the
-defaults, then --config FILE (YAML, TOML or JSON), then the shortcuts --data (data.path),
+defaults, then --config FILE (YAML, TOML or JSON) or NAME (a configuration shipped with
+img2dmp: paper, conv-wide, real ...), then the shortcuts --data (data.path),
 --cost (cost.name), --digits (data.digits), --seed, --init-from (init_from) and
 --no-progress (progress), then --set section.key=value overrides, in order; unknown keys
 are refused. The run directory receives config.yaml, metrics.csv, training_curve.png and
 checkpoints/{best,last}.safetensors (+ .json).
 
-  img2dmp train --config configs/paper.yaml --data digits.safetensors --run-dir runs/paper \\
+  img2dmp train --config paper --data digits.safetensors --run-dir runs/paper \\
       --set optim.lr=3e-4 --set model.activation=tanh
 
 --resume continues the run in --run-dir from its last checkpoint with the configuration
@@ -17,6 +18,8 @@ every command that writes; --overwrite is its older name). While a run trains, i
 directory is locked (the file DIR/.lock): a second run on the same --run-dir stops at once
 with an error, and the lock goes with the first run (its end, an error or a kill).
 Data-parallel: torchrun --nproc_per_node 2 -m img2dmp train ...
+--device cuda trains the network on a GPU (where the machine has one; the costs and the
+DMP rollout stay on the CPU); a resumed run may change its device.
 """
 
 from __future__ import annotations
@@ -69,6 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="start from the weights (and output normalisation) of this run directory or "
         "checkpoint instead of random weights: fine-tuning (= init_from)",
     )
+    _args.add_device(p, "the network's training (its weights, forward and backward passes)")
     _args.add_no_progress(p)
 
 
@@ -110,6 +114,7 @@ def check_resume(args: argparse.Namespace) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_resume(args)
+    _args.check_device(args.device)
     from ..train import load_config, train
 
     _args.check_output_dir(args.run_dir, "--run-dir")
@@ -117,7 +122,14 @@ def run(args: argparse.Namespace) -> int:
         _args.check_inputs([args.data], "data set")
     cfg = load_config(args.config, overrides(args))
     force = args.force or args.overwrite
-    res = train(cfg, args.run_dir, resume=args.resume, overwrite=force, epochs=args.epochs)
+    res = train(
+        cfg,
+        args.run_dir,
+        resume=args.resume,
+        overwrite=force,
+        epochs=args.epochs,
+        device=args.device,
+    )
     print(
         f"{res.epochs_run} epoch{'s' if res.epochs_run != 1 else ''} in {res.wall_s:.1f} s; "
         "best validation trajectory error "

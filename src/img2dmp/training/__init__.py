@@ -11,7 +11,7 @@
 Example::
 
     from img2dmp.training import load_config, train
-    result = train(load_config("configs/paper.yaml", ["data.path=digits.safetensors"]),
+    result = train(load_config("paper", ["data.path=digits.safetensors"]),
                    "runs/paper")
 """
 

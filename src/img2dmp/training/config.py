@@ -270,7 +270,11 @@ class TrainConfig:
 def load_config(
     path: str | os.PathLike | None = None, overrides: list[str] | None = None
 ) -> TrainConfig:
-    """Defaults, then the file (if any), then the ``section.key=value`` overrides."""
+    """Defaults, then the file (if any), then the ``section.key=value`` overrides.
+
+    ``path`` is a YAML, TOML or JSON file, or the name of a configuration shipped with
+    img2dmp (``"paper"``, ``"conv-wide"``, ``"real"`` ...; :func:`img2dmp.config.shipped_configs`).
+    """
     return _config.load(TrainConfig, path, overrides)
 
 

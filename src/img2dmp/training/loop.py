@@ -85,6 +85,7 @@ def train(
     resume: bool = False,
     overwrite: bool = False,
     epochs: int | None = None,
+    device: str = "cpu",
 ) -> TrainResult:
     """Train the encoder-decoder network (Sec. V) with cost (9) or (10).
 
@@ -103,6 +104,9 @@ def train(
     epochs : int, optional
         Overrides ``optim.epochs``; with ``resume`` this is the way to train a finished or
         interrupted run further (a cosine schedule is stretched to the new end).
+    device : str
+        Where the network's weights live and its forward and backward passes run
+        (``"cpu"``, ``"cuda"``); the costs and the DMP rollout stay on the CPU.
 
     Returns
     -------
@@ -121,7 +125,7 @@ def train(
         process_group() as (rank, world),
         on_rank0(lambda: lock_directory(run_dir, "run directory"), rank, world),
     ):
-        run = open_run(config, run_dir, resume, overwrite, epochs, rank, world)
+        run = open_run(config, run_dir, resume, overwrite, epochs, rank, world, device)
         return fit(run, t_start)
 
 

@@ -19,6 +19,7 @@ from .._files import atomic_write_text
 from ..checkpoint import CHECKPOINT_DIR, Checkpoint, load_checkpoint, load_weights_into
 from ..nn import Cost, ParamNormaliser, build_model
 from ..nn.costs import ParameterWeighting
+from ..nn.device import place_model
 from .config import OptimConfig, TrainConfig
 from .data import Augmenter, TrainingData
 from .records import write_metrics_csv
@@ -53,8 +54,10 @@ def open_run(
     epochs: int | None = None,
     rank: int = 0,
     world: int = 1,
+    device: str = "cpu",
 ) -> Run:
-    """Everything :func:`~.loop.fit` needs, from a configuration and a run directory."""
+    """Everything :func:`~.loop.fit` needs, from a configuration and a run directory; the
+    network's weights on ``device`` (:func:`img2dmp.nn.device.place_model`)."""
     cfg, last = _configuration(config, run_dir, resume, overwrite, epochs)
     if cfg.threads:
         torch.set_num_threads(int(cfg.threads))
@@ -64,7 +67,7 @@ def open_run(
     cfg = _resolved(cfg, data)
     stored = last.meta.get("parameter_weighting") if last is not None else None
     weighting = data.parameter_weighting(stored, resumed=last is not None)
-    model = build_model(cfg.model, seed=cfg.seed)
+    model = place_model(build_model(cfg.model, seed=cfg.seed), device)
     opt = torch.optim.Adam(model.parameters(), lr=cfg.optim.lr, weight_decay=cfg.optim.weight_decay)
     state = RunState(model, opt, make_scheduler(opt, cfg.optim))
     if init is not None:
