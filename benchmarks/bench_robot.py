@@ -4,13 +4,22 @@ For each control rate it prints
 
 - the speed of the control loop as a multiple of real time (simulated seconds of
   approach + writing + lift per wall-clock second, one physics step per control step),
+  and per second of the process's CPU time in the same stages (less sensitive to other
+  jobs on the machine than wall time),
 - the wall time of the whole call (scene set-up, planning and the reachability check
   along the path, simulation; no pictures), and the digit's 3 s over that,
 - where a control step's time goes (IK on the twin, inverse dynamics, physics step,
   the rest: state reads, contact query, DMP step, logging),
 - the accuracy reached, so that speed is compared at equal quality.
 
-Run: ``.venv/bin/python benchmarks/bench_robot.py [--rates 240 1000] [--repeats 3]``
+Then, at 240 Hz, multi-stroke digits (DMPs with d = 3, a pen channel: a two-stroke "4", a
+"5" with its top bar, a "7" with a cross bar, the "+" of the tests) with the DMP clock
+held while the pen lands and lifts (the default) and without (as before): per stroke the
+share of its commanded pen-down length that left ink and the share of its pen-down time
+with the force within ±20 % of the set point, the time the DMP was held, the speed.
+
+Run: ``.venv/bin/python benchmarks/bench_robot.py [--rates 240 1000] [--repeats 3]
+[--no-strokes]``
 """
 
 from __future__ import annotations
@@ -23,7 +32,7 @@ from collections import defaultdict
 import numpy as np
 
 from img2dmp.dmp import DMPConfig, DMPIntegrator, fit_dmp
-from img2dmp.robot import WritingScene, write_dmp, writing
+from img2dmp.robot import WritingOptions, WritingScene, write_dmp, write_with_options, writing
 
 DURATION_S = 3.0
 
@@ -42,17 +51,84 @@ def digit_two(n: int = 300) -> np.ndarray:
     return np.stack([np.interp(u, s, pts[:, 0]), np.interp(u, s, pts[:, 1])], axis=-1)
 
 
-def _timed(owner, name: str, totals: dict):
-    """Replace ``owner.name`` by a wrapper adding its wall time to ``totals["Owner.name"]``."""
+def _min_jerk_along(points, n: int) -> np.ndarray:
+    """``n`` points along a polyline at min-jerk arc-length spacing (at rest at both ends)."""
+    points = np.asarray(points, dtype=float)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    u = np.linspace(0.0, 1.0, n)
+    u = (10 * u**3 - 15 * u**4 + 6 * u**5) * s[-1]
+    return np.stack([np.interp(u, s, points[:, 0]), np.interp(u, s, points[:, 1])], axis=-1)
+
+
+def strokes_path(strokes, n_total: int = 400) -> np.ndarray:
+    """Pen-down polylines joined by straight pen-up travels: ``[T, 3]`` (x, y, pen), as in
+    tests/test_robot_replay.py."""
+    parts, prev = [], None
+    for pts in strokes:
+        pts = np.asarray(pts, dtype=float)
+        if prev is not None:
+            parts.append((np.array([prev, pts[0]]), 0.0))
+        parts.append((pts, 1.0))
+        prev = pts[-1]
+    lengths = [np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p, _ in parts]
+    out = []
+    for (pts, pen), length in zip(parts, lengths, strict=True):
+        n = max(40, int(n_total * length / sum(lengths)))
+        out.append(np.concatenate([_min_jerk_along(pts, n), np.full((n, 1), pen)], axis=1))
+    return np.concatenate(out)
+
+
+_A = np.radians(np.linspace(125, -150, 40))
+MULTI_STROKE = {
+    "4": [[(15, 5), (7, 17), (21, 17)], [(18, 9), (18, 24)]],
+    "5": [np.concatenate([[(10, 5), (9, 13)],
+                          np.stack([13.5 + 5 * np.cos(_A), 17.5 - 5 * np.sin(_A)], -1)]),
+          [(10, 5), (20, 5)]],
+    "7": [[(7, 6), (21, 6), (12, 24)], [(12, 15), (20, 15)]],
+    "+": [[(14, 6), (14, 22)], [(7, 14), (21, 14)]],
+}  # fmt: skip
+
+
+def stroke_table() -> None:
+    """Each multi-stroke digit at 240 Hz with and without the stroke gate."""
+    print()
+    print('multi-stroke digits at 240 Hz (3 s DMPs, d = 3, 40 kernels); per stroke: commanded '
+          'length mm / ink % / force in band %')  # fmt: skip
+    print(f"{'digit':>5} {'gate':>4} {'loop x real':>12} {'held s':>7} {'F band %':>9} "
+          f"{'F band incl. held %':>20}  strokes")  # fmt: skip
+    for name, strokes in MULTI_STROKE.items():
+        y = strokes_path(strokes)
+        config = DMPConfig(n_kernels=40, n_dims=3, scaling="none")
+        params = fit_dmp(np.linspace(0, DURATION_S, len(y)), y, config).params
+        for gate in (False, True):
+            options = WritingOptions(render_size_px=None, stroke_dwell=gate)
+            m = write_with_options(params, config, (28, 28), options).metrics
+            per = "; ".join(
+                f"{s['length_mm']:.1f} / {100 * s['ink_share']:.1f} / "
+                f"{100 * s['force_in_band_share']:.1f}"
+                for s in m["strokes"]
+            )
+            print(
+                f"{name:>5} {'on' if gate else 'off':>4} {m['real_time_factor']:11.1f}x "
+                f"{m['dwell_s']:7.3f} {100 * m['force_in_band_share']:9.1f} "
+                f"{100 * m['force_in_band_share_with_dwell']:20.1f}  {per}"
+            )
+    print("(F band: force within ±20 % of 5 N over the pen-down time with the DMP running; "
+          "incl. held: the time the DMP waited for the pen counted as pen-down time)")  # fmt: skip
+
+
+def _timed(owner, name: str, totals: dict, clock=time.perf_counter):
+    """Replace ``owner.name`` by a wrapper adding its time on ``clock`` (wall time by
+    default) to ``totals["Owner.name"]``."""
     original = getattr(owner, name)
     key = f"{owner.__name__.rsplit('.', 1)[-1]}.{name}"
 
     def wrapper(*args, **kwargs):
-        t0 = time.perf_counter()
+        t0 = clock()
         try:
             return original(*args, **kwargs)
         finally:
-            totals[key] += time.perf_counter() - t0
+            totals[key] += clock() - t0
 
     setattr(owner, name, wrapper)
     return original
@@ -69,11 +145,17 @@ PARTS = (
 
 
 def run_once(params, config, rate_hz: float):
-    """One timed call of write_dmp; returns (metrics, call_s, shares of the loop [%])."""
+    """One timed call of write_dmp; returns (metrics, call_s, shares of the loop [%]);
+    ``metrics["cpu_time_factor"]``: simulated seconds per CPU second of the loop (the
+    approach, write and lift stages)."""
     totals: dict = defaultdict(float)
     originals = [(owner, name, _timed(owner, name, totals)) for owner, name, _ in PARTS]
     # plan_path (DMP steps) and check_path (IK) run before the loop: timed separately.
     pre = [(writing, n, _timed(writing, n, totals)) for n in ("plan_path", "check_path")]
+    cpu: dict = defaultdict(float)
+    for stage in ("approach", "write", "lift"):
+        original = _timed(writing.WritingRun, stage, cpu, time.process_time)
+        pre.append((writing.WritingRun, stage, original))
     try:
         t0 = time.perf_counter()
         result = write_dmp(params, config, (28, 28), control_rate_hz=rate_hz, render_size_px=None)
@@ -82,6 +164,7 @@ def run_once(params, config, rate_hz: float):
         for owner, name, f in originals + pre:
             setattr(owner, name, f)
     m = result.metrics
+    m["cpu_time_factor"] = m["simulated_s"] / sum(cpu.values())
     shares = []
     for owner, name, _ in PARTS:
         key = f"{owner.__name__}.{name}"
@@ -98,6 +181,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rates", type=float, nargs="+", default=[240.0, 1000.0])
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--no-strokes", action="store_true", help="skip the multi-stroke digits")
     args = ap.parse_args()
 
     config = DMPConfig(scaling="none")
@@ -105,27 +189,31 @@ def main() -> None:
     print(f'digit "2", tau = {float(params.tau):.1f} s, 28 x 28 px image written 40 mm tall')
     titles = [t for _, _, t in PARTS]
     print(
-        f"{'rate Hz':>8} {'loop x real':>12} {'call s':>7} {'digit/call':>11} "
+        f"{'rate Hz':>8} {'loop x real':>12} {'x CPU':>7} {'call s':>7} {'digit/call':>11} "
         + " ".join(f"{t:>9}" for t in titles)
         + f" {'err mean mm':>12} {'err max mm':>11} {'F mean N':>9} {'F std N':>8}"
     )
     for rate in args.rates:
         runs = [run_once(params, config, rate) for _ in range(args.repeats)]
         loop = statistics.median(r[0]["real_time_factor"] for r in runs)
+        cpu = statistics.median(r[0]["cpu_time_factor"] for r in runs)
         call = statistics.median(r[1] for r in runs)
         shares = np.median(np.array([r[2] for r in runs]), axis=0)
         m = runs[-1][0]
         print(
-            f"{rate:8.0f} {loop:11.1f}x {call:7.2f} {DURATION_S / call:10.1f}x "
+            f"{rate:8.0f} {loop:11.1f}x {cpu:6.1f}x {call:7.2f} {DURATION_S / call:10.1f}x "
             + " ".join(f"{s:9.0f}" for s in shares)
             + f" {m['tracking_error_mean_mm']:12.3f} {m['tracking_error_max_mm']:11.3f}"
             f" {m['force_mean_n']:9.3f} {m['force_std_n']:8.4f}"
         )
     print(
         f"(medians of {args.repeats} runs; loop = simulated approach + writing + lift per "
-        "wall second; call = set-up, plan, reachability check and loop; shares are of the "
-        "loop's wall time; headless pybullet p.DIRECT)"
+        "wall second; x CPU = the same per CPU second of the loop; call = "
+        "set-up, plan, reachability check and loop; shares are of the loop's wall time; "
+        "headless pybullet p.DIRECT)"
     )
+    if not args.no_strokes:
+        stroke_table()
 
 
 if __name__ == "__main__":

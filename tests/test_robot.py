@@ -220,6 +220,12 @@ def test_pen_lifts_between_strokes():
     assert np.min(np.linalg.norm(ink_px - [10.5, 18.0], axis=1)) > 2.0
     assert plan.pen_down.any() and not plan.pen_down.all()
     assert result.metrics["tracking_error_mean_mm"] < 1.0
+    # The DMP waits for the pen to land (issue 20): both strokes written whole, the force
+    # in band for the pen-down time with the DMP running (was about 90 %).
+    strokes = result.metrics["strokes"]
+    assert len(strokes) == 2 and all(s["ink_share"] >= 0.98 for s in strokes), strokes
+    assert result.metrics["force_in_band_share"] >= 0.95, result.metrics
+    assert result.metrics["contact_share"] >= 0.95, result.metrics
 
 
 @needs_pybullet
@@ -266,11 +272,15 @@ def test_invalid_settings_are_named():
 
 # -- the run object and its typed log -----------------------------------------------------
 
-LOG_FIELDS = ("time_s", "phase", "dmp_time_s", "pen_down", "cmd_m", "tip_m", "force_n", "torque_nm")
+LOG_FIELDS = (
+    "time_s", "phase", "dmp_time_s", "pen_down", "cmd_m", "tip_m", "force_n", "torque_nm",
+    "joint_q_rad", "joint_qd_rad_s", "dwell",
+)  # fmt: skip
 CSV_HEADER = [
     "time_s", "phase", "dmp_time_s", "pen_down",
     "cmd_x_m", "cmd_y_m", "cmd_z_m", "tip_x_m", "tip_y_m", "tip_z_m", "force_n",
     *[f"torque_{j}_nm" for j in range(1, 8)],
+    "dwell", *[f"q_{j}_rad" for j in range(1, 8)], *[f"qd_{j}_rad_s" for j in range(1, 8)],
 ]  # fmt: skip
 
 
@@ -279,7 +289,7 @@ def _old_log_dict(log) -> dict:
     column index."""
     rows = np.column_stack(
         [log.time_s, log.phase, log.dmp_time_s, log.pen_down, log.cmd_m, log.tip_m,
-         log.force_n, log.torque_nm]
+         log.force_n, log.torque_nm, log.joint_q_rad, log.joint_qd_rad_s, log.dwell]
     )  # fmt: skip
     return {
         "time_s": rows[:, 0],
@@ -290,6 +300,9 @@ def _old_log_dict(log) -> dict:
         "tip_m": rows[:, 7:10],
         "force_n": rows[:, 10],
         "torque_nm": rows[:, 11:18],
+        "joint_q_rad": rows[:, 18:25],
+        "joint_qd_rad_s": rows[:, 25:32],
+        "dwell": rows[:, 32].astype(bool),
     }
 
 
@@ -316,6 +329,16 @@ def test_writing_options_and_log_check_their_values():
         WritingLog(**{**good, "torque_nm": np.zeros((n, 6))})
     with pytest.raises(ValueError, match="'force_n'"):
         WritingLog(**{**good, "force_n": np.zeros(n + 1)})
+    # A log made without joints and dwell (as before they were logged) gets NaN joints and
+    # no dwell; given, they are checked like the rest.
+    assert np.isnan(log.joint_q_rad).all() and log.joint_qd_rad_s.shape == (n, 7)
+    assert log.dwell.dtype == bool and not log.dwell.any()
+    with pytest.raises(ValueError, match="'joint_q_rad'"):
+        WritingLog(**{**good, "joint_q_rad": np.zeros((n, 6))})
+    with pytest.raises(ValueError, match="'dwell'"):
+        WritingLog(**{**good, "dwell": np.zeros(n + 1, bool)})
+    with pytest.raises(ValueError, match="stroke_dwell"):
+        WritingOptions(stroke_dwell=1)
 
 
 @needs_pybullet
@@ -334,10 +357,18 @@ def test_typed_log_is_consistent_and_gives_the_old_metrics(tmp_path):
         assert log[name] is getattr(log, name)
     assert log.cmd_m.shape == (s, 3) and log.tip_m.shape == (s, 3)
     assert log.torque_nm.shape == (s, 7)
+    assert log.joint_q_rad.shape == (s, 7) and log.joint_qd_rad_s.shape == (s, 7)
     assert log.phase.dtype.kind == "i" and log.pen_down.dtype == bool
-    # Phases in order, one write step per planned DMP step, one physics step per entry.
+    assert log.dwell.dtype == bool
+    # Phases in order, one write step per planned DMP step (the held steps aside, on
+    # which the DMP's time stands still), one physics step per entry.
     assert np.all(np.diff(log.phase) >= 0) and set(log.phase) == {0, 1, 2}
-    assert log.in_phase("write").sum() == len(result.plan.time_s) - 1
+    assert (log.in_phase("write") & ~log.dwell).sum() == len(result.plan.time_s) - 1
+    assert np.all(np.diff(log.dmp_time_s[log.dwell]) >= 0) and log.dwell.any()
+    # A held step has the DMP time of the step it waits for (landing) or follows (lifting).
+    held = np.flatnonzero(log.dwell)
+    t = log.dmp_time_s
+    assert np.all((t[held] == t[held - 1]) | (t[held] == t[held + 1]))
     np.testing.assert_allclose(np.diff(log.time_s), 1 / 240, rtol=1e-9)
     assert np.all(log.dmp_time_s[log.in_phase("approach")] == 0.0)
     # The metrics from the typed log equal those from the former column-indexed dict.
@@ -351,6 +382,9 @@ def test_typed_log_is_consistent_and_gives_the_old_metrics(tmp_path):
     assert rows[0] == CSV_HEADER and len(rows) == s + 1
     tip_z_m = float(rows[-1][CSV_HEADER.index("tip_z_m")])
     assert tip_z_m == pytest.approx(log.tip_m[-1, 2], abs=1e-6)
+    q_4 = np.array([float(r[CSV_HEADER.index("q_4_rad")]) for r in rows[1:]])
+    np.testing.assert_allclose(q_4, log.joint_q_rad[:, 3], atol=1e-8)
+    assert sum(int(r[CSV_HEADER.index("dwell")]) for r in rows[1:]) == log.dwell.sum()
     plot_writing(result, tmp_path / "paper.png")
     assert (tmp_path / "paper.png").stat().st_size > 10_000 and not plt.get_fignums()
 

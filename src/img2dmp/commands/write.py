@@ -2,10 +2,18 @@
 plane and an admittance loop holding the pen's contact force.
 
 Input is either images and a trained model (``IMAGE ... --model CKPT``) or one DMP file
-(``--dmp params.json``; format in docs/ROBOT.md). For each input it writes
+(``--dmp params.json``: the one DMP file of img2dmp, e.g. ``NAME_dmp.json`` of
+``img2dmp predict --out``; format in docs/ROBOT.md). The robot writes the top hypothesis,
+or the one of rank ``--hypothesis K``, in the frame of the file's ``image_size`` (for a
+prediction: the model's input, whose height is ``--writing-height-mm``). An
+``img2dmp predict`` record from before the format's version 2 does not store the model's
+input size: give it with ``--image-size H W``. For each input it writes
 ``NAME_paper.png`` (the ink next to the commanded path and the input), ``NAME_render.png``
-(camera: the arm at the end | the paper), ``NAME_log.csv`` and with ``--video``
-``NAME.gif``, and prints tracking-error and contact-force metrics. NAME is the input
+(camera: the arm at the end | the paper), ``NAME_log.csv`` (joint positions and velocities
+included), with ``--video`` ``NAME.gif`` and, where imageio-ffmpeg is installed,
+``NAME.mp4``, with ``--export-joints FILE`` the joint trajectory as ``FILE.csv`` and
+``FILE.json`` (``FILE_NAME.*`` for several inputs; checked against the iiwa's joint
+limits), and prints tracking-error, contact-force and per-stroke ink metrics. NAME is the input
 file's name without its extension: two inputs of one name are refused, naming both, and
 files already in ``--out-dir`` are replaced only with ``--force``; both are checked before
 the simulation starts.
@@ -30,6 +38,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--image", metavar="PNG", help="with --dmp: an image to show next to the result"
     )
+    parser.add_argument(
+        "--hypothesis",
+        metavar="K",
+        type=_args.int_at_least(1),
+        default=1,
+        help="write the hypothesis of rank K (1 = the most probable, the default) of a "
+        "network with several, or of a DMP file that lists several",
+    )
+    parser.add_argument(
+        "--image-size",
+        metavar=("H", "W"),
+        type=_args.int_at_least(1),
+        nargs=2,
+        help="with --dmp: the model's input size, for an img2dmp predict record from "
+        "before version 2 of the DMP file (which does not store it)",
+    )
     parser.add_argument("--out-dir", default="robot_out", help="directory for the outputs")
     _args.add_force(parser, "files in --out-dir")
     parser.add_argument(
@@ -45,7 +69,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar=("X", "Y"),
         help="centre of the paper and writing area in the robot's base frame",
     )
-    parser.add_argument("--video", action="store_true", help="also write an animated GIF")
+    parser.add_argument(
+        "--video",
+        action="store_true",
+        help="also write the video: an animated GIF, and an MP4 where imageio-ffmpeg is installed",
+    )
+    parser.add_argument(
+        "--export-joints",
+        metavar="FILE",
+        help="also write the joint trajectory (time, 7 joint positions and velocities) as "
+        "FILE.csv and FILE.json for a real iiwa to replay; refused if it exceeds the "
+        "iiwa's joint position or velocity limits",
+    )
     parser.add_argument(
         "--frame-interval-s", type=float, default=0.1, help="simulated time between frames"
     )
@@ -60,7 +95,8 @@ def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
     from img2dmp.robot import load_dmp_json
 
     if args.dmp:
-        params, config, size = load_dmp_json(args.dmp)
+        size = tuple(args.image_size) if args.image_size else None
+        params, config, size = load_dmp_json(args.dmp, hypothesis=args.hypothesis, image_size=size)
         image = _read_image(args.image) if args.image else None
         return [(_name(args.dmp), params, config, size, image)]
     from img2dmp.predict import Predictor
@@ -70,12 +106,21 @@ def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
         from img2dmp.nn.refine import RefineOptions
 
         predictor.refine_options = RefineOptions(steps=args.refine)
+    k, n = args.hypothesis, predictor.n_hypotheses
+    if k > n:
+        raise ValueError(
+            f"--hypothesis {k}: the model proposes {n} hypothes{'i' if n == 1 else 'e'}s "
+            f"per image (ranks 1..{n})"
+        )
     config = predictor.dmp_config
     out = []
-    for path, (params, image) in zip(
-        args.images, predictor.predict_paths(args.images), strict=True
-    ):
-        image = np.asarray(image, dtype=np.float32)
+    for path in args.images:
+        with _args.reading_image(path):
+            image = np.asarray(predictor.prepare(path)[0], dtype=np.float32)
+        if k == 1:  # the top one alone (refined alone)
+            params = predictor.predict_images(image[None])[0]
+        else:
+            params = predictor.predict_hypotheses(image[None])[0][0, k - 1]
         out.append((_name(path), params, config, tuple(image.shape[-2:]), image))
     return out
 
@@ -93,6 +138,8 @@ def check_files(args) -> None:
         raise ValueError("nothing to write: give IMAGE ... --model CKPT, or --dmp params.json")
     if args.images and not args.model:
         raise ValueError("IMAGE input needs --model CKPT (a trained network)")
+    if args.image_size and not args.dmp:
+        raise ValueError("--image-size is for --dmp files (old img2dmp predict records)")
     inputs = [args.dmp] if args.dmp else list(args.images)
     _args.check_inputs(inputs, "--dmp file" if args.dmp else "image")
     images = list(args.images) + ([args.image] if args.image else [])
@@ -100,12 +147,33 @@ def check_files(args) -> None:
     _args.check_images(images)
     _args.check_output_dir(args.out_dir, "--out-dir")
     suffixes = ["_paper.png", "_render.png", "_log.csv"] + ([".gif"] if args.video else [])
+    suffixes += [".mp4"] if args.video and _mp4_available() else []
     outputs = [
         (os.path.join(args.out_dir, _name(path) + suffix), path)
         for path in inputs
         for suffix in suffixes
     ]
+    if args.export_joints:
+        from img2dmp.robot.joints import export_paths
+
+        for path in inputs:
+            base = _joints_base(args, _name(path), len(inputs))
+            outputs += [(f, path) for f in export_paths(base)]
     _args.check_outputs(outputs, args.force)
+
+
+def _mp4_available() -> bool:
+    from img2dmp.robot.animation import mp4_available
+
+    return mp4_available()
+
+
+def _joints_base(args, name: str, n_inputs: int) -> str:
+    """``--export-joints FILE`` for input ``name``: FILE (its .csv/.json suffix dropped),
+    or ``FILE_NAME`` when there are several inputs."""
+    root, ext = os.path.splitext(args.export_joints)
+    base = root if ext.lower() in (".csv", ".json") else args.export_joints
+    return base if n_inputs == 1 else f"{base}_{name}"
 
 
 def _read_image(path):
@@ -133,7 +201,8 @@ def run(args) -> int:
         plot_writing,
         save_log_csv,
         save_render,
-        save_video,
+        save_videos,
+        summary_lines,
         write_dmp,
     )
 
@@ -170,17 +239,13 @@ def run(args) -> int:
         save_log_csv(result, base + "_log.csv")
         written = [base + s for s in ("_paper.png", "_render.png", "_log.csv")]
         if args.video:
-            save_video(result, base + ".gif", args.frame_interval_s)
-            written.append(base + ".gif")
-        m = result.metrics
-        print(
-            f"{name}: tracking error {m['tracking_error_mean_mm']:.3f} mm mean, "
-            f"{m['tracking_error_max_mm']:.3f} mm max; contact force "
-            f"{m['force_mean_n']:.3f} ± {m['force_std_n']:.3f} N (set {m['force_set_n']:g} N), "
-            f"within ±20 % {100 * m['force_in_band_share']:.1f} % and in contact "
-            f"{100 * m['contact_share']:.1f} % of the pen-down time; "
-            f"{m['simulated_s']:.2f} s simulated at {m['control_rate_hz']:g} Hz, "
-            f"{m['real_time_factor']:.1f}x real time"
-        )
+            written += save_videos(result, base, args.frame_interval_s)
+        if args.export_joints:
+            from img2dmp.robot.joints import JointTrajectory, save_joint_trajectory
+
+            n_inputs = len(args.images) or 1
+            trajectory = JointTrajectory.from_result(result)
+            written += save_joint_trajectory(trajectory, _joints_base(args, name, n_inputs))
+        print("\n".join(summary_lines(name, result)))
         print("  wrote " + ", ".join(written))
     return 0

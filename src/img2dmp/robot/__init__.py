@@ -12,9 +12,15 @@ The DMP file format (:mod:`.dmpfile`) works without pybullet. See ``docs/ROBOT.m
 - :class:`SceneConfig`, :class:`WritingScene` - the cell (:mod:`.scene`)
 - :class:`ControllerConfig`, :class:`WritingController` - admittance + IK + computed
   torque (:mod:`.controller`)
-- :func:`load_dmp_json`, :func:`save_dmp_json` - one DMP in a JSON file
-- :func:`save_log_csv`, :func:`plot_writing`, :func:`save_render`, :func:`save_video`
-  - the outputs (:mod:`.outputs`)
+- :func:`load_dmp_json`, :func:`save_dmp_json`, :func:`read_dmp_file` - the one DMP
+  file (:mod:`img2dmp.data.dmpfile`, re-exported by :mod:`.dmpfile`)
+- :func:`save_log_csv`, :func:`plot_writing`, :func:`save_render`, :func:`save_video`,
+  :func:`save_mp4`, :func:`save_videos`, :func:`summary_lines` - the outputs
+  (:mod:`.outputs`; the video's paper panel and encoders in :mod:`.animation`)
+- :func:`stroke_report` - ink and force per pen-down stroke; :class:`StrokeGate` holds
+  the DMP clock while the pen lands and lifts (:mod:`.strokes`)
+- :class:`JointTrajectory`, :func:`save_joint_trajectory`, :func:`load_joint_trajectory`,
+  :func:`replay_joint_trajectory` - the joint trajectory for a real iiwa (:mod:`.joints`)
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ from __future__ import annotations
 import importlib
 
 from ._pybullet import INSTALL_HINT, available
-from .dmpfile import load_dmp_json, save_dmp_json
+from .dmpfile import load_dmp_json, read_dmp_file, save_dmp_json
 
 _LAZY = {
     "write_dmp": ".writing",
@@ -43,9 +49,25 @@ _LAZY = {
     "plot_writing": ".outputs",
     "save_render": ".outputs",
     "save_video": ".outputs",
+    "save_mp4": ".outputs",
+    "save_videos": ".outputs",
+    "summary_lines": ".outputs",
+    "stroke_report": ".strokes",
+    "StrokeGate": ".strokes",
+    "JointTrajectory": ".joints",
+    "save_joint_trajectory": ".joints",
+    "load_joint_trajectory": ".joints",
+    "replay_joint_trajectory": ".joints",
 }
 
-__all__ = ["INSTALL_HINT", "available", "load_dmp_json", "save_dmp_json", *_LAZY]
+__all__ = [
+    "INSTALL_HINT",
+    "available",
+    "load_dmp_json",
+    "read_dmp_file",
+    "save_dmp_json",
+    *_LAZY,
+]
 
 
 def __getattr__(name: str):

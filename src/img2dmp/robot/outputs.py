@@ -1,5 +1,6 @@
 """Files written after a writing run: CSV log, the paper next to the commanded path and
-the input image, camera renders and an animated GIF. Every file is written atomically
+the input image, camera renders and the video (animated GIF; MP4 with imageio-ffmpeg,
+:mod:`.animation`). Every file is written atomically
 (:mod:`img2dmp._files`: temporary file, then ``os.replace``); figures go through the one
 figure writer :func:`img2dmp._files.save_figure`."""
 
@@ -11,12 +12,17 @@ import io
 import numpy as np
 
 from .._files import atomic_write_bytes, atomic_write_text, save_figure
+from .animation import MP4_HINT, gif_bytes, mp4_available, mp4_bytes
+from .strokes import stroke_spans
 from .writing import PHASES, WritingResult
 
 LOG_CSV_HEADER = (
     "time_s", "phase", "dmp_time_s", "pen_down",
     "cmd_x_m", "cmd_y_m", "cmd_z_m", "tip_x_m", "tip_y_m", "tip_z_m", "force_n",
     *[f"torque_{j}_nm" for j in range(1, 8)],
+    "dwell",
+    *[f"q_{j}_rad" for j in range(1, 8)],
+    *[f"qd_{j}_rad_s" for j in range(1, 8)],
 )  # fmt: skip
 COMMANDED_COLOR = "tab:red"
 INK_COLOR = "#10104a"
@@ -27,7 +33,9 @@ def save_log_csv(result: WritingResult, path) -> None:
     """One row per control step: time, phase, commanded and actual tip, force, torques.
 
     Columns: ``time_s, phase, dmp_time_s, pen_down, cmd_x_m, cmd_y_m, cmd_z_m, tip_x_m,
-    tip_y_m, tip_z_m, force_n, torque_1_nm .. torque_7_nm`` (world frame, metres).
+    tip_y_m, tip_z_m, force_n, torque_1_nm .. torque_7_nm`` (world frame, metres), then
+    ``dwell`` (1: the DMP clock held), ``q_1_rad .. q_7_rad`` and ``qd_1_rad_s ..
+    qd_7_rad_s`` (joint positions and velocities after the step).
     """
     log = result.log
     f = io.StringIO(newline="")
@@ -44,6 +52,9 @@ def save_log_csv(result: WritingResult, path) -> None:
                 *(f"{v:.6f}" for v in log.tip_m[i]),
                 f"{log.force_n[i]:.4f}",
                 *(f"{v:.4f}" for v in log.torque_nm[i]),
+                int(log.dwell[i]),
+                *(f"{v:.8f}" for v in log.joint_q_rad[i]),
+                *(f"{v:.6f}" for v in log.joint_qd_rad_s[i]),
             ]
         )
     atomic_write_text(path, f.getvalue())
@@ -156,6 +167,7 @@ def _plot_force(ax, result: WritingResult) -> None:
     ax.axhspan(0.8 * f_set, 1.2 * f_set, color="tab:green", alpha=0.15, label="set point ±20 %")
     ax.plot(log.time_s, log.force_n, lw=1.0, color="k", label="contact force")
     _shade_write_phase(ax, log)
+    _shade_dwell(ax, log)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("force along the pen (N)")
     ax.set_title(
@@ -164,8 +176,8 @@ def _plot_force(ax, result: WritingResult) -> None:
         fontsize=10,
     )
     # Head room above the band for a one-row legend clear of the force trace.
-    ax.set_ylim(top=max(ax.get_ylim()[1], 1.5 * f_set))
-    ax.legend(loc="upper center", ncol=3, fontsize=8)
+    ax.set_ylim(top=max(ax.get_ylim()[1], 1.7 * f_set))
+    ax.legend(loc="upper center", ncol=4, fontsize=8)
 
 
 def _plot_tracking_error(ax, result: WritingResult) -> None:
@@ -214,6 +226,14 @@ def _shade_write_phase(ax, log) -> None:
         ax.axvspan(t[0], t[-1], color="gray", alpha=0.08, lw=0, label="write phase")
 
 
+def _shade_dwell(ax, log) -> None:
+    """The steps on which the DMP clock was held (pen landing or lifting between strokes)."""
+    spans = [s for s in stroke_spans(log.dwell) if s[1] > s[0]]
+    for i, (a, b) in enumerate(spans):
+        ax.axvspan(log.time_s[a], log.time_s[b], color="tab:orange", alpha=0.15, lw=0,
+                   label="DMP held" if i == 0 else None)  # fmt: skip
+
+
 def save_render(result: WritingResult, path) -> None:
     """The final camera picture (arm | paper close-up) as a PNG."""
     from PIL import Image
@@ -226,19 +246,58 @@ def save_render(result: WritingResult, path) -> None:
 
 
 def save_video(result: WritingResult, path, frame_interval_s: float) -> None:
-    """The camera frames as an animated GIF (pillow, no extra dependency)."""
-    from PIL import Image
-
+    """The video frames as an animated GIF (pillow, no extra dependency), the last frame
+    (the finished digit) held for ``animation.HOLD_LAST_S``."""
     if not result.frames:
         raise ValueError("this result has no frames (write_dmp(frame_interval_s=...))")
-    images = [Image.fromarray(fr) for fr in result.frames]
-    buf = io.BytesIO()
-    images[0].save(
-        buf,
-        format="GIF",
-        save_all=True,
-        append_images=images[1:],
-        duration=int(round(frame_interval_s * 1000)),
-        loop=0,
-    )
-    atomic_write_bytes(path, buf.getvalue())
+    atomic_write_bytes(path, gif_bytes(result.frames, frame_interval_s))
+
+
+def save_mp4(result: WritingResult, path, frame_interval_s: float) -> None:
+    """The video frames as an H.264 MP4 (needs ``imageio-ffmpeg``: ``ImportError`` saying
+    so), the last frame held for ``animation.HOLD_LAST_S``."""
+    if not result.frames:
+        raise ValueError("this result has no frames (write_dmp(frame_interval_s=...))")
+    atomic_write_bytes(path, mp4_bytes(result.frames, frame_interval_s))
+
+
+def save_videos(result: WritingResult, base, frame_interval_s: float) -> list[str]:
+    """``base.gif`` always and ``base.mp4`` where imageio-ffmpeg is installed; returns the
+    files written, followed by a note when the MP4 was left out (and why)."""
+    written = [f"{base}.gif"]
+    save_video(result, written[0], frame_interval_s)
+    if mp4_available():
+        save_mp4(result, f"{base}.mp4", frame_interval_s)
+        written.append(f"{base}.mp4")
+    else:
+        written.append(f"no MP4 ({MP4_HINT})")
+    return written
+
+
+def summary_lines(name: str, result: WritingResult) -> list[str]:
+    """The metrics of a run in words: tracking and force over the pen-down time (DMP
+    running), then each stroke's ink share and force share and the time the DMP clock
+    was held."""
+    m = result.metrics
+    lines = [
+        f"{name}: tracking error {m['tracking_error_mean_mm']:.3f} mm mean, "
+        f"{m['tracking_error_max_mm']:.3f} mm max; contact force "
+        f"{m['force_mean_n']:.3f} ± {m['force_std_n']:.3f} N (set {m['force_set_n']:g} N), "
+        f"within ±20 % {100 * m['force_in_band_share']:.1f} % and in contact "
+        f"{100 * m['contact_share']:.1f} % of the pen-down time; "
+        f"{m['simulated_s']:.2f} s simulated at {m['control_rate_hz']:g} Hz, "
+        f"{m['real_time_factor']:.1f}x real time"
+    ]
+    strokes = m.get("strokes", [])
+    parts = [
+        f"{i}: {s['length_mm']:.1f} mm, ink {100 * s['ink_share']:.1f} %, force in band "
+        f"{100 * s['force_in_band_share']:.1f} %"
+        for i, s in enumerate(strokes, start=1)
+    ]
+    if parts:
+        lines.append(
+            f"  strokes (share of each commanded pen-down stroke with ink) {'; '.join(parts)}; "
+            f"DMP held {m['dwell_s']:.2f} s for the pen to land and lift (force in band "
+            f"{100 * m['force_in_band_share_with_dwell']:.1f} % counting that time)"
+        )
+    return lines

@@ -198,6 +198,7 @@ class WritingScene:
         )
         self.joint_ids, self.tip_link, self.pen_link = self._index_joints()
         info = [p.getJointInfo(self.robot_id, j, physicsClientId=c) for j in self.joint_ids]
+        self.joint_names = tuple(i[1].decode() for i in info)
         self.lower_rad = np.array([i[8] for i in info])
         self.upper_rad = np.array([i[9] for i in info])
         self.max_torque_nm = np.array([i[10] for i in info])
@@ -316,6 +317,28 @@ class WritingScene:
             self.joint_ids,
             p.TORQUE_CONTROL,
             forces=[float(t) for t in torques_nm],
+            physicsClientId=c,
+        )
+        p.stepSimulation(physicsClientId=c)
+
+    def step_positions(
+        self, q_rad, qd_rad_s, *, position_gain: float = 1.0, velocity_gain: float = 1.0
+    ) -> None:
+        """Drive the joints towards ``q_rad`` at ``qd_rad_s`` with pybullet's joint position
+        servo (``POSITION_CONTROL``, torques up to ``max_torque_nm``) for one time step and
+        advance the physics: how a position-controlled arm replays a joint trajectory.
+        The gains are the servo's (1, 1: reach the target within the step if it can)."""
+        p, c = self.p, self.client
+        n = len(self.joint_ids)
+        p.setJointMotorControlArray(
+            self.robot_id,
+            self.joint_ids,
+            p.POSITION_CONTROL,
+            targetPositions=[float(v) for v in q_rad],
+            targetVelocities=[float(v) for v in qd_rad_s],
+            forces=[float(t) for t in self.max_torque_nm],
+            positionGains=[float(position_gain)] * n,
+            velocityGains=[float(velocity_gain)] * n,
             physicsClientId=c,
         )
         p.stepSimulation(physicsClientId=c)

@@ -13,11 +13,14 @@ The sequence of :func:`write_dmp`:
    presses with the set force.
 3. **Write** (:meth:`WritingRun.write`): the DMP runs online, one
    :meth:`DMPIntegrator.step` per control step; its x, y go through the mapping to the
-   Cartesian target, its pen channel (d = 3) lifts and lowers the pen.
+   Cartesian target, its pen channel (d = 3) lifts and lowers the pen. Between strokes
+   the DMP clock holds until the pen has landed with the set force, and until it has
+   left the paper (:class:`img2dmp.robot.strokes.StrokeGate`).
 4. **Lift** (:meth:`WritingRun.lift`) the pen off the paper at the end point.
 
-Every control step is logged (:class:`WritingLog`); metrics are taken over the commanded
-pen-down time of phase 3.
+Every control step is logged (:class:`WritingLog`, joint positions and velocities
+included); metrics are taken over the commanded pen-down time of phase 3 (the DMP
+running), the ink per stroke by :func:`img2dmp.robot.strokes.stroke_report`.
 """
 
 from __future__ import annotations
@@ -33,8 +36,10 @@ import torch
 
 from ..config import check_positive
 from ..dmp import DMPConfig, DMPIntegrator, DMPParams, rollout
+from .animation import PaperInset
 from .controller import ControllerConfig, WritingController
 from .scene import HOME_JOINTS_RAD, SceneConfig, WritingScene
+from .strokes import StrokeGate, stroke_report
 
 # The pen points straight down; the flange's x axis points back towards the robot.
 PEN_DOWN_ROTATION = np.diag([-1.0, 1.0, -1.0])
@@ -168,8 +173,12 @@ class WritingOptions:
     frame_interval_s : float or None
         If given, keep a camera frame every so many simulated seconds (for a video).
     frame_size_px, render_size_px : tuple (w, h)
-        Size of each half of a video frame and of the final render (arm | paper);
-        ``render_size_px=None``: no final render.
+        Size of each half of a video frame (arm | paper seen from above) and of the final
+        render (arm | paper); ``render_size_px=None``: no final render.
+    stroke_dwell : bool
+        Hold the DMP clock at each touch-down until the force is in band and at each
+        lift-off until the pen has left the paper (:mod:`img2dmp.robot.strokes`);
+        ``False`` lets the DMP run on while the pen lands (the behaviour before).
     """
 
     writing_height_mm: float = 40.0
@@ -181,8 +190,11 @@ class WritingOptions:
     frame_interval_s: float | None = None
     frame_size_px: tuple[int, int] = (320, 240)
     render_size_px: tuple[int, int] | None = (640, 480)
+    stroke_dwell: bool = True
 
     def __post_init__(self) -> None:
+        if not isinstance(self.stroke_dwell, bool):
+            raise ValueError(f"stroke_dwell must be True or False, got {self.stroke_dwell!r}")
         rate = self.control_rate_hz
         if not (_is_finite(rate) and 100.0 <= rate <= 10000.0):
             raise ValueError(f"control_rate_hz must be in [100, 10000], got {rate!r}")
@@ -258,6 +270,11 @@ class WritingLog(Mapping):
         Tip-paper normal force after the physics step (0 without contact).
     torque_nm : ndarray [S, 7]
         Joint torques applied during the step.
+    joint_q_rad, joint_qd_rad_s : ndarray [S, 7]
+        Joint positions and velocities after the step (NaN in a log made without them).
+    dwell : ndarray [S] bool
+        The DMP clock was held on this step (the pen landing at the start of a stroke or
+        leaving the paper at its end); False in a log made without it.
     """
 
     time_s: np.ndarray  # [S]
@@ -268,12 +285,21 @@ class WritingLog(Mapping):
     tip_m: np.ndarray  # [S, 3]
     force_n: np.ndarray  # [S]
     torque_nm: np.ndarray  # [S, 7]
+    joint_q_rad: np.ndarray | None = None  # [S, 7]
+    joint_qd_rad_s: np.ndarray | None = None  # [S, 7]
+    dwell: np.ndarray | None = None  # [S] bool
 
     def __post_init__(self) -> None:
         n_steps = len(self.time_s)
+        for name in ("joint_q_rad", "joint_qd_rad_s"):
+            if getattr(self, name) is None:
+                object.__setattr__(self, name, np.full((n_steps, 7), np.nan))
+        if self.dwell is None:
+            object.__setattr__(self, "dwell", np.zeros(n_steps, dtype=bool))
         for f in fields(self):
             shape = np.shape(getattr(self, f.name))
             width = {"cmd_m": 3, "tip_m": 3, "torque_nm": 7}.get(f.name)
+            width = 7 if f.name.startswith("joint_") else width
             expected = (n_steps,) if width is None else (n_steps, width)
             if shape != expected:
                 raise ValueError(f"WritingLog field '{f.name}' has shape {shape}, not {expected}")
@@ -312,15 +338,20 @@ class WritingResult:
         One entry per control step (item access by name works as well).
     metrics : dict
         See :func:`writing_metrics`; also ``simulated_s``, ``wall_s``,
-        ``real_time_factor``, ``control_rate_hz``, ``force_set_n``, ``approach_s``.
+        ``real_time_factor``, ``control_rate_hz``, ``force_set_n``, ``approach_s``,
+        and :func:`img2dmp.robot.strokes.stroke_report`'s ``strokes`` (ink and force per
+        pen-down stroke), ``stroke_ink_share_min``, ``dwell_s`` (time the DMP clock was
+        held between strokes) and ``force_in_band_share_with_dwell``.
     plan : PlannedPath
     mapping : PaperMapping
     scene_config : SceneConfig
     controller_config : ControllerConfig
     frames : list of ndarray
-        Camera frames ``uint8 [h, w, 3]`` if requested.
+        Video frames ``uint8 [h, 2 w, 3]`` (arm | paper from above) if requested.
     render : ndarray or None
         Final camera picture ``uint8 [h, 2 w, 3]`` (arm | paper) if requested.
+    start_joints_rad : ndarray [7] or None
+        Joint positions at rest before the first step (the start posture).
     """
 
     log: WritingLog
@@ -331,6 +362,7 @@ class WritingResult:
     controller_config: ControllerConfig
     frames: list = field(default_factory=list)
     render: np.ndarray | None = None
+    start_joints_rad: np.ndarray | None = None
 
 
 def _pen_channel(y: np.ndarray, n_dims: int) -> np.ndarray:
@@ -462,7 +494,8 @@ def _unreachable(plan: PlannedPath, i: int, residual_m: float):
 
 
 def writing_metrics(log: WritingLog, force_set_n: float, tolerance: float = 0.2) -> dict:
-    """Tracking and force statistics over the commanded pen-down time of the write phase.
+    """Tracking and force statistics over the commanded pen-down time of the write phase
+    with the DMP running (steps on which its clock was held, ``log.dwell``, excluded).
 
     Parameters
     ----------
@@ -483,7 +516,7 @@ def writing_metrics(log: WritingLog, force_set_n: float, tolerance: float = 0.2)
     """
     if not isinstance(log, WritingLog):
         log = WritingLog(**log)
-    sel = log.in_phase("write") & log.pen_down  # [S]
+    sel = log.in_phase("write") & log.pen_down & ~log.dwell  # [S]
     if not sel.any():
         nan = float("nan")
         return {
@@ -524,6 +557,7 @@ def write_dmp(
     frame_interval_s: float | None = None,
     frame_size_px: tuple[int, int] = (320, 240),
     render_size_px: tuple[int, int] | None = (640, 480),
+    stroke_dwell: bool = True,
     progress=None,
 ) -> WritingResult:
     """Write one DMP with the simulated KUKA iiwa; return the log and metrics.
@@ -550,11 +584,14 @@ def write_dmp(
     settle_s : float
         Time the force must stay within 5 % of the set point before writing starts.
     frame_interval_s : float or None
-        If given, keep a camera frame every so many simulated seconds (for a video):
-        the arm and a close-up of the pen on the paper, side by side.
+        If given, keep a video frame every so many simulated seconds, and one after the
+        lift: the arm and the paper seen from above with the ink so far, side by side.
     frame_size_px, render_size_px : tuple (w, h)
         Size of each half of a video frame and of the final render (arm | paper);
         ``render_size_px=None``: no final render.
+    stroke_dwell : bool
+        Hold the DMP clock while the pen lands and lifts between strokes (see
+        :class:`WritingOptions`).
     progress : callable or None
         Called as ``progress(n_steps)`` after each batch of simulated steps.
 
@@ -576,6 +613,7 @@ def write_dmp(
         frame_interval_s=frame_interval_s,
         frame_size_px=frame_size_px,
         render_size_px=render_size_px,
+        stroke_dwell=stroke_dwell,
     )
     return write_with_options(params, config, image_size, options, progress=progress)
 
@@ -657,6 +695,8 @@ class WritingRun:
         self._ink_pending: list[np.ndarray] = []  # each [3]
         self._next_frame_s = 0.0
         self._steps_unreported = 0
+        self._inset: PaperInset | None = None  # the video's paper panel, made when needed
+        self.start_joints_rad = scene.joint_state()[0]  # [7]
 
     def execute(self) -> WritingResult:
         """Approach, write and lift; return the log, metrics and pictures."""
@@ -686,12 +726,20 @@ class WritingRun:
                 )
 
     def write(self) -> None:
-        """Run the DMP online at the control rate, one step per control period."""
+        """Run the DMP online at the control rate, one step per control period; with
+        ``options.stroke_dwell`` its clock holds while the pen lands at the start of a
+        stroke and leaves the paper at its end (:class:`StrokeGate`)."""
         n_dims = self.dmp.config.n_dims
-        for _ in range(len(self.plan.time_s) - 1):
+        gate = StrokeGate(self, self.plan.pen_down) if self.options.stroke_dwell else None
+        for k in range(1, len(self.plan.time_s)):
             y = self.dmp.step(self.dt_s)  # [d]
             pen_down = bool(_pen_channel(y, n_dims))
-            self.control_step("write", self.mapping.to_table(y[:2]), pen_down, self.dmp.t)
+            xy_m = self.mapping.to_table(y[:2])
+            if gate is not None:
+                gate.before_step(xy_m, pen_down, self.dmp.t)
+            self.control_step("write", xy_m, pen_down, self.dmp.t)
+            if gate is not None:
+                gate.after_step(k, xy_m, pen_down, self.dmp.t)
 
     def lift(self) -> None:
         """Lift the pen at the DMP's end point, and wait for it to get there."""
@@ -700,15 +748,21 @@ class WritingRun:
         lift_s = cfg.lift_height_m / cfg.travel_speed_m_s + 0.2
         for _ in range(int(round(lift_s / self.dt_s))):
             self.control_step("lift", end_xy_m, False, self.dmp.t)
+        if self.options.frame_interval_s is not None:
+            self.record_frame()  # the video ends on the finished digit
 
-    def control_step(self, phase: str, xy_m, pen_down: bool, dmp_time_s: float) -> float:
-        """One control period and physics step towards ``xy_m``; return the force after."""
+    def control_step(
+        self, phase: str, xy_m, pen_down: bool, dmp_time_s: float, *, dwell: bool = False
+    ) -> float:
+        """One control period and physics step towards ``xy_m``; return the force after.
+        ``dwell``: the DMP clock is held on this step (logged)."""
         scene, ctl = self.scene, self.controller
         q, qd = scene.joint_state()
         ctl.update_axis(pen_down, scene.contact_force_n(), self.surface_z_m)
         tau = ctl.torques(xy_m, q, qd)  # [7]
         scene.step(tau)
         self.time_s += self.dt_s
+        q_after, qd_after = scene.joint_state()
         tip_m, _ = scene.tip_pose()
         force_n = scene.contact_force_n()
         row = {
@@ -720,6 +774,9 @@ class WritingRun:
             "tip_m": tip_m,
             "force_n": force_n,
             "torque_nm": tau,
+            "joint_q_rad": q_after,
+            "joint_qd_rad_s": qd_after,
+            "dwell": dwell,
         }
         for name, value in row.items():
             self._columns[name].append(value)
@@ -736,12 +793,18 @@ class WritingRun:
         return force_n
 
     def record_frame(self) -> None:
-        """Keep a video frame: the arm | a close-up of the pen on the paper."""
+        """Keep a video frame: the arm | the paper seen from above, with the ink so far and
+        the pen's place (:class:`PaperInset`; the camera's close-up hid the ink under the
+        pen)."""
         self.flush_ink()
         size = self.options.frame_size_px
+        if self._inset is None:
+            self._inset = PaperInset(size, self.plan.xy_m, self.plan.pen_down)
+        c = self._columns
+        self._inset.add(c["tip_m"], c["force_n"])
         arm = self.scene.render(*size, **_VIDEO_VIEW)
-        pen = self.scene.render(*size, shadow=False, **_pen_view(self.mapping))
-        self.frames.append(np.concatenate([arm, pen], axis=1))
+        paper = self._inset.draw(c["tip_m"][-1] if c["tip_m"] else None, self.time_s)
+        self.frames.append(np.concatenate([arm, paper], axis=1))
 
     def flush_ink(self) -> None:
         """Draw the pending ink dots, about 0.3 mm apart (a picture, not a measurement)."""
@@ -767,6 +830,9 @@ class WritingRun:
             tip_m=np.array(c["tip_m"], dtype=float).reshape(-1, 3),
             force_n=np.array(c["force_n"], dtype=float),
             torque_nm=np.array(c["torque_nm"], dtype=float).reshape(-1, 7),
+            joint_q_rad=np.array(c["joint_q_rad"], dtype=float).reshape(-1, 7),
+            joint_qd_rad_s=np.array(c["joint_qd_rad_s"], dtype=float).reshape(-1, 7),
+            dwell=np.array(c["dwell"], dtype=bool),
         )
 
     def result(self, wall_s: float) -> WritingResult:
@@ -782,6 +848,7 @@ class WritingRun:
                 "control_rate_hz": 1.0 / self.dt_s,
                 "force_set_n": ctl_cfg.force_set_n,
                 "approach_s": float(self.approach_s),
+                **stroke_report(self.plan, log, ctl_cfg.force_set_n),
             }
         )
         self.flush_ink()
@@ -794,6 +861,7 @@ class WritingRun:
             controller_config=ctl_cfg,
             frames=self.frames,
             render=self.final_render(),
+            start_joints_rad=self.start_joints_rad,
         )
 
     def final_render(self) -> np.ndarray | None:
@@ -831,14 +899,4 @@ def _paper_view(mapping: PaperMapping) -> dict:
         "distance_m": max(0.05, 1.5 * height_m / (2 * math.tan(math.radians(22.5)))),
         "yaw_deg": -90.0,
         "pitch_deg": -89.9,
-    }
-
-
-def _pen_view(mapping: PaperMapping) -> dict:
-    """Close-up of the writing area from behind the pen (robot side), digit upright."""
-    return {
-        "target_m": (mapping.center_m[0], mapping.center_m[1], 0.0),
-        "distance_m": max(0.05, 3.0 * mapping.writing_height_mm * 1e-3),
-        "yaw_deg": -90.0,
-        "pitch_deg": -50.0,
     }

@@ -1,0 +1,276 @@
+"""The joint trajectory of a writing run: export for a real arm, limits, replay.
+
+A :class:`JointTrajectory` is what a position-controlled KUKA LBR iiwa needs to write the
+digit again: time stamps at the control rate (from 0, the start posture at rest), the
+seven joint positions and velocities the simulated arm went through (measured after
+each control step), the joint names. :func:`save_joint_trajectory` writes it as CSV and
+JSON after checking it against the iiwa's limits (``IIWA_POSITION_LIMITS_RAD`` from the
+robot model, ``IIWA_VELOCITY_LIMITS_RAD_S`` from KUKA's data sheet of the LBR iiwa 14
+R820, whose masses the model has; the model's own 10 rad/s is a placeholder).
+:func:`replay_joint_trajectory` plays it back in a fresh simulation by joint position
+control, as a real controller would, and returns where the pen touched the paper.
+
+JSON (``"format": "img2dmp-joint-trajectory"``, version 1)::
+
+    {"format", "version", "robot", "joint_names": [7], "control_rate_hz",
+     "units": {"time": "s", "position": "rad", "velocity": "rad/s"},
+     "limits": {"position_rad": [[lo, hi]] * 7, "velocity_rad_s": [7]},
+     "scene": SceneConfig fields (where the paper is),
+     "time_s": [N], "position_rad": [N][7], "velocity_rad_s": [N][7]}
+
+CSV: a header ``time_s, <joint>_rad x 7, <joint>_rad_s x 7`` and one row per sample.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._files import atomic_write_text
+from .scene import SceneConfig, WritingScene
+from .strokes import ink_points
+
+FORMAT = "img2dmp-joint-trajectory"
+VERSION = 1
+IIWA_JOINT_NAMES = tuple(f"lbr_iiwa_joint_{j}" for j in range(1, 8))
+# Axis ranges of the LBR iiwa (170, 120, 170, 120, 170, 120, 175 degrees), as in the model.
+IIWA_POSITION_LIMITS_RAD = np.radians([170.0, 120.0, 170.0, 120.0, 170.0, 120.0, 175.0])
+# Axis speeds of the LBR iiwa 14 R820 (85, 85, 100, 75, 130, 135, 135 degrees per second).
+IIWA_VELOCITY_LIMITS_RAD_S = np.radians([85.0, 85.0, 100.0, 75.0, 130.0, 135.0, 135.0])
+ROBOT = "KUKA LBR iiwa 14 R820 (pybullet_data kuka_iiwa/model.urdf) with a pen on the flange"
+SUFFIXES = (".csv", ".json")
+
+
+@dataclass(frozen=True)
+class JointTrajectory:
+    """Joint positions and velocities of the iiwa over time (N samples).
+
+    Attributes
+    ----------
+    time_s : ndarray [N]
+        Increasing time stamps, one control period apart, from 0.
+    position_rad, velocity_rad_s : ndarray [N, 7]
+        Joint positions and velocities.
+    joint_names : tuple of 7 str
+    control_rate_hz : float
+    scene : dict
+        The :class:`SceneConfig` fields of the cell it was written in.
+    """
+
+    time_s: np.ndarray
+    position_rad: np.ndarray
+    velocity_rad_s: np.ndarray
+    joint_names: tuple = IIWA_JOINT_NAMES
+    control_rate_hz: float = 240.0
+    scene: dict = dataclasses.field(default_factory=dict)
+
+    @classmethod
+    def from_result(cls, result) -> JointTrajectory:
+        """The trajectory of a ``WritingResult``: its start posture at ``t = 0`` (at rest),
+        then the joint state after every control step of its log."""
+        log = result.log
+        if result.start_joints_rad is None or not np.isfinite(log.joint_q_rad).all():
+            raise ValueError("this writing result has no joint log to export")
+        return cls(
+            time_s=np.concatenate([[0.0], log.time_s]),
+            position_rad=np.vstack([result.start_joints_rad, log.joint_q_rad]),
+            velocity_rad_s=np.vstack([np.zeros(7), log.joint_qd_rad_s]),
+            control_rate_hz=float(result.metrics["control_rate_hz"]),
+            scene=dataclasses.asdict(result.scene_config),
+        )
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.time_s)
+
+    def check_limits(self, where: str = "joint trajectory") -> None:
+        """``ValueError`` naming ``where``, the joint, the time, the value and the limit at
+        the first sample outside the iiwa's position or velocity limits."""
+        for kind, values, limits, unit in (
+            ("position", self.position_rad, IIWA_POSITION_LIMITS_RAD, "rad"),
+            ("velocity", self.velocity_rad_s, IIWA_VELOCITY_LIMITS_RAD_S, "rad/s"),
+        ):
+            over = np.abs(values) > limits  # [N, 7]
+            if over.any():
+                i, j = np.argwhere(over)[0]
+                raise ValueError(
+                    f"{where}: {self.joint_names[j]} {kind} {values[i, j]:.4f} {unit} at "
+                    f"t = {self.time_s[i]:.4f} s exceeds the iiwa's limit of "
+                    f"±{limits[j]:.4f} {unit} ({math.degrees(limits[j]):.0f} deg"
+                    f"{'/s' if kind == 'velocity' else ''}); nothing written"
+                )
+
+    def to_json(self) -> str:
+        doc = {
+            "format": FORMAT,
+            "version": VERSION,
+            "robot": ROBOT,
+            "joint_names": list(self.joint_names),
+            "control_rate_hz": self.control_rate_hz,
+            "units": {"time": "s", "position": "rad", "velocity": "rad/s"},
+            "limits": {
+                "position_rad": [[-v, v] for v in IIWA_POSITION_LIMITS_RAD.tolist()],
+                "velocity_rad_s": IIWA_VELOCITY_LIMITS_RAD_S.tolist(),
+            },
+            "scene": self.scene,
+            "time_s": np.round(self.time_s, 9).tolist(),
+            "position_rad": np.round(self.position_rad, 10).tolist(),
+            "velocity_rad_s": np.round(self.velocity_rad_s, 8).tolist(),
+        }
+        return json.dumps(doc)
+
+    def to_csv(self) -> str:
+        f = io.StringIO(newline="")
+        w = csv.writer(f)
+        w.writerow(
+            ["time_s"]
+            + [f"{n}_rad" for n in self.joint_names]
+            + [f"{n}_rad_s" for n in self.joint_names]
+        )
+        for t, q, qd in zip(self.time_s, self.position_rad, self.velocity_rad_s, strict=True):
+            w.writerow([f"{t:.6f}", *(f"{v:.10f}" for v in q), *(f"{v:.8f}" for v in qd)])
+        return f.getvalue()
+
+
+def export_paths(path) -> tuple[str, str]:
+    """The CSV and JSON files of ``--export-joints path``: ``path`` without a ``.csv`` or
+    ``.json`` suffix, then each suffix."""
+    base = os.fspath(path)
+    root, ext = os.path.splitext(base)
+    if ext.lower() in SUFFIXES:
+        base = root
+    return base + ".csv", base + ".json"
+
+
+def save_joint_trajectory(trajectory: JointTrajectory, path) -> tuple[str, str]:
+    """Check ``trajectory`` against the iiwa's limits (``ValueError`` naming the file, the
+    joint and the value; nothing written), then write it as CSV and JSON (atomically) to
+    :func:`export_paths` of ``path``; return the two paths."""
+    csv_path, json_path = export_paths(path)
+    trajectory.check_limits(f"{json_path}: joint trajectory")
+    atomic_write_text(json_path, trajectory.to_json())
+    atomic_write_text(csv_path, trajectory.to_csv())
+    return csv_path, json_path
+
+
+def _field(doc: dict, name: str, path) -> object:
+    if name not in doc:
+        raise ValueError(f"{path}: field '{name}' is missing")
+    return doc[name]
+
+
+def _array(doc: dict, name: str, shape: tuple, path) -> np.ndarray:
+    value = _field(doc, name, path)
+    try:
+        a = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        a = None
+    ok = a is not None and a.ndim == len(shape) and a.shape[1:] == shape[1:] and len(a) > 0
+    if not ok or not np.isfinite(a).all():
+        what = "[N]" if len(shape) == 1 else "[N][7]"
+        raise ValueError(f"{path}: field '{name}' must be {what} finite numbers")
+    return a
+
+
+def load_joint_trajectory(path) -> JointTrajectory:
+    """Read a trajectory written by :func:`save_joint_trajectory` (the JSON file);
+    ``ValueError`` naming the file and the field for anything else."""
+    with open(path, encoding="utf-8") as f:
+        try:
+            doc = json.load(f)
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path}: not JSON ({e})") from e
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise ValueError(f"{path}: field 'format' must be {FORMAT!r}")
+    version = _field(doc, "version", path)
+    if type(version) is not int or version != VERSION:
+        raise ValueError(f"{path}: field 'version' must be {VERSION}, got {doc['version']!r}")
+    time_s = _array(doc, "time_s", (1,), path)
+    q = _array(doc, "position_rad", (1, 7), path)
+    qd = _array(doc, "velocity_rad_s", (1, 7), path)
+    if not (len(q) == len(qd) == len(time_s)) or np.any(np.diff(time_s) <= 0):
+        raise ValueError(
+            f"{path}: fields 'time_s', 'position_rad', 'velocity_rad_s' must have one entry "
+            "per sample, at increasing times"
+        )
+    names = _field(doc, "joint_names", path)
+    if names != list(IIWA_JOINT_NAMES):
+        raise ValueError(f"{path}: field 'joint_names' must be {list(IIWA_JOINT_NAMES)}")
+    rate = _field(doc, "control_rate_hz", path)
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0 < rate < math.inf:
+        raise ValueError(f"{path}: field 'control_rate_hz' must be a number > 0, got {rate!r}")
+    scene = _field(doc, "scene", path)
+    try:
+        SceneConfig(**_scene_fields(scene))
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{path}: field 'scene' is not a SceneConfig ({e})") from e
+    return JointTrajectory(time_s, q, qd, tuple(names), float(rate), dict(scene))
+
+
+@dataclass
+class Replay:
+    """What a replay produced, one entry per sample after the first (N - 1 steps)."""
+
+    time_s: np.ndarray  # [N-1]
+    tip_m: np.ndarray  # [N-1, 3]
+    force_n: np.ndarray  # [N-1]
+    joint_q_rad: np.ndarray  # [N-1, 7]
+
+    def ink_m(self) -> np.ndarray:
+        """Where the pen wrote: the tip's path while touching, as points ``[m, 2]``."""
+        return ink_points(self.tip_m[:, :2], self.force_n > 0.0)
+
+
+def replay_joint_trajectory(
+    trajectory: JointTrajectory,
+    scene_config: SceneConfig | None = None,
+    *,
+    position_gain: float = 1.0,
+    velocity_gain: float = 1.0,
+) -> Replay:
+    """Play ``trajectory`` back in a fresh simulated cell by joint position control.
+
+    The arm starts at rest at the first sample; each later sample is one physics step
+    of pybullet's position servo (:meth:`WritingScene.step_positions`) towards that
+    sample's positions and velocities. ``scene_config``: the cell (default: the one
+    recorded in the trajectory). ``ValueError`` for samples that are not one period of
+    ``control_rate_hz`` apart.
+    """
+    dt_s = 1.0 / trajectory.control_rate_hz
+    steps = np.diff(trajectory.time_s)
+    if len(steps) and np.max(np.abs(steps - dt_s)) > 1e-6 * dt_s + 1e-9:
+        raise ValueError(
+            f"the trajectory's samples must be 1 / control_rate_hz = {dt_s:.6g} s apart to "
+            f"be replayed, got steps from {steps.min():.6g} to {steps.max():.6g} s"
+        )
+    if scene_config is None:
+        scene_config = SceneConfig(**_scene_fields(trajectory.scene))
+    n = trajectory.n_samples - 1
+    tip, force, q_out = np.zeros((n, 3)), np.zeros(n), np.zeros((n, 7))
+    with WritingScene(scene_config, time_step_s=dt_s) as scene:
+        scene.reset_joints(trajectory.position_rad[0])
+        for i in range(n):
+            scene.step_positions(
+                trajectory.position_rad[i + 1],
+                trajectory.velocity_rad_s[i + 1],
+                position_gain=position_gain,
+                velocity_gain=velocity_gain,
+            )
+            tip[i] = scene.tip_pose()[0]
+            force[i] = scene.contact_force_n()
+            q_out[i] = scene.joint_state()[0]
+    return Replay(trajectory.time_s[1:], tip, force, q_out)
+
+
+def _scene_fields(scene) -> dict:
+    """SceneConfig keyword arguments from a JSON record (lists back to tuples)."""
+    if not isinstance(scene, dict):
+        raise TypeError(f"a JSON object is needed, got {type(scene).__name__}")
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in scene.items()}
