@@ -33,6 +33,7 @@ import numpy as np
 
 from img2dmp.dmp import DMPConfig, DMPIntegrator, fit_dmp
 from img2dmp.robot import WritingOptions, WritingScene, write_dmp, write_with_options, writing
+from img2dmp.robot.strokes import strokes_path
 
 DURATION_S = 3.0
 
@@ -49,33 +50,6 @@ def digit_two(n: int = 300) -> np.ndarray:
     u = np.linspace(0.0, 1.0, n)
     u = (10 * u**3 - 15 * u**4 + 6 * u**5) * s[-1]
     return np.stack([np.interp(u, s, pts[:, 0]), np.interp(u, s, pts[:, 1])], axis=-1)
-
-
-def _min_jerk_along(points, n: int) -> np.ndarray:
-    """``n`` points along a polyline at min-jerk arc-length spacing (at rest at both ends)."""
-    points = np.asarray(points, dtype=float)
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-    u = np.linspace(0.0, 1.0, n)
-    u = (10 * u**3 - 15 * u**4 + 6 * u**5) * s[-1]
-    return np.stack([np.interp(u, s, points[:, 0]), np.interp(u, s, points[:, 1])], axis=-1)
-
-
-def strokes_path(strokes, n_total: int = 400) -> np.ndarray:
-    """Pen-down polylines joined by straight pen-up travels: ``[T, 3]`` (x, y, pen), as in
-    tests/test_robot_replay.py."""
-    parts, prev = [], None
-    for pts in strokes:
-        pts = np.asarray(pts, dtype=float)
-        if prev is not None:
-            parts.append((np.array([prev, pts[0]]), 0.0))
-        parts.append((pts, 1.0))
-        prev = pts[-1]
-    lengths = [np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p, _ in parts]
-    out = []
-    for (pts, pen), length in zip(parts, lengths, strict=True):
-        n = max(40, int(n_total * length / sum(lengths)))
-        out.append(np.concatenate([_min_jerk_along(pts, n), np.full((n, 1), pen)], axis=1))
-    return np.concatenate(out)
 
 
 _A = np.radians(np.linspace(125, -150, 40))

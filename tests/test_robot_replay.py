@@ -18,6 +18,7 @@ import pytest
 
 from img2dmp.dmp import DMPConfig, fit_dmp
 from img2dmp.robot import available, save_dmp_json
+from img2dmp.robot.strokes import strokes_path
 
 needs_pybullet = pytest.mark.skipif(
     not available(), reason="pybullet is not installed (pip install img2dmp[robot])"
@@ -27,39 +28,9 @@ IMAGE_SIZE = (28, 28)
 DURATION_S = 3.0
 
 
-def _min_jerk(n: int) -> np.ndarray:
-    u = np.linspace(0.0, 1.0, n)
-    return 10 * u**3 - 15 * u**4 + 6 * u**5
-
-
-def _resample(points, n: int) -> np.ndarray:
-    """``n`` points along a polyline at min-jerk arc-length spacing (at rest at both ends)."""
-    points = np.asarray(points, dtype=float)
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-    u = _min_jerk(n) * s[-1]
-    return np.stack([np.interp(u, s, points[:, 0]), np.interp(u, s, points[:, 1])], axis=-1)
-
-
 def _arc(center, radius, a0_deg, a1_deg, n=40) -> np.ndarray:
     a = np.radians(np.linspace(a0_deg, a1_deg, n))
     return np.stack([center[0] + radius * np.cos(a), center[1] - radius * np.sin(a)], axis=-1)
-
-
-def strokes_path(strokes, n_total: int = 400) -> np.ndarray:
-    """Pen-down polylines joined by straight pen-up travels: ``[T, 3]`` (x, y, pen)."""
-    parts, prev = [], None
-    for pts in strokes:
-        pts = np.asarray(pts, dtype=float)
-        if prev is not None:
-            parts.append((np.array([prev, pts[0]]), 0.0))
-        parts.append((pts, 1.0))
-        prev = pts[-1]
-    lengths = [np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p, _ in parts]
-    out = []
-    for (pts, pen), length in zip(parts, lengths, strict=True):
-        n = max(40, int(n_total * length / sum(lengths)))
-        out.append(np.concatenate([_resample(pts, n), np.full((n, 1), pen)], axis=1))
-    return np.concatenate(out)
 
 
 DIGITS = {

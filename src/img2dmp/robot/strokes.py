@@ -44,6 +44,39 @@ LAND_SETTLE_S = 0.03
 LIFT_CLEAR_STEPS = 2
 
 
+def min_jerk_along(points, n: int) -> np.ndarray:
+    """``n`` points ``[n, 2]`` along a polyline at minimum-jerk arc-length spacing (at rest
+    at both ends): a pen's natural timing along one stroke."""
+    points = np.asarray(points, dtype=float)
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+    u = np.linspace(0.0, 1.0, n)
+    u = (10 * u**3 - 15 * u**4 + 6 * u**5) * s[-1]
+    return np.stack([np.interp(u, s, points[:, 0]), np.interp(u, s, points[:, 1])], axis=-1)
+
+
+def strokes_path(strokes, n_total: int = 400) -> np.ndarray:
+    """A multi-stroke drawing as one pen path ``[T, 3]`` (x, y, pen) to fit a d = 3 DMP to.
+
+    ``strokes`` is a list of polylines (``[n_i, 2]`` points each, pen down); consecutive
+    strokes are joined by straight pen-up travels (pen 0). Every part is sampled at
+    minimum-jerk spacing (:func:`min_jerk_along`) with points in proportion to its
+    length (at least 40).
+    """
+    parts, prev = [], None
+    for pts in strokes:
+        pts = np.asarray(pts, dtype=float)
+        if prev is not None:
+            parts.append((np.array([prev, pts[0]]), 0.0))
+        parts.append((pts, 1.0))
+        prev = pts[-1]
+    lengths = [np.linalg.norm(np.diff(p, axis=0), axis=1).sum() for p, _ in parts]
+    out = []
+    for (pts, pen), length in zip(parts, lengths, strict=True):
+        n = max(40, int(n_total * length / sum(lengths)))
+        out.append(np.concatenate([min_jerk_along(pts, n), np.full((n, 1), pen)], axis=1))
+    return np.concatenate(out)
+
+
 def stroke_spans(pen_down) -> list[tuple[int, int]]:
     """``(first, last)`` sample indices (inclusive) of each run of ``True`` in ``pen_down``."""
     down = np.asarray(pen_down, dtype=bool)
