@@ -15,7 +15,7 @@ reported as one line ``img2dmp COMMAND: error: ...`` naming the file, field or v
 standard error; 1 a bug (traceback, then a request to report it); 130 interrupted.
 
 One rule for every command that writes (generate, prepare, import, train, predict,
-evaluate, write, preview, demo): an existing output is never replaced without
+evaluate, write, preview, demo, export): an existing output is never replaced without
 ``--force``, and this, like the inputs, is checked before any slow work starts
 (:mod:`img2dmp.commands._args`).
 Two inputs that would give one output file are refused, naming both. Files are written
