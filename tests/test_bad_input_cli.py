@@ -773,3 +773,19 @@ def test_sizes_a_user_controls_are_refused_before_any_work(argv, named, tmp_path
     assert len(err) == 1 and named in err[0], err
     # refused before anything large was allocated (the peak grew by less than 200 MB)
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 200_000
+
+
+def test_write_errors_are_one_line_even_when_pybullet_loads(tmp_path):
+    # pybullet prints a build-time banner from C when it is first imported; the error
+    # line of `write` must still be the only line on standard error (a fresh process).
+    from img2dmp.robot import available
+
+    if not available():
+        pytest.skip("pybullet is not installed (the robot extra)")
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"dmp_config": {}, "params": {"tau": true}, "image_size": [40, 40]}')
+    cmd = [sys.executable, "-m", "img2dmp", "write", "--dmp", str(bad), "--out-dir", "o"]
+    r = subprocess.run(cmd, capture_output=True, text=True, env=ENV, cwd=tmp_path, timeout=120)
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [r.stderr.strip()], r.stderr
+    assert "bad.json" in r.stderr and r.stdout == ""
