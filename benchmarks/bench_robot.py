@@ -14,7 +14,8 @@ For each control rate it prints
 
 Then, at 240 Hz, multi-stroke digits (DMPs with d = 3, a pen channel: a two-stroke "4", a
 "5" with its top bar, a "7" with a cross bar, the "+" of the tests) with the DMP clock
-held while the pen lands and lifts (the default) and without (as before): per stroke the
+held while the pen lands and lifts (the default) and without (as before), each with the
+pen hovering low before a touch-down (the default) and without: per stroke the
 share of its commanded pen-down length that left ink and the share of its pen-down time
 with the force within ±20 % of the set point, the time the DMP was held, the speed.
 
@@ -68,14 +69,14 @@ def stroke_table() -> None:
     print()
     print('multi-stroke digits at 240 Hz (3 s DMPs, d = 3, 40 kernels); per stroke: commanded '
           'length mm / ink % / force in band %')  # fmt: skip
-    print(f"{'digit':>5} {'gate':>4} {'loop x real':>12} {'held s':>7} {'F band %':>9} "
-          f"{'F band incl. held %':>20}  strokes")  # fmt: skip
+    print(f"{'digit':>5} {'gate':>4} {'hover':>5} {'loop x real':>12} {'held s':>7} "
+          f"{'F band %':>9} {'F band incl. held %':>20}  strokes")  # fmt: skip
     for name, strokes in MULTI_STROKE.items():
         y = strokes_path(strokes)
         config = DMPConfig(n_kernels=40, n_dims=3, scaling="none")
         params = fit_dmp(np.linspace(0, DURATION_S, len(y)), y, config).params
-        for gate in (False, True):
-            options = WritingOptions(render_size_px=None, stroke_dwell=gate)
+        for gate, hover in ((False, False), (False, True), (True, False), (True, True)):
+            options = WritingOptions(render_size_px=None, stroke_dwell=gate, hover=hover)
             m = write_with_options(params, config, (28, 28), options).metrics
             per = "; ".join(
                 f"{s['length_mm']:.1f} / {100 * s['ink_share']:.1f} / "
@@ -83,12 +84,15 @@ def stroke_table() -> None:
                 for s in m["strokes"]
             )
             print(
-                f"{name:>5} {'on' if gate else 'off':>4} {m['real_time_factor']:11.1f}x "
+                f"{name:>5} {'on' if gate else 'off':>4} {'on' if hover else 'off':>5} "
+                f"{m['real_time_factor']:11.1f}x "
                 f"{m['dwell_s']:7.3f} {100 * m['force_in_band_share']:9.1f} "
                 f"{100 * m['force_in_band_share_with_dwell']:20.1f}  {per}"
             )
-    print("(F band: force within ±20 % of 5 N over the pen-down time with the DMP running; "
-          "incl. held: the time the DMP waited for the pen counted as pen-down time)")  # fmt: skip
+    print("(gate: the DMP waits for the pen at touch-down and lift-off; hover: the pen comes "
+          "down to the approach clearance before a touch-down; F band: force within ±20 % of "
+          "5 N over the pen-down time with the DMP running; incl. held: the time the DMP "
+          "waited for the pen counted as pen-down time)")  # fmt: skip
 
 
 def _timed(owner, name: str, totals: dict, clock=time.perf_counter):

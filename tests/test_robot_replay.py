@@ -52,14 +52,14 @@ def digit_dmp(name: str):
 _RUNS: dict = {}
 
 
-def written(name: str, stroke_dwell: bool = True):
+def written(name: str, stroke_dwell: bool = True, hover: bool = True):
     """The digit written once per test session (runs are deterministic)."""
-    key = (name, stroke_dwell)
+    key = (name, stroke_dwell, hover)
     if key not in _RUNS:
         from img2dmp.robot import WritingOptions, write_with_options
 
         params, config = digit_dmp(name)
-        options = WritingOptions(render_size_px=None, stroke_dwell=stroke_dwell)
+        options = WritingOptions(render_size_px=None, stroke_dwell=stroke_dwell, hover=hover)
         _RUNS[key] = write_with_options(params, config, IMAGE_SIZE, options)
     return _RUNS[key]
 
@@ -160,6 +160,8 @@ def test_every_stroke_of_a_multi_stroke_digit_is_written_whole(name):
         assert s["ink_share"] >= 0.98, strokes
         assert s["force_in_band_share"] >= 0.95, strokes
     assert m["force_in_band_share"] >= 0.95 and m["contact_share"] >= 0.95, m
+    # Also counting the time the DMP waited for the pen to land as pen-down time.
+    assert m["force_in_band_share_with_dwell"] >= 0.95, m
     assert m["tracking_error_mean_mm"] < 1.0, m
     # The DMP waited at the second touch-down, but not for ever.
     assert 0.05 < strokes[1]["dwell_s"] < 0.5, strokes
@@ -178,9 +180,31 @@ def test_every_stroke_of_a_multi_stroke_digit_is_written_whole(name):
 def test_without_the_gate_the_second_stroke_misses_its_start(name):
     """The measure can fail: the DMP running on while the pen lands (as before issue 20)
     leaves the start of the bar unwritten and the force out of band."""
-    m = written(name, stroke_dwell=False).metrics
+    m = written(name, stroke_dwell=False, hover=False).metrics
     assert m["strokes"][1]["ink_share"] < 0.95, m["strokes"]
     assert m["force_in_band_share"] < 0.95 and m["dwell_s"] == 0.0
+
+
+@needs_pybullet
+def test_the_pen_hovers_low_before_a_touch_down_and_lands_sooner():
+    """Without hovering the pen comes down from the lift height after the DMP has
+    stopped, and the landing alone pushes the force out of band for > 5 % of the time."""
+    from img2dmp.robot import ControllerConfig
+    from img2dmp.robot.strokes import stroke_spans
+
+    def height_before_touch_down_mm(result) -> float:
+        log = result.log
+        held = log.dwell & log.pen_down & log.in_phase("write")
+        a = stroke_spans(held)[0][0]  # the second stroke's touch-down
+        return (log.tip_m[a - 1, 2] - result.scene_config.paper_top_z) * 1e3
+
+    low, high = written("7"), written("7", hover=False)
+    cfg = ControllerConfig()
+    assert height_before_touch_down_mm(low) < 1.5 * cfg.approach_clearance_m * 1e3
+    assert height_before_touch_down_mm(high) > 0.8 * cfg.lift_height_m * 1e3
+    assert low.metrics["dwell_s"] < high.metrics["dwell_s"] - 0.04
+    assert high.metrics["force_in_band_share_with_dwell"] < 0.95
+    assert low.metrics["strokes"][1]["ink_share"] >= 0.98
 
 
 # -- joints: logged, exported within the limits, replayed ---------------------------------

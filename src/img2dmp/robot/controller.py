@@ -78,7 +78,7 @@ class ControllerConfig:
     max_axis_speed_m_s: float = 0.03
     travel_speed_m_s: float = 0.1
     approach_speed_m_s: float = 0.01
-    approach_clearance_m: float = 0.001
+    approach_clearance_m: float = 0.0005
     force_filter_hz: float = 40.0
     joint_bandwidth_hz: float = 12.0
     damping_ratio: float = 1.0
@@ -139,8 +139,13 @@ class WritingController:
         self._alpha = 1.0 - math.exp(-2.0 * math.pi * config.force_filter_hz * self.dt)
         self.last_ik_residual_m = 0.0
 
-    def update_axis(self, pen_down: bool, force_n: float, surface_z_m: float) -> float:
-        """Advance the pen-axis admittance by one step; return the commanded tip height."""
+    def update_axis(
+        self, pen_down: bool, force_n: float, surface_z_m: float, hover: bool = False
+    ) -> float:
+        """Advance the pen-axis admittance by one step; return the commanded tip height.
+
+        ``hover`` (pen up only): go to ``approach_clearance_m`` above the paper instead of
+        ``lift_height_m``, so that a touch-down that is due soon starts from there."""
         cfg = self.config
         self.force_filtered_n += self._alpha * (force_n - self.force_filtered_n)
         above = surface_z_m + cfg.approach_clearance_m
@@ -154,7 +159,8 @@ class WritingController:
             limit = cfg.max_axis_speed_m_s
             self.z_c += float(np.clip(speed, -limit, limit)) * self.dt
         else:
-            step = surface_z_m + cfg.lift_height_m - self.z_c
+            height = cfg.approach_clearance_m if hover else cfg.lift_height_m
+            step = surface_z_m + height - self.z_c
             limit = cfg.travel_speed_m_s * self.dt
             self.z_c += float(np.clip(step, -limit, limit))
         return self.z_c

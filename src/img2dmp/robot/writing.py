@@ -48,6 +48,9 @@ PEN_THRESHOLD = 0.5
 IK_TOLERANCE_M = 1e-4
 # Writing starts once the force has stayed this close to the set point (relative).
 SETTLE_BAND = 0.05
+# A pen that goes down soon starts lowering to the approach clearance this much earlier
+# than the descent strictly needs.
+HOVER_MARGIN_S = 0.03
 # Steps between two calls of the progress callback (0.1 s at 240 Hz).
 PROGRESS_EVERY_STEPS = 24
 # The longest write phase, in control steps (17 min at 240 Hz): the plan, the log and
@@ -179,6 +182,11 @@ class WritingOptions:
         Hold the DMP clock at each touch-down until the force is in band and at each
         lift-off until the pen has left the paper (:mod:`img2dmp.robot.strokes`);
         ``False`` lets the DMP run on while the pen lands (the behaviour before).
+    hover : bool
+        Before each touch-down of the plan, lower the pen during the pen-up travel to
+        ``approach_clearance_m`` above the paper (instead of ``lift_height_m``), timed so
+        that it is there when the stroke starts: the touch-down then only has the slow
+        final approach left.
     """
 
     writing_height_mm: float = 40.0
@@ -191,10 +199,12 @@ class WritingOptions:
     frame_size_px: tuple[int, int] = (320, 240)
     render_size_px: tuple[int, int] | None = (640, 480)
     stroke_dwell: bool = True
+    hover: bool = True
 
     def __post_init__(self) -> None:
-        if not isinstance(self.stroke_dwell, bool):
-            raise ValueError(f"stroke_dwell must be True or False, got {self.stroke_dwell!r}")
+        for name in ("stroke_dwell", "hover"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
         rate = self.control_rate_hz
         if not (_is_finite(rate) and 100.0 <= rate <= 10000.0):
             raise ValueError(f"control_rate_hz must be in [100, 10000], got {rate!r}")
@@ -731,15 +741,32 @@ class WritingRun:
         stroke and leaves the paper at its end (:class:`StrokeGate`)."""
         n_dims = self.dmp.config.n_dims
         gate = StrokeGate(self, self.plan.pen_down) if self.options.stroke_dwell else None
+        hover = self._hover_steps()  # [T] bool
         for k in range(1, len(self.plan.time_s)):
             y = self.dmp.step(self.dt_s)  # [d]
             pen_down = bool(_pen_channel(y, n_dims))
             xy_m = self.mapping.to_table(y[:2])
             if gate is not None:
                 gate.before_step(xy_m, pen_down, self.dmp.t)
-            self.control_step("write", xy_m, pen_down, self.dmp.t)
+            self.control_step("write", xy_m, pen_down, self.dmp.t, hover=bool(hover[k]))
             if gate is not None:
                 gate.after_step(k, xy_m, pen_down, self.dmp.t)
+
+    def _hover_steps(self) -> np.ndarray:
+        """``[T]`` bool: the pen-up samples of the plan after which the pen goes down within
+        the time it takes to come from ``lift_height_m`` to ``approach_clearance_m`` (plus
+        ``HOVER_MARGIN_S``); on them the pen hovers at the clearance (``options.hover``)."""
+        down = np.asarray(self.plan.pen_down, dtype=bool)  # [T]
+        hover = np.zeros(len(down), dtype=bool)
+        if not self.options.hover:
+            return hover
+        cfg = self.options.controller_config
+        lead_s = (cfg.lift_height_m - cfg.approach_clearance_m) / cfg.travel_speed_m_s
+        lead = int(math.ceil((max(lead_s, 0.0) + HOVER_MARGIN_S) / self.dt_s))
+        touch_downs = np.flatnonzero(down[1:] & ~down[:-1]) + 1
+        for k in touch_downs:
+            hover[max(0, k - lead) : k] = True
+        return hover & ~down
 
     def lift(self) -> None:
         """Lift the pen at the DMP's end point, and wait for it to get there."""
@@ -752,13 +779,21 @@ class WritingRun:
             self.record_frame()  # the video ends on the finished digit
 
     def control_step(
-        self, phase: str, xy_m, pen_down: bool, dmp_time_s: float, *, dwell: bool = False
+        self,
+        phase: str,
+        xy_m,
+        pen_down: bool,
+        dmp_time_s: float,
+        *,
+        dwell: bool = False,
+        hover: bool = False,
     ) -> float:
         """One control period and physics step towards ``xy_m``; return the force after.
-        ``dwell``: the DMP clock is held on this step (logged)."""
+        ``dwell``: the DMP clock is held on this step (logged); ``hover``: a pen that is
+        up waits at the approach clearance (:meth:`WritingController.update_axis`)."""
         scene, ctl = self.scene, self.controller
         q, qd = scene.joint_state()
-        ctl.update_axis(pen_down, scene.contact_force_n(), self.surface_z_m)
+        ctl.update_axis(pen_down, scene.contact_force_n(), self.surface_z_m, hover)
         tau = ctl.torques(xy_m, q, qd)  # [7]
         scene.step(tau)
         self.time_s += self.dt_s
