@@ -527,8 +527,8 @@ def test_dmp_file_fields_are_strict(dmp_doc, edit, message):
     [
         (b"[1, 2, 3]", "expected a JSON object at the top level, got a list"),
         (b'"params"', "got a string"),
-        (b"", "not a valid JSON file"),
-        (b'{"tau": 1', "not a valid JSON file"),
+        (b"", "not valid JSON"),
+        (b'{"tau": 1', "not valid JSON"),
         (b"\xff\xfe{}", "not a UTF-8 text file"),
         (b"[" * 100_000 + b"]" * 100_000, "nested too deeply"),
         (b" " * (MAX_FILE_BYTES + 1), "larger than 16 MiB"),
@@ -739,3 +739,22 @@ def test_from_dict_is_strict_and_round_trips():
 def test_dmp_constants_refuse_booleans_and_text(field, value, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         DMPConfig(**{field: value})
+
+
+@pytest.mark.parametrize(
+    "data, needle",
+    [
+        (b"\xff\xfe{}", "req: not a UTF-8 text file"),
+        ('{"a": 1', "req: not valid JSON"),
+        ("[" * 100_000 + "]" * 100_000, "req: JSON nested too deeply"),
+        ('{"x": NaN}', "req: NaN is not a JSON number"),
+        ('{"x": -Infinity}', "req: -Infinity is not a JSON number"),
+    ],
+)
+def test_the_one_json_reader_names_what_it_reads(data, needle):
+    from img2dmp._files import parse_json
+
+    with pytest.raises(ValueError) as e:
+        parse_json(data, "req", allow_nan=False)
+    assert needle in str(e.value) and "\n" not in str(e.value)
+    assert parse_json(b'\xef\xbb\xbf{"x": 1}', "req") == {"x": 1}  # a BOM is fine

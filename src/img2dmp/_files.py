@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import errno
 import hashlib
+import json
 import os
 import stat
 import tempfile
@@ -294,3 +295,29 @@ __all__ = [
     "lock_directory",
     "save_figure",
 ]
+
+
+def parse_json(data: bytes | str, where: str, *, allow_nan: bool = True):
+    """The JSON value in ``data`` (bytes are read as UTF-8, with or without a BOM).
+
+    The package's one JSON reader for what users give it (DMP files, data-set metadata,
+    recordings, imported paths, web requests): every failure is a ``ValueError`` of one
+    line starting with ``where`` (a file, a field, a request part). ``allow_nan=False``
+    also refuses the ``NaN`` and ``Infinity`` literals that Python's ``json`` accepts
+    but JSON does not.
+    """
+    if isinstance(data, bytes):
+        try:
+            data = data.decode("utf-8-sig")
+        except UnicodeDecodeError as e:
+            raise ValueError(f"{where}: not a UTF-8 text file (byte {e.start})") from None
+
+    def refuse(name: str):
+        raise ValueError(f"{where}: {name} is not a JSON number; give a finite number")
+
+    try:
+        return json.loads(data, **({} if allow_nan else {"parse_constant": refuse}))
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{where}: not valid JSON ({e})") from None
+    except RecursionError:
+        raise ValueError(f"{where}: JSON nested too deeply") from None

@@ -69,7 +69,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._files import atomic_write_text, check_readable
+from .._files import atomic_write_text, check_readable, parse_json
 from ..dmp import DMPConfig, DMPParams, rollout
 from ..dmp.affine import affine_dmp
 from ..dmp.params import show_value, strict_numbers
@@ -180,14 +180,7 @@ def _read_document(path: str) -> dict:
             f"{path}: larger than {MAX_FILE_BYTES >> 20} MiB; a DMP file holds a few kB "
             "(is it the right file?)"
         )
-    try:
-        doc = json.loads(raw.decode("utf-8"))
-    except UnicodeDecodeError as e:
-        raise ValueError(f"{path}: not a UTF-8 text file (byte {e.start})") from None
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: not a valid JSON file ({e})") from None
-    except RecursionError:
-        raise ValueError(f"{path}: JSON nested too deeply to be a DMP file") from None
+    doc = parse_json(raw, path)
     if not isinstance(doc, dict):
         raise ValueError(f"{path}: expected a JSON object at the top level, got {_kind(doc)}")
     return doc

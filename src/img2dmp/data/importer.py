@@ -68,7 +68,6 @@ metadata (``source.skipped``) and the returned data's ``meta``.
 from __future__ import annotations
 
 import csv
-import json
 import math
 import os
 from collections.abc import Callable
@@ -77,6 +76,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._files import parse_json
 from .._progress import bar as progress_bar
 from ..dmp import DMPConfig
 from ..metrics import on_ink_share
@@ -380,15 +380,8 @@ def _read_csv_trajectory(path: Path):
 
 
 def _load_json(path: Path):
-    try:
-        with open(path, encoding="utf-8-sig") as f:
-            return json.load(f)
-    except UnicodeDecodeError as e:
-        raise ValueError(f"{path}: not a text (UTF-8) JSON file ({e})") from None
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: not valid JSON ({e})") from None
-    except RecursionError:
-        raise ValueError(f"{path}: JSON nested too deeply") from None
+    with open(path, "rb") as f:
+        return parse_json(f.read(), str(path))
 
 
 def _number_list(path: Path, value, field: str) -> np.ndarray:

@@ -43,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._files import parse_json
 from .._progress import bar
 
 #: Added to the recorded x and y to reach the centre convention of docs/CONTRACTS.md.
@@ -194,10 +195,7 @@ def parse_recorded(data: bytes | str | dict, name: str) -> RecordedPath:
         Naming ``name`` and the key or value at fault.
     """
     if isinstance(data, (bytes, str)):
-        try:
-            doc = json.loads(data)
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise ValueError(f"{name}: not valid JSON ({e})") from e
+        doc = parse_json(data, name)
     else:
         doc = data
     if not isinstance(doc, dict):

@@ -50,7 +50,7 @@ import numpy as np
 from safetensors import SafetensorError, safe_open
 from safetensors.numpy import save as _st_save
 
-from .._files import atomic_write_bytes, check_readable
+from .._files import atomic_write_bytes, check_readable, parse_json
 from ..dmp import DMPConfig, DMPParams
 
 FORMAT = "img2dmp-dataset"
@@ -421,11 +421,9 @@ def _parse_header(path: Path, header: dict) -> dict:
     if META_KEY not in header:
         raise DatasetError(f"{path}: header metadata has no {META_KEY!r} entry")
     try:
-        meta = json.loads(header[META_KEY])
-    except json.JSONDecodeError as e:
-        raise DatasetError(f"{path}: metadata field {META_KEY!r} is not valid JSON ({e})") from e
-    except RecursionError:
-        raise DatasetError(f"{path}: metadata field {META_KEY!r} is nested too deeply") from None
+        meta = parse_json(header[META_KEY], f"{path}: metadata field {META_KEY!r}")
+    except ValueError as e:
+        raise DatasetError(str(e)) from None
     if not isinstance(meta, dict):
         raise DatasetError(f"{path}: metadata field {META_KEY!r} must be a JSON object")
     for key in _REQUIRED_META:
