@@ -36,7 +36,7 @@ from pathlib import Path
 from img2dmp.checkpoint import atomic_write_text
 from img2dmp.config import apply_overrides, read_config_file
 from img2dmp.data.store import load_dataset, save_dataset
-from img2dmp.data.synthetic import generate_dataset
+from img2dmp.data.synthetic import SyntheticConfig, generate_dataset
 from img2dmp.dmp import DMPConfig
 from img2dmp.evaluate import evaluate, format_table
 from img2dmp.training import TrainConfig, train
@@ -57,22 +57,40 @@ ROWS = {
 ONE_DIGIT_EPOCH_FACTOR = 5
 
 
+def generator_config(overrides: list[str]) -> SyntheticConfig:
+    """The generator's defaults with ``section.key=value`` overrides (``--generator``)."""
+    return SyntheticConfig.from_dict(apply_overrides(SyntheticConfig().to_dict(), overrides))
+
+
 def make_data(
-    out: Path, per_digit: int, val_per_digit: int, scaling: str = "goal-start"
+    out: Path,
+    per_digit: int,
+    val_per_digit: int,
+    scaling: str = "goal-start",
+    generator: SyntheticConfig | None = None,
 ) -> tuple[Path, Path]:
-    """Training (+ validation) and evaluation files; DMPs fitted with ``scaling``."""
+    """Training (+ validation) and evaluation files drawn with ``generator`` (default: the
+    generator's defaults); DMPs fitted with ``scaling``. Existing files are reused only if
+    they were made the same way."""
     out.mkdir(parents=True, exist_ok=True)
     train_path, eval_path = out / "train.safetensors", out / "eval.safetensors"
-    dmp = DMPConfig(scaling=scaling)
+    dmp, generator = DMPConfig(scaling=scaling), generator or SyntheticConfig()
+    # Files from before --generator existed were drawn with the defaults.
+    record = out / "generator.json"
+    made_with = json.loads(record.read_text()) if record.is_file() else None
     for path in (train_path, eval_path):
         if path.is_file() and load_dataset(path).dmp_config.scaling != scaling:
             raise ValueError(f"{path} was fitted with another scaling; use another --out")
+        if path.is_file() and (made_with or SyntheticConfig().to_dict()) != generator.to_dict():
+            raise ValueError(f"{path} was drawn with another --generator; use another --out")
+    atomic_write_text(record, json.dumps(generator.to_dict(), indent=1) + "\n")
     if not train_path.is_file():
         total = per_digit + val_per_digit
         splits = (per_digit / total, val_per_digit / total, 0.0)
-        save_dataset(train_path, generate_dataset(total, seed=1, splits=splits, dmp_config=dmp))
+        d = generate_dataset(total, generator, seed=1, splits=splits, dmp_config=dmp)
+        save_dataset(train_path, d)
     if not eval_path.is_file():
-        d = generate_dataset(per_digit, seed=2, splits=(0.0, 0.0, 1.0), dmp_config=dmp)
+        d = generate_dataset(per_digit, generator, seed=2, splits=(0.0, 0.0, 1.0), dmp_config=dmp)
         save_dataset(eval_path, d)
     return train_path, eval_path
 
@@ -169,13 +187,23 @@ def main(argv=None) -> int:
         metavar="KEY=VALUE",
         help="further config overrides, e.g. optim.lr=3e-4",
     )
+    p.add_argument(
+        "--generator",
+        nargs="*",
+        default=[],
+        metavar="KEY=VALUE",
+        help="synthetic generator overrides (SyntheticConfig fields), e.g. "
+        "line_angle_deg=4 'affine.rotation_deg=[-5, 5]'; the training and evaluation "
+        "data are both drawn with them",
+    )
     argv = sys.argv[1:] if argv is None else list(argv)
     args = p.parse_args(argv)
+    generator = generator_config(args.generator)
     record = run_record(__file__, argv)
     print(format_record(record), flush=True)
     t0 = time.perf_counter()
     train_path, eval_path = make_data(
-        args.out / "data", args.samples_per_digit, args.val_per_digit, args.scaling
+        args.out / "data", args.samples_per_digit, args.val_per_digit, args.scaling, generator
     )
     data_s = time.perf_counter() - t0
     rows = [run_row(name, args.out, train_path, eval_path, args, record) for name in args.rows]
