@@ -344,3 +344,17 @@ def add_refine(p: argparse.ArgumentParser) -> None:
         help="refine each predicted DMP on its image with this many gradient steps that "
         "pull it onto the ink near the network's output (0 = the network's output as it is)",
     )
+
+
+def add_dmp_fit_options(add, dims_default: str) -> None:
+    """``--dims``, ``--scaling`` and ``--n-kernels`` of the commands that fit DMPs to pen
+    paths (``prepare``, ``import``), through the command's own ``add(flag, text,
+    shown_default, **kwargs)`` (which words the default and the config field)."""
+    add("--dims", "2 = (x, y), 3 = (x, y, pen)", dims_default, type=int, choices=(2, 3))
+    add(
+        "--scaling",
+        "DMP forcing-term scaling",
+        "goal-start for d=2, none for d=3",
+        choices=("goal-start", "none"),
+    )
+    add("--n-kernels", "DMP kernels per dimension", type=int_at_least(1), metavar="N")

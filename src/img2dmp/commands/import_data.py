@@ -139,20 +139,7 @@ def _options(p: argparse.ArgumentParser) -> None:
         metavar="SECONDS",
     )
     add("--time-unit", "unit of the files' t", choices=("s", "ms"))
-    add(
-        "--dims",
-        "2 = (x, y), 3 = (x, y, pen)",
-        "3 if any sample has strokes",
-        type=int,
-        choices=(2, 3),
-    )
-    add(
-        "--scaling",
-        "DMP forcing-term scaling",
-        "goal-start for d=2, none for d=3",
-        choices=("goal-start", "none"),
-    )
-    add("--n-kernels", "DMP kernels per dimension", type=_args.int_at_least(1), **n)
+    _args.add_dmp_fit_options(add, "3 if any sample has strokes")
     add("--augment", "affine copies added per training sample", type=_args.int_at_least(0), **n)
     add("--seed", "seed of the augmentation and the random split", type=_args.int_at_least(0), **n)
     add(

@@ -145,20 +145,7 @@ def _options(parser: argparse.ArgumentParser) -> None:
         type=_args.positive_float,
         metavar="SECONDS",
     )
-    add(
-        "--dims",
-        "2 = (x, y), 3 = (x, y, pen)",
-        "2 for recorded, 3 for strokes",
-        type=int,
-        choices=(2, 3),
-    )
-    add(
-        "--scaling",
-        "DMP forcing-term scaling",
-        "goal-start for d=2, none for d=3",
-        choices=("goal-start", "none"),
-    )
-    add("--n-kernels", "DMP kernels per dimension", type=_args.int_at_least(1), **n)
+    _args.add_dmp_fit_options(add, "2 for recorded, 3 for strokes")
     add(
         "--mnist-split",
         "strokes only: MNIST split(s) whose traces to use",
