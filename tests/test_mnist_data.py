@@ -194,6 +194,13 @@ def test_parse_recorded_converts_frame_and_units():
         (lambda d: d.update({"Image shape": 12}), "must be 0-9, got 12"),
         (lambda d: d.update({"Image number": 8}), "file name says image 7"),
         (lambda d: d.update({"Image number": "7"}), "integer >= 0"),
+        (lambda d: d.update({"Image size": [28]}), r'"Image size" must be \[height, width\]'),
+        (lambda d: d.update({"Image size": [0, 28]}), r'"Image size" must be'),
+        # 300 px lies outside a 280 x 280 image too, by more than half its side.
+        (
+            lambda d: d.update({"Image size": [280, 280], "Path": "[1, 2, 0], [421, 2, 9]"}),
+            "outside the 280 x 280 frame by more than 140 px",
+        ),
     ],
 )
 def test_parse_recorded_rejects_broken_files(change, message):
@@ -201,6 +208,15 @@ def test_parse_recorded_rejects_broken_files(change, message):
     change(doc)
     with pytest.raises(ValueError, match=message):
         parse_recorded(json.dumps(doc), "trajectories/image_7.json")
+
+
+def test_a_recording_of_a_larger_image_names_its_size():
+    """Recordings of other images than MNIST's (img2dmp serve --images) carry their
+    "Image size"; points anywhere on such an image are read."""
+    doc = _recorded_doc(7, 3, _zigzag(1))
+    doc.update({"Image size": [200, 300], "Path": "[250.5, 180.5, 0], [10.5, 20.5, 40]"})
+    rec = parse_recorded(json.dumps(doc), "image_7.json")
+    np.testing.assert_allclose(rec.xy, [[250.0, 180.0], [10.0, 20.0]])
 
 
 def test_parse_recorded_rejects_invalid_json():

@@ -214,13 +214,15 @@ def parse_recorded(data: bytes | str | dict, name: str) -> RecordedPath:
     arr = parse_path_string(doc["Path"], name)  # [T, 3]
     if len(arr) < 2:
         raise ValueError(f'{name}: "Path" has {len(arr)} point(s); a path needs at least 2')
-    lo, hi = -_MARGIN_PX, FRAME_SIZE_PX + _MARGIN_PX
+    h, w = _frame_size(doc, name)
+    margin = max(_MARGIN_PX, max(h, w) / 2)
+    lo, hi = -margin, np.array([w, h]) + margin
     outside = (arr[:, :2] < lo) | (arr[:, :2] > hi)
     if outside.any():
         k = int(np.flatnonzero(outside.any(axis=1))[0])
         raise ValueError(
             f'{name}: "Path" point {k} = {arr[k, :2].tolist()} lies outside the '
-            f"{FRAME_SIZE_PX} x {FRAME_SIZE_PX} frame by more than {_MARGIN_PX:g} px"
+            f"{h} x {w} frame by more than {margin:g} px"
         )
     t_ms = arr[:, 2] - arr[0, 2]  # [T]; "ms from the first point"
     t_ms, repairs = _repair_times(t_ms, name)
@@ -232,6 +234,19 @@ def parse_recorded(data: bytes | str | dict, name: str) -> RecordedPath:
         name=name,
         time_repairs=repairs,
     )
+
+
+def _frame_size(doc: dict, name: str) -> tuple[int, int]:
+    """``(H, W)`` of the image a recording traces: MNIST's 28 x 28, or its ``"Image
+    size"`` (recordings of other images, e.g. made with ``img2dmp serve --images``)."""
+    size = doc.get("Image size", [FRAME_SIZE_PX, FRAME_SIZE_PX])
+    if (
+        not isinstance(size, list)
+        or len(size) != 2
+        or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in size)
+    ):
+        raise ValueError(f'{name}: "Image size" must be [height, width] in pixels, got {size!r}')
+    return size[0], size[1]
 
 
 def _iter_sources(path: Path):
