@@ -24,6 +24,7 @@ LAYERS = [
     {"evaluate", "export"},
     {"robot"},
     {"pipeline"},
+    {"web"},
     {"commands", "cli", "__main__"},
 ]
 

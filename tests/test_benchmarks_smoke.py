@@ -87,3 +87,21 @@ def test_time_to_accuracy_writes_curve_and_table(bench, tmp_path, capsys):
     rows = (tmp_path / "metrics.csv").read_text().splitlines()
     assert rows[0] == "train_wall_s,epoch,eval_error_px,eval_s" and len(rows) >= 2
     assert (tmp_path / "learning_curve.png").stat().st_size > 0
+
+
+def test_web_benchmark_serves_times_and_counts_errors(bench, capsys):
+    pytest.importorskip("fastapi")
+    bw = bench("bench_web")
+    before = torch.get_num_threads()
+    try:
+        argv = ["--requests", "3", "--warmup", "1", "--clients", "3", "--total", "7"]
+        assert bw.main(argv) == 0
+    finally:
+        torch.set_num_threads(before)  # the in-process prediction runs on one thread
+    out = capsys.readouterr().out
+    assert out.startswith("CPU: ") and "\nmodel: " in out
+    for part in ("HTTP round trip", "server elapsed_ms", "Predictor.predict in-process",
+                 "ratio round trip / in-process", "target p95 <= 50 ms",
+                 "3 clients at once, 7 requests in all", "errors: 0"):  # fmt: skip
+        assert part in out, part
+    assert bw.quantiles([1.0, 2.0, 3.0, 4.0]) == (2.5, pytest.approx(3.85), 4.0)

@@ -85,7 +85,7 @@ def test_torch_is_a_range_and_the_set_up_pins_the_cpu_build_first():
     make = (ROOT / "Makefile").read_text()
     pin = make.index("pip install --quiet torch==$(TORCH)")
     assert "TORCH  ?= 2.13.0" in make
-    assert pin < make.index("pip install --quiet -e '.[dev,robot,export]'")
+    assert pin < make.index("pip install --quiet -e '.[dev,robot,export,web]'")
 
 
 def test_license_and_citation():

@@ -1,0 +1,144 @@
+"""Serve the browser front end: draw a digit and see the predicted movement, have the
+simulated KUKA iiwa write it, trace images to record new demonstrations (docs/WEB.md).
+
+The pages are at http://HOST:PORT/ (Draw) and /record (Record); the HTTP API under /api,
+its reference at /docs. Predictions run in the server's thread pool, one at a time per
+model (torch on one thread); each robot run in a process of its own, at most --max-jobs
+at once, the others waiting in turn. Recordings are written as DATA_DIR/image_<n>.json in
+the recorded-path format, atomically and under a lock on DATA_DIR, so
+`img2dmp prepare --recorded DATA_DIR --mnist DIR` reads them; an existing recording is
+replaced only when the page asks to. Nothing is written outside --data-dir and --jobs-dir.
+
+Needs the optional extra: pip install 'img2dmp[web]' (and img2dmp[robot] for the arm).
+
+  img2dmp serve --model out/demo/run
+  img2dmp serve --model runs/real/run --model out/demo/run --mnist ../shared/data/mnist \\
+      --data-dir recordings/
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import ipaddress
+import os
+import sys
+
+from . import _args
+
+HELP = "the browser front end: draw, predict, write with the robot, record"
+#: The model served when no --model is given, if it exists (what `make demo` trains).
+DEFAULT_MODEL = os.path.join("out", "demo", "run")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--model",
+        action="append",
+        default=[],
+        metavar="RUN",
+        help=f"run directory (or checkpoint) to serve; repeat for several, the first is the "
+        f"default (none given: {DEFAULT_MODEL} if it exists)",
+    )
+    source = p.add_mutually_exclusive_group()
+    source.add_argument(
+        "--mnist", metavar="DIR", help="the Record page shows MNIST's training images (IDX files)"
+    )
+    source.add_argument(
+        "--images", metavar="DIR", help="the Record page shows this folder's PNG/JPEG files"
+    )
+    p.add_argument("--data-dir", default="recordings", metavar="DIR",
+                   help="where recordings are written (created if missing)")  # fmt: skip
+    p.add_argument("--host", default="127.0.0.1", help="bind address (loopback only by default)")
+    p.add_argument("--port", type=_args.int_at_least(0, 65535), default=8000,
+                   help="port (0: any free one, printed)")  # fmt: skip
+    p.add_argument("--max-jobs", metavar="N", type=_args.int_at_least(1), default=1,
+                   help="robot runs at the same time; more wait in a queue")  # fmt: skip
+    p.add_argument("--max-upload-mb", metavar="X", type=_args.positive_float, default=4.0,
+                   help="larger request bodies are refused (413)")  # fmt: skip
+    p.add_argument("--jobs-dir", metavar="DIR",
+                   help="where robot runs write their pictures (default: a temporary "
+                   "folder, removed at the end)")  # fmt: skip
+    p.add_argument("--verbose", action="store_true", help="log every request (access log)")
+
+
+def _models(args) -> list[str]:
+    if args.model:
+        return list(args.model)
+    if os.path.isdir(DEFAULT_MODEL):
+        return [DEFAULT_MODEL]
+    print(
+        f"img2dmp serve: note: no --model given and no {DEFAULT_MODEL}; the Draw page cannot "
+        "predict (train one with `img2dmp demo --out out/demo`)",
+        file=sys.stderr,
+    )
+    return []
+
+
+def _socket(host: str, port: int):
+    """A listening TCP socket on ``host:port`` (``OSError`` naming it if taken)."""
+    import socket
+
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as e:
+        sock.close()
+        raise OSError(e.errno, f"cannot listen on {host}:{port}: {e.strerror}") from None
+    sock.listen(128)
+    sock.set_inheritable(True)
+    return sock
+
+
+def _loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
+def run(args: argparse.Namespace) -> int:
+    if not all(importlib.util.find_spec(m) for m in ("fastapi", "uvicorn", "fastapi_offline")):
+        print("img2dmp serve: error: install img2dmp[web] (pip install 'img2dmp[web]')",
+              file=sys.stderr)  # fmt: skip
+        return 2
+    import torch
+    import uvicorn
+
+    from ..web import create_app
+
+    torch.set_num_threads(1)  # one image at a time: one thread is the fastest
+    for path in ([args.mnist] if args.mnist else []) + ([args.images] if args.images else []):
+        if not os.path.isdir(path):
+            raise NotADirectoryError(f"{path} is not a directory")
+    app = create_app(
+        _models(args),
+        mnist=args.mnist,
+        images=args.images,
+        data_dir=args.data_dir,
+        max_jobs=args.max_jobs,
+        max_upload_mb=args.max_upload_mb,
+        jobs_dir=args.jobs_dir,
+    )
+    from ..web.models import warm_up
+
+    for model in app.state.img2dmp.models.values():
+        warm_up(model)
+    sock = _socket(args.host, args.port)
+    level = "info" if args.verbose else "warning"
+    config = uvicorn.Config(app, log_level=level, access_log=args.verbose, timeout_keep_alive=30)
+    host, port = sock.getsockname()[:2]
+    shown = f"[{host}]" if ":" in host else host
+    if not _loopback(host):
+        print(f"img2dmp serve: note: listening on {host}: other machines can reach this server")
+    print(f"img2dmp serve: listening on http://{shown}:{port}/ (Ctrl+C stops)", flush=True)
+    try:
+        uvicorn.Server(config).run(sockets=[sock])
+    except KeyboardInterrupt:  # uvicorn raises Ctrl+C again once it has shut down
+        pass
+    finally:
+        sock.close()
+    print("img2dmp serve: stopped", flush=True)
+    return 0

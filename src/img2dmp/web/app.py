@@ -1,0 +1,391 @@
+"""The HTTP API of ``img2dmp serve`` (docs/WEB.md) as a FastAPI application.
+
+:func:`create_app` builds it: the models loaded once (:mod:`.models`), the Record page's
+images and recordings (:mod:`.recordings`), robot runs in their own processes
+(:mod:`.jobs`) and the static pages. Every refusal is a 4xx answer ``{"detail": one
+line}`` naming the field or value: request bodies larger than ``max_upload_mb`` (from
+``Content-Length`` and while reading, before parsing), JSON that is not strict JSON (no
+``NaN`` or ``Infinity``), FastAPI's validation errors, and the checks of the modules
+below. The endpoints that work are plain functions, run in FastAPI's thread pool.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from contextlib import asynccontextmanager
+from pathlib import Path
+from typing import Annotated
+
+from fastapi import FastAPI, HTTPException, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import FileResponse, JSONResponse, Response
+from fastapi.routing import APIRoute
+from fastapi.staticfiles import StaticFiles
+from fastapi_offline import FastAPIOffline
+from pydantic import BaseModel, ConfigDict, Field
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from .. import __version__
+from .._files import parse_json
+from .errors import WebError, one_line, show
+from .jobs import JobManager, check_write
+from .models import LoadedModel, load_models, predict_with, prediction_answer
+from .recordings import FolderImages, MnistImages, Recordings
+from .strokes import (
+    MAX_POINTS,
+    MAX_STROKES,
+    canvas_bounds,
+    canvas_size,
+    check_strokes,
+    decode_data_url,
+    render_strokes,
+)
+
+STATIC_DIR = Path(__file__).resolve().parent / "static"
+#: Samples of each trajectory a prediction may ask for.
+N_POINTS_RANGE = (2, 1000)
+
+
+# --- request bodies -------------------------------------------------------------------
+
+
+class _Body(BaseModel):
+    """Strict types (no ``"3"`` for 3, no ``true`` for 1), finite numbers; unknown keys
+    are ignored."""
+
+    model_config = ConfigDict(strict=True, allow_inf_nan=False, extra="ignore")
+
+
+Point = Annotated[list[float], Field(min_length=3, max_length=3, description="[x, y, t_ms]")]
+Strokes = Annotated[list[Annotated[list[Point], Field(max_length=MAX_POINTS)]],
+                    Field(max_length=MAX_STROKES)]  # fmt: skip
+
+
+class PredictRequest(_Body):
+    """``POST /api/predict``: exactly one of ``strokes`` (with ``canvas``) and ``image``."""
+
+    strokes: Strokes | None = None
+    canvas: Annotated[list[float], Field(min_length=2, max_length=2)] | None = Field(
+        None, description="[width, height] of the drawing area, pixels"
+    )
+    image: str | None = Field(None, description="data:image/png;base64,... (or JPEG)")
+    model: str | None = Field(None, description="an id of GET /api/models")
+    n_points: int = Field(100, ge=N_POINTS_RANGE[0], le=N_POINTS_RANGE[1])
+
+
+class WriteRequest(_Body):
+    """``POST /api/write``: a DMP document (img2dmp-dmp) for the simulated arm."""
+
+    dmp: dict
+    hypothesis: int = Field(1, ge=1)
+    video: bool = True
+
+
+class RecordingRequest(_Body):
+    """``POST /api/recordings``: the pen path traced over image ``image``."""
+
+    image: int = Field(ge=0)
+    label: int | None = Field(None, ge=0, le=9)
+    strokes: Strokes
+    replace: bool = False
+
+
+# --- strict JSON and the body limit ----------------------------------------------------
+
+
+class _StrictJSONRequest(Request):
+    """A request whose JSON body is read strictly: ``NaN``, ``Infinity`` refused."""
+
+    async def json(self):
+        if not hasattr(self, "_json"):
+            body = await self.body()
+            try:
+                self._json = parse_json(body, "body", allow_nan=False)
+            except ValueError as e:
+                raise HTTPException(400, str(e)) from None
+        return self._json
+
+
+class _StrictJSONRoute(APIRoute):
+    def get_route_handler(self):
+        handler = super().get_route_handler()
+
+        async def strict(request: Request):
+            return await handler(_StrictJSONRequest(request.scope, request.receive))
+
+        return strict
+
+
+class BodyLimit:
+    """ASGI middleware: a body above ``max_bytes`` gets 413, refused from its
+    ``Content-Length`` before anything is read, or while it is read (chunked bodies)."""
+
+    def __init__(self, app, max_bytes: int):
+        self.app = app
+        self.max_bytes = int(max_bytes)
+
+    def _too_large(self, read: str) -> str:
+        mb = self.max_bytes / (1 << 20)
+        return f"body: more than the {mb:.3g} MB allowed (--max-upload-mb): {read}"
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        length = dict(scope.get("headers") or ()).get(b"content-length")
+        if length is not None:
+            text = length.decode("latin-1").strip()
+            if not text.isdigit():
+                answer = JSONResponse({"detail": f"Content-Length: {show(text)} is no size"}, 400)
+                return await answer(scope, receive, send)
+            if int(text) > self.max_bytes:
+                too_large = self._too_large(f"Content-Length {int(text)} bytes")
+                answer = JSONResponse({"detail": too_large}, 413)
+                return await answer(scope, receive, send)
+        total = 0
+
+        async def limited():
+            nonlocal total
+            message = await receive()
+            if message["type"] == "http.request":
+                total += len(message.get("body", b""))
+                if total > self.max_bytes:
+                    raise HTTPException(413, self._too_large(f"{total} bytes read"))
+            return message
+
+        await self.app(scope, limited, send)
+
+
+# --- errors ---------------------------------------------------------------------------
+
+
+def _field(loc) -> str:
+    parts = [p for p in loc if p not in ("body", "path", "query")] or list(loc[:1])
+    text = ""
+    for p in parts:
+        text += f"[{p}]" if isinstance(p, int) else (f".{p}" if text else str(p))
+    return text or "body"
+
+
+def validation_detail(errors) -> tuple[int, str]:
+    """Status and one line for FastAPI's validation errors: the first error's field,
+    message and value (400 for a body that is not JSON, else 422)."""
+    if not errors:
+        return 422, "the request is not valid"
+    e = errors[0]
+    if e.get("type") == "json_invalid":
+        return 400, f"body: not valid JSON ({(e.get('ctx') or {}).get('error', e.get('msg'))})"
+    where = _field(e.get("loc", ()))
+    if e.get("type") == "missing":
+        return 422, f"{where}: is required"
+    return 422, f"{where}: {e.get('msg', 'is not valid')}, got {show(e.get('input'))}"
+
+
+def _install_error_handlers(app: FastAPI) -> None:
+    @app.exception_handler(WebError)
+    async def web_error(request, exc: WebError):
+        return JSONResponse({"detail": exc.detail}, exc.status)
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid(request, exc: RequestValidationError):
+        status, detail = validation_detail(exc.errors())
+        return JSONResponse({"detail": one_line(detail)}, status)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def http_error(request, exc: StarletteHTTPException):
+        detail = exc.detail if isinstance(exc.detail, str) else json.dumps(exc.detail)
+        return JSONResponse({"detail": one_line(detail)}, exc.status_code, headers=exc.headers)
+
+
+# --- the application ------------------------------------------------------------------
+
+
+class ServerState:
+    """What the endpoints share: the models, the recordings, the robot's jobs."""
+
+    def __init__(self, models: dict[str, LoadedModel], recordings: Recordings, jobs: JobManager):
+        self.models, self.recordings, self.jobs = models, recordings, jobs
+
+    def model(self, model_id: str | None) -> LoadedModel:
+        """The model of ``model_id`` (None: the first); 409 without models, 422 for an
+        unknown id."""
+        if not self.models:
+            raise WebError(409, "model: no model is loaded; start img2dmp serve with --model RUN")
+        if model_id is None:
+            return next(iter(self.models.values()))
+        if model_id not in self.models:
+            raise WebError(
+                422, f"model: no model {show(model_id)}; the models are {', '.join(self.models)}"
+            )
+        return self.models[model_id]
+
+
+def create_app(
+    models=(),
+    *,
+    mnist=None,
+    images=None,
+    data_dir="recordings",
+    max_jobs: int = 1,
+    max_upload_mb: float = 4.0,
+    jobs_dir=None,
+    static_dir=None,
+) -> FastAPI:
+    """The application of ``img2dmp serve`` (docs/WEB.md).
+
+    Parameters
+    ----------
+    models : sequence
+        Run directories or checkpoints (or ``(id, Predictor)`` pairs); the first is the
+        default. None loaded: predictions answer 409.
+    mnist, images : path-like, optional
+        The Record page's images: MNIST's training IDX files, or a folder of PNG/JPEG
+        files (not both).
+    data_dir : path-like
+        Where recordings are written (created if missing).
+    max_jobs : int
+        Robot runs at the same time; more wait.
+    max_upload_mb : float
+        Largest request body, MB.
+    jobs_dir : path-like, optional
+        Where robot runs write (default: a temporary folder).
+    static_dir : path-like, optional
+        The pages (default: the package's ``web/static``).
+
+    Raises
+    ------
+    ValueError, OSError
+        For a model, image source or directory that cannot be used (naming it).
+    """
+    if mnist is not None and images is not None:
+        raise ValueError("give --mnist DIR or --images DIR, not both")
+    if not (isinstance(max_jobs, int) and max_jobs >= 1):
+        raise ValueError(f"--max-jobs must be an integer >= 1, got {max_jobs!r}")
+    if not 0 < max_upload_mb < float("inf"):
+        raise ValueError(f"--max-upload-mb must be a number > 0, got {max_upload_mb!r}")
+    source = MnistImages(mnist) if mnist is not None else None
+    source = FolderImages(images) if images is not None else source
+    state = ServerState(
+        load_models(models), Recordings(data_dir, source), JobManager(jobs_dir, max_jobs)
+    )
+
+    @asynccontextmanager
+    async def lifespan(app):
+        yield
+        state.jobs.close()
+
+    # FastAPIOffline: FastAPI with /docs and /redoc served from the package's own copy of
+    # Swagger UI and ReDoc instead of a CDN, so the API's pages work offline too.
+    app = FastAPIOffline(title="img2dmp", version=__version__, lifespan=lifespan,
+                         description="Draw a digit, predict its DMP, write it with a "
+                         "simulated KUKA iiwa, record demonstrations (docs/WEB.md).")  # fmt: skip
+    app.router.route_class = _StrictJSONRoute
+    app.state.img2dmp = state
+    app.add_middleware(BodyLimit, max_bytes=int(max_upload_mb * (1 << 20)))
+    _install_error_handlers(app)
+    _predict_routes(app, state)
+    _image_routes(app, state)
+    _job_routes(app, state)
+    _static_routes(app, Path(static_dir) if static_dir is not None else STATIC_DIR)
+    return app
+
+
+def _json(payload: dict, status: int = 200) -> Response:
+    text = json.dumps(payload, allow_nan=False, separators=(",", ":"))
+    return Response(text, status, media_type="application/json")
+
+
+def _predict_routes(app: FastAPI, state: ServerState) -> None:
+    @app.get("/api/models")
+    def models() -> dict:
+        """The models served; the first is the default."""
+        default = next(iter(state.models), None)
+        return {"default": default, "models": [m.describe() for m in state.models.values()]}
+
+    @app.post("/api/predict")
+    def predict(body: PredictRequest) -> Response:
+        """The DMP(s) of a drawn or uploaded digit, ranked, in both frames."""
+        model = state.model(body.model)
+        if (body.strokes is None) == (body.image is None):
+            raise WebError(422, "body: give exactly one of strokes (with canvas) and image")
+        t0 = time.perf_counter()
+        if body.strokes is not None:
+            size = canvas_size(body.canvas)
+            strokes = check_strokes(body.strokes, canvas_bounds(size), "the canvas")
+            image, name = render_strokes(strokes, size), "strokes"
+        else:
+            image, name = decode_data_url(body.image), "image"
+        try:
+            pred = predict_with(model, image, body.n_points, name)
+        except ValueError as e:
+            raise WebError(422, str(e) if str(e).startswith(name) else f"{name}: {e}") from None
+        elapsed_ms = 1e3 * (time.perf_counter() - t0)
+        return Response(prediction_answer(model, pred, elapsed_ms), media_type="application/json")
+
+
+def _image_routes(app: FastAPI, state: ServerState) -> None:
+    rec = state.recordings
+
+    @app.get("/api/images")
+    def images() -> dict:
+        """The Record page's image source, its size and how much of it is recorded."""
+        return rec.summary()
+
+    @app.get("/api/images/{n}", response_class=Response)
+    def image(n: int) -> Response:
+        """Image ``n`` as PNG, dark ink on white."""
+        return Response(rec.png(n), media_type="image/png")
+
+    @app.get("/api/images/{n}/meta")
+    def meta(n: int) -> dict:
+        """Index, label, size, name and whether image ``n`` is recorded."""
+        return rec.meta(n)
+
+    @app.post("/api/recordings", status_code=201)
+    def record(body: RecordingRequest) -> Response:
+        """Write the recording of one image (409 if it exists and ``replace`` is false)."""
+        answer = rec.write(body.image, body.label, body.strokes, body.replace)
+        return _json(answer, 201)
+
+
+def _job_routes(app: FastAPI, state: ServerState) -> None:
+    @app.post("/api/write", status_code=202)
+    def write(body: WriteRequest) -> Response:
+        """Queue a run of the simulated KUKA iiwa writing one hypothesis of a DMP."""
+        from ..robot import available
+
+        if not available():
+            raise WebError(503, "the robot needs pybullet: pip install 'img2dmp[robot]'")
+        doc = check_write(body.dmp, body.hypothesis)
+        return _json(state.jobs.submit(doc, body.hypothesis, body.video), 202)
+
+    @app.get("/api/jobs/{job_id}")
+    def job(job_id: str) -> dict:
+        """A robot run's state, progress, outcome and files."""
+        return state.jobs.state(job_id)
+
+    @app.get("/api/jobs/{job_id}/files/{name}", response_class=FileResponse)
+    def job_file(job_id: str, name: str) -> FileResponse:
+        """One output of a finished run: paper.png, animation.gif or log.csv."""
+        return FileResponse(state.jobs.file(job_id, name))
+
+
+def _static_routes(app: FastAPI, static: Path) -> None:
+    def page(name: str) -> FileResponse:
+        path = static / name
+        if not path.is_file():
+            raise WebError(404, f"page {name} is not installed")
+        return FileResponse(path, media_type="text/html")
+
+    @app.get("/", include_in_schema=False)
+    def index() -> FileResponse:
+        return page("index.html")
+
+    @app.get("/record", include_in_schema=False)
+    def record_page() -> FileResponse:
+        return page("record.html")
+
+    app.mount("/static", StaticFiles(directory=static, check_dir=False), name="static")
+
+
+__all__ = ["BodyLimit", "PredictRequest", "RecordingRequest", "WriteRequest", "create_app"]

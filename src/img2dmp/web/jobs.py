@@ -1,0 +1,303 @@
+"""Robot runs for the web API: the simulated KUKA iiwa writes a DMP in its own process.
+
+Each job is a folder ``JOBS_DIR/<id>/`` holding the checked DMP document (``dmp.json``,
+written through :mod:`img2dmp.data.dmpfile`), then the outputs under fixed names
+(:data:`JOB_FILES`), the process's output (``job.log``) and its outcome
+(``result.json``). A job runs in a process of its own (multiprocessing, "spawn"), so
+that pybullet never holds up the server's predictions; at most ``max_jobs`` run at once
+and the others wait in order. The running process reports its progress (0-1) through a
+shared double; a failure is one line in ``error``.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import multiprocessing
+import os
+import secrets
+import shutil
+import sys
+import tempfile
+import threading
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .._files import atomic_write_text
+from ..data.dmpfile import FORMAT, VERSION, check_dmp_document, write_dmp_document
+from .errors import WebError, one_line, show
+
+#: The outputs of a job, by the key of ``files`` in ``GET /api/jobs/{id}``.
+JOB_FILES = {"paper": "paper.png", "animation": "animation.gif", "log": "log.csv"}
+#: Most jobs waiting to start; more are refused (429).
+MAX_WAITING = 20
+#: Simulated seconds between two frames of the animation.
+FRAME_INTERVAL_S = 0.1
+#: The controller's rate (that of ``img2dmp write``), for the progress estimate.
+CONTROL_RATE_HZ = 240.0
+#: Share of the progress bar the simulation fills; the pictures the rest.
+SIMULATION_SHARE = 0.9
+_POLL_S = 0.1
+
+
+def run_job(job_dir: str, hypothesis: int, video: bool, progress) -> None:
+    """Write the job's DMP with the simulated arm (the child process's whole work).
+
+    Reads ``job_dir/dmp.json``, writes the outputs of :data:`JOB_FILES` (the animation only
+    with ``video``) and ``result.json``: ``{"status": "done", "summary": [lines]}`` or
+    ``{"status": "failed", "error": one line}``. ``progress`` is a shared double (0-1).
+    """
+    d = Path(job_dir)
+    log = os.open(d / "job.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    os.dup2(log, 1)
+    os.dup2(log, 2)
+    try:
+        outcome = {"status": "done", "summary": _write(d, hypothesis, video, progress)}
+    except (ValueError, OSError) as e:  # the DMP cannot be written, or a file failed
+        outcome = {"status": "failed", "error": one_line(str(e) or type(e).__name__)}
+    except RuntimeError as e:  # the simulated arm failed (e.g. never settled)
+        outcome = {"status": "failed", "error": one_line(f"simulation failed: {e}")}
+    except Exception as e:
+        traceback.print_exc()
+        outcome = {"status": "failed", "error": one_line(f"internal error: {e!r}")}
+    atomic_write_text(d / "result.json", json.dumps(outcome))
+    sys.stdout.flush()
+    sys.stderr.flush()
+
+
+def _write(d: Path, hypothesis: int, video: bool, progress) -> list[str]:
+    from ..robot import (
+        load_dmp_json,
+        plot_writing,
+        save_log_csv,
+        save_video,
+        summary_lines,
+        write_dmp,
+    )
+
+    params, config, size = load_dmp_json(d / "dmp.json", hypothesis=hypothesis)
+    steps = {"done": 0, "expected": max(1.0, (float(params.tau) + 2.0) * CONTROL_RATE_HZ)}
+
+    def advance(n: int) -> None:
+        steps["done"] += n
+        progress.value = SIMULATION_SHARE * min(1.0, steps["done"] / steps["expected"])
+
+    result = write_dmp(
+        params,
+        config,
+        size,
+        control_rate_hz=CONTROL_RATE_HZ,
+        frame_interval_s=FRAME_INTERVAL_S if video else None,
+        render_size_px=None,
+        progress=advance,
+    )
+    progress.value = SIMULATION_SHARE
+    name = f"hypothesis {hypothesis}"
+    plot_writing(result, d / JOB_FILES["paper"], title=f"{name}: KUKA iiwa writes")
+    save_log_csv(result, d / JOB_FILES["log"])
+    if video:
+        save_video(result, d / JOB_FILES["animation"], FRAME_INTERVAL_S)
+    progress.value = 1.0
+    return summary_lines(name, result)
+
+
+def check_write(doc, hypothesis) -> dict:
+    """The document of ``POST /api/write``, checked as ``img2dmp write --dmp`` checks a
+    file (a version-1 document, without ``format`` and ``version``, is converted), with
+    the hypothesis of rank ``hypothesis``; 422 naming the field otherwise."""
+    if not isinstance(doc, dict):
+        raise WebError(422, f"dmp: must be a DMP document (a JSON object), got {show(doc)}")
+    if "format" not in doc and "version" not in doc:
+        doc = {"format": FORMAT, "version": VERSION, **doc}
+    try:
+        check_dmp_document(doc, "dmp").hypothesis(hypothesis)
+    except ValueError as e:
+        raise WebError(422, str(e)) from None
+    return doc
+
+
+@dataclass
+class Job:
+    """One robot run and what is known of it."""
+
+    id: str
+    dir: Path
+    hypothesis: int
+    video: bool
+    status: str = "queued"
+    error: str | None = None
+    summary: list = field(default_factory=list)
+    progress: object = None
+    process: object = None
+    last_progress: float = 0.0
+    started_at: float | None = None  # UNIX time
+    ended_at: float | None = None
+
+
+class JobManager:
+    """Robot runs, at most ``max_jobs`` at a time, the rest waiting in order.
+
+    Parameters
+    ----------
+    jobs_dir : path-like or None
+        Where the jobs' folders go (None: a temporary folder, removed by :meth:`close`).
+    max_jobs : int
+        Runs at the same time.
+    target : callable
+        What a job's process runs (:func:`run_job`; picklable, for "spawn").
+    """
+
+    def __init__(self, jobs_dir=None, max_jobs: int = 1, target=run_job):
+        self._own_dir = jobs_dir is None
+        self.dir = Path(tempfile.mkdtemp(prefix="img2dmp-jobs-") if jobs_dir is None else jobs_dir)
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.max_jobs = int(max_jobs)
+        self.target = target
+        self._ctx = multiprocessing.get_context("spawn")
+        self._jobs: dict[str, Job] = {}
+        self._waiting: collections.deque[Job] = collections.deque()
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def submit(self, doc: dict, hypothesis: int, video: bool) -> dict:
+        """Queue a run of a checked document (:func:`check_write`); its state."""
+        with self._lock:
+            if len(self._waiting) >= MAX_WAITING:
+                raise WebError(429, f"{MAX_WAITING} robot runs are waiting already; try later")
+            job = Job(secrets.token_hex(8), Path(), hypothesis, bool(video))
+            job.dir = self.dir / job.id
+            job.dir.mkdir()
+            write_dmp_document(job.dir / "dmp.json", doc)
+            self._jobs[job.id] = job
+            self._waiting.append(job)
+            state = self._state(job)
+        self._ensure_thread()
+        self._wake.set()
+        return state
+
+    def state(self, job_id: str) -> dict:
+        """``GET /api/jobs/{id}``; 404 for an unknown id."""
+        with self._lock:
+            return self._state(self._job(job_id))
+
+    def file(self, job_id: str, name: str) -> Path:
+        """The output ``name`` (one of :data:`JOB_FILES`' names) of a job; 404 unless the
+        job is known and the file written."""
+        with self._lock:
+            job = self._job(job_id)
+        if name not in JOB_FILES.values():
+            raise WebError(404, f"name: no job file {show(name)}; the files are "
+                           f"{', '.join(JOB_FILES.values())}")  # fmt: skip
+        path = job.dir / name
+        if job.status != "done" or not path.is_file():
+            raise WebError(404, f"job {job_id} has no {name} (status {job.status})")
+        return path
+
+    def _job(self, job_id: str) -> Job:
+        job = self._jobs.get(job_id)
+        if job is None:
+            raise WebError(404, f"id: no job {show(job_id)}")
+        return job
+
+    def _state(self, job: Job) -> dict:
+        position = None
+        if job.status == "queued":
+            position = next(i for i, j in enumerate(self._waiting, start=1) if j is job)
+        progress = {"queued": 0.0, "done": 1.0}.get(job.status, job.last_progress)
+        if job.status == "running" and job.progress is not None:
+            progress = float(job.progress.value)
+        files = {
+            key: f"/api/jobs/{job.id}/files/{name}"
+            if job.status == "done" and (job.dir / name).is_file()
+            else None
+            for key, name in JOB_FILES.items()
+        }
+        return {"id": job.id, "status": job.status, "position": position,
+                "progress": round(progress, 4), "error": job.error,
+                "summary": list(job.summary), "files": files,
+                "started_at": job.started_at, "ended_at": job.ended_at}  # fmt: skip
+
+    def _ensure_thread(self) -> None:
+        with self._lock:
+            if self._thread is None and not self._stop.is_set():
+                self._thread = threading.Thread(
+                    target=self._run, name="img2dmp-robot-jobs", daemon=True
+                )
+                self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            with self._lock:
+                self._reap()
+                self._start_waiting()
+            self._wake.wait(_POLL_S)
+            self._wake.clear()
+
+    def _start_waiting(self) -> None:
+        running = sum(1 for j in self._jobs.values() if j.status == "running")
+        while self._waiting and running < self.max_jobs:
+            job = self._waiting.popleft()
+            job.progress = self._ctx.Value("d", 0.0, lock=False)
+            args = (str(job.dir), job.hypothesis, job.video, job.progress)
+            process = self._ctx.Process(target=self.target, args=args, daemon=True)
+            try:
+                process.start()
+            except Exception as e:  # no process: the job fails, the server goes on
+                job.status = "failed"
+                job.error = one_line(f"the robot process could not start: {e}")
+                continue
+            job.process, job.status, job.started_at = process, "running", time.time()
+            running += 1
+
+    def _reap(self) -> None:
+        for job in self._jobs.values():
+            if job.status != "running" or job.process.exitcode is None:
+                continue
+            job.last_progress = float(job.progress.value)
+            code = job.process.exitcode
+            job.process.join()
+            job.process.close()
+            job.process = None
+            try:
+                outcome = json.loads((job.dir / "result.json").read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                why = f"the robot process ended without a result (exit code {code})"
+                outcome = {"status": "failed", "error": why}
+            job.status = "done" if outcome.get("status") == "done" else "failed"
+            job.ended_at = time.time()
+            job.error = outcome.get("error")
+            job.summary = list(outcome.get("summary", []))
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Stop: end the running processes (the ones started here), forget the waiting
+        ones, remove the jobs' folder if it is a temporary one made here."""
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+        with self._lock:
+            for job in self._jobs.values():
+                if job.process is not None and job.process.exitcode is None:
+                    job.process.terminate()
+                    job.process.join(timeout_s)
+                if job.status in ("queued", "running"):
+                    job.status, job.error = "failed", "the server stopped"
+            self._waiting.clear()
+        if self._own_dir:
+            shutil.rmtree(self.dir, ignore_errors=True)
+
+    def wait(self, job_id: str, timeout_s: float) -> dict:
+        """The job's state once it is done or failed (or after ``timeout_s``)."""
+        end = time.monotonic() + timeout_s
+        while True:
+            state = self.state(job_id)
+            if state["status"] in ("done", "failed") or time.monotonic() > end:
+                return state
+            time.sleep(_POLL_S / 2)
+
+
+__all__ = ["JOB_FILES", "Job", "JobManager", "check_write", "run_job"]

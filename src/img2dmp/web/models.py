@@ -1,0 +1,155 @@
+"""The trained networks a server answers with: loaded once, one lock each.
+
+A model's id is its run directory's name, or the parent's name for a folder called
+``run`` (``out/demo/run`` is ``demo``); a second model of the same name gets ``-2``.
+:func:`prediction_answer` is the JSON body of ``POST /api/predict`` (docs/WEB.md).
+"""
+
+from __future__ import annotations
+
+import base64
+import io
+import json
+import os
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..data.dmpfile import TRAJECTORY_DECIMALS
+from ..predict import Prediction, Predictor, load_model
+
+
+@dataclass
+class LoadedModel:
+    """One network the server answers with.
+
+    Attributes
+    ----------
+    id : str
+        What ``"model"`` in a request names.
+    path : str
+        The run directory or checkpoint, as given.
+    predictor : Predictor
+    lock : threading.Lock
+        Held while the network runs: one prediction at a time per model.
+    """
+
+    id: str
+    path: str
+    predictor: Predictor
+    lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    def describe(self) -> dict:
+        """The model's entry in ``GET /api/models``."""
+        return {
+            "id": self.id,
+            "path": self.path,
+            "n_hypotheses": self.predictor.n_hypotheses,
+            "image_size": list(self.predictor.image_size),
+        }
+
+
+def model_id(path: str | os.PathLike) -> str:
+    """The id of a run directory or checkpoint: its name (without a file's suffix), or
+    the parent's name for a folder called ``run``."""
+    p = Path(os.path.abspath(path))
+    if p.suffix and not p.is_dir():
+        p = p.parent.parent if p.parent.name == "checkpoints" else p.with_suffix("")
+    return p.parent.name if p.name == "run" and p.parent.name else p.name
+
+
+def load_models(sources) -> dict[str, LoadedModel]:
+    """Every model of ``sources`` (paths, or ``(id, Predictor)`` pairs), in order, by id.
+
+    Raises ``FileNotFoundError`` or ``ValueError`` (from :func:`img2dmp.predict.load_model`)
+    naming a path that holds no model.
+    """
+    models: dict[str, LoadedModel] = {}
+    for source in sources:
+        if isinstance(source, tuple):
+            name, predictor = source
+            path = str(name)
+        else:
+            name, path = model_id(source), os.fspath(source)
+            predictor = load_model(source)
+        unique, n = name, 1
+        while unique in models:
+            n += 1
+            unique = f"{name}-{n}"
+        models[unique] = LoadedModel(unique, path, predictor)
+    return models
+
+
+def _rounded(a: np.ndarray) -> list:
+    return np.round(np.asarray(a, dtype=np.float64), TRAJECTORY_DECIMALS).tolist()
+
+
+def png_data_url(ink: np.ndarray) -> str:
+    """``data:image/png;base64,...`` of ``ink [H, W]`` (ink = 1) as dark ink on white."""
+    from PIL import Image
+
+    grey = np.round(255.0 * (1.0 - np.clip(np.asarray(ink, dtype=np.float64), 0.0, 1.0)))
+    buf = io.BytesIO()
+    Image.fromarray(grey.astype(np.uint8), mode="L").save(buf, format="PNG")
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _hypotheses(pred: Prediction) -> list[dict]:
+    d = pred.path_model.shape[-1]
+    return [
+        {
+            "rank": k + 1,
+            "probability": float(pred.probabilities[k]),
+            "tau_s": float(pred.params[k].tau),
+            "t": _rounded(pred.times[k]),
+            "model": _rounded(pred.path_model[k, :, :2]),
+            "image": _rounded(pred.path_image[k, :, :2]),
+            "pen": _rounded(pred.path_model[k, :, 2]) if d == 3 else None,
+        }
+        for k in range(pred.n_hypotheses)
+    ]
+
+
+def warm_up(model: LoadedModel) -> None:
+    """One prediction of a drawn "1", so that the first request does not pay for the
+    caches (numba's compiled rollout, the DMP response table)."""
+    image = np.full((64, 64), 255, np.uint8)
+    image[12:52, 29:35] = 0
+    predict_with(model, image, 100, "warm-up")
+
+
+def predict_with(model: LoadedModel, image, n_points: int, name: str) -> Prediction:
+    """``model``'s prediction for ``image`` (array or PIL image), one at a time per model.
+
+    Raises ``ValueError`` for an image the library refuses (e.g. one without ink).
+    """
+    with model.lock:
+        return model.predictor.predict(image, n_points=n_points, name=name)
+
+
+def prediction_answer(model: LoadedModel, pred: Prediction, elapsed_ms: float) -> bytes:
+    """The JSON body of ``POST /api/predict`` for one prediction (docs/WEB.md)."""
+    answer = {
+        "model": model.id,
+        "elapsed_ms": round(float(elapsed_ms), 3),
+        "model_size": list(pred.frame.model_size),
+        "image_size": list(pred.frame.image_size),
+        "input_image": png_data_url(pred.image),
+        "hypotheses": _hypotheses(pred),
+        "dmp": pred.to_document(),
+        "csv": pred.trajectory_csv(),
+    }
+    return json.dumps(answer, allow_nan=False, separators=(",", ":")).encode("utf-8")
+
+
+__all__ = [
+    "LoadedModel",
+    "load_models",
+    "model_id",
+    "png_data_url",
+    "predict_with",
+    "prediction_answer",
+    "warm_up",
+]
