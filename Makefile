@@ -12,7 +12,7 @@ REAL   ?= runs/real
 # The torch build the set-up installs (the CPU build).
 TORCH  ?= 2.13.0
 
-.PHONY: setup demo test lint bench clean model-real
+.PHONY: setup browser demo test lint bench clean model-real
 
 setup: $(STAMP)
 
@@ -23,14 +23,27 @@ $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet torch==$(TORCH)
-	$(BIN)/python -m pip install --quiet -e '.[dev,robot,export]'
+	$(BIN)/python -m pip install --quiet -e '.[dev,robot,export,web]'
 	rm -f $(VENV)/.installed-* && touch $@
 
 demo: setup
 	$(BIN)/img2dmp demo --out $(OUT) --force
 
-test: setup
+test: setup browser
 	$(BIN)/python -m pytest -q -m "not slow"
+
+# The browser tests (tests/test_web_browser.py) drive Debian's Chromium with Playwright
+# (no `playwright install`): installed here when missing, which needs root (or sudo
+# without a password); otherwise those tests skip (and fail with IMG2DMP_REQUIRE_BROWSER=1).
+browser:
+	@if [ -x /usr/bin/chromium ]; then :; \
+	elif ! command -v apt-get >/dev/null; then \
+	  echo "note: no /usr/bin/chromium and no apt-get: the browser tests will skip"; \
+	elif [ "$$(id -u)" = 0 ]; then \
+	  apt-get update && DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends chromium; \
+	elif command -v sudo >/dev/null && sudo -n true 2>/dev/null; then \
+	  sudo apt-get update && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends chromium; \
+	else echo "note: no /usr/bin/chromium and no root to install it: the browser tests will skip"; fi
 
 # Prepare MNIST with the recorded pen paths (durations normalised to 1 s), train the
 # recommended network (the shipped configuration real: src/img2dmp/configs/real.yaml),

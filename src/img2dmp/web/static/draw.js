@@ -1,0 +1,529 @@
+// The Draw page: draw (or drop) a digit, predict its DMP, watch it written, download it,
+// have the simulated robot write it.
+import { api, ApiError, capture, downloadText, el, fitCanvas, initHeader, showError, showMessage }
+  from "./common.js";
+
+// Strokes are kept in a fixed logical frame (LOGICAL x LOGICAL), whatever the CSS size.
+const LOGICAL = 320;
+const INK_WIDTH = LOGICAL / 14; // as the server renders the strokes
+const AUTO_PREDICT_MS = 400;
+const POLL_MS = 500;
+const COLORS = { ink: "#1d2330", traj: "#e4572e", start: "#1c9a5a", other: "rgba(47,91,211,0.5)" };
+
+const $ = (id) => document.getElementById(id);
+const ui = {
+  drawing: $("drawing"), drawOverlay: $("drawing-overlay"), stage: $("drop-zone"),
+  placeholder: $("draw-placeholder"), dropLabel: $("drop-label"), file: $("file"),
+  drawError: $("draw-error"), result: $("result"), inputImage: $("input-image"),
+  seenOverlay: $("seen-overlay"), seenEmpty: $("seen-empty"), meta: $("result-meta"),
+  hyps: $("hypotheses"), replay: $("replay"), dlDmp: $("download-dmp"),
+  dlCsv: $("download-csv"), write: $("write"), job: $("job"), jobProgress: $("job-progress"),
+  jobStatus: $("job-status"), robotError: $("robot-error"), jobResult: $("job-result"),
+  paperFigure: $("paper-figure"), paper: $("paper"), animFigure: $("animation-figure"),
+  animSlot: $("animation-slot"), summary: $("summary"),
+};
+
+const state = {
+  strokes: [], // [[[x, y, t_ms], ...], ...] in the logical frame
+  current: null, // the stroke being drawn
+  t0: null, // performance.now() of the first point
+  upload: null, // {name, dataUrl, img} when an image file is the input
+  answer: null, // the last /api/predict answer
+  selected: 0, // index of the hypothesis shown
+  name: "drawing",
+  timer: null,
+  seq: 0,
+  abort: null,
+  raf: null,
+  job: null,
+};
+
+const models = initHeader("draw", ui.drawError);
+
+// ---------------------------------------------------------------- drawing --------
+
+function logicalPoint(e) {
+  const r = ui.drawing.getBoundingClientRect();
+  const s = LOGICAL / r.width;
+  const t = e.timeStamp > 0 ? e.timeStamp : performance.now();
+  if (state.t0 === null) state.t0 = t;
+  const round = (v) => Math.round(v * 100) / 100;
+  return [round((e.clientX - r.left) * s), round((e.clientY - r.top) * s), round(t - state.t0)];
+}
+
+function redrawDrawing() {
+  const { ctx, width, height } = fitCanvas(ui.drawing);
+  ctx.fillStyle = "#fff";
+  ctx.fillRect(0, 0, width, height);
+  if (state.upload && state.upload.img) {
+    const img = state.upload.img;
+    const m = fitFrame(width, height, img.naturalHeight, img.naturalWidth);
+    ctx.imageSmoothingEnabled = m.s < 1; // pixelated when enlarged, smooth when shrunk
+    ctx.drawImage(img, m.ox, m.oy, img.naturalWidth * m.s, img.naturalHeight * m.s);
+  }
+  const s = width / LOGICAL;
+  ctx.strokeStyle = COLORS.ink;
+  ctx.fillStyle = COLORS.ink;
+  ctx.lineCap = "round";
+  ctx.lineJoin = "round";
+  ctx.lineWidth = INK_WIDTH * s;
+  for (const stroke of state.strokes) drawStroke(ctx, stroke, s);
+  ui.drawing.dataset.strokes = String(state.strokes.length);
+  ui.placeholder.hidden = state.strokes.length > 0 || state.upload !== null;
+}
+
+function drawStroke(ctx, stroke, s) {
+  if (stroke.length === 1) {
+    ctx.beginPath();
+    ctx.arc(stroke[0][0] * s, stroke[0][1] * s, ctx.lineWidth / 2, 0, 2 * Math.PI);
+    ctx.fill();
+    return;
+  }
+  ctx.beginPath();
+  ctx.moveTo(stroke[0][0] * s, stroke[0][1] * s);
+  for (const p of stroke.slice(1)) ctx.lineTo(p[0] * s, p[1] * s);
+  ctx.stroke();
+}
+
+function onPointerDown(e) {
+  if (e.pointerType === "mouse" && e.button !== 0) return;
+  e.preventDefault();
+  clearTimeout(state.timer);
+  if (state.upload) clearAll(); // drawing starts a new input
+  capture(ui.drawing, e);
+  state.current = { id: e.pointerId, points: [logicalPoint(e)] };
+  state.strokes.push(state.current.points);
+  clearOverlay(ui.drawOverlay);
+  redrawDrawing();
+}
+
+function onPointerMove(e) {
+  if (!state.current || e.pointerId !== state.current.id) return;
+  const events = e.getCoalescedEvents ? e.getCoalescedEvents() : [];
+  for (const ev of events.length ? events : [e]) addPoint(logicalPoint(ev));
+  redrawDrawing();
+}
+
+function addPoint(p) {
+  const pts = state.current.points;
+  const last = pts[pts.length - 1];
+  if (p[0] === last[0] && p[1] === last[1]) return; // the pen did not move
+  if (p[2] <= last[2]) p[2] = last[2] + 0.01; // keep time strictly increasing
+  pts.push(p);
+}
+
+function onPointerUp(e) {
+  if (!state.current || e.pointerId !== state.current.id) return;
+  addPoint(logicalPoint(e));
+  state.current = null;
+  redrawDrawing();
+  clearTimeout(state.timer);
+  state.timer = setTimeout(predict, AUTO_PREDICT_MS);
+}
+
+function clearAll() {
+  clearTimeout(state.timer);
+  state.strokes = [];
+  state.current = null;
+  state.t0 = null;
+  state.upload = null;
+  state.name = "drawing";
+  showMessage(ui.drawError, "", "");
+  clearOverlay(ui.drawOverlay);
+  redrawDrawing();
+}
+
+// ---------------------------------------------------------------- image files ----
+
+function readFile(file) {
+  if (!file) return;
+  const reader = new FileReader();
+  reader.onerror = () => showMessage(ui.drawError, "error", `Could not read ${file.name}.`);
+  reader.onload = () => {
+    clearAll();
+    const dataUrl = String(reader.result);
+    state.upload = { name: file.name, dataUrl, img: null };
+    state.name = file.name.replace(/\.[^.]*$/, "") || "image";
+    const img = new Image();
+    img.onload = () => {
+      if (state.upload && state.upload.dataUrl === dataUrl) {
+        state.upload.img = img;
+        redrawDrawing();
+      }
+    };
+    img.src = dataUrl;
+    redrawDrawing();
+    predict();
+  };
+  reader.readAsDataURL(file);
+}
+
+function setupDrop() {
+  const zone = ui.stage;
+  const on = (flag) => {
+    zone.classList.toggle("drop-target", flag);
+    ui.dropLabel.hidden = !flag;
+  };
+  zone.addEventListener("dragover", (e) => {
+    e.preventDefault();
+    on(true);
+  });
+  zone.addEventListener("dragleave", () => on(false));
+  zone.addEventListener("drop", (e) => {
+    e.preventDefault();
+    on(false);
+    readFile(e.dataTransfer.files[0]);
+  });
+  $("choose-file").addEventListener("click", () => ui.file.click());
+  ui.file.addEventListener("change", () => {
+    readFile(ui.file.files[0]);
+    ui.file.value = "";
+  });
+}
+
+// ---------------------------------------------------------------- predicting -----
+
+function requestBody() {
+  const body = {};
+  if (state.upload) body.image = state.upload.dataUrl;
+  else {
+    body.strokes = state.strokes;
+    body.canvas = [LOGICAL, LOGICAL];
+  }
+  if (models.current()) body.model = models.current();
+  return body;
+}
+
+async function predict() {
+  clearTimeout(state.timer);
+  if (!state.upload && state.strokes.length === 0) {
+    showMessage(ui.drawError, "notice", "Draw a digit first (or choose an image file).");
+    return;
+  }
+  await models.ready;
+  const seq = ++state.seq;
+  if (state.abort) state.abort.abort();
+  state.abort = new AbortController();
+  ui.result.dataset.state = "loading";
+  ui.result.setAttribute("aria-busy", "true");
+  try {
+    const answer = await api("/api/predict", {
+      method: "POST", body: requestBody(), signal: state.abort.signal,
+    });
+    if (seq !== state.seq) return;
+    showMessage(ui.drawError, "", "");
+    showAnswer(answer);
+  } catch (e) {
+    if (seq !== state.seq || e.name === "AbortError") return;
+    ui.result.dataset.state = "error";
+    showError(ui.drawError, e, "Prediction failed");
+  } finally {
+    if (seq === state.seq) ui.result.removeAttribute("aria-busy");
+  }
+}
+
+function showAnswer(answer) {
+  state.answer = answer;
+  state.selected = 0;
+  const n = answer.hypotheses.length;
+  ui.result.dataset.hypotheses = String(n);
+  ui.result.dataset.answers = String(Number(ui.result.dataset.answers || 0) + 1);
+  ui.inputImage.src = answer.input_image;
+  ui.inputImage.hidden = false;
+  ui.seenEmpty.hidden = true;
+  const [h, w] = answer.model_size;
+  const top = answer.hypotheses[0];
+  ui.meta.textContent =
+    `Model ${answer.model} \u00b7 input ${w}\u00d7${h}\u00a0px \u00b7 ` +
+    `movement ${top.tau_s.toFixed(2)}\u00a0s \u00b7 ` +
+    `answered in ${Math.round(answer.elapsed_ms)}\u00a0ms`;
+  renderHypotheses();
+  for (const b of [ui.replay, ui.dlDmp, ui.dlCsv, ui.write]) b.disabled = false;
+  ui.write.disabled = state.job !== null;
+  animate();
+}
+
+function renderHypotheses() {
+  const hyps = state.answer.hypotheses;
+  ui.hyps.replaceChildren();
+  ui.hyps.hidden = hyps.length < 2;
+  if (hyps.length < 2) return;
+  hyps.forEach((h, i) => {
+    const pct = `${(100 * h.probability).toFixed(1)}\u00a0%`;
+    const bar = el("span", { class: "bar" }, el("span", {}));
+    bar.firstChild.style.width = `${Math.max(0, Math.min(1, h.probability)) * 100}%`;
+    const button = el(
+      "button",
+      { type: "button", "aria-pressed": String(i === state.selected),
+        "aria-label": `Hypothesis ${h.rank}, probability ${pct}; play it` },
+      el("span", { class: "rank" }, `#${h.rank}`), bar, el("span", { class: "pct" }, pct),
+    );
+    button.addEventListener("click", () => {
+      state.selected = i;
+      for (const b of ui.hyps.querySelectorAll("button")) {
+        b.setAttribute("aria-pressed", String(b === button));
+      }
+      animate();
+    });
+    ui.hyps.append(el("li", { class: i === 0 ? "top" : "" }, button));
+  });
+}
+
+// ---------------------------------------------------------------- trajectories ----
+
+/** Map of a frame of H x W pixels (centre convention) into a box, aspect kept. */
+function fitFrame(boxW, boxH, h, w) {
+  const s = Math.min(boxW / w, boxH / h);
+  return { s, ox: (boxW - w * s) / 2, oy: (boxH - h * s) / 2 };
+}
+
+function mapPoints(points, m) {
+  return points.map(([x, y]) => [m.ox + (x + 0.5) * m.s, m.oy + (y + 0.5) * m.s]);
+}
+
+function clearOverlay(canvas) {
+  const { ctx, width, height } = fitCanvas(canvas);
+  ctx.clearRect(0, 0, width, height);
+}
+
+/** Draw points[0..k] (pen-up travel dashed), the start marker and a direction arrow. */
+function drawPath(ctx, pts, pen, k, style) {
+  ctx.lineCap = "round";
+  ctx.lineJoin = "round";
+  ctx.strokeStyle = style.color;
+  const last = Math.min(k, pts.length - 1);
+  const isDown = (i) => !pen || (pen[i - 1] >= 0.5 && pen[i] >= 0.5);
+  // one path per run of pen-down (solid) or pen-up (dashed, thin) segments, so that
+  // translucent lines do not darken where the segments meet
+  for (let i = 1; i <= last; ) {
+    const down = isDown(i);
+    ctx.lineWidth = down ? style.width : Math.max(1, style.width / 2);
+    ctx.setLineDash(down ? [] : [4, 4]);
+    ctx.beginPath();
+    ctx.moveTo(pts[i - 1][0], pts[i - 1][1]);
+    for (; i <= last && isDown(i) === down; i++) ctx.lineTo(pts[i][0], pts[i][1]);
+    ctx.stroke();
+  }
+  ctx.setLineDash([]);
+  if (!style.markers || pts.length === 0) return;
+  drawArrow(ctx, pts, style);
+  ctx.fillStyle = COLORS.start;
+  ctx.strokeStyle = "#fff";
+  ctx.lineWidth = 2;
+  ctx.beginPath();
+  ctx.arc(pts[0][0], pts[0][1], style.width + 3, 0, 2 * Math.PI);
+  ctx.fill();
+  ctx.stroke();
+  if (k < pts.length - 1) {
+    const p = pts[Math.max(0, k)];
+    ctx.fillStyle = style.color;
+    ctx.beginPath();
+    ctx.arc(p[0], p[1], style.width + 2, 0, 2 * Math.PI);
+    ctx.fill();
+    ctx.stroke();
+  }
+}
+
+/** An arrow head pointing along the path where it has left the start point. */
+function drawArrow(ctx, pts, style) {
+  const [x0, y0] = pts[0];
+  const reach = Math.max(14, 6 * style.width);
+  let j = 1;
+  while (j < pts.length - 1 && Math.hypot(pts[j][0] - x0, pts[j][1] - y0) < reach) j++;
+  if (j >= pts.length) return;
+  const [x1, y1] = pts[j];
+  const [xa, ya] = pts[Math.max(0, j - 1)];
+  const a = Math.atan2(y1 - ya, x1 - xa);
+  if (!Number.isFinite(a) || (x1 === x0 && y1 === y0)) return;
+  const size = 4 + 1.6 * style.width;
+  ctx.fillStyle = COLORS.start;
+  ctx.beginPath();
+  ctx.moveTo(x1 + Math.cos(a) * size, y1 + Math.sin(a) * size);
+  ctx.lineTo(x1 + Math.cos(a + 2.5) * size, y1 + Math.sin(a + 2.5) * size);
+  ctx.lineTo(x1 + Math.cos(a - 2.5) * size, y1 + Math.sin(a - 2.5) * size);
+  ctx.closePath();
+  ctx.fill();
+}
+
+/** One frame: the shown hypothesis up to sample k on both overlays. */
+function drawFrame(k) {
+  const answer = state.answer;
+  const hyps = answer.hypotheses;
+  const sel = hyps[state.selected];
+  const seen = fitCanvas(ui.seenOverlay);
+  seen.ctx.clearRect(0, 0, seen.width, seen.height);
+  const [mh, mw] = answer.model_size;
+  const mm = fitFrame(seen.width, seen.height, mh, mw);
+  hyps.forEach((h, i) => {
+    if (i === state.selected) return;
+    const style = { color: COLORS.other, width: i === 0 ? 3.5 : 2, markers: false };
+    drawPath(seen.ctx, mapPoints(h.model, mm), h.pen, h.model.length, style);
+  });
+  const bold = state.selected === 0 ? 4 : 2.5;
+  drawPath(seen.ctx, mapPoints(sel.model, mm), sel.pen, k,
+    { color: COLORS.traj, width: bold, markers: true });
+  const drawn = fitCanvas(ui.drawOverlay);
+  drawn.ctx.clearRect(0, 0, drawn.width, drawn.height);
+  const [ih, iw] = answer.image_size;
+  const im = fitFrame(drawn.width, drawn.height, ih, iw);
+  drawPath(drawn.ctx, mapPoints(sel.image, im), sel.pen, k,
+    { color: COLORS.traj, width: bold - 1, markers: true });
+}
+
+/** Play the selected hypothesis in real time (its `t`, seconds). */
+function animate() {
+  if (!state.answer) return;
+  cancelAnimationFrame(state.raf);
+  const h = state.answer.hypotheses[state.selected];
+  const t = h.t;
+  const start = performance.now();
+  ui.result.dataset.state = "animating";
+  ui.result.dataset.selected = String(h.rank);
+  const step = (now) => {
+    const elapsed = (now - start) / 1000 + (t[0] || 0);
+    let k = 0;
+    while (k < t.length - 1 && t[k + 1] <= elapsed) k++;
+    drawFrame(k);
+    if (k < t.length - 1) state.raf = requestAnimationFrame(step);
+    else ui.result.dataset.state = "done";
+  };
+  state.raf = requestAnimationFrame(step);
+}
+
+// ---------------------------------------------------------------- the robot ------
+
+function resetJobView() {
+  showMessage(ui.robotError, "", "");
+  ui.jobResult.hidden = true;
+  ui.paperFigure.hidden = true;
+  ui.animFigure.hidden = true;
+  ui.summary.hidden = true;
+  $("log-line").hidden = true;
+  ui.animSlot.replaceChildren();
+}
+
+async function writeWithRobot() {
+  if (!state.answer || state.job) return;
+  resetJobView();
+  ui.write.disabled = true;
+  const rank = state.answer.hypotheses[state.selected].rank;
+  try {
+    const job = await api("/api/write", {
+      method: "POST", body: { dmp: state.answer.dmp, hypothesis: rank, video: true },
+    });
+    state.job = job.id;
+    showJob(job);
+    pollJob(job.id);
+  } catch (e) {
+    ui.write.disabled = false;
+    ui.job.hidden = true;
+    const prefix = e instanceof ApiError && e.status === 503 ? "The robot is not available" : "";
+    showError(ui.robotError, e, prefix || "Could not start the robot");
+  }
+}
+
+async function pollJob(id) {
+  let job;
+  try {
+    job = await api(`/api/jobs/${encodeURIComponent(id)}`);
+  } catch (e) {
+    endJob();
+    showError(ui.robotError, e, "Lost the robot job");
+    return;
+  }
+  showJob(job);
+  if (job.status === "done" || job.status === "failed") endJob();
+  else setTimeout(() => pollJob(id), POLL_MS);
+}
+
+function endJob() {
+  state.job = null;
+  ui.write.disabled = !state.answer;
+}
+
+function showJob(job) {
+  ui.job.hidden = false;
+  ui.job.dataset.status = job.status;
+  const p = Number(job.progress) || 0;
+  if (job.status === "queued") {
+    ui.jobProgress.removeAttribute("value");
+    const pos = job.position ? ` (position ${job.position})` : "";
+    ui.jobStatus.textContent = `Waiting for the robot${pos}\u2026`;
+  } else if (job.status === "running") {
+    if (p > 0) ui.jobProgress.value = p;
+    else ui.jobProgress.removeAttribute("value");
+    ui.jobStatus.textContent = p > 0
+      ? `The arm is writing\u2026 ${Math.round(100 * p)}\u00a0%`
+      : "Starting the simulation\u2026";
+  } else if (job.status === "done") {
+    ui.jobProgress.value = 1;
+    ui.jobStatus.textContent = "Done.";
+    showJobFiles(job);
+  } else {
+    ui.jobProgress.value = 0;
+    ui.jobStatus.textContent = "Failed.";
+    showMessage(ui.robotError, "error", job.error || "The robot run failed (no reason given).");
+    showJobFiles(job);
+  }
+}
+
+function showJobFiles(job) {
+  const files = job.files || {};
+  ui.jobResult.hidden = false;
+  if (files.paper) {
+    ui.paper.src = files.paper;
+    $("paper-link").href = files.paper;
+    ui.paperFigure.hidden = false;
+  }
+  if (files.animation) {
+    const video = /\.(mp4|webm|mov|m4v)(\?|$)/i.test(files.animation);
+    const media = video
+      ? el("video", { src: files.animation, controls: "", autoplay: "", loop: "", muted: "",
+        playsinline: "" })
+      : el("img", { src: files.animation, alt: "The arm writing the digit" });
+    if (video) media.muted = true;
+    ui.animSlot.replaceChildren(media);
+    ui.animFigure.hidden = false;
+  }
+  const lines = job.summary || [];
+  ui.summary.textContent = lines.join("\n");
+  ui.summary.hidden = lines.length === 0;
+  $("log-line").hidden = !files.log;
+  if (files.log) $("log-link").href = files.log;
+}
+
+// ---------------------------------------------------------------- wiring ---------
+
+function download(kind) {
+  if (!state.answer) return;
+  if (kind === "dmp") {
+    downloadText(`${JSON.stringify(state.answer.dmp, null, 1)}\n`, `${state.name}.dmp.json`);
+  } else {
+    downloadText(state.answer.csv, `${state.name}.csv`, "text/csv");
+  }
+}
+
+function init() {
+  ui.drawing.addEventListener("pointerdown", onPointerDown);
+  ui.drawing.addEventListener("pointermove", onPointerMove);
+  ui.drawing.addEventListener("pointerup", onPointerUp);
+  ui.drawing.addEventListener("pointercancel", onPointerUp);
+  $("clear").addEventListener("click", clearAll);
+  $("predict").addEventListener("click", predict);
+  ui.replay.addEventListener("click", animate);
+  ui.dlDmp.addEventListener("click", () => download("dmp"));
+  ui.dlCsv.addEventListener("click", () => download("csv"));
+  ui.write.addEventListener("click", writeWithRobot);
+  setupDrop();
+  models.onChange(() => {
+    if (state.upload || state.strokes.length) predict();
+  });
+  window.addEventListener("resize", () => {
+    redrawDrawing();
+    if (state.answer && ui.result.dataset.state === "done") drawFrame(Infinity);
+  });
+  redrawDrawing();
+  clearOverlay(ui.seenOverlay);
+}
+
+init();

@@ -1,0 +1,429 @@
+"""The browser pages of ``img2dmp serve`` in a real browser (Playwright + Debian's Chromium).
+
+- Draw: a digit drawn with the mouse is predicted, its trajectory played over the model's
+  input, the ranked hypotheses listed, the DMP downloaded and read back; a pen draws too;
+  an API error (a text file as the image) shows its detail in the page; the model
+  switcher switches; the simulated robot writes the prediction and shows the paper;
+- Record: two strokes traced over an MNIST image are saved as ``image_<n>.json`` in the
+  shared recordings' format, with the two strokes.
+
+Everything runs against a server started here on two tiny networks (one epoch each) and a
+tiny MNIST folder. Without ``/usr/bin/chromium`` or the ``playwright`` package the tests
+skip, unless ``IMG2DMP_REQUIRE_BROWSER=1`` (CI), where they fail.
+"""
+
+from __future__ import annotations
+
+import base64
+import importlib.util
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from img2dmp.data.dmpfile import read_dmp_file
+from img2dmp.data.mnist import MNIST_FILES, write_idx
+from img2dmp.data.recorded import parse_recorded
+
+#: Debian's Chromium (make test installs it); another build may be named in $IMG2DMP_CHROMIUM.
+CHROMIUM = Path(os.environ.get("IMG2DMP_CHROMIUM") or "/usr/bin/chromium")
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+REQUIRE = os.environ.get("IMG2DMP_REQUIRE_BROWSER") == "1"
+#: MNIST labels of the tiny image folder.
+LABELS = [7, 1, 7, 1]
+#: A "7" in fractions of the drawing area: one stroke.
+SEVEN = [[(0.25, 0.22), (0.75, 0.22), (0.45, 0.82)]]
+
+
+def _missing() -> str | None:
+    """Why the browser tests cannot run here, or None."""
+    if importlib.util.find_spec("playwright") is None:
+        return "the playwright package is not installed (pip install playwright)"
+    if not CHROMIUM.exists():
+        return f"{CHROMIUM} is missing (apt-get install chromium)"
+    for mod in ("fastapi", "uvicorn"):
+        if importlib.util.find_spec(mod) is None:
+            return f"the web extra is not installed ({mod} missing: pip install 'img2dmp[web]')"
+    return None
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _need_browser():
+    why = _missing()
+    if why and REQUIRE:
+        pytest.fail(f"IMG2DMP_REQUIRE_BROWSER=1 but {why}")
+    if why:
+        pytest.skip(why)
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("web")
+
+
+@pytest.fixture(scope="module")
+def shots(work) -> Path:
+    """Where the screenshots go: $IMG2DMP_SCREENSHOTS, else the module's tmp dir."""
+    out = Path(os.environ.get("IMG2DMP_SCREENSHOTS") or work / "screenshots")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+@pytest.fixture(scope="module")
+def runs(work) -> dict[int, Path]:
+    """Run directories of networks with one and with two hypotheses (one epoch each)."""
+    from img2dmp.data.store import save_dataset
+    from img2dmp.data.synthetic import generate_dataset
+    from img2dmp.training import TrainConfig, train
+
+    save_dataset(work / "d.safetensors", generate_dataset(4, seed=5, progress=False))
+    out = {}
+    for k in (1, 2):
+        cfg = TrainConfig.from_dict(
+            {
+                "model": {"encoder_layers": [48, 20], "decoder_layers": [35], "hypotheses": k},
+                "data": {"path": str(work / "d.safetensors")},
+                "optim": {"epochs": 1, "batch_size": 16},
+                "threads": 1,
+                "progress": False,
+            }
+        )
+        train(cfg, work / f"hyp{k}" / "run")
+        out[k] = work / f"hyp{k}" / "run"
+    return out
+
+
+@pytest.fixture(scope="module")
+def mnist(work) -> Path:
+    """A tiny MNIST folder: four 28 x 28 training images (7, 1, 7, 1) with their labels."""
+    folder = work / "mnist"
+    folder.mkdir()
+    images = np.zeros((len(LABELS), 28, 28), dtype=np.uint8)
+    for i, label in enumerate(LABELS):
+        if label == 7:
+            images[i, 6:9, 7:21] = 255
+            for r in range(9, 23):
+                c = 20 - (r - 9) // 2
+                images[i, r, c - 1 : c + 2] = 255
+        else:
+            images[i, 5:23, 13:16] = 255
+    for split in ("train", "test"):
+        img_name, lab_name = MNIST_FILES[split]
+        write_idx(folder / f"{img_name}.gz", images)
+        write_idx(folder / f"{lab_name}.gz", np.asarray(LABELS, dtype=np.uint8))
+    return folder
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _get_json(url: str, body: dict | None = None) -> tuple[int, dict]:
+    data = None if body is None else json.dumps(body).encode()
+    req = urllib.request.Request(url, data=data, headers={"Content-Type": "application/json"})
+    try:
+        with urllib.request.urlopen(req, timeout=30) as r:
+            return r.status, json.loads(r.read())
+    except urllib.error.HTTPError as e:
+        return e.code, json.loads(e.read() or b"{}")
+
+
+@pytest.fixture(scope="module")
+def server(work, runs, mnist):
+    """``img2dmp serve`` on a free port: {"url", "data_dir"}; stopped at the end."""
+    exe = shutil.which("img2dmp", path=str(Path(sys.executable).parent)) or "img2dmp"
+    port = _free_port()
+    data_dir = work / "recordings"
+    cmd = [exe, "serve", "--model", str(runs[2]), "--model", str(runs[1]),
+           "--mnist", str(mnist), "--data-dir", str(data_dir), "--jobs-dir", str(work / "jobs"),
+           "--host", "127.0.0.1", "--port", str(port)]  # fmt: skip
+    log = open(work / "server.log", "wb")
+    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
+    url = f"http://127.0.0.1:{port}"
+    deadline = time.monotonic() + 60
+    try:
+        while True:
+            if proc.poll() is not None:
+                pytest.fail(f"img2dmp serve exited ({proc.returncode}):\n{_tail(work)}")
+            try:
+                if _get_json(f"{url}/api/models")[0] == 200:
+                    break
+            except OSError:
+                pass
+            if time.monotonic() > deadline:
+                pytest.fail(f"img2dmp serve did not answer within 60 s:\n{_tail(work)}")
+            time.sleep(0.2)
+        yield {"url": url, "data_dir": data_dir}
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        log.close()
+
+
+def _tail(work: Path) -> str:
+    return (work / "server.log").read_text(errors="replace")[-3000:]
+
+
+@pytest.fixture(scope="module")
+def browser():
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=CHROMIUM_ARGS)
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def page(browser, server):
+    """A fresh page (1100 x 900); uncaught JavaScript errors fail the test."""
+    context = browser.new_context(viewport={"width": 1100, "height": 900}, accept_downloads=True)
+    page = context.new_page()
+    page.set_default_timeout(20_000)
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    yield page
+    context.close()
+    assert not errors, f"JavaScript errors in the page: {errors}"
+
+
+def _strokes_on(page, selector: str, strokes, steps: int = 6) -> None:
+    """Draw strokes (lists of (fx, fy) fractions of the element) with the mouse."""
+    box = page.locator(selector).bounding_box()
+    at = [[(box["x"] + fx * box["width"], box["y"] + fy * box["height"]) for fx, fy in s]
+          for s in strokes]  # fmt: skip
+    for stroke in at:
+        page.mouse.move(*stroke[0])
+        page.mouse.down()
+        for p in stroke[1:]:
+            page.mouse.move(*p, steps=steps)
+        page.mouse.up()
+
+
+def _predicted(page, n_hypotheses: int) -> None:
+    """Wait for a prediction with n hypotheses and its trajectory drawn over the model's
+    input and over the drawing."""
+    page.locator(f'#result[data-hypotheses="{n_hypotheses}"]').wait_for()
+    for overlay in ("seen-overlay", "drawing-overlay"):
+        page.wait_for_function(
+            """(id) => {
+              const c = document.getElementById(id);
+              const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+              for (let i = 3; i < d.length; i += 4) if (d[i] > 0) return true;
+              return false;
+            }""",
+            arg=overlay,
+        )
+
+
+def _wait_played(page, timeout_ms: int = 15_000) -> None:
+    """Wait for the animation to finish (it plays in real time, tau seconds)."""
+    page.locator('#result[data-state="done"]').wait_for(timeout=timeout_ms)
+
+
+# -- Draw ----------------------------------------------------------------------------------
+
+
+def test_draw_with_the_mouse_predicts_plays_and_downloads_the_dmp(page, server, shots, tmp_path):
+    page.goto(server["url"] + "/")
+    page.locator("#site-header .tabs a", has_text="Draw").wait_for()
+    _strokes_on(page, "#drawing", SEVEN)
+    assert page.locator("#drawing").get_attribute("data-strokes") == "1"
+    # no click on Predict: it predicts by itself after the pen lifts
+    _predicted(page, 2)
+    items = page.locator("#hypotheses li")
+    assert items.count() == 2
+    assert "%" in items.first.inner_text()
+    assert page.locator("#input-image").evaluate("i => i.naturalWidth") > 0
+    assert page.locator("#draw-error").is_hidden()
+    _wait_played(page)
+    page.screenshot(path=str(shots / "draw-predicted.png"), full_page=True)
+
+    items.nth(1).locator("button").click()  # the second hypothesis plays
+    assert page.locator("#result").get_attribute("data-selected") == "2"
+    with page.expect_download() as dl:
+        page.locator("#download-dmp").click()
+    assert dl.value.suggested_filename == "drawing.dmp.json"
+    dmp = tmp_path / dl.value.suggested_filename
+    dl.value.save_as(dmp)
+    f = read_dmp_file(dmp)
+    assert f.params.w.shape[-1] in (2, 3)
+    assert len(json.loads(dmp.read_text())["hypotheses"]) == 2
+    with page.expect_download() as dl:
+        page.locator("#download-csv").click()
+    assert dl.value.suggested_filename == "drawing.csv"
+
+
+def _cdp_pen_stroke(cdp, points) -> None:
+    """One stroke of a pen through Chromium's input pipeline (real pointer events)."""
+    kind = ["mousePressed"] + ["mouseMoved"] * (len(points) - 2) + ["mouseReleased"]
+    for (x, y), k in zip(points, kind, strict=True):
+        event = {"type": k, "x": x, "y": y, "button": "left", "pointerType": "pen"}
+        event["buttons"] = 0 if k == "mouseReleased" else 1
+        event["clickCount"] = 0 if k == "mouseMoved" else 1
+        cdp.send("Input.dispatchMouseEvent", event)
+
+
+def _cdp_touch_stroke(cdp, points) -> None:
+    """One stroke of a finger on a touch screen (real touch -> pointer events)."""
+    kind = ["touchStart"] + ["touchMove"] * (len(points) - 1)
+    for (x, y), k in zip(points, kind, strict=True):
+        cdp.send("Input.dispatchTouchEvent", {"type": k, "touchPoints": [{"x": x, "y": y}]})
+    cdp.send("Input.dispatchTouchEvent", {"type": "touchEnd", "touchPoints": []})
+
+
+def test_a_pen_and_a_finger_draw_too(page, server):
+    """Chromium's own input pipeline (DevTools protocol), not synthetic DOM events."""
+    page.goto(server["url"] + "/")
+    drawing = page.locator("#drawing")
+    drawing.wait_for()
+    box = drawing.bounding_box()
+    cdp = page.context.new_cdp_session(page)
+    x, y, w, h = box["x"], box["y"], box["width"], box["height"]
+    points = [(x + (0.3 + 0.4 * f) * w, y + (0.2 + 0.6 * f) * h) for f in np.linspace(0, 1, 12)]
+    _cdp_pen_stroke(cdp, points)
+    assert drawing.get_attribute("data-pointer-type") == "pen"
+    assert drawing.get_attribute("data-strokes") == "1"
+    _predicted(page, 2)
+
+    page.locator("#clear").click()
+    assert drawing.get_attribute("data-strokes") == "0"
+    _cdp_touch_stroke(cdp, points[::-1])
+    assert drawing.get_attribute("data-pointer-type") == "touch"
+    assert drawing.get_attribute("data-strokes") == "1"
+    page.locator('#result[data-answers="2"]').wait_for()  # predicted again
+
+
+def test_an_api_error_shows_its_detail_in_the_page(page, server):
+    text = b"this is not an image\n"
+    status, answer = _get_json(
+        server["url"] + "/api/predict",
+        {"image": "data:text/plain;base64," + base64.b64encode(text).decode()},
+    )
+    assert 400 <= status < 500 and answer["detail"]
+    page.goto(server["url"] + "/")
+    page.locator("#file").set_input_files(
+        files=[{"name": "notes.txt", "mimeType": "text/plain", "buffer": text}]
+    )
+    error = page.locator("#draw-error")
+    error.wait_for()
+    assert answer["detail"] in error.inner_text()
+    assert page.locator("#result").get_attribute("data-state") == "error"
+
+
+def test_the_model_switcher_switches(page, server):
+    from playwright.sync_api import expect
+
+    page.goto(server["url"] + "/")
+    select = page.locator("#model-select")
+    select.wait_for()
+    assert select.locator("option").all_inner_texts()[0].startswith("hyp2")
+    _strokes_on(page, "#drawing", SEVEN)
+    _predicted(page, 2)
+    select.select_option("hyp1")
+    # switching predicts the drawing again, with the other network
+    _predicted(page, 1)
+    assert page.locator("#hypotheses").is_hidden()
+    assert page.locator("#result-meta").inner_text().startswith("Model hyp1")
+    page.reload()
+    expect(page.locator("#model-select")).to_have_value("hyp1")  # remembered
+
+
+def test_the_robot_writes_the_prediction(page, server, shots):
+    pytest.importorskip("pybullet", reason="the robot extra is not installed")
+    page.goto(server["url"] + "/")
+    _strokes_on(page, "#drawing", SEVEN)
+    _predicted(page, 2)
+    page.locator("#write").click()
+    job = page.locator("#job")
+    job.wait_for()
+    page.locator('#job[data-status="done"], #job[data-status="failed"]').wait_for(timeout=60_000)
+    assert job.get_attribute("data-status") == "done", page.locator("#robot-error").inner_text()
+    page.wait_for_function("() => document.getElementById('paper').naturalWidth > 0")
+    assert page.locator("#summary").inner_text().strip()
+    page.locator("#paper").scroll_into_view_if_needed()
+    page.screenshot(path=str(shots / "draw-robot.png"), full_page=True)
+
+
+# -- Record --------------------------------------------------------------------------------
+
+
+def test_record_two_strokes_over_an_mnist_image(page, server, shots):
+    page.goto(server["url"] + "/record")
+    recorder = page.locator("#recorder")
+    page.locator('#recorder:not([data-index=""])').wait_for()
+    n = int(recorder.get_attribute("data-index"))
+    assert page.locator("#label").input_value() == str(LABELS[n])
+    page.locator("#trace-image").evaluate("i => i.decode()")
+    # a 7: the bar, then (pen lifted) the stem
+    _strokes_on(page, "#trace", [[(0.25, 0.27), (0.75, 0.27)], [(0.72, 0.3), (0.5, 0.8)]])
+    assert recorder.get_attribute("data-strokes") == "2"
+    points = int(recorder.get_attribute("data-points"))
+    page.screenshot(path=str(shots / "record-mid-trace.png"), full_page=True)
+    page.locator("#save").click()
+    page.locator("#record-message.notice").wait_for()
+    assert "Saved" in page.locator("#record-message").inner_text()
+    page.locator(f'#recorder[data-index="{n + 1}"]').wait_for()
+    assert "1 recorded" in page.locator("#recorded-count").inner_text()
+
+    path = server["data_dir"] / f"image_{n}.json"
+    doc = json.loads(path.read_text())
+    assert len(doc["Strokes"]) == 2
+    rec = parse_recorded(doc, path.name)
+    assert rec.image_index == n and rec.label == LABELS[n]
+    assert len(rec.xy) == points
+    first, last = doc["Strokes"][0]
+    assert last - first + 1 + doc["Strokes"][1][1] - doc["Strokes"][1][0] + 1 == points
+    # the bar at 27 % of the height, from 25 % to 75 % of the width (corner convention)
+    bar = rec.xy[first : last + 1] - (-0.5)
+    assert np.allclose(bar[:, 1], 0.27 * 28, atol=0.6)
+    assert bar[:, 0].min() == pytest.approx(0.25 * 28, abs=0.6)
+    assert bar[:, 0].max() == pytest.approx(0.75 * 28, abs=0.6)
+
+    # the same image again: 409, then Replace
+    page.locator("#index").fill(str(n))
+    page.locator("#index").press("Enter")
+    page.locator(f'#recorder[data-index="{n}"]').wait_for()
+    page.locator("#recorded-badge").wait_for()
+    _strokes_on(page, "#trace", [[(0.3, 0.3), (0.7, 0.7)]])
+    page.locator("#save").click()
+    page.locator("#record-message.error button", has_text="Replace").click()
+    page.locator("#record-message.notice").wait_for()
+    assert len(json.loads(path.read_text())["Strokes"]) == 1
+
+
+def test_the_api_reference_page_renders_offline(page, server, shots):
+    """/docs (FastAPI's Swagger UI) loads its scripts from the server, not a CDN: every
+    request the page makes stays on the server (this machine's browser has no internet
+    anyway), and the endpoints are listed."""
+    requested = []
+    page.on("request", lambda r: requested.append(r.url))
+    page.goto(server["url"] + "/docs")
+    page.get_by_text("/api/predict").first.wait_for()
+    page.get_by_text("/api/recordings").first.wait_for()
+    outside = [u for u in requested if not u.startswith(server["url"]) and u.startswith("http")]
+    assert not outside, outside
+    page.screenshot(path=str(shots / "api-docs.png"), full_page=False)
