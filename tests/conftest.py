@@ -29,3 +29,34 @@ def experiment_script(monkeypatch):
         return mod
 
     return load
+
+
+def _train_tiny_runs(work: Path, run_dir) -> dict[int, Path]:
+    """Networks with one and with two hypotheses, one epoch each on 40 synthetic digits
+    (a few seconds): ``{k: run_dir(k)}``."""
+    from img2dmp.data.store import save_dataset
+    from img2dmp.data.synthetic import generate_dataset
+    from img2dmp.training import TrainConfig, train
+
+    save_dataset(work / "d.safetensors", generate_dataset(4, seed=5, progress=False))
+    out = {}
+    for k in (1, 2):
+        cfg = TrainConfig.from_dict(
+            {
+                "model": {"encoder_layers": [48, 20], "decoder_layers": [35], "hypotheses": k},
+                "data": {"path": str(work / "d.safetensors")},
+                "optim": {"epochs": 1, "batch_size": 16},
+                "threads": 1,
+                "progress": False,
+            }
+        )
+        out[k] = Path(run_dir(k))
+        train(cfg, out[k])
+    return out
+
+
+@pytest.fixture(scope="session")
+def train_tiny_runs():
+    """``train_tiny_runs(work, run_dir)``: run directories ``run_dir(k)`` of tiny networks
+    with k = 1 and k = 2 hypotheses (for tests of prediction, serving and the browser)."""
+    return _train_tiny_runs

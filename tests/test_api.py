@@ -50,27 +50,9 @@ def work(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def runs(work) -> dict[int, Path]:
+def runs(work, train_tiny_runs) -> dict[int, Path]:
     """Run directories of networks with one and with two hypotheses (one epoch each)."""
-    from img2dmp.data.store import save_dataset
-    from img2dmp.data.synthetic import generate_dataset
-    from img2dmp.training import TrainConfig, train
-
-    save_dataset(work / "d.safetensors", generate_dataset(4, seed=5, progress=False))
-    out = {}
-    for k in (1, 2):
-        cfg = TrainConfig.from_dict(
-            {
-                "model": {"encoder_layers": [48, 20], "decoder_layers": [35], "hypotheses": k},
-                "data": {"path": str(work / "d.safetensors")},
-                "optim": {"epochs": 1, "batch_size": 16},
-                "threads": 1,
-                "progress": False,
-            }
-        )
-        train(cfg, work / f"run{k}")
-        out[k] = work / f"run{k}"
-    return out
+    return train_tiny_runs(work, lambda k: work / f"run{k}")
 
 
 @pytest.fixture(scope="module")
