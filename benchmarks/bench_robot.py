@@ -32,6 +32,7 @@ from collections import defaultdict
 
 import numpy as np
 
+import _machine
 from img2dmp.dmp import DMPConfig, DMPIntegrator, fit_dmp
 from img2dmp.robot import WritingOptions, WritingScene, write_dmp, write_with_options, writing
 from img2dmp.robot.strokes import strokes_path
@@ -162,6 +163,7 @@ def main() -> None:
     ap.add_argument("--no-strokes", action="store_true", help="skip the multi-stroke digits")
     args = ap.parse_args()
 
+    print(_machine.describe())
     config = DMPConfig(scaling="none")
     params = fit_dmp(np.linspace(0, DURATION_S, 300), digit_two(), config).params
     print(f'digit "2", tau = {float(params.tau):.1f} s, 28 x 28 px image written 40 mm tall')
