@@ -8,7 +8,6 @@ A model's id is its run directory's name, or the parent's name for a folder call
 from __future__ import annotations
 
 import base64
-import io
 import json
 import os
 import threading
@@ -19,6 +18,7 @@ import numpy as np
 
 from ..data.dmpfile import TRAJECTORY_DECIMALS
 from ..predict import Prediction, Predictor, load_model
+from .strokes import grey_png
 
 
 @dataclass
@@ -88,12 +88,8 @@ def _rounded(a: np.ndarray) -> list:
 
 def png_data_url(ink: np.ndarray) -> str:
     """``data:image/png;base64,...`` of ``ink [H, W]`` (ink = 1) as dark ink on white."""
-    from PIL import Image
-
     grey = np.round(255.0 * (1.0 - np.clip(np.asarray(ink, dtype=np.float64), 0.0, 1.0)))
-    buf = io.BytesIO()
-    Image.fromarray(grey.astype(np.uint8), mode="L").save(buf, format="PNG")
-    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+    return "data:image/png;base64," + base64.b64encode(grey_png(grey)).decode("ascii")
 
 
 def _hypotheses(pred: Prediction) -> list[dict]:

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import datetime
 import fcntl
-import io
 import json
 import os
 import re
@@ -30,7 +29,7 @@ from .._files import LOCK_NAME, atomic_write_text
 from ..data.mnist import IMAGES_MAGIC, LABELS_MAGIC, MNIST_FILES, find_mnist_file, read_idx
 from ..data.recorded import parse_recorded
 from .errors import WebError, show
-from .strokes import check_strokes
+from .strokes import check_strokes, grey_png
 
 #: Image files a folder source shows.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -41,14 +40,6 @@ MAX_DURATION_MS = 3_600_000.0
 #: Seconds a write waits for another process's lock on the data directory.
 LOCK_TIMEOUT_S = 10.0
 _RECORDING = re.compile(r"image_(\d+)\.json")
-
-
-def _png(grey: np.ndarray) -> bytes:
-    from PIL import Image
-
-    buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(grey, dtype=np.uint8), mode="L").save(buf, "PNG")
-    return buf.getvalue()
 
 
 class MnistImages:
@@ -91,7 +82,7 @@ class MnistImages:
 
     def png(self, n: int) -> bytes:
         """Image ``n`` as a PNG, dark ink on white."""
-        return _png(255 - self.images[n])
+        return grey_png(255 - self.images[n])
 
 
 class FolderImages:
@@ -152,7 +143,7 @@ class FolderImages:
         white = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
         grey = np.asarray(Image.alpha_composite(white, rgba).convert("L"))
         border = np.concatenate([grey[0], grey[-1], grey[:, 0], grey[:, -1]])
-        return _png(255 - grey if border.mean() < 128 else grey)
+        return grey_png(255 - grey if border.mean() < 128 else grey)
 
 
 def _number(v: float) -> str:

@@ -117,6 +117,15 @@ def render_strokes(strokes: list, size: tuple[int, int]) -> np.ndarray:
     return np.asarray(im)
 
 
+def grey_png(grey: np.ndarray) -> bytes:
+    """A grey image ``[H, W]`` (values 0-255) as PNG bytes."""
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(grey, dtype=np.uint8), mode="L").save(buf, "PNG")
+    return buf.getvalue()
+
+
 def decode_data_url(text: str):
     """A ``data:image/png;base64,...`` (or JPEG) URL as a loaded PIL image.
 
@@ -169,5 +178,6 @@ __all__ = [
     "canvas_size",
     "check_strokes",
     "decode_data_url",
+    "grey_png",
     "render_strokes",
 ]
