@@ -14,6 +14,10 @@ its own duration (tau in [2.5, 3.5] s), loss = sum of squared positions.
 3. ``img2dmp.dmp.rollout_sensitivity`` - the paper's sensitivity equations (RK4).
 4. ``img2dmp.dmp.DMPIntegrator`` - the float64 step-by-step reference integrator, one
    trajectory at a time, forward only (it computes no gradient).
+5. The harness alone: a "rollout" that copies a stored output and stored gradients, so
+   that only the leaf copies, autograd and the loss are timed: what every method above
+   pays besides its own work, and so a bound on the ratios (its error column is that of
+   the stored fused output).
 
 Each method's largest deviation from a scipy ``solve_ivp`` solution (rtol 1e-10) of the
 first 4 samples is printed too: speed is only worth comparing at equal accuracy.
@@ -214,6 +218,31 @@ def rule_threads(b: int) -> str:
     )
 
 
+class _Replay(torch.autograd.Function):
+    """A "rollout" that costs nothing: it copies a stored output and stored gradients."""
+
+    @staticmethod
+    def forward(ctx, tau, w, g, y0, stored):
+        ctx.stored = stored
+        return stored["y"].clone()
+
+    @staticmethod
+    def backward(ctx, gy):
+        s = ctx.stored
+        return s["tau"].clone(), s["w"].clone(), s["g"].clone(), s["y0"].clone(), None
+
+
+def harness_floor(cfg, p: DMPParams, t: torch.Tensor):
+    """The benchmark's own cost around a rollout (leaf copies, autograd, the loss and its
+    backward) with a rollout that takes no time: what any method pays here."""
+    leaves = [a.clone().requires_grad_(True) for a in (p.w, p.tau, p.g, p.y0)]
+    y = rollout(DMPParams(*leaves), t, cfg)
+    (y**2).sum().backward()
+    grads = (a.grad for a in leaves)
+    stored = {"y": y.detach(), **dict(zip(("w", "tau", "g", "y0"), grads, strict=True))}
+    return forward_backward(lambda q, tt: _Replay.apply(q.tau, q.w, q.g, q.y0, stored), p, t)
+
+
 def build_methods(cfg, p_np, t_np):
     """The timed methods, and the thread counts of those that run at a fixed one."""
     methods, threads = {}, {}
@@ -234,6 +263,8 @@ def build_methods(cfg, p_np, t_np):
     ):
         p, t = p_np.to_torch(dtype), torch.as_tensor(t_np, dtype=dtype)
         methods[name] = forward_backward(lambda q, tt, fn=fn: fn(q, tt, cfg), p, t)
+    p, t = p_np.to_torch(torch.float64), torch.as_tensor(t_np, dtype=torch.float64)
+    methods["harness alone: a rollout taking no time (float64)"] = harness_floor(cfg, p, t)
     return methods, threads
 
 
@@ -322,6 +353,8 @@ def print_table(rows, per_round, cfg, p_np, t_np, args):
         f"\n  float32 {ratio(f'{euler} (float32)', f'{fused} (float32)')}, "
         f"float64 {ratio(f'{euler} (float64)', f'{fused} (float64)')} "
         "(target >= 100x)"
+        f"\n  the float64 Euler loop against the harness alone (a rollout taking no time): "
+        f"{ratio(f'{euler} (float64)', 'harness alone: a rollout taking no time (float64)')}"
         f"\ntorch-operations rollout, same comparison:"
         f"\n  float32 {ratio(f'{euler} (float32)', 'fast rollout, torch (float32)')}, "
         f"float64 {ratio(f'{euler} (float64)', 'fast rollout, torch (float64)')}"
