@@ -204,6 +204,7 @@ def test_evaluate_passes_the_digits_to_the_library(monkeypatch, tmp_path, capsys
             "out_dir": out,
             "n_figures": 16,
             "digits": [2, 3],
+            "classes": None,
             "refine": 0,
             "device": "cpu",
         }

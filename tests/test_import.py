@@ -328,6 +328,30 @@ def test_digit_filters_select_classes_by_name_or_refuse(imported, tmp_path):
     assert len(feed.train_for_epoch(0)) + len(feed.val) == expected.sum()
 
 
+def test_classes_select_classes_by_name_or_refuse(imported):
+    from img2dmp.config import ConfigError
+    from img2dmp.training import TrainConfig
+    from img2dmp.training.data import TrainingData
+
+    path, data = imported
+    cfg = TrainConfig.from_dict(
+        {"data": {"path": str(path), "classes": ["T", "L"]}, "progress": False}
+    )
+    feed = TrainingData(cfg)
+    wanted = np.isin(data.labels, [CLASSES.index("L"), CLASSES.index("T")]) & (data.split < 2)
+    assert len(feed.train_for_epoch(0)) + len(feed.val) == wanted.sum() > 0
+    cfg = TrainConfig.from_dict({"data": {"path": str(path), "classes": ["X"]}, "progress": False})
+    with pytest.raises(DatasetError, match=r"has no class named 'X' \(its classes are L, O, T, V"):
+        TrainingData(cfg)
+    with pytest.raises(ConfigError, match="data.digits and data.classes both select classes"):
+        TrainConfig.from_dict({"data": {"path": str(path), "digits": [2], "classes": ["L"]}})
+    with pytest.raises(ConfigError, match="data.classes must be a non-empty list"):
+        TrainConfig.from_dict({"data": {"path": str(path), "classes": []}})
+    generator = TrainConfig.from_dict({"data": {"classes": ["L"]}, "progress": False})
+    with pytest.raises(ConfigError, match=r"generator draws digits 0-9, not \['L'\]"):
+        TrainingData(generator)
+
+
 # --- the whole chain on the command line ----------------------------------------------
 
 
@@ -356,6 +380,17 @@ def test_import_train_evaluate_predict_on_the_command_line(letters, tmp_path, ca
     assert (evaluation / "examples.png").is_file()
     assert cli.main([*argv, "--force", "--digits", "3", "--figures", "0"]) == 2
     assert "has no class named '3'" in capsys.readouterr().err
+    assert cli.main([*argv, "--force", "--classes", "O,V", "--figures", "0"]) == 0
+    table = capsys.readouterr().out.splitlines()
+    firsts = [ln.split()[0] for ln in table if ln.split()]
+    assert [firsts.count(n) for n in CLASSES] == [0, 2, 0, 2]  # L O T V: only O and V
+    assert cli.main([*argv, "--force", "--classes", "O", "--digits", "3"]) == 2
+    assert "not allowed with" in capsys.readouterr().err
+    grid = tmp_path / "grid.png"
+    preview = ["preview", "--data", str(data), "--out", str(grid), "--per-digit", "2"]
+    assert cli.main([*preview, "--classes", "T", "L"]) == 0 and grid.is_file()
+    assert cli.main([*preview, "--force", "--digits", "2"]) == 2  # no class is named 2
+    assert "has no class named '2'" in capsys.readouterr().err
     image = letters / "T" / "001.png"  # any image, of any size
     pred = tmp_path / "pred"
     assert cli.main(["predict", "--model", str(run), str(image), "--out", str(pred)]) == 0

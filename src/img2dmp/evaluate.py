@@ -369,6 +369,7 @@ def evaluate(
     out_dir: str | os.PathLike | None = None,
     n_figures: int = 16,
     digits: list[int] | None = None,
+    classes: list[str] | None = None,
     batch_size: int = 2048,
     seed: int = 0,
     refine: int = 0,
@@ -393,6 +394,9 @@ def evaluate(
         most ``MAX_FIGURES``.
     digits : list of int, optional
         Keep only these digits (with class names: the classes named after them).
+    classes : list of str, optional
+        Keep only the classes of these names (e.g. ``["L", "T"]`` of a data set made by
+        ``img2dmp import``); not together with ``digits``.
     refine : int
         Refine every prediction on its image with this many gradient steps
         (:func:`img2dmp.nn.refine.refine`, default options); 0 = the network's output.
@@ -418,7 +422,7 @@ def evaluate(
         from .nn.refine import RefineOptions
 
         predictor.refine_options = RefineOptions(steps=int(refine))
-    data = _evaluation_data(predictor, dataset_path, split, digits)
+    data = _evaluation_data(predictor, dataset_path, split, digits, classes)
     y_all, probs = predict_hypotheses(predictor, data.images, data.times, batch_size)
     names = data.class_names
     measures = hypothesis_metrics(y_all, probs, data.trajectories, data.images, data.labels, names)
@@ -431,6 +435,7 @@ def evaluate(
         dataset_sha256=file_digest(dataset_path),
         split=split,
         digits=digits,
+        classes=classes,
         trained_on=predictor.meta.get("dataset"),
         cost=predictor.meta.get("train_config", {}).get("cost", {}).get("name"),
         fit_error_px=error_statistics(data.fit_error_px),
@@ -462,15 +467,21 @@ def _load_predictor(model, device: str = "cpu"):
     return Predictor.load(model, device=device)
 
 
-def _evaluation_data(predictor: Predictor, dataset_path, split: str, digits):
-    """The samples of ``split`` (and ``digits``) of a data set, checked against the model."""
+def _evaluation_data(predictor: Predictor, dataset_path, split: str, digits, classes=None):
+    """The samples of ``split`` (and ``digits`` or ``classes``) of a data set, checked
+    against the model."""
+    if digits is not None and classes is not None:
+        raise ValueError("digits and classes both select classes; give one of them")
     data = _pick_split(load_dataset(dataset_path), split)
     if digits is not None:
         data = data.subset(np.isin(data.labels, data.labels_of_digits(digits)))
+    elif classes is not None:
+        data = data.subset(np.isin(data.labels, data.labels_of_classes(classes)))
     if len(data) == 0:
         raise ValueError(
             f"data set {dataset_path} has no samples in split {split!r}"
             + (f" with labels {digits}" if digits is not None else "")
+            + (f" of the classes {classes}" if classes is not None else "")
         )
     if tuple(data.image_size) != predictor.image_size:
         raise ValueError(

@@ -85,6 +85,31 @@ def add_digits(p: argparse.ArgumentParser, help: str) -> None:
     )
 
 
+def parse_classes(text: str | Iterable[str]) -> tuple[str, ...]:
+    """Class names written ``"L,T"``, ``"L T"`` or as several arguments; repeats dropped."""
+    texts = [text] if isinstance(text, str) else list(text)
+    names = [n for t in texts for n in str(t).replace(",", " ").split()]
+    if not names:
+        raise ValueError("must name at least one class, e.g. L,T")
+    return tuple(dict.fromkeys(names))
+
+
+def add_digits_or_classes(p: argparse.ArgumentParser, digits_help: str, classes_help: str):
+    """``--digits`` (:func:`add_digits`) or ``--classes NAMES``, not both (argparse says
+    so); ``args.classes`` is None or a tuple of names."""
+    group = p.add_mutually_exclusive_group()
+    add_digits(group, digits_help)
+    group.add_argument(
+        "--classes",
+        nargs="+",
+        type=parse_classes,
+        action=_DigitsAction,
+        metavar="NAMES",
+        help=f"{classes_help}; written L,T or L T (the names of a data set made by "
+        "img2dmp import; for digits the same as --digits)",
+    )
+
+
 # --- model, data, configuration -------------------------------------------------------
 
 

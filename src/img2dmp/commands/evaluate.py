@@ -45,7 +45,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=SPLITS,
         help="auto = the test split if the file has one, else all",
     )
-    _args.add_digits(p, "only these digits (default: all in the data)")
+    _args.add_digits_or_classes(
+        p, "only these digits (default: all in the data)", "only the classes of these names"
+    )
     p.add_argument(
         "--out", metavar="DIR", help="output directory (default: MODEL/evaluation for a run dir)"
     )
@@ -105,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
         out_dir=out,
         n_figures=args.figures,
         digits=list(args.digits) if args.digits is not None else None,
+        classes=list(args.classes) if args.classes is not None else None,
         refine=args.refine,
         device=args.device,
     )

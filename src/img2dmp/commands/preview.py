@@ -2,10 +2,12 @@
 
 Reads a stored data set (--data), or, without one, generates a few fresh synthetic
 samples. The demonstrated path is blue with a dot at its start; with --dmp the fitted
-DMP's rollout is drawn over it in red. One column per digit of --digits. An existing
---out file is replaced only with --force.
+DMP's rollout is drawn over it in red. One column per digit of --digits (or class of
+--classes, for a data set made by img2dmp import; default: every class of --data), each
+image titled with its class's name. An existing --out file is replaced only with --force.
 
   img2dmp preview --data digits.safetensors --out digits.png --dmp --digits 2,3
+  img2dmp preview --data letters.safetensors --out letters.png --classes L,T
 """
 
 from __future__ import annotations
@@ -29,7 +31,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=4,
         help="samples shown of each digit",
     )
-    _args.add_digits(p, "digits to show (default: 0-9)")
+    _args.add_digits_or_classes(
+        p, "digits to show (default: 0-9, or every class of --data)", "classes to show"
+    )
     p.add_argument(
         "--image-size",
         type=_args.int_at_least(8),
@@ -54,18 +58,53 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _pick(labels, digits, per_digit: int, rng):
-    # Up to per_digit random samples of each digit, grouped by sample index so that each
-    # row of the grid shows the digits in order.
+def _pick(labels, classes, per_digit: int, rng):
+    # Up to per_digit random samples of each class (label), grouped by sample index so
+    # that each row of the grid shows the classes in order.
     import numpy as np
 
     chosen = []
-    for d in digits:
+    for d in classes:
         idx = np.flatnonzero(labels == d)
         chosen.append(rng.permutation(idx)[:per_digit])
     width = max((len(c) for c in chosen), default=0)
     order = [c[k] for k in range(width) for c in chosen if k < len(c)]
     return np.asarray(order, dtype=np.int64)
+
+
+def _shown_labels(data, args) -> list[int]:
+    """The labels of the classes to show: --digits or --classes by name, else all."""
+    import numpy as np
+
+    if args.digits is not None:
+        return data.labels_of_digits(args.digits).tolist()
+    if args.classes is not None:
+        return data.labels_of_classes(args.classes).tolist()
+    return np.unique(data.labels).tolist()
+
+
+def _samples(args, rng):
+    """The data set to draw from: --data (its --split), or fresh synthetic digits."""
+    import numpy as np
+
+    if args.data:
+        from ..data.store import load_dataset
+
+        data = load_dataset(args.data)
+        return data.select_split(args.split) if args.split else data
+    from ..data.plotting import check_grid_size
+    from ..data.synthetic import SyntheticConfig, generate
+
+    digits = args.digits or tuple(range(10))
+    if args.classes is not None:
+        bad = [c for c in args.classes if not (c.isdecimal() and len(c) == 1)]
+        if bad:
+            raise ValueError(f"--classes: fresh synthetic samples are digits 0-9, not {bad}")
+        digits = tuple(int(c) for c in args.classes)
+    # before the samples are made: a grid too large to draw is refused at once
+    check_grid_size(args.per_digit * len(digits), "--per-digit x digits")
+    config = SyntheticConfig(digits=digits, image_size=(args.image_size, args.image_size))
+    return generate(np.tile(np.array(digits), args.per_digit), config, rng)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -76,25 +115,13 @@ def run(args: argparse.Namespace) -> int:
     _args.check_outputs([(args.out, None)], args.force)
     if args.data:
         _args.check_inputs([args.data], "data set")
-    digits = args.digits or tuple(range(10))
     rng = np.random.default_rng(args.seed)
-    if args.data:
-        from ..data.store import load_dataset
-
-        data = load_dataset(args.data)
-        if args.split:
-            data = data.select_split(args.split)
-    else:
-        from ..data.plotting import check_grid_size
-        from ..data.synthetic import SyntheticConfig, generate
-
-        # before the samples are made: a grid too large to draw is refused at once
-        check_grid_size(args.per_digit * len(digits), "--per-digit x digits")
-        config = SyntheticConfig(digits=digits, image_size=(args.image_size, args.image_size))
-        data = generate(np.tile(np.array(digits), args.per_digit), config, rng)
-    idx = _pick(data.labels, digits, args.per_digit, rng)
+    data = _samples(args, rng)
+    shown = _shown_labels(data, args)
+    idx = _pick(data.labels, shown, args.per_digit, rng)
     if idx.size == 0:
-        raise ValueError(f"no samples of digits {list(digits)} to show")
+        names = [data.label_names[k] for k in shown]
+        raise ValueError(f"no samples of the classes {names} to show")
     second = None
     if args.dmp:
         import torch
@@ -111,8 +138,8 @@ def run(args: argparse.Namespace) -> int:
         data.images[idx],
         data.trajectories[idx],
         second,
-        titles=[str(v) for v in data.labels[idx]],
-        ncols=len(digits) if len(digits) > 1 else min(idx.size, 10),
+        titles=[data.label_names[v] for v in data.labels[idx]],
+        ncols=len(shown) if len(shown) > 1 else min(idx.size, 10),
         cell_inches=args.cell_inches,
         dpi=args.dpi,
     )

@@ -3,7 +3,8 @@
 Settings (img2dmp.training.TrainConfig: model, data, optim, cost, seed ...) come from the
 defaults, then --config FILE (YAML, TOML or JSON) or NAME (a configuration shipped with
 img2dmp: paper, conv-wide, real ...), then the shortcuts --data (data.path),
---cost (cost.name), --digits (data.digits), --seed, --init-from (init_from) and
+--cost (cost.name), --digits (data.digits), --classes (data.classes), --seed, --init-from
+(init_from) and
 --no-progress (progress), then --set section.key=value overrides, in order; unknown keys
 are refused. The run directory receives config.yaml, metrics.csv, training_curve.png and
 checkpoints/{best,last}.safetensors (+ .json).
@@ -32,7 +33,9 @@ from . import _args
 HELP = "train the image-to-DMP network with cost (9) or (10)"
 
 #: Options that set the configuration, which a resumed run takes from its checkpoint.
-CONFIG_OPTIONS = ("config", "set", "data", "cost", "seed", "digits", "init_from")
+CONFIG_OPTIONS = (
+    "config", "set", "data", "cost", "seed", "digits", "classes", "init_from"
+)  # fmt: skip
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -44,7 +47,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="NAME",
         help="cost.name: parameter (eq. 9), trajectory (eq. 10) or combined",
     )
-    _args.add_digits(p, "data.digits: train on these labels only (default: all)")
+    _args.add_digits_or_classes(
+        p,
+        "data.digits: train on these labels only (default: all)",
+        "data.classes: train on the classes of these names only",
+    )
     p.add_argument(
         "--epochs",
         metavar="N",
@@ -84,6 +91,7 @@ def overrides(args: argparse.Namespace) -> list[str]:
         ("data.path", args.data),
         ("cost.name", args.cost),
         ("data.digits", list(args.digits) if args.digits is not None else None),
+        ("data.classes", list(args.classes) if args.classes is not None else None),
         ("seed", args.seed),
         ("init_from", args.init_from),
     ):

@@ -191,17 +191,26 @@ class DigitData:
         the labels of the classes named ``"2"``, ``"3"`` ...; a digit that names no class
         raises :class:`DatasetError` listing the data set's classes.
         """
-        names = self.label_names
+        hint = "digits select classes by their names; "
+        return self._labels_named([str(d) for d in digits], hint)
+
+    def labels_of_classes(self, names) -> np.ndarray:
+        """The labels (int64 ``[n]``) of the classes named ``names`` (e.g. ``["L", "T"]``,
+        or ``["2"]`` for a data set of digits); a name that is no class of the data set
+        raises :class:`DatasetError` listing its classes."""
+        return self._labels_named([str(n) for n in names], "")
+
+    def _labels_named(self, names: list[str], hint: str) -> np.ndarray:
+        known = self.label_names
         out = []
-        for d in digits:
-            if str(d) not in names:
+        for name in names:
+            if name not in known:
                 where = self.origin or "the data set"
-                shown = ", ".join(names[:20]) + (", ..." if len(names) > 20 else "")
+                shown = ", ".join(known[:20]) + (", ..." if len(known) > 20 else "")
                 raise DatasetError(
-                    f"{where} has no class named {str(d)!r} (digits select classes by their "
-                    f"names; its classes are {shown})"
+                    f"{where} has no class named {name!r} ({hint}its classes are {shown})"
                 )
-            out.append(names.index(str(d)))
+            out.append(known.index(name))
         return np.asarray(out, dtype=np.int64)
 
     def arrays(self) -> dict[str, np.ndarray]:

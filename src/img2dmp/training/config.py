@@ -46,6 +46,10 @@ class DataConfig:
         has no validation split (split = 1).
     digits : list of int or None
         Keep only these labels (Table I's "digit 2 only" row), or all.
+    classes : list of str or None
+        Stored mode: keep only the classes of these names (a data set made by
+        ``img2dmp import`` has its own, e.g. ``[L, T]``; for digits ``["2"]`` is the
+        same as ``digits: [2]``), or all. Not together with ``digits``.
     augment : dict or None
         On-the-fly augmentation of the training batches: a fresh random affine transform
         of every image together with its trajectory (:mod:`img2dmp.data.affine`, the code
@@ -72,6 +76,7 @@ class DataConfig:
     val_samples: int = 1000
     val_fraction: float = 0.1
     digits: list[int] | None = None
+    classes: list[str] | None = None
     augment: dict | None = None
     unlabelled_mnist: str | None = None
     unlabelled_count: int = 20000
@@ -94,6 +99,24 @@ class DataConfig:
             not self.digits or any(not 0 <= int(d) <= 9 for d in self.digits)
         ):
             raise ConfigError(f"data.digits must be a non-empty list of 0-9, got {self.digits!r}")
+        if self.classes is not None:
+            names = self.classes
+            if (
+                not isinstance(names, list)
+                or not names
+                or not all(
+                    isinstance(n, (str, int)) and not isinstance(n, bool) and str(n).strip()
+                    for n in names
+                )
+            ):
+                raise ConfigError(
+                    f"data.classes must be a non-empty list of class names, got {names!r}"
+                )
+            self.classes = [str(n) for n in names]
+            if self.digits is not None:
+                raise ConfigError(
+                    "data.digits and data.classes both select classes; give one of them"
+                )
         self.augment_ranges()  # raises on a bad data.augment
 
     def augment_ranges(self):
