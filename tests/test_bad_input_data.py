@@ -505,7 +505,7 @@ def _ragged(p):
         (lambda d: d["dmp_config"].update(n_dims=True), "n_dims must be a number, got true"),
         (lambda d: d["dmp_config"].update(alpha_z="48"), "alpha_z must be a number, got \"48\""),
         (lambda d: d["dmp_config"].update(speed=2), r"unknown DMP config field\(s\): \['speed'\]"),
-        (lambda d: d["dmp_config"].update(n_kernels=100_000), "at most 200 kernels"),
+        (lambda d: d["dmp_config"].update(n_kernels=100_000), "from 2 to 200, got 100000"),
         (lambda d: d["dmp_config"].update(n_dims=7), "n_dims must be 2 .* or 3"),
         (lambda d: d.update(image_size=[40, True]), r"'image_size' must be \[H, W\]"),
     ],
@@ -576,9 +576,9 @@ def test_a_refused_dmp_write_leaves_the_earlier_file(dmp_doc):
         save_dmp_json(path, good, config, (40, 40), note=float("nan"))
     with pytest.raises(ValueError, match="not plain JSON"):
         save_dmp_json(path, good, config, (40, 40), note=object())
-    with pytest.raises(ValueError, match="at most 200 kernels"):
-        save_dmp_json(path, DMPParams(np.zeros((300, 2)), 1.0, [1.0, 1.0], [0.0, 0.0]),
-                      DMPConfig(n_kernels=300), (40, 40))  # fmt: skip
+    with pytest.raises(ValueError, match="n_dims must be 2 .* or 3"):
+        save_dmp_json(path, DMPParams(np.zeros((25, 4)), 1.0, [1.0] * 4, [0.0] * 4),
+                      DMPConfig(n_dims=4), (40, 40))  # fmt: skip
     assert path.read_bytes() == before
     assert [p.name for p in path.parent.iterdir()] == [path.name]
 
@@ -730,7 +730,7 @@ def test_from_dict_is_strict_and_round_trips():
     ("field", "value", "message"),
     [
         ("n_dims", True, "n_dims must be an integer >= 1, got True"),
-        ("n_kernels", False, "n_kernels must be an integer >= 2, got False"),
+        ("n_kernels", False, "n_kernels must be an integer from 2 to 200, got False"),
         ("alpha_z", "48", "alpha_z must be a number > 0, got '48'"),
         ("alpha_x", b"2", "alpha_x must be a number > 0, got b'2'"),
         ("width_factor", True, "width_factor must be a number > 0, got True"),

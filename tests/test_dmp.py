@@ -258,8 +258,10 @@ def test_bad_input_raises_clear_errors():
         DMPParams(np.full_like(p.w, np.nan), p.tau, p.g, p.y0)
     with pytest.raises(ValueError, match="g has shape"):
         DMPParams(p.w, p.tau, np.zeros(3), p.y0)
-    with pytest.raises(ValueError, match="n_kernels must be an integer >= 2"):
+    with pytest.raises(ValueError, match="n_kernels must be an integer from 2 to 200, got 1"):
         DMPConfig(n_kernels=1)
+    with pytest.raises(ValueError, match="from 2 to 200, got 100000 .the rollout's response"):
+        DMPConfig(n_kernels=100_000)  # refused before any table is built
     with pytest.raises(ValueError, match="strictly increasing"):
         rollout(p.to_torch(), torch.tensor([0.0, 0.5, 0.4]), cfg)
     with pytest.raises(ValueError, match="NaN or inf"):

@@ -72,15 +72,13 @@ import numpy as np
 from .._files import atomic_write_text, check_readable, parse_json
 from ..dmp import DMPConfig, DMPParams, rollout
 from ..dmp.affine import affine_dmp
+from ..dmp.config import MAX_KERNELS
 from ..dmp.params import show_value, strict_numbers
 from .images import ImageFrame
 
 FORMAT = "img2dmp-dmp"
 VERSION = 2
 MAX_FILE_BYTES = 16 << 20
-# The rollout's response table grows with N^2 (about 30 MB and a second to solve at
-# N = 100): far beyond the paper's N = 25, still cheap.
-MAX_KERNELS = 200
 #: Decimals kept of trajectory samples (seconds, pixels); DMP parameters are kept exact.
 TRAJECTORY_DECIMALS = 6
 #: The top-level fields this version defines; any other top-level key is a note.
@@ -207,12 +205,12 @@ def _read_config(path: str, raw) -> DMPConfig:
 
 
 def _check_size_of(path: str, where: str, n_kernels: int, n_dims: int) -> None:
-    if n_kernels > MAX_KERNELS:
+    if n_kernels > MAX_KERNELS:  # (a DMPConfig refuses it too; an old record has none)
         raise _bad(
             path,
             where,
-            f"is invalid: n_kernels is {n_kernels}; a DMP file may have at most "
-            f"{MAX_KERNELS} kernels",
+            f"is invalid: n_kernels is {n_kernels}; a DMP may have at most {MAX_KERNELS} "
+            "kernels",
         )
     if n_dims not in (2, 3):
         raise _bad(
