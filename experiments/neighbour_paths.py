@@ -7,7 +7,8 @@ distance. Printed per digit and overall: the path error of the nearest one (the 
 hypothesis), the best of the first K (K = 1, 2, 4, 5, 8, 16), the same when each
 neighbour's path may also be taken reversed, the Chamfer distance of the nearest one, and
 (where all samples share one time grid, e.g. durations normalised) Table I's error at the
-same time stamps.
+same time stamps. ``--figure PNG`` draws the cases where another writer's path of
+nearly the same curve is furthest from the person's in path error.
 It answers whether a network's best of K is limited by the ambiguity of the images (then
 the neighbours, which copy real writers, do no better) or by the network.
 
@@ -80,9 +81,10 @@ def shares_time_grid(*datasets) -> bool:
     )
 
 
-def references(train, evalset, blur=1.0, points=64, candidates=256) -> dict:
+def references(train, evalset, blur=1.0, points=64, candidates=256) -> tuple[dict, np.ndarray]:
     """``{title: (errors [M, k], chamfer [M])}``: the ranked neighbours' errors against
-    each evaluation sample's path (see the module docstring), k = min(16, candidates)."""
+    each evaluation sample's path (see the module docstring), k = min(16, candidates);
+    and the training row ``[M]`` of each sample's shape oracle (its first-ranked path)."""
     n_cand = min(max(candidates, 1), len(train))
     k = min(max(KS), n_cand)
     idx = nearest(blurred(evalset.images, blur), blurred(train.images, blur), n_cand)
@@ -102,7 +104,31 @@ def references(train, evalset, blur=1.0, points=64, candidates=256) -> dict:
             rows = np.take_along_axis(idx, order, axis=1)[:, :k]  # [M, k]
             diff = train.trajectories[rows] - evalset.trajectories[:, None]  # [M, k, T, 2]
             out[f"Table I's error (px), {what}"] = np.linalg.norm(diff, axis=-1).mean(-1), cham
-    return out
+    return out, idx[np.arange(len(idx)), by_shape[:, 0]]
+
+
+def oracle_figure(path, train, evalset, tables: dict, oracle_rows, n: int = 12) -> None:
+    """The ``n`` evaluation samples whose shape oracle draws the curve most closely
+    (Chamfer < 0.6 px) and is still furthest away in path error: the image with the
+    person's path (blue) and the oracle's, another writer's (red)."""
+    from img2dmp.data.plotting import overlay_figure
+
+    err, cham = tables["path error (px), shape oracle, as written"]
+    close = np.flatnonzero(cham < 0.6)
+    pick = close[np.argsort(-err[close, 0], kind="stable")[:n]]
+    titles = [
+        f"{evalset.label_names[evalset.labels[i]]}: Chamfer {cham[i]:.2f}, path {err[i, 0]:.1f}"
+        for i in pick
+    ]
+    overlay_figure(
+        path,
+        evalset.images[pick],
+        evalset.trajectories[pick],
+        train.trajectories[oracle_rows[pick]],
+        titles,
+        ncols=4,
+        labels=("the person's path", "another writer's, nearest in shape"),
+    )
 
 
 def print_table(title: str, err: np.ndarray, cham: np.ndarray, labels: np.ndarray) -> None:
@@ -122,15 +148,19 @@ def main(argv=None) -> int:
     p.add_argument("--blur", type=float, default=1.0, help="Gaussian blur sigma (px)")
     p.add_argument("--points", type=int, default=64, help="arc-length points per path")
     p.add_argument("--candidates", type=int, default=256, help="image neighbours per image")
+    p.add_argument("--figure", metavar="PNG", help="also draw the shape oracle's cases here")
     args = p.parse_args(argv)
     print(format_record(run_record(__file__, sys.argv[1:] if argv is None else list(argv))))
     data = load_dataset(args.data)
     train, evalset = data.select_split("train"), data.select_split(args.split)
     if not len(train) or not len(evalset):
         raise SystemExit(f"{args.data}: needs samples in the train and {args.split} parts")
-    tables = references(train, evalset, args.blur, args.points, args.candidates)
+    tables, oracle_rows = references(train, evalset, args.blur, args.points, args.candidates)
     for title, (err, cham) in tables.items():
         print_table(title, err, cham, evalset.labels)
+    if args.figure:
+        oracle_figure(args.figure, train, evalset, tables, oracle_rows)
+        print(f"\nwrote {args.figure}")
     return 0
 
 
