@@ -333,7 +333,8 @@ def test_classes_select_classes_by_name_or_refuse(imported):
     from img2dmp.training import TrainConfig
     from img2dmp.training.data import TrainingData
 
-    path, data = imported
+    path, _ = imported
+    data = load_dataset(path)  # (the fixture's copy is shared with tests that edit it)
     cfg = TrainConfig.from_dict(
         {"data": {"path": str(path), "classes": ["T", "L"]}, "progress": False}
     )

@@ -392,11 +392,9 @@ def evaluate(
     n_figures : int
         Samples drawn in ``examples.png`` (chosen at random with ``seed``; 0 = none), at
         most ``MAX_FIGURES``.
-    digits : list of int, optional
-        Keep only these digits (with class names: the classes named after them).
-    classes : list of str, optional
-        Keep only the classes of these names (e.g. ``["L", "T"]`` of a data set made by
-        ``img2dmp import``); not together with ``digits``.
+    digits, classes : list of int, list of str, optional
+        Keep only these digits (with class names: the classes named after them), or the
+        classes of these names (e.g. ``["L", "T"]``); not both.
     refine : int
         Refine every prediction on its image with this many gradient steps
         (:func:`img2dmp.nn.refine.refine`, default options); 0 = the network's output.
@@ -417,11 +415,7 @@ def evaluate(
     n_figures = check_count("n_figures (--figures)", n_figures, 0, MAX_FIGURES)
     batch_size = check_count("batch_size", batch_size, 1, MAX_BATCH_SIZE)
     refine = check_count("refine (--refine)", refine, 0, MAX_REFINE_STEPS)
-    predictor = _load_predictor(model_path, device)
-    if refine:
-        from .nn.refine import RefineOptions
-
-        predictor.refine_options = RefineOptions(steps=int(refine))
+    predictor = _load_predictor(model_path, device, refine)
     data = _evaluation_data(predictor, dataset_path, split, digits, classes)
     y_all, probs = predict_hypotheses(predictor, data.images, data.times, batch_size)
     names = data.class_names
@@ -459,12 +453,17 @@ def _headline(measures: dict, class_names) -> dict:
     return result
 
 
-def _load_predictor(model, device: str = "cpu"):
+def _load_predictor(model, device: str = "cpu", refine: int = 0):
     """A :class:`Predictor` loaded from a path, or ``model`` itself if it is one already
-    (any object with ``trajectories_for_images`` or ``hypothesis_trajectories``)."""
-    if hasattr(model, "trajectories_for_images") or hasattr(model, "hypothesis_trajectories"):
-        return model
-    return Predictor.load(model, device=device)
+    (any object with ``trajectories_for_images`` or ``hypothesis_trajectories``), set to
+    refine its predictions with ``refine`` steps (when not 0)."""
+    if not (hasattr(model, "trajectories_for_images") or hasattr(model, "hypothesis_trajectories")):
+        model = Predictor.load(model, device=device)
+    if refine:
+        from .nn.refine import RefineOptions
+
+        model.refine_options = RefineOptions(steps=int(refine))
+    return model
 
 
 def _evaluation_data(predictor: Predictor, dataset_path, split: str, digits, classes=None):

@@ -209,8 +209,7 @@ def _check_size_of(path: str, where: str, n_kernels: int, n_dims: int) -> None:
         raise _bad(
             path,
             where,
-            f"is invalid: n_kernels is {n_kernels}; a DMP may have at most {MAX_KERNELS} "
-            "kernels",
+            f"is invalid: n_kernels is {n_kernels}; a DMP may have at most {MAX_KERNELS} kernels",
         )
     if n_dims not in (2, 3):
         raise _bad(
