@@ -17,7 +17,9 @@ its own duration (tau in [2.5, 3.5] s), loss = sum of squared positions.
 5. The harness alone: a "rollout" that copies a stored output and stored gradients, so
    that only the leaf copies, autograd and the loss are timed: what every method above
    pays besides its own work, and so a bound on the ratios (its error column is that of
-   the stored fused output).
+   the stored fused output). And the fused kernels alone (forward and backward called
+   directly, no checks, autograd or loss): the fused rollout's own maths. The fused
+   rollout's time less these two is its glue (checks, conversions, autograd nodes).
 
 Each method's largest deviation from a scipy ``solve_ivp`` solution (rtol 1e-10) of the
 first 4 samples is printed too: speed is only worth comparing at equal accuracy.
@@ -243,6 +245,26 @@ def harness_floor(cfg, p: DMPParams, t: torch.Tensor):
     return forward_backward(lambda q, tt: _Replay.apply(q.tau, q.w, q.g, q.y0, stored), p, t)
 
 
+def kernels_alone(cfg, p: DMPParams, t: torch.Tensor):
+    """The fused forward and backward kernels called directly on ready arrays (no checks,
+    no autograd, no loss; the gradient of sum(y^2)): what the fused rollout's own maths
+    costs."""
+    dtype = p.w.dtype
+    inv_h, s_max, one, tab = _rollout._kernel_table(cfg, dtype)
+    arrays = [a.detach().numpy() for a in (t, p.tau, p.w, p.g, p.y0)]
+    y = np.empty((*t.shape, p.w.shape[-1]), tab.dtype)
+    grads = [np.empty(a.shape, tab.dtype) for a in (arrays[2], arrays[1], arrays[3], arrays[4])]
+    scaled = cfg.scaling == "goal-start"
+
+    def run():
+        forward, backward = _rollout._fused_kernels(tab, t.shape[0], p.w.shape[-1])
+        forward(*arrays, tab, inv_h, s_max, one, scaled, y)
+        backward(2 * y, *arrays, tab, inv_h, s_max, one, scaled, *grads, True)
+        return torch.from_numpy(y)
+
+    return run
+
+
 def build_methods(cfg, p_np, t_np):
     """The timed methods, and the thread counts of those that run at a fixed one."""
     methods, threads = {}, {}
@@ -265,6 +287,7 @@ def build_methods(cfg, p_np, t_np):
         methods[name] = forward_backward(lambda q, tt, fn=fn: fn(q, tt, cfg), p, t)
     p, t = p_np.to_torch(torch.float64), torch.as_tensor(t_np, dtype=torch.float64)
     methods["harness alone: a rollout taking no time (float64)"] = harness_floor(cfg, p, t)
+    methods["fused kernels alone, no autograd (float64)"] = kernels_alone(cfg, p, t)
     return methods, threads
 
 
@@ -354,7 +377,9 @@ def print_table(rows, per_round, cfg, p_np, t_np, args):
         f"float64 {ratio(f'{euler} (float64)', f'{fused} (float64)')} "
         "(target >= 100x)"
         f"\n  the float64 Euler loop against the harness alone (a rollout taking no time): "
-        f"{ratio(f'{euler} (float64)', 'harness alone: a rollout taking no time (float64)')}"
+        f"{ratio(f'{euler} (float64)', 'harness alone: a rollout taking no time (float64)')}, "
+        f"against the fused kernels alone: "
+        f"{ratio(f'{euler} (float64)', 'fused kernels alone, no autograd (float64)')}"
         f"\ntorch-operations rollout, same comparison:"
         f"\n  float32 {ratio(f'{euler} (float32)', 'fast rollout, torch (float32)')}, "
         f"float64 {ratio(f'{euler} (float64)', 'fast rollout, torch (float64)')}"
