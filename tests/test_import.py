@@ -353,6 +353,75 @@ def test_classes_select_classes_by_name_or_refuse(imported):
         TrainingData(generator)
 
 
+def _recordings(root: Path, n: int = 6) -> tuple[Path, Path, Path]:
+    """``n`` L and T images in ``root/photos``, recorded as the Record page of ``img2dmp
+    serve --images`` writes (``root/rec/image_<k>.json``: corner convention, milliseconds,
+    ``"Strokes"``, digit 1 for L and 7 for T), and the same samples as a manifest of
+    JSON strokes (pixel centres, seconds)."""
+    photos, rec = root / "photos", root / "rec"
+    photos.mkdir(parents=True)
+    rec.mkdir()
+    rows = ["image,trajectory,class"]
+    for k in range(n):
+        name, digit = ("L", 1) if k % 2 == 0 else ("T", 7)
+        im, strokes = _draw(name, k, np.random.default_rng(k))
+        im.save(photos / f"{name}{k}.png")
+        timed = _timed(strokes)
+        _write_trajectory(photos / f"{name}{k}", timed, "json-strokes")
+        rows.append(f"photos/{name}{k}.png,photos/{name}{k}.json,{digit}")
+        points = [(x + 0.5, y + 0.5, 1000 * (t - timed[0][1][0])) for s, ts in timed
+                  for (x, y), t in zip(s, ts, strict=True)]  # fmt: skip
+        ends = np.cumsum([len(s) for s, _ in timed])
+        doc = {
+            "Image number": k,
+            "Image shape": digit,
+            "Path": ", ".join(f"[{float(x)!r}, {float(y)!r}, {float(t)!r}]" for x, y, t in points),
+            "Strokes": [
+                [int(e - len(s)), int(e - 1)] for e, (s, _) in zip(ends, timed, strict=True)
+            ],
+            "Image file": f"{name}{k}.png",
+            "Image size": [im.height, im.width],
+        }
+        (rec / f"image_{k}.json").write_text(json.dumps(doc))
+    (root / "manifest.csv").write_text("\n".join(rows) + "\n")
+    return rec, photos, root / "manifest.csv"
+
+
+def test_recordings_of_your_own_images_import_like_the_same_paths_in_seconds(tmp_path):
+    rec, photos, manifest = _recordings(tmp_path)
+    options = ImportOptions(seed=5, augment=1)
+    recorded = import_dataset(rec, options, images=photos)
+    listed = import_dataset(manifest, options)
+    assert recorded.class_names is None and sorted(set(recorded.labels.tolist())) == [1, 7]
+    assert recorded.trajectories.shape[-1] == 3  # the T's two strokes need the pen channel
+    np.testing.assert_array_equal(recorded.labels, listed.labels)
+    np.testing.assert_array_equal(recorded.split, listed.split)
+    np.testing.assert_array_equal(recorded.images, listed.images)
+    np.testing.assert_allclose(recorded.trajectories, listed.trajectories, atol=1e-4)
+    np.testing.assert_allclose(recorded.times, listed.times, atol=1e-6)
+
+
+def test_recordings_need_their_images_and_say_what_is_wrong(tmp_path, capsys):
+    rec, photos, _ = _recordings(tmp_path, n=2)
+    with pytest.raises(ValueError, match=r"holds recordings .* --images DIR"):
+        import_dataset(rec)
+    with pytest.raises(ValueError, match="holds no recordings"):
+        import_dataset(tmp_path / "photos", images=photos)
+    doc = json.loads((rec / "image_1.json").read_text())
+    doc["Strokes"] = [[0, 5], [3, 9]]  # overlapping strokes
+    (rec / "image_1.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=r"image_1.json: \"Strokes\" entry 1 is \[3, 9\]"):
+        import_dataset(rec, images=photos)
+    del doc["Image file"], doc["Strokes"]  # a recording of an MNIST image
+    (rec / "image_1.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match="records MNIST image 1 .*img2dmp prepare --recorded"):
+        import_dataset(rec, images=photos)
+    out = tmp_path / "mine.safetensors"
+    argv = ["import", str(rec), "--images", str(photos), "--out", str(out), "--no-progress"]
+    assert cli.main([*argv, "--skip-bad"]) == 0
+    assert "skipped: " in capsys.readouterr().out and len(load_dataset(out)) == 1
+
+
 # --- the whole chain on the command line ----------------------------------------------
 
 

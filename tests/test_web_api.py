@@ -485,6 +485,24 @@ def test_a_folder_recording_needs_a_label_and_names_its_file(serve, png_dir):
     assert parse_recorded(json.dumps(doc), "image_1.json").label == 4
 
 
+def test_recordings_of_a_folder_import_as_a_data_set(serve, png_dir):
+    from img2dmp.data.importer import ImportOptions, import_dataset
+
+    c = serve(images=png_dir)
+    xy = _zigzag(1) * 1.5 + 0.5  # the drawn zigzag, in the corner convention
+    t = 1000.0 + 16.0 * np.arange(len(xy))
+    t[25:] += 300.0  # two strokes
+    pts = np.column_stack([xy, t]).round(3).tolist()
+    for n in range(3):
+        body = {"image": n, "strokes": [pts[:25], pts[25:]], "label": 4}
+        assert c.post("/api/recordings", json=body).status_code == 201
+    data_dir = Path(c.app.state.img2dmp.recordings.data_dir)
+    data = import_dataset(data_dir, ImportOptions(seed=0), images=png_dir)
+    assert len(data) == 3 and set(data.labels.tolist()) == {4}
+    assert data.trajectories.shape[-1] == 3  # x, y and the pen of the two strokes
+    assert data.meta["fit"]["mean_error_px"] < 0.5
+
+
 def test_concurrent_recordings_all_land_and_one_image_is_written_once(serve, mnist_dir):
     c = serve(mnist=mnist_dir)
     data_dir = Path(c.app.state.img2dmp.recordings.data_dir)

@@ -8,8 +8,10 @@ trajectory file of the same name:
   letters/T/001.png  letters/T/001.json ...
 
 or a manifest: a CSV file with the header image,trajectory,class[,split] (or a JSON list
-of such objects), paths relative to the manifest. Trajectories are in pixels of their own
-image, x = column and y = row (y down), t in seconds (--time-unit ms: milliseconds):
+of such objects), paths relative to the manifest; or a folder of recordings made on the
+Record page of `img2dmp serve --images DIR` (image_<n>.json) with --images DIR.
+Trajectories are in pixels of their own image, x = column and y = row (y down), t in
+seconds (--time-unit ms: milliseconds):
 CSV with the header x,y,t or x,y,t,pen (pen 1 down, 0 up: any number of strokes), JSON
 {"x": [...], "y": [...], "t": [...]} (optionally "pen") or a list of strokes, NumPy .npy
 [T, 3] or [T, 4]. Formats and checks: docs/DATASET.md.
@@ -34,6 +36,7 @@ val_fraction, test_fraction, classes, min_on_ink, stroke_width_px) come from the
 
   img2dmp import letters --out letters.safetensors --augment 10
   img2dmp import manifest.csv --out shapes.safetensors --classes circle,square --dims 3
+  img2dmp import recordings --images photos --out mine.safetensors
 """
 
 from __future__ import annotations
@@ -103,7 +106,16 @@ def _classes(text: str) -> list[str]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "source", metavar="SOURCE", help="folder of class folders, or a .csv / .json manifest"
+        "source",
+        metavar="SOURCE",
+        help="folder of class folders, a .csv / .json manifest, or a folder of recordings "
+        "(with --images)",
+    )
+    p.add_argument(
+        "--images",
+        metavar="DIR",
+        help="with a SOURCE folder of recordings made on img2dmp serve's Record page "
+        "(image_<n>.json): the folder of the images they trace (serve's --images)",
     )
     p.add_argument("--out", "-o", required=True, metavar="FILE", help="output .safetensors file")
     _args.add_force(p, "--out file")
@@ -199,7 +211,13 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--out {args.out} is the source itself; name another file")
     options = import_options(args)
     _args.check_outputs([(args.out, None)], args.force)
-    data = import_dataset(source, options, progress=not args.no_progress, skip_bad=args.skip_bad)
+    data = import_dataset(
+        source,
+        options,
+        progress=not args.no_progress,
+        skip_bad=args.skip_bad,
+        images=args.images,
+    )
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     save_new_dataset(out, data, args.force)

@@ -15,6 +15,9 @@ pen path that wrote it. :func:`import_dataset` reads them from
 - a **manifest**, a CSV file with the header ``image,trajectory,class`` and optionally
   ``split`` (``train``, ``validation`` or ``test``), or a JSON list of objects with those
   keys. Paths are relative to the manifest's folder (or absolute).
+- a **folder of recordings** made on the Record page of ``img2dmp serve --images DIR``
+  (``image_<n>.json``, each naming its ``"Image file"`` and digit), with ``images``, the
+  folder of the images they trace.
 
 **Trajectory files** (:func:`read_trajectory`), in pixels of the sample's own image:
 x = column, y = row (y points down), the centre of pixel ``[i, j]`` at ``(x=j, y=i)``;
@@ -26,7 +29,10 @@ t in seconds (``time_unit="ms"``: milliseconds), strictly increasing.
 - JSON: ``{"x": [...], "y": [...], "t": [...]}`` (optionally ``"pen": [...]``), or a list
   of strokes, each ``{"x": [...], "y": [...], "t": [...]}`` or a list of ``[x, y, t]``
   points (the pen is lifted between strokes), or ``{"strokes": [...]}``;
-- NumPy ``.npy``: ``[T, 3]`` (x, y, t) or ``[T, 4]`` (x, y, t, pen).
+- NumPy ``.npy``: ``[T, 3]`` (x, y, t) or ``[T, 4]`` (x, y, t, pen);
+- a recording in the recorded-path format (:mod:`img2dmp.data.recorded`: a JSON object
+  with ``"Path"``, times in milliseconds, the image covering ``[0, W] x [0, H]``, and
+  optionally ``"Strokes"``, the pen-down spans), read in its own units and frame.
 
 **What happens to a sample** (:func:`import_samples`):
 
@@ -70,6 +76,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+import re
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -82,6 +89,7 @@ from ..dmp import DMPConfig
 from ..metrics import on_ink_share
 from .affine import AffineRanges, sample_affine, warp_images, warp_points
 from .images import DEFAULT_MARGIN, OUTPUT_SIDE_PX, ImageFrame, prepare_image_framed
+from .recorded import parse_recorded
 from .store import (
     DIGIT_NAMES,
     MAX_CLASS_NAME_CHARS,
@@ -102,6 +110,10 @@ MAX_POINTS = 1_000_000
 MAX_TRAJECTORY_BYTES = 256 << 20
 #: Most affine copies per training sample.
 MAX_AUGMENT = 1000
+#: A recording's file name (``img2dmp serve``'s Record page, the shared recordings).
+RECORDING_NAME = re.compile(r"image_(\d+)\.json")
+# A trajectory reader's column flag: its t is in seconds whatever the time unit asked.
+_T_IN_SECONDS = "t in seconds"
 
 
 @dataclass
@@ -322,7 +334,8 @@ def read_trajectory(path: str | os.PathLike, time_unit: str = "s") -> PenPath:
             f"{path}: not a trajectory file (expected one of {', '.join(TRAJECTORY_SUFFIXES)})"
         )
     columns, point_name = read(path)
-    return _pen_path(path, columns, point_name, TIME_UNITS[time_unit])
+    unit_s = 1.0 if columns.pop(_T_IN_SECONDS, None) is not None else TIME_UNITS[time_unit]
+    return _pen_path(path, columns, point_name, unit_s)
 
 
 def _point_k(k: int) -> str:
@@ -434,6 +447,8 @@ def _read_json_trajectory(path: Path):
     """The columns of a JSON trajectory, and how to name a point (``point 4``, or in a list
     of strokes ``stroke 1 point 4``)."""
     doc = _load_json(path)
+    if isinstance(doc, dict) and "Path" in doc:
+        return _recording_columns(path, doc)
     if isinstance(doc, dict) and "strokes" in doc:
         if set(doc) != {"strokes"}:
             raise ValueError(f"{path}: has keys {sorted(doc)}; with 'strokes' no other key")
@@ -455,6 +470,32 @@ def _read_json_trajectory(path: Path):
         return f"stroke {s} point {k - int(starts[s])}"
 
     return cols, point_name
+
+
+def _recording_columns(path: Path, doc: dict):
+    """The columns of a recording in the recorded-path format (:mod:`.recorded`: the
+    shared recordings, or ``img2dmp serve``'s Record page): its corner-convention points
+    moved to pixel centres, its milliseconds to seconds, its ``"Strokes"`` (pen-down
+    spans ``[first, last]`` of point indices; one stroke without them) to strokes."""
+    rec = parse_recorded(doc, str(path))
+    n = len(rec.xy)
+    spans = doc.get("Strokes")
+    stroke = np.zeros(n, np.int64) if spans is None else np.full(n, -1, np.int64)
+    if spans is not None and (not isinstance(spans, list) or not spans):
+        raise ValueError(f'{path}: "Strokes" must be a non-empty list of [first, last] points')
+    last = -1
+    for k, span in enumerate(spans or []):
+        ok = isinstance(span, list) and len(span) == 2
+        ok = ok and all(isinstance(v, int) and not isinstance(v, bool) for v in span)
+        if not ok or not last < span[0] < span[1] < n:
+            raise ValueError(
+                f'{path}: "Strokes" entry {k} is {span!r}; expected [first, last] point '
+                f"indices with {last} < first < last < {n}"
+            )
+        stroke[span[0] : span[1] + 1] = k
+        last = span[1]
+    cols = {"x": rec.xy[:, 0], "y": rec.xy[:, 1], "t": rec.t_s, "stroke": stroke}
+    return {**cols, _T_IN_SECONDS: np.ones(1)}, _point_k
 
 
 def _read_npy_trajectory(path: Path):
@@ -559,9 +600,10 @@ class SampleSource:
 
 
 def find_samples(
-    source: str | os.PathLike, *, skip_bad: bool = False
+    source: str | os.PathLike, *, skip_bad: bool = False, images: str | os.PathLike | None = None
 ) -> tuple[list[SampleSource], list[str]]:
-    """The samples of a folder of class folders or of a manifest (module docstring).
+    """The samples of a folder of class folders, of a manifest, or of a folder of
+    recordings with the folder of the images they trace (``images``; module docstring).
 
     Returns the samples and, with ``skip_bad``, the one-line errors of the files that make
     no sample (an image without trajectory, a stray file, a bad manifest row); without it
@@ -571,7 +613,15 @@ def find_samples(
     source = Path(source)
     if not source.exists():
         raise FileNotFoundError(f"import source {source} does not exist")
-    if source.is_dir():
+    recordings = _recordings_in(source)
+    if images is not None and not recordings:
+        raise ValueError(
+            f"{source}: holds no recordings (image_<n>.json); --images goes with a folder of "
+            "recordings made by img2dmp serve --images"
+        )
+    if recordings:
+        samples, problems = _recording_samples(source, recordings, images)
+    elif source.is_dir():
         samples, problems = _folder_samples(source)
     elif source.suffix.lower() in (".csv", ".json"):
         samples, problems = _manifest_samples(source)
@@ -582,6 +632,50 @@ def find_samples(
     if problems and not skip_bad:
         raise problems[0]
     return samples, [str(e) for e in problems]
+
+
+def _recordings_in(source: Path) -> list[Path]:
+    """The recordings (``image_<n>.json``) of a folder that holds no class folders."""
+    if not source.is_dir():
+        return []
+    entries = [p for p in sorted(source.iterdir()) if not p.name.startswith(".")]
+    if any(p.is_dir() for p in entries):
+        return []
+    return [p for p in entries if RECORDING_NAME.fullmatch(p.name)]
+
+
+def _recording_samples(root: Path, files: list[Path], images) -> tuple[list, list]:
+    """The samples of a folder of recordings of the images in ``images`` (the Record page
+    of ``img2dmp serve --images DIR``): each names its image (``"Image file"``) and its
+    digit (``"Image shape"``, the class)."""
+    if images is None:
+        raise ValueError(
+            f"{root}: holds recordings (image_<n>.json); give the folder of the images they "
+            "trace with --images DIR (the folder given to img2dmp serve --images)"
+        )
+    images = Path(images)
+    if not images.is_dir():
+        raise FileNotFoundError(f"images folder {images} does not exist")
+    samples, problems = [], []
+    for p in files:
+        try:
+            doc = _load_json(p)
+            if not isinstance(doc, dict):
+                raise ValueError(f"{p}: expected a recording (a JSON object)")
+            name, label = doc.get("Image file"), doc.get("Image shape")
+            if name is None:
+                raise ValueError(
+                    f'{p}: records MNIST image {doc.get("Image number")!r} (no "Image file"); '
+                    f"make a data set of MNIST recordings with img2dmp prepare --recorded {root}"
+                )
+            if not isinstance(name, str) or not name or Path(name).name != name:
+                raise ValueError(f'{p}: "Image file" must be a file name, got {name!r}')
+            if not isinstance(label, int) or isinstance(label, bool) or not 0 <= label <= 9:
+                raise ValueError(f'{p}: "Image shape" (the digit) must be 0-9, got {label!r}')
+            samples.append(SampleSource(images / name, p, str(label)))
+        except (ValueError, OSError) as e:
+            problems.append(e)
+    return samples, problems
 
 
 def _folder_samples(root: Path) -> tuple[list[SampleSource], list[Exception]]:
@@ -1070,9 +1164,11 @@ def import_dataset(
     *,
     progress: bool = False,
     skip_bad: bool = False,
+    images: str | os.PathLike | None = None,
 ) -> DigitData:
-    """Your images and pen paths, from a folder of class folders or a manifest, as a data
-    set (see the module docstring for the layout, the formats and the checks).
+    """Your images and pen paths, from a folder of class folders, a manifest, or a folder
+    of recordings and the folder of their ``images``, as a data set (see the module
+    docstring for the layout, the formats and the checks).
 
     ``img2dmp import SOURCE --out FILE`` runs this and saves the result with
     :func:`img2dmp.data.store.save_dataset`. Raises ``ValueError`` or
@@ -1080,7 +1176,7 @@ def import_dataset(
     sample, unless ``skip_bad``: then bad samples are left out and listed in
     ``meta["source"]["skipped"]``.
     """
-    samples, skipped = find_samples(source, skip_bad=skip_bad)
+    samples, skipped = find_samples(source, skip_bad=skip_bad, images=images)
     return import_samples(
         samples, options, source=source, progress=progress, skip_bad=skip_bad, skipped=skipped
     )
