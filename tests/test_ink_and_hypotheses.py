@@ -126,6 +126,25 @@ def test_winner_takes_all_learns_from_the_nearest_hypothesis_and_scores_it():
     assert y_top.shape == (4, 50, 2)
 
 
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("steps", 2.5, "refine steps must be an integer from 0 to 10000, got 2.5"),
+        ("steps", "30", "refine steps must be an integer from 0 to 10000, got '30'"),
+        ("steps", 10**9, "from 0 to 10000, got 1000000000"),
+        ("steps", True, "got True"),
+        ("lr", -0.1, "refine lr must be"),
+        ("coverage_tolerance_px", 0.0, "refine coverage_tolerance_px must be a finite number > 0"),
+    ],
+)
+def test_refine_options_are_checked_where_they_are_made(field, value, message):
+    from img2dmp.nn.refine import RefineOptions
+
+    with pytest.raises(ValueError, match=message.replace("(", r"\(")):
+        RefineOptions(**{field: value})
+    assert RefineOptions(steps=np.int64(3)).steps == 3  # NumPy integers are integers
+
+
 def test_refinement_pulls_a_dmp_onto_the_ink_and_the_prior_holds_it_back():
     from img2dmp.dmp import fit_dmp
     from img2dmp.nn.refine import RefineOptions, refine

@@ -68,12 +68,10 @@ from .nn import ModelConfig, ParamNormaliser, build_model
 from .nn.device import place_model
 from .nn.inference import dmp_trajectories, network_outputs, rollout_outputs
 from .nn.model import split_hypotheses
-from .nn.refine import RefineOptions, refine
+from .nn.refine import MAX_REFINE_STEPS, RefineOptions, refine
 
 #: Instants over a DMP's duration at which refinement compares its path with the ink.
 REFINE_POINTS = 100
-#: Most refinement steps per prediction (``--refine``; 30 is the default of refine).
-MAX_REFINE_STEPS = 10_000
 #: Largest batch the network is run on at once.
 MAX_BATCH_SIZE = 1 << 20
 #: Most samples of one trajectory (``n_points``, ``img2dmp predict --points``): a record

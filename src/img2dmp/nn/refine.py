@@ -14,6 +14,7 @@ move its shape onto the strokes. Adam, a fixed number of steps, no network invol
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 
 import torch
@@ -23,6 +24,9 @@ from ..dmp import DMPConfig
 from .costs import dmp_trajectory
 from .ink import ink_attraction, ink_coverage, ink_distance_map
 from .normalise import ParamNormaliser
+
+#: Most refinement steps per prediction (``--refine``; 30 is the default).
+MAX_REFINE_STEPS = 10_000
 
 
 @dataclass(frozen=True)
@@ -42,10 +46,15 @@ class RefineOptions:
     coverage_tolerance_px: float = 1.0
 
     def __post_init__(self) -> None:
-        if isinstance(self.steps, bool) or int(self.steps) < 0:
-            raise ValueError(f"refine steps must be an integer >= 0, got {self.steps!r}")
+        steps = self.steps
+        integer = isinstance(steps, numbers.Integral) and not isinstance(steps, bool)
+        if not integer or not 0 <= steps <= MAX_REFINE_STEPS:
+            raise ValueError(
+                f"refine steps must be an integer from 0 to {MAX_REFINE_STEPS}, got {steps!r}"
+            )
         for name in ("lr", "prior_weight", "ink_weight", "coverage_weight"):
             check_positive(f"refine {name}", getattr(self, name), allow_zero=True)
+        check_positive("refine coverage_tolerance_px", self.coverage_tolerance_px)
 
 
 def refine(
