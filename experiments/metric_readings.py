@@ -17,7 +17,7 @@ For errors of equal size in both coordinates the four stand roughly as 1 : 0.64 
 
 Usage::
 
-    python experiments/metric_readings.py RUN DATA.safetensors [--split test]
+    python experiments/metric_readings.py RUN DATA.safetensors [--split test] [--digits 2]
 """
 
 from __future__ import annotations
@@ -66,6 +66,7 @@ def main(argv=None) -> int:
     p.add_argument("model", help="run directory or checkpoint")
     p.add_argument("data", help="data-set file")
     p.add_argument("--split", default="auto", choices=("auto", "all", "test", "validation"))
+    p.add_argument("--digits", help="only these digits, e.g. 2 or 3,5 (default: all)")
     args = p.parse_args(argv)
     print(format_record(run_record(__file__, sys.argv[1:] if argv is None else list(argv))))
     data = load_dataset(args.data)
@@ -74,6 +75,9 @@ def main(argv=None) -> int:
         split = "test" if (data.split == 2).any() else "all"
     if split != "all":
         data = data.select_split(split)
+    if args.digits:
+        wanted = [int(d) for d in args.digits.split(",")]
+        data = data.subset(np.isin(data.labels, data.labels_of_digits(wanted)))
     y = Predictor.load(args.model).trajectories_for_images(data.images, data.times)
     print(f"{args.model} on {len(data)} samples of {args.data} [{split}]:")
     for name, e in readings(y, data.trajectories).items():
