@@ -432,6 +432,7 @@ def test_import_train_evaluate_predict_on_the_command_line(letters, tmp_path, ca
     assert f"wrote {data}: 24 samples" in out and "classes: L 6, O 6, T 6, V 6" in out
     assert "note:" not in out and "skipped" not in out
     train = ["train", "--data", str(data), "--run-dir", str(run), "--epochs", "2"]
+    train += ["--classes", "V,T,O,L"]  # every class, by name (in any order)
     train += ["--no-progress", "--set", "threads=1", "optim.batch_size=8"]
     train += ["model.encoder_layers=[64, 20]", "model.decoder_layers=[35]"]
     assert cli.main(train) == 0, capsys.readouterr().err
