@@ -469,13 +469,10 @@ def _load_predictor(model, device: str = "cpu", refine: int = 0):
 def _evaluation_data(predictor: Predictor, dataset_path, split: str, digits, classes=None):
     """The samples of ``split`` (and ``digits`` or ``classes``) of a data set, checked
     against the model."""
-    if digits is not None and classes is not None:
-        raise ValueError("digits and classes both select classes; give one of them")
     data = _pick_split(load_dataset(dataset_path), split)
-    if digits is not None:
-        data = data.subset(np.isin(data.labels, data.labels_of_digits(digits)))
-    elif classes is not None:
-        data = data.subset(np.isin(data.labels, data.labels_of_classes(classes)))
+    wanted = data.labels_selected(digits, classes)
+    if wanted is not None:
+        data = data.subset(np.isin(data.labels, wanted))
     if len(data) == 0:
         raise ValueError(
             f"data set {dataset_path} has no samples in split {split!r}"

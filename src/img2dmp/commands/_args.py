@@ -85,13 +85,13 @@ def add_digits(p: argparse.ArgumentParser, help: str) -> None:
     )
 
 
-def parse_classes(text: str | Iterable[str]) -> tuple[str, ...]:
-    """Class names written ``"L,T"``, ``"L T"`` or as several arguments; repeats dropped."""
-    texts = [text] if isinstance(text, str) else list(text)
-    names = [n for t in texts for n in str(t).replace(",", " ").split()]
-    if not names:
-        raise ValueError("must name at least one class, e.g. L,T")
-    return tuple(dict.fromkeys(names))
+def parse_classes(text: str) -> list[str]:
+    """An argparse ``type``: class names separated by commas, in order (a name may hold
+    spaces: ``"big circle,square"``)."""
+    names = [n.strip() for n in text.split(",")]
+    if not all(names):
+        raise argparse.ArgumentTypeError(f"must be class names separated by commas, got {text!r}")
+    return names
 
 
 def add_digits_or_classes(p: argparse.ArgumentParser, digits_help: str, classes_help: str):
@@ -106,7 +106,7 @@ def add_digits_or_classes(p: argparse.ArgumentParser, digits_help: str, classes_
         action=_DigitsAction,
         metavar="NAMES",
         help=f"{classes_help}; written L,T or L T (the names of a data set made by "
-        "img2dmp import; for digits the same as --digits)",
+        "img2dmp import, separated by commas; for digits the same as --digits)",
     )
 
 

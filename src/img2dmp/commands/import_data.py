@@ -96,14 +96,6 @@ def _fraction(text: str) -> float:
     return v
 
 
-def _classes(text: str) -> list[str]:
-    """An argparse ``type``: class names separated by commas, in label order."""
-    names = [n.strip() for n in text.split(",")]
-    if not all(names):
-        raise argparse.ArgumentTypeError(f"must be class names separated by commas, got {text!r}")
-    return names
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "source",
@@ -170,7 +162,7 @@ def _options(p: argparse.ArgumentParser) -> None:
         "--classes",
         "class names in label order, e.g. L,T,V,O; a sample of another class is refused",
         "the classes found, sorted",
-        type=_classes,
+        type=_args.parse_classes,
         metavar="NAMES",
     )
     add(

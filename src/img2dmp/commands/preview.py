@@ -76,11 +76,8 @@ def _shown_labels(data, args) -> list[int]:
     """The labels of the classes to show: --digits or --classes by name, else all."""
     import numpy as np
 
-    if args.digits is not None:
-        return data.labels_of_digits(args.digits).tolist()
-    if args.classes is not None:
-        return data.labels_of_classes(args.classes).tolist()
-    return np.unique(data.labels).tolist()
+    wanted = data.labels_selected(args.digits, args.classes)
+    return (np.unique(data.labels) if wanted is None else wanted).tolist()
 
 
 def _samples(args, rng):
@@ -93,14 +90,12 @@ def _samples(args, rng):
         data = load_dataset(args.data)
         return data.select_split(args.split) if args.split else data
     from ..data.plotting import check_grid_size
+    from ..data.store import digits_named
     from ..data.synthetic import SyntheticConfig, generate
 
     digits = args.digits or tuple(range(10))
     if args.classes is not None:
-        bad = [c for c in args.classes if not (c.isdecimal() and len(c) == 1)]
-        if bad:
-            raise ValueError(f"--classes: fresh synthetic samples are digits 0-9, not {bad}")
-        digits = tuple(int(c) for c in args.classes)
+        digits = digits_named(args.classes, "--classes")
     # before the samples are made: a grid too large to draw is refused at once
     check_grid_size(args.per_digit * len(digits), "--per-digit x digits")
     config = SyntheticConfig(digits=digits, image_size=(args.image_size, args.image_size))

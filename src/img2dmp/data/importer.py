@@ -112,8 +112,6 @@ MAX_TRAJECTORY_BYTES = 256 << 20
 MAX_AUGMENT = 1000
 #: A recording's file name (``img2dmp serve``'s Record page, the shared recordings).
 RECORDING_NAME = re.compile(r"image_(\d+)\.json")
-# A trajectory reader's column flag: its t is in seconds whatever the time unit asked.
-_T_IN_SECONDS = "t in seconds"
 
 
 @dataclass
@@ -333,8 +331,10 @@ def read_trajectory(path: str | os.PathLike, time_unit: str = "s") -> PenPath:
         raise ValueError(
             f"{path}: not a trajectory file (expected one of {', '.join(TRAJECTORY_SUFFIXES)})"
         )
-    columns, point_name = read(path)
-    unit_s = 1.0 if columns.pop(_T_IN_SECONDS, None) is not None else TIME_UNITS[time_unit]
+    # A reader returns the columns and how to name a point, and the seconds per unit of
+    # its t when its format fixes them (a recording: milliseconds, already converted).
+    columns, point_name, *own_unit_s = read(path)
+    unit_s = own_unit_s[0] if own_unit_s else TIME_UNITS[time_unit]
     return _pen_path(path, columns, point_name, unit_s)
 
 
@@ -495,7 +495,7 @@ def _recording_columns(path: Path, doc: dict):
         stroke[span[0] : span[1] + 1] = k
         last = span[1]
     cols = {"x": rec.xy[:, 0], "y": rec.xy[:, 1], "t": rec.t_s, "stroke": stroke}
-    return {**cols, _T_IN_SECONDS: np.ones(1)}, _point_k
+    return cols, _point_k, 1.0  # t in seconds whatever --time-unit says
 
 
 def _read_npy_trajectory(path: Path):

@@ -92,6 +92,15 @@ def content_digest(meta_text: str, arrays: dict) -> str:
     return h.hexdigest()
 
 
+def digits_named(names, what: str) -> tuple[int, ...]:
+    """The digits that class names ``"0"`` .. ``"9"`` stand for (classes where only digits
+    exist, e.g. of the synthetic generator); ``ValueError`` naming ``what`` otherwise."""
+    bad = [str(n) for n in names if str(n) not in DIGIT_NAMES]
+    if bad:
+        raise ValueError(f"{what}: the synthetic generator draws digits 0-9, not {bad}")
+    return tuple(int(n) for n in names)
+
+
 def check_class_names(names, where: str = "data set") -> tuple[str, ...]:
     """``names`` as a tuple if it is a list of 1 to ``MAX_CLASSES`` distinct class names,
     each a non-empty string of at most ``MAX_CLASS_NAME_CHARS`` printable characters
@@ -199,6 +208,16 @@ class DigitData:
         or ``["2"]`` for a data set of digits); a name that is no class of the data set
         raises :class:`DatasetError` listing its classes."""
         return self._labels_named([str(n) for n in names], "")
+
+    def labels_selected(self, digits=None, classes=None) -> np.ndarray | None:
+        """The labels ``digits`` (:meth:`labels_of_digits`) or ``classes``
+        (:meth:`labels_of_classes`) select, or None when neither is given; both at once
+        raise ``ValueError``."""
+        if digits is not None and classes is not None:
+            raise ValueError("digits and classes both select classes; give one of them")
+        if digits is not None:
+            return self.labels_of_digits(digits)
+        return None if classes is None else self.labels_of_classes(classes)
 
     def _labels_named(self, names: list[str], hint: str) -> np.ndarray:
         known = self.label_names

@@ -17,7 +17,7 @@ import torch
 from .._files import file_digest
 from ..config import ConfigError
 from ..data.images import ink_margin, typical_stroke_width
-from ..data.store import DIGIT_NAMES, DigitData, load_dataset
+from ..data.store import DigitData, digits_named, load_dataset
 from ..dmp import DMPConfig
 from ..nn import ParamNormaliser
 from ..nn.costs import ParameterWeighting
@@ -85,11 +85,8 @@ def _split_indices(a: DigitData, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarr
     are digits, or in a data set with class names the classes named after them;
     ``data.classes`` are class names)."""
     d = cfg.data
-    keep = np.ones(len(a.labels), dtype=bool)
-    if d.digits is not None:
-        keep = np.isin(a.labels, a.labels_of_digits(d.digits))
-    elif d.classes is not None:
-        keep = np.isin(a.labels, a.labels_of_classes(d.classes))
+    wanted = a.labels_selected(d.digits, d.classes)
+    keep = np.ones(len(a.labels), dtype=bool) if wanted is None else np.isin(a.labels, wanted)
     train_idx = np.flatnonzero(keep & (a.split == 0))
     val_idx = np.flatnonzero(keep & (a.split == 1))
     if len(val_idx) == 0:  # no validation split: hold out a share of the training split
@@ -157,12 +154,10 @@ class TrainingData:
     def _from_generator(self, cfg: TrainConfig, normaliser: ParamNormaliser | None) -> None:
         gen = dict(cfg.data.generator)
         if cfg.data.classes is not None:  # the generator's classes are the digits
-            bad = [c for c in cfg.data.classes if c not in DIGIT_NAMES]
-            if bad:
-                raise ConfigError(
-                    f"data.classes: the synthetic generator draws digits 0-9, not {bad}"
-                )
-            gen.setdefault("digits", [int(c) for c in cfg.data.classes])
+            try:
+                gen.setdefault("digits", list(digits_named(cfg.data.classes, "data.classes")))
+            except ValueError as e:
+                raise ConfigError(str(e)) from None
         if cfg.data.digits is not None:
             gen.setdefault("digits", list(cfg.data.digits))
         self._generator = gen
