@@ -66,7 +66,8 @@ class DMPConfig:
         ):
             raise ValueError(
                 f"n_kernels must be an integer from 2 to {MAX_KERNELS}, got {self.n_kernels!r} "
-                "(the rollout's response table grows with its square: 300 kernels took 17 s to build)"
+                "(the rollout's response table grows with its square: 300 kernels took 17 s "
+                "to build)"
             )
         if isinstance(self.n_dims, bool) or not isinstance(self.n_dims, int) or self.n_dims < 1:
             raise ValueError(f"n_dims must be an integer >= 1, got {self.n_dims!r}")
