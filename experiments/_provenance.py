@@ -15,20 +15,25 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def git_revision(root: Path = ROOT) -> str:
-    """``git rev-parse --short HEAD`` in ``root``, or ``"unknown"`` without git or a repository."""
+def _git(root: Path, *args: str) -> subprocess.CompletedProcess | None:
     try:
-        proc = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=True,
+        return subprocess.run(
+            ["git", *args], cwd=root, capture_output=True, text=True, timeout=10, check=False
         )
     except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def git_revision(root: Path = ROOT) -> str:
+    """``git rev-parse --short HEAD`` in ``root``, with ``+changes`` when tracked files
+    differ from it (the run's code is then not that revision's), or ``"unknown"``
+    without git or a repository."""
+    head = _git(root, "rev-parse", "--short", "HEAD")
+    if head is None or head.returncode != 0 or not head.stdout.strip():
         return "unknown"
-    return proc.stdout.strip() or "unknown"
+    diff = _git(root, "diff", "--quiet", "HEAD", "--")
+    changed = diff is not None and diff.returncode == 1
+    return head.stdout.strip() + ("+changes" if changed else "")
 
 
 def run_record(script: str, argv: list[str]) -> dict[str, str]:

@@ -17,9 +17,27 @@ paths nearest in shape to the person's own path (order-free Chamfer distance, wh
 predictor can know) are ranked first. Their path error says how far apart two real
 writings of the same curve are once order, start and spacing along the path count.
 
+A third reference, the **known curve**, removes even the shape from the question: the
+closest writers' paths (``--pool`` of them, one per source image) are moved point by
+point onto the person's own curve (each point to its nearest point of the curve) and
+resampled, so each becomes the person's curve written in another writer's order. A
+predictor that knew the curve exactly, and only had to choose where to start, which way
+to go and how to space the pen, is scored with the best choice that data allows: as its
+one movement the pool's medoid or the pointwise geometric median of the pool (whichever
+is closer to the pool on average; neither looks at the person's path), and as its best
+of K the K medoids of the pool (greedy choice, then swaps). Like the timing floor
+(``mnist_timing_floor.py``), it bounds what an image-only predictor can reach when the
+writer's order is not in the image. With ``--model`` the same is done on the model's
+own top path instead of the person's (the pool ranked by Chamfer distance to it): a
+predictor that never sees the answer, which takes the curve from the network and the
+order from other writers. Between the two, the shape oracle's first path as the curve
+says how close to the person's curve a curve must be: it is another person's writing of
+nearly the same curve, on a nearly identical image.
+
 Usage::
 
-    python experiments/neighbour_paths.py --data runs/real/data.safetensors --split validation
+    python experiments/neighbour_paths.py --data runs/real/data.safetensors --split validation \
+        [--model runs/real/run --refine 30]
 """
 
 from __future__ import annotations
@@ -81,19 +99,30 @@ def shares_time_grid(*datasets) -> bool:
     )
 
 
-def references(train, evalset, blur=1.0, points=64, candidates=256) -> tuple[dict, np.ndarray]:
-    """``{title: (errors [M, k], chamfer [M])}``: the ranked neighbours' errors against
-    each evaluation sample's path (see the module docstring), k = min(16, candidates);
-    and the training row ``[M]`` of each sample's shape oracle (its first-ranked path)."""
-    n_cand = min(max(candidates, 1), len(train))
-    k = min(max(KS), n_cand)
+def neighbours(train, evalset, blur=1.0, points=64, count=256):
+    """For every evaluation sample, its ``count`` image neighbours in the training part:
+    their rows ``idx [M, C]``, the person's resampled path ``ref [M, n, 2]``, the
+    neighbours' ``hyp [M, C, n, 2]`` and their order by Chamfer distance to the
+    person's path ``by_shape [M, C]`` (the shape oracle's ranking)."""
+    n_cand = min(max(count, 1), len(train))
     idx = nearest(blurred(evalset.images, blur), blurred(train.images, blur), n_cand)
     ref = resample_by_arc_length(evalset.trajectories, points)  # [M, n, 2]
     hyp = resample_by_arc_length(train.trajectories, points)[idx]  # [M, C, n, 2]
-    by_image = np.broadcast_to(np.arange(n_cand), idx.shape)
-    # The shape oracle: the candidates re-ranked by their Chamfer distance to the answer.
     to_ref = chamfer_px(hyp.reshape(-1, *hyp.shape[2:]), np.repeat(ref, n_cand, 0))
     by_shape = np.argsort(to_ref.reshape(idx.shape), axis=1, kind="stable")
+    return idx, ref, hyp, by_shape
+
+
+def references(
+    train, evalset, blur=1.0, points=64, candidates=256, found=None
+) -> tuple[dict, np.ndarray]:
+    """``{title: (errors [M, k], chamfer [M])}``: the ranked neighbours' errors against
+    each evaluation sample's path (see the module docstring), k = min(16, candidates);
+    and the training row ``[M]`` of each sample's shape oracle (its first-ranked path).
+    ``found``: :func:`neighbours`' result, if already computed."""
+    idx, ref, hyp, by_shape = found or neighbours(train, evalset, blur, points, candidates)
+    k = min(max(KS), idx.shape[1])
+    by_image = np.broadcast_to(np.arange(idx.shape[1]), idx.shape)
     timed = shares_time_grid(train, evalset)
     out = {}
     for what, order in (("image neighbours", by_image), ("shape oracle", by_shape)):
@@ -105,6 +134,112 @@ def references(train, evalset, blur=1.0, points=64, candidates=256) -> tuple[dic
             diff = train.trajectories[rows] - evalset.trajectories[:, None]  # [M, k, T, 2]
             out[f"Table I's error (px), {what}"] = np.linalg.norm(diff, axis=-1).mean(-1), cham
     return out, idx[np.arange(len(idx)), by_shape[:, 0]]
+
+
+def writers_of(data) -> np.ndarray:
+    """The source (MNIST index) of every row, where the data set records it (augmented
+    copies share their source), else every row its own source."""
+    source = np.asarray((data.meta or {}).get("rows", {}).get("mnist_index", []))
+    if data.file_rows is not None and len(source) > data.file_rows.max(initial=-1):
+        return source[data.file_rows]  # a part of a data set read from a file
+    return source if len(source) == len(data) else np.arange(len(data))
+
+
+def on_curve(ref: np.ndarray, paths: np.ndarray, dense: int = 8, timed: bool = False):
+    """``paths [J, n, 2]`` moved point by point onto the curve of ``ref [m, 2]`` (each
+    point to the nearest of ``dense * m`` arc-length points of ``ref``) and resampled by
+    arc length: the person's curve written in each path's order. With ``timed`` the
+    points stay at their time stamps (not resampled): each path's order and timing."""
+    fine = resample_by_arc_length(ref[None], dense * len(ref))[0]  # [F, 2]
+    dist = np.linalg.norm(paths[:, :, None] - fine[None, None], axis=-1)  # [J, n, F]
+    moved = fine[dist.argmin(-1)]
+    return moved if timed else resample_by_arc_length(moved, paths.shape[1])
+
+
+def geometric_median(points: np.ndarray, iters: int = 100) -> np.ndarray:
+    """Pointwise geometric median ``[n, 2]`` of paths ``[J, n, 2]`` (Weiszfeld): the one
+    path nearest to all of them on average, point by point."""
+    m = points.mean(0)
+    for _ in range(iters):
+        w = 1.0 / np.maximum(np.linalg.norm(points - m, axis=-1), 1e-9)  # [J, n]
+        m = (w[..., None] * points).sum(0) / w.sum(0)[:, None]
+    return m
+
+
+def k_medoids(cost: np.ndarray, k: int) -> np.ndarray:
+    """Indices of ``k`` medoids for the pairwise costs ``cost [J, J]``: greedy choice of
+    the one that lowers ``sum_i min_chosen cost[i, chosen]`` most, then single swaps
+    while one lowers it."""
+    k = min(k, len(cost))
+    chosen: list[int] = []
+    for _ in range(k):
+        best = np.minimum(cost[:, chosen].min(1), cost.T) if chosen else cost.T  # [J, J]
+        chosen.append(int(np.argmin(best.sum(1))))
+    total = cost[:, chosen].min(1).sum()
+    improved = True
+    while improved:
+        improved = False
+        for slot in range(k):
+            for j in range(len(cost)):
+                if j in chosen:
+                    continue
+                trial = chosen[:slot] + [j] + chosen[slot + 1 :]
+                value = cost[:, trial].min(1).sum()
+                if value < total - 1e-12:
+                    chosen, total, improved = trial, value, True
+    return np.asarray(chosen)
+
+
+def known_curve(ref, hyp, writers, curve=None, pool: int = 32, timed=None) -> np.ndarray:
+    """Path errors ``[M, len(KS)]`` against the person's paths ``ref [M, n, 2]`` of the
+    known-curve predictor (module docstring): its one movement (column for K = 1) and
+    its best of K. The pool is the ``pool`` candidates ``hyp [M, C, n, 2]`` nearest in
+    Chamfer distance to ``curve [M, n, 2]``, one per source (``writers [M, C]``), moved
+    onto ``curve``: by default the person's own path (the floor); a model's predicted
+    path makes it a predictor that never sees the answer.
+
+    ``timed = (ref_t [M, T, 2], train_t [N, T, 2], idx [M, C])``: Table I's error
+    instead, positions at shared time stamps. The pool's timed trajectories (rows
+    ``idx`` of ``train_t``) are moved onto the curve point by point, keeping their
+    timing, and the errors are taken against ``ref_t``."""
+    curve = ref if curve is None else curve
+    m_count, c_count, n_pts = hyp.shape[:3]
+    to_curve = chamfer_px(hyp.reshape(-1, n_pts, 2), np.repeat(curve, c_count, 0))
+    by_curve = np.argsort(to_curve.reshape(m_count, c_count), axis=1, kind="stable")
+    errors = np.empty((m_count, len(KS)))
+    for m in range(m_count):
+        order = by_curve[m]
+        _, first = np.unique(writers[m][order], return_index=True)
+        rows = order[np.sort(first)][:pool]
+        if timed is None:
+            target, v = ref[m], on_curve(curve[m], hyp[m, rows])  # v: [J, n, 2]
+        else:
+            ref_t, train_t, idx = timed
+            target = ref_t[m, :, :2]
+            v = on_curve(curve[m], train_t[idx[m, rows], :, :2], timed=True)  # [J, T, 2]
+        errors[m] = _choices_of(v, target, resample=timed is None)
+    return errors
+
+
+def _choices_of(v: np.ndarray, target: np.ndarray, resample: bool) -> np.ndarray:
+    """Errors ``[len(KS)]`` against ``target`` of the choices made from the pool's
+    paths ``v [J, n, 2]`` alone: its medoid or pointwise geometric median (whichever is
+    nearer to the pool on average; ``resample``: the median resampled by arc length
+    first, as a path error compares), then the best of its K medoids."""
+    cost = np.linalg.norm(v[:, None] - v[None], axis=-1).mean(-1)  # [J, J]
+    to_target = np.linalg.norm(v - target, axis=-1).mean(-1)  # [J]
+    med = geometric_median(v)
+    if resample:
+        med = resample_by_arc_length(med[None], len(med))[0]
+    medoid = int(np.argmin(cost.sum(1)))
+    out = np.empty(len(KS))
+    if np.linalg.norm(v - med, axis=-1).mean() < cost[medoid].mean():
+        out[0] = np.linalg.norm(med - target, axis=-1).mean()
+    else:
+        out[0] = to_target[medoid]
+    for col, k in enumerate(KS[1:], start=1):
+        out[col] = to_target[k_medoids(cost, k)].min()
+    return out
 
 
 def oracle_figure(path, train, evalset, tables: dict, oracle_rows, n: int = 12) -> None:
@@ -131,13 +266,30 @@ def oracle_figure(path, train, evalset, tables: dict, oracle_rows, n: int = 12) 
     )
 
 
-def print_table(title: str, err: np.ndarray, cham: np.ndarray, labels: np.ndarray) -> None:
-    ks = [k for k in KS if k <= err.shape[1]]
-    print(f"\n{title}; chamfer = that of the first-ranked path")
+def model_paths(model: str, refine: int, evalset, points: int) -> np.ndarray:
+    """The model's top path ``[M, n, 2]`` for every image (``refine`` steps onto the ink)."""
+    from img2dmp.nn.refine import RefineOptions
+    from img2dmp.predict import Predictor
+
+    pred = Predictor.load(model)
+    if refine:
+        pred.refine_options = RefineOptions(steps=refine)
+    y = pred.trajectories_for_images(evalset.images, evalset.times)
+    return resample_by_arc_length(y, points)
+
+
+def print_table(title, err, cham, labels, by_k: bool = False) -> None:
+    """Per digit and overall: the mean Chamfer and the best of k for k in KS, from
+    ranked errors ``err [M, k]`` (best of k = min of the first k) or, with ``by_k``,
+    from errors ``[M, len(KS)]`` that already are the best of each k."""
+    ks = KS if by_k else [k for k in KS if k <= err.shape[1]]
+    what = "that of the curve" if by_k else "that of the first-ranked path"
+    print(f"\n{title}; chamfer = {what}")
     print(f"{'digit':>5} {'n':>4} {'chamfer':>8} " + " ".join(f"{'best' + str(k):>7}" for k in ks))
     rows = [(str(d), labels == d) for d in np.unique(labels)]
     for name, m in rows + [("all", np.ones(len(labels), bool))]:
-        best = " ".join(f"{err[m, :k].min(1).mean():7.3f}" for k in ks)
+        cols = err[m] if by_k else np.stack([err[m, :k].min(1) for k in ks], 1)
+        best = " ".join(f"{v:7.3f}" for v in cols.mean(0))
         print(f"{name:>5} {m.sum():4d} {cham[m].mean():8.3f} {best}")
 
 
@@ -148,6 +300,16 @@ def main(argv=None) -> int:
     p.add_argument("--blur", type=float, default=1.0, help="Gaussian blur sigma (px)")
     p.add_argument("--points", type=int, default=64, help="arc-length points per path")
     p.add_argument("--candidates", type=int, default=256, help="image neighbours per image")
+    p.add_argument(
+        "--pool",
+        type=int,
+        default=32,
+        help="writers of the closest shapes moved onto the curve (0: no known-curve tables)",
+    )
+    p.add_argument(
+        "--model", help="also order other writers' paths on this model's top path (run dir)"
+    )
+    p.add_argument("--refine", type=int, default=30, help="the model's refinement steps")
     p.add_argument("--figure", metavar="PNG", help="also draw the shape oracle's cases here")
     args = p.parse_args(argv)
     print(format_record(run_record(__file__, sys.argv[1:] if argv is None else list(argv))))
@@ -155,9 +317,31 @@ def main(argv=None) -> int:
     train, evalset = data.select_split("train"), data.select_split(args.split)
     if not len(train) or not len(evalset):
         raise SystemExit(f"{args.data}: needs samples in the train and {args.split} parts")
-    tables, oracle_rows = references(train, evalset, args.blur, args.points, args.candidates)
+    found = neighbours(train, evalset, args.blur, args.points, args.candidates)
+    tables, oracle_rows = references(train, evalset, found=found)
     for title, (err, cham) in tables.items():
         print_table(title, err, cham, evalset.labels)
+    if args.pool > 0:
+        idx, ref, hyp, by_shape = found
+        writers = writers_of(train)[idx]  # [M, C]
+        curves = {
+            "the person's own curve (a floor)": ref,
+            "the shape oracle's first path": hyp[np.arange(len(hyp)), by_shape[:, 0]],
+        }
+        if args.model:
+            curves[f"{args.model}'s top path (a predictor)"] = model_paths(
+                args.model, args.refine, evalset, args.points
+            )
+        timed = shares_time_grid(train, evalset)
+        for what, curve in curves.items():
+            err = known_curve(ref, hyp, writers, curve, args.pool)
+            title = f"path error (px), other writers' order on {what}, pool of {args.pool}"
+            print_table(title, err, chamfer_px(curve, ref), evalset.labels, by_k=True)
+            if timed:
+                stamps = (evalset.trajectories, train.trajectories, idx)
+                err = known_curve(ref, hyp, writers, curve, args.pool, timed=stamps)
+                title = f"Table I's error (px), other writers' order and timing on {what}"
+                print_table(title, err, chamfer_px(curve, ref), evalset.labels, by_k=True)
     if args.figure:
         oracle_figure(args.figure, train, evalset, tables, oracle_rows)
         print(f"\nwrote {args.figure}")
