@@ -109,6 +109,42 @@ def test_prepare_image_polarity_size_and_framing(tmp_path):
     assert prepare_image(tmp_path / "t.png", (40, 40)).max() == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize(
+    ("background", "ink"),
+    [
+        (1000, 60000),  # 16-bit, light ink on near-black (was read as dark ink: "no ink")
+        (60000, 3000),  # 16-bit, dark ink on light paper
+        (100, 4000),  # a 12-bit scan in a 16-bit file, light on dark
+        (4000, 200),  # the same, dark on light (scaled by 65535 its paper is 6 % grey)
+    ],
+)
+def test_16_bit_images_read_like_8_bit_ones(tmp_path, background, ink):
+    yy, xx = np.mgrid[0:120, 0:120]
+    ring = np.abs(np.hypot(xx - 60, yy - 60) - 35) < 4  # a "0"
+    want = prepare_image(ring.astype(float), (40, 40))
+    levels = np.where(ring, ink, background).astype(np.uint16)
+    Image.fromarray(levels).save(tmp_path / "scan.png")  # mode I;16
+    assert Image.open(tmp_path / "scan.png").mode.startswith("I")
+    for source in (tmp_path / "scan.png", levels, np.stack([levels] * 3, -1)):
+        assert np.abs(prepare_image(source, (40, 40)) - want).max() < 1e-3
+
+
+def test_the_scale_of_white_follows_the_bits_an_image_uses():
+    from img2dmp.data.images import full_scale
+
+    assert [full_scale(v) for v in (0.0, 1.0, 2.0, 255, 256, 4000, 4095, 4096, 65535)] == [
+        1.0,
+        1.0,
+        255.0,
+        255.0,
+        511.0,
+        4095.0,
+        4095.0,
+        8191.0,
+        65535.0,
+    ]
+
+
 def test_bad_images_give_clear_errors(tmp_path, model_and_data):
     (tmp_path / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n this is not a PNG")
     with pytest.raises(ValueError, match="cannot decode image file .*broken.png"):

@@ -294,6 +294,19 @@ def _open_reduced(im, label: str):
     return im, max(1, math.ceil(math.sqrt(w * h / MAX_WORK_PIXELS))), scale
 
 
+def full_scale(top: float) -> float:
+    """The grey level of white for an image whose brightest pixel is ``top``.
+
+    1 for levels in [0, 1]; else the largest value of the fewest bits (at least 8) that
+    hold ``top``: 255 for 8-bit images, 4095 for a 12-bit scan stored in 16 bits,
+    65535 for a full 16-bit one. Files do not say how many of their 16 bits a scanner
+    used, and scaling a 12-bit scan by 65535 would leave its paper at 6 % grey.
+    """
+    if top <= 1.0:
+        return 1.0
+    return float(2 ** max(8, math.ceil(math.log2(float(top) + 1.0))) - 1)
+
+
 def _pil_grey(im, label: str) -> tuple[np.ndarray, float]:
     """Grey levels in [0, 1] of a PIL image (transparency composited on white), reduced
     to at most ``MAX_WORK_PIXELS``, and the reduction (its pixels per grey pixel)."""
@@ -311,8 +324,7 @@ def _pil_grey(im, label: str) -> tuple[np.ndarray, float]:
     grey = np.asarray(im.convert("F"), dtype=np.float64)
     if grey.ndim != 2 or min(grey.shape) < 2:
         raise ValueError(f"{label} has unusable size {grey.shape}")
-    top = grey.max()
-    return grey / (255.0 if top > 1.0 else 1.0), scale * factor
+    return grey / full_scale(grey.max()), scale * factor
 
 
 def _decode_framed(path: Path) -> tuple[np.ndarray, float, tuple[int, int]]:
@@ -363,7 +375,7 @@ def _array_grey(source, label: str) -> np.ndarray:
         raise ValueError(f"{label} contains NaN or inf")
     if a.ndim == 2:
         return a
-    full = 255.0 if a.dtype.kind in "iu" or a.max() > 1.0 else 1.0
+    full = full_scale(a.max()) if a.dtype.kind in "iuf" and a.max() > 1.0 else 1.0
     rgb = a[..., :3].astype(np.float64)
     grey = rgb @ np.array([0.299, 0.587, 0.114])  # ITU-R 601-2 luma, as PIL's "L"
     if a.shape[2] == 4:  # composite on white, as for image files
@@ -396,9 +408,7 @@ def _grey_levels_framed(source, name: str | None):
     size = (int(grey.shape[0]), int(grey.shape[1]))
     factor = math.ceil(math.sqrt(grey.size / MAX_WORK_PIXELS))
     grey = _reduce(grey, factor) if factor > 1 else grey.astype(np.float64)
-    if grey.max() > 1.0:
-        grey = grey / 255.0
-    return grey, float(factor), size, label
+    return grey / full_scale(np.asarray(source).max()), float(factor), size, label
 
 
 def _grey_levels(source, name: str | None) -> tuple[np.ndarray, str]:
@@ -518,7 +528,8 @@ def prepare_image(
     source : path, PIL image or array
         PNG/JPEG file (any size, RGB, grey or with transparency), a ``PIL.Image.Image``,
         or an array: grey levels ``[H, W]``, RGB ``[H, W, 3]`` or RGBA ``[H, W, 4]``
-        (values in [0, 1], or [0, 255] when any is above 1).
+        (values in [0, 1]; when any is above 1, in [0, 255] or, above 255, in the range
+        of the fewest bits that hold them, as for 16-bit files: :func:`full_scale`).
     image_size : (H, W)
         The model's input size.
     margin : float
