@@ -26,8 +26,10 @@ to go and how to space the pen, is scored with the best choice that data allows:
 one movement the pool's medoid or the pointwise geometric median of the pool (whichever
 is closer to the pool on average; neither looks at the person's path), and as its best
 of K the K medoids of the pool (greedy choice, then swaps). Like the timing floor
-(``mnist_timing_floor.py``), it bounds what an image-only predictor can reach when the
-writer's order is not in the image. With ``--model`` the same is done on the model's
+(``mnist_timing_floor.py``), it estimates what a predictor could reach that knew the
+curve exactly while the writer's order is not in the image, with the pool's orders
+standing in for the unknown one (an estimate, not a bound: a better guess of the order
+than the pool's may exist). With ``--model`` the same is done on the model's
 own top path instead of the person's (the pool ranked by Chamfer distance to it): a
 predictor that never sees the answer, which takes the curve from the network and the
 order from other writers. Between the two, the shape oracle's first path as the curve
@@ -195,7 +197,7 @@ def known_curve(ref, hyp, writers, curve=None, pool: int = 32, timed=None) -> np
     known-curve predictor (module docstring): its one movement (column for K = 1) and
     its best of K. The pool is the ``pool`` candidates ``hyp [M, C, n, 2]`` nearest in
     Chamfer distance to ``curve [M, n, 2]``, one per source (``writers [M, C]``), moved
-    onto ``curve``: by default the person's own path (the floor); a model's predicted
+    onto ``curve``: by default the person's own path (the known curve); a model's predicted
     path makes it a predictor that never sees the answer.
 
     ``timed = (ref_t [M, T, 2], train_t [N, T, 2], idx [M, C])``: Table I's error
@@ -325,7 +327,7 @@ def main(argv=None) -> int:
         idx, ref, hyp, by_shape = found
         writers = writers_of(train)[idx]  # [M, C]
         curves = {
-            "the person's own curve (a floor)": ref,
+            "the person's own curve (known)": ref,
             "the shape oracle's first path": hyp[np.arange(len(hyp)), by_shape[:, 0]],
         }
         if args.model:
