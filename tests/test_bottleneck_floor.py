@@ -34,3 +34,12 @@ def test_dead_units_are_counted(experiment_script):
         last.bias[2:] = 100.0  # the others always on
     live, width, per_image = mod.live_units(model, images, batch=16)
     assert (live, width) == (4, 6) and per_image == 4.0
+
+
+def test_the_perfect_encoder_network_holds_more_with_a_wider_code(experiment_script):
+    mod = experiment_script("bottleneck_floor")
+    data = generate_dataset(2, seed=5, progress=False)  # 20 samples
+    narrow = mod.perfect_encoder_floor(data, data, epochs=200, code=1, hidden=35)
+    wide = mod.perfect_encoder_floor(data, data, epochs=200, code=55, hidden=110)
+    assert narrow.shape == wide.shape == (20,)
+    assert wide.mean() < 0.5 * narrow.mean()
