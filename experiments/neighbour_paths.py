@@ -22,7 +22,7 @@ closest writers' paths (``--pool`` of them, one per source image) are moved poin
 point onto the person's own curve (each point to its nearest point of the curve) and
 resampled, so each becomes the person's curve written in another writer's order. A
 predictor that knew the curve exactly, and only had to choose where to start, which way
-to go and how to space the pen, is scored with the best choice that data allows: as its
+to go and how to space the pen, is scored with a choice made from the pool alone: as its
 one movement the pool's medoid or the pointwise geometric median of the pool (whichever
 is closer to the pool on average; neither looks at the person's path), and as its best
 of K the K medoids of the pool (greedy choice, then swaps). Like the timing floor
@@ -34,7 +34,9 @@ own top path instead of the person's (the pool ranked by Chamfer distance to it)
 predictor that never sees the answer, which takes the curve from the network and the
 order from other writers. Between the two, the shape oracle's first path as the curve
 says how close to the person's curve a curve must be: it is another person's writing of
-nearly the same curve, on a nearly identical image.
+nearly the same curve, on a nearly identical image. Where the samples share one time
+grid the same is done with Table I's error: the pool's points keep their time stamps
+when they are moved onto the curve, so the pool lends its timing as well as its order.
 
 Usage::
 
