@@ -359,10 +359,12 @@ def _decode(path: Path) -> np.ndarray:
     return _decode_framed(path)[0]
 
 
-def _array_grey(source, label: str) -> np.ndarray:
+def _array_grey(source, label: str) -> tuple[np.ndarray, float]:
     """A NumPy array ``[H, W]`` (grey), ``[H, W, 3]`` (RGB) or ``[H, W, 4]`` (RGBA,
     composited on white) as grey levels at full size, checked (``ValueError`` naming
-    ``label``)."""
+    ``label``), and the level of white (:func:`full_scale`) to divide them by once the
+    image is reduced (a full-size float copy of a large photo is what reducing first
+    avoids)."""
     a = np.asarray(source)
     if a.dtype.kind not in "buif":
         raise ValueError(f"{label} must hold numbers, got dtype {a.dtype}")
@@ -373,15 +375,15 @@ def _array_grey(source, label: str) -> np.ndarray:
         )
     if a.dtype.kind == "f" and not np.isfinite(a).all():
         raise ValueError(f"{label} contains NaN or inf")
+    full = full_scale(a.max())
     if a.ndim == 2:
-        return a
-    full = full_scale(a.max()) if a.dtype.kind in "iuf" and a.max() > 1.0 else 1.0
+        return a, full
     rgb = a[..., :3].astype(np.float64)
     grey = rgb @ np.array([0.299, 0.587, 0.114])  # ITU-R 601-2 luma, as PIL's "L"
     if a.shape[2] == 4:  # composite on white, as for image files
         alpha = a[..., 3].astype(np.float64) / full
         grey = grey * alpha + full * (1.0 - alpha)
-    return grey
+    return grey, full
 
 
 def _grey_levels_framed(source, name: str | None):
@@ -404,11 +406,11 @@ def _grey_levels_framed(source, name: str | None):
             f"{type(source).__name__}"
         )
     label = name or "image array"
-    grey = _array_grey(source, label)
+    grey, full = _array_grey(source, label)
     size = (int(grey.shape[0]), int(grey.shape[1]))
     factor = math.ceil(math.sqrt(grey.size / MAX_WORK_PIXELS))
     grey = _reduce(grey, factor) if factor > 1 else grey.astype(np.float64)
-    return grey / full_scale(np.asarray(source).max()), float(factor), size, label
+    return grey / full, float(factor), size, label
 
 
 def _grey_levels(source, name: str | None) -> tuple[np.ndarray, str]:
