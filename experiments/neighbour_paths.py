@@ -194,33 +194,42 @@ def k_medoids(cost: np.ndarray, k: int) -> np.ndarray:
     return np.asarray(chosen)
 
 
-def known_curve(ref, hyp, writers, curve=None, pool: int = 32, timed=None) -> np.ndarray:
+def pool_rows(hyp, writers, curve, pool: int = 32, by_curve=None) -> list[np.ndarray]:
+    """For every sample, the candidates (columns of ``hyp [M, C, n, 2]``) of the
+    known-curve pool: the ``pool`` nearest in Chamfer distance to ``curve [M, n, 2]``,
+    one per source (``writers [M, C]``). ``by_curve [M, C]``: that ranking, if known."""
+    if by_curve is None:
+        m_count, c_count, n_pts = hyp.shape[:3]
+        to_curve = chamfer_px(hyp.reshape(-1, n_pts, 2), np.repeat(curve, c_count, 0))
+        by_curve = np.argsort(to_curve.reshape(m_count, c_count), axis=1, kind="stable")
+    rows = []
+    for order, who in zip(by_curve, writers, strict=True):
+        _, first = np.unique(who[order], return_index=True)
+        rows.append(order[np.sort(first)][:pool])
+    return rows
+
+
+def known_curve(ref, hyp, writers, curve=None, pool: int = 32, timed=None, rows=None) -> np.ndarray:
     """Path errors ``[M, len(KS)]`` against the person's paths ``ref [M, n, 2]`` of the
     known-curve predictor (module docstring): its one movement (column for K = 1) and
-    its best of K. The pool is the ``pool`` candidates ``hyp [M, C, n, 2]`` nearest in
-    Chamfer distance to ``curve [M, n, 2]``, one per source (``writers [M, C]``), moved
-    onto ``curve``: by default the person's own path (the known curve); a model's predicted
-    path makes it a predictor that never sees the answer.
+    its best of K. The pool (:func:`pool_rows`, or ``rows`` if already chosen) is
+    moved onto ``curve``: by default the person's own path (the known curve); a model's
+    predicted path makes it a predictor that never sees the answer.
 
     ``timed = (ref_t [M, T, 2], train_t [N, T, 2], idx [M, C])``: Table I's error
     instead, positions at shared time stamps. The pool's timed trajectories (rows
     ``idx`` of ``train_t``) are moved onto the curve point by point, keeping their
     timing, and the errors are taken against ``ref_t``."""
     curve = ref if curve is None else curve
-    m_count, c_count, n_pts = hyp.shape[:3]
-    to_curve = chamfer_px(hyp.reshape(-1, n_pts, 2), np.repeat(curve, c_count, 0))
-    by_curve = np.argsort(to_curve.reshape(m_count, c_count), axis=1, kind="stable")
-    errors = np.empty((m_count, len(KS)))
-    for m in range(m_count):
-        order = by_curve[m]
-        _, first = np.unique(writers[m][order], return_index=True)
-        rows = order[np.sort(first)][:pool]
+    rows = pool_rows(hyp, writers, curve, pool) if rows is None else rows
+    errors = np.empty((len(ref), len(KS)))
+    for m, r in enumerate(rows):
         if timed is None:
-            target, v = ref[m], on_curve(curve[m], hyp[m, rows])  # v: [J, n, 2]
+            target, v = ref[m], on_curve(curve[m], hyp[m, r])  # v: [J, n, 2]
         else:
             ref_t, train_t, idx = timed
             target = ref_t[m, :, :2]
-            v = on_curve(curve[m], train_t[idx[m, rows], :, :2], timed=True)  # [J, T, 2]
+            v = on_curve(curve[m], train_t[idx[m, r], :, :2], timed=True)  # [J, T, 2]
         errors[m] = _choices_of(v, target, resample=timed is None)
     return errors
 
@@ -328,22 +337,22 @@ def main(argv=None) -> int:
     if args.pool > 0:
         idx, ref, hyp, by_shape = found
         writers = writers_of(train)[idx]  # [M, C]
-        curves = {
-            "the person's own curve (known)": ref,
-            "the shape oracle's first path": hyp[np.arange(len(hyp)), by_shape[:, 0]],
+        curves = {  # the curve, and its ranking of the candidates where already known
+            "the person's own curve (known)": (ref, by_shape),
+            "the shape oracle's first path": (hyp[np.arange(len(hyp)), by_shape[:, 0]], None),
         }
         if args.model:
-            curves[f"{args.model}'s top path (a predictor)"] = model_paths(
-                args.model, args.refine, evalset, args.points
-            )
+            path = model_paths(args.model, args.refine, evalset, args.points)
+            curves[f"{args.model}'s top path (a predictor)"] = (path, None)
         timed = shares_time_grid(train, evalset)
-        for what, curve in curves.items():
-            err = known_curve(ref, hyp, writers, curve, args.pool)
+        for what, (curve, ranking) in curves.items():
+            rows = pool_rows(hyp, writers, curve, args.pool, ranking)
+            err = known_curve(ref, hyp, writers, curve, rows=rows)
             title = f"path error (px), other writers' order on {what}, pool of {args.pool}"
             print_table(title, err, chamfer_px(curve, ref), evalset.labels, by_k=True)
             if timed:
                 stamps = (evalset.trajectories, train.trajectories, idx)
-                err = known_curve(ref, hyp, writers, curve, args.pool, timed=stamps)
+                err = known_curve(ref, hyp, writers, curve, timed=stamps, rows=rows)
                 title = f"Table I's error (px), other writers' order and timing on {what}"
                 print_table(title, err, chamfer_px(curve, ref), evalset.labels, by_k=True)
     if args.figure:
