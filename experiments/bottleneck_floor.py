@@ -141,7 +141,10 @@ def live_units(model, images, batch: int = 512) -> tuple[int, int, float]:
 
 
 def select(data, digits):
-    return data if not digits else data.subset(np.flatnonzero(np.isin(data.labels, digits)))
+    """The samples of ``digits`` (all without), named as the data set names its classes."""
+    if not digits:
+        return data
+    return data.subset(np.flatnonzero(np.isin(data.labels, data.labels_of_digits(digits))))
 
 
 def main(argv=None) -> int:
