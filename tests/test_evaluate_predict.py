@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
@@ -127,6 +128,57 @@ def test_16_bit_images_read_like_8_bit_ones(tmp_path, background, ink):
     assert Image.open(tmp_path / "scan.png").mode.startswith("I")
     for source in (tmp_path / "scan.png", levels, np.stack([levels] * 3, -1)):
         assert np.abs(prepare_image(source, (40, 40)) - want).max() < 1e-3
+
+
+# What a viewer shows for each EXIF orientation, as the raster to store for an upright
+# image u (the tag's meaning: 3 = turn 180 degrees, 6 = turn 90 degrees clockwise to show,
+# 8 = 90 counter-clockwise, 2 = mirror, 5 = transpose).
+_RASTER_OF_UPRIGHT = {
+    2: lambda u: u[:, ::-1],
+    3: lambda u: u[::-1, ::-1],
+    5: lambda u: u.T,
+    6: lambda u: np.rot90(u, 1),
+    8: lambda u: np.rot90(u, -1),
+}
+
+
+@pytest.mark.parametrize("orientation", sorted(_RASTER_OF_UPRIGHT))
+@pytest.mark.parametrize("suffix", [".png", ".jpg"])
+def test_phone_photos_are_read_upright_as_their_exif_tag_says(tmp_path, orientation, suffix):
+    from img2dmp.data.images import ink_view, prepare_image_framed
+    from img2dmp.web.recordings import FolderImages
+
+    upright = np.full((90, 60), 255, np.uint8)  # an "L" in a portrait image
+    upright[15:75, 15:24] = 0
+    upright[66:75, 15:48] = 0
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    path = tmp_path / f"photo{suffix}"
+    raster = np.ascontiguousarray(_RASTER_OF_UPRIGHT[orientation](upright))
+    Image.fromarray(raster).save(path, exif=exif, quality=95)
+    want, want_frame = prepare_image_framed(upright.astype(float) / 255, (40, 40))
+    corner = np.array([[15.0, 74.0]])  # the L's corner, in the image as it is shown
+    for source in (path, Image.open(path)):
+        got, frame = prepare_image_framed(source, (40, 40))
+        assert frame.image_size == (90, 60)
+        assert np.abs(got - want).max() < 0.05
+        assert np.abs(frame.to_model(corner) - want_frame.to_model(corner)).max() < 1e-9
+    assert ink_view(path)[0].shape == (90, 60)
+    folder = FolderImages(tmp_path)  # the Record page shows and sizes it the same way
+    assert folder.size(0) == (90, 60)
+    shown = np.asarray(Image.open(io.BytesIO(folder.png(0))).convert("L"))
+    assert np.abs(shown.astype(int) - upright).max() < 60
+
+
+def test_an_orientation_tag_out_of_range_leaves_the_image_as_stored(tmp_path):
+    from img2dmp.data.images import shown_size, upright
+
+    exif = Image.Exif()
+    exif[0x0112] = 9  # not an orientation: viewers show the raster as it is
+    Image.new("L", (60, 30), 255).save(tmp_path / "odd.png", exif=exif)
+    with Image.open(tmp_path / "odd.png") as im:
+        assert shown_size(im) == (30, 60)
+        assert upright(im).size == (60, 30)
 
 
 def test_the_scale_of_white_follows_the_bits_an_image_uses():

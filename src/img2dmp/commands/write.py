@@ -177,14 +177,12 @@ def _joints_base(args, name: str, n_inputs: int) -> str:
 
 
 def _read_image(path):
-    """The ``--image`` file as ``float32 [H, W]`` in [0, 1], ink = 1."""
-    import numpy as np
-    from PIL import Image
+    """The ``--image`` file as ``float32 [H, W]`` in [0, 1], ink = 1, read as ``predict``
+    reads images (upright, transparency on white, either polarity, 8 or 16 bits)."""
+    from img2dmp.data.images import ink_view
 
-    with _args.reading_image(path), Image.open(path) as im:
-        a = np.asarray(im.convert("L"), dtype=np.float32) / 255.0
-    # Show ink dark whatever the file's polarity: ink is the minority of pixels.
-    return a if a.mean() < 0.5 else 1.0 - a
+    with _args.reading_image(path):
+        return ink_view(path, max_side=1024)[0]
 
 
 def run(args) -> int:

@@ -12,6 +12,9 @@ sees it.
   prepared (training) images, stored with a model so :func:`prepare_image` can match them.
 - :func:`stroke_width` - the pen width of one image.
 - :func:`ink_view` - a whole image as ink levels, small enough for a picture.
+- :func:`upright`, :func:`shown_size` - an image file as viewers show it: phones store a
+  portrait photo as a landscape raster and an EXIF tag that says how to turn it; every
+  reader here turns it, so the user's image frame is the one they see.
 
 Work and memory are linear in the image's size: a photo of more than
 ``MAX_WORK_PIXELS`` is reduced (area average) as it is read, and the ink's crop is
@@ -45,6 +48,10 @@ MAX_WORK_PIXELS = 4_000_000
 # the pen width is matched and the image framed: the disc of a grey dilation is then at
 # most a few pixels wide, whatever the photo's resolution.
 WORK_PER_OUTPUT_PX = 4
+# The EXIF tag of the orientation (1 = upright, 2-8 = mirrored and/or turned), and the
+# values that swap the raster's width and height.
+_ORIENTATION_TAG = 0x0112
+_TURNED = (5, 6, 7, 8)
 # Sides of a prepared image, pixels.
 OUTPUT_SIDE_PX = (2, 1024)
 # stroke_width enlarges an image to at most this many pixels.
@@ -307,12 +314,41 @@ def full_scale(top: float) -> float:
     return float(2 ** max(8, math.ceil(math.log2(float(top) + 1.0))) - 1)
 
 
+def _orientation(im) -> int:
+    """The EXIF orientation of a PIL image, 1 (upright) when it has none or a damaged one
+    (image viewers then show the raster as it is, and so does img2dmp)."""
+    try:
+        value = im.getexif().get(_ORIENTATION_TAG, 1)
+    except Exception:  # noqa: BLE001 - any defect of the EXIF block: no orientation
+        return 1
+    return value if isinstance(value, int) and 1 <= value <= 8 else 1
+
+
+def upright(im):
+    """A PIL image as image viewers and browsers show it: mirrored and turned as its EXIF
+    orientation tag says (a phone stores a portrait photo as a landscape raster and a
+    tag), without the tag; ``im`` itself when it is already upright."""
+    if _orientation(im) == 1:
+        return im
+    from PIL import ImageOps
+
+    return ImageOps.exif_transpose(im)
+
+
+def shown_size(im) -> tuple[int, int]:
+    """``(H, W)`` of a PIL image as :func:`upright` shows it, from its header only."""
+    w, h = im.size
+    return (w, h) if _orientation(im) in _TURNED else (h, w)
+
+
 def _pil_grey(im, label: str) -> tuple[np.ndarray, float]:
-    """Grey levels in [0, 1] of a PIL image (transparency composited on white), reduced
-    to at most ``MAX_WORK_PIXELS``, and the reduction (its pixels per grey pixel)."""
+    """Grey levels in [0, 1] of a PIL image, upright (:func:`upright`), transparency
+    composited on white, reduced to at most ``MAX_WORK_PIXELS``, and the reduction (its
+    pixels per grey pixel)."""
     from PIL import Image
 
     im, factor, scale = _open_reduced(im, label)
+    im = upright(im)
     if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
         rgba = im.convert("RGBA")
         bg = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
@@ -339,7 +375,7 @@ def _decode_framed(path: Path) -> tuple[np.ndarray, float, tuple[int, int]]:
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             im = Image.open(path)
         with im:
-            size = (im.size[1], im.size[0])
+            size = shown_size(im)
             grey, reduction = _pil_grey(im, f"image file {path}")
     except ImageTooLargeError:
         raise
@@ -397,7 +433,7 @@ def _grey_levels_framed(source, name: str | None):
         return grey, reduction, size, str(source)
     if isinstance(source, Image.Image):
         label = name or "PIL image"
-        size = (source.size[1], source.size[0])
+        size = shown_size(source)
         grey, reduction = _pil_grey(source.copy(), label)
         return grey, reduction, size, label
     if not (isinstance(source, (np.ndarray, list, tuple)) or hasattr(source, "__array__")):
@@ -528,8 +564,9 @@ def prepare_image(
     Parameters
     ----------
     source : path, PIL image or array
-        PNG/JPEG file (any size, RGB, grey or with transparency), a ``PIL.Image.Image``,
-        or an array: grey levels ``[H, W]``, RGB ``[H, W, 3]`` or RGBA ``[H, W, 4]``
+        PNG/JPEG file (any size, RGB, grey or with transparency), a ``PIL.Image.Image``
+        (both turned upright as an EXIF orientation tag says, :func:`upright`), or an
+        array: grey levels ``[H, W]``, RGB ``[H, W, 3]`` or RGBA ``[H, W, 4]``
         (values in [0, 1]; when any is above 1, in [0, 255] or, above 255, in the range
         of the fewest bits that hold them, as for 16-bit files: :func:`full_scale`).
     image_size : (H, W)
@@ -663,6 +700,8 @@ __all__ = [
     "ink_view",
     "prepare_image",
     "prepare_image_framed",
+    "shown_size",
     "stroke_width",
     "typical_stroke_width",
+    "upright",
 ]

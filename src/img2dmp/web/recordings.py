@@ -26,6 +26,7 @@ import numpy as np
 
 from .. import __version__
 from .._files import LOCK_NAME, atomic_write_text
+from ..data.images import shown_size, upright
 from ..data.mnist import IMAGES_MAGIC, LABELS_MAGIC, MNIST_FILES, find_mnist_file, read_idx
 from ..data.recorded import parse_recorded
 from .errors import WebError, show
@@ -113,7 +114,7 @@ class FolderImages:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", Image.DecompressionBombWarning)
                     with Image.open(p) as im:
-                        w, h = im.size
+                        h, w = shown_size(im)  # as the browser and the importer turn it
             except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
                 raise ValueError(f"image file {p} cannot be read as an image: {e}") from None
             if w * h > MAX_FOLDER_IMAGE_PIXELS:
@@ -139,7 +140,7 @@ class FolderImages:
         from PIL import Image
 
         with Image.open(self.files[n]) as im:
-            rgba = im.convert("RGBA")
+            rgba = upright(im).convert("RGBA")
         white = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
         grey = np.asarray(Image.alpha_composite(white, rgba).convert("L"))
         border = np.concatenate([grey[0], grey[-1], grey[:, 0], grey[:, -1]])
