@@ -202,6 +202,34 @@ def test_paper_architecture_and_conv_encoder():
     assert all(torch.equal(p, q) for p, q in zip(a.parameters(), b.parameters(), strict=True))
 
 
+def test_he_initialisation_keeps_the_images_variation_through_the_papers_network():
+    from img2dmp.nn.model import ModelConfig, build_model
+
+    rng = np.random.default_rng(0)
+    images = torch.as_tensor(rng.random((256, 40, 40)) < 0.1, dtype=torch.float32)
+
+    def code_variation(init):
+        net = build_model(ModelConfig(init=init), seed=0)
+        with torch.no_grad():
+            code = net.encoder(images)  # [B, 20], after the code layer's ReLU
+        return float(code.std(0).mean()), net
+
+    torch_std, _ = code_variation("torch")
+    he_std, net = code_variation("he")
+    assert he_std > 30 * torch_std  # PyTorch's default: ~1/6 of the variance per layer
+    layers = [m for m in net.modules() if isinstance(m, torch.nn.Linear)]
+    for layer in layers:
+        assert float(layer.bias.detach().abs().max()) == 0.0
+    first, last = layers[0], layers[-1]  # followed by a ReLU; the output layer: by nothing
+    assert abs(float(first.weight.detach().std()) * 1600**0.5 - 2**0.5) < 0.02
+    assert abs(float(last.weight.detach().std()) * 35**0.5 - 1.0) < 0.15
+    conv = build_model(ModelConfig(encoder="conv", conv_norm="batch", init="he"), seed=0)
+    c = next(m for m in conv.modules() if isinstance(m, torch.nn.Conv2d))  # BN, then ReLU
+    assert abs(float(c.weight.detach().std()) * 9**0.5 - 2**0.5) < 0.25
+    with pytest.raises(ValueError, match="model.init must be one of"):
+        ModelConfig(init="xavier")
+
+
 def test_conv_batch_norm_trains_saves_and_reloads(tmp_path):
     """``conv_norm: batch``: running statistics move in training, are saved and reloaded,
     and an evaluated image's output does not depend on the rest of its batch."""

@@ -30,6 +30,8 @@ ACTIVATIONS = {
 }
 ENCODERS = ("fc", "conv")
 CONV_NORMS = ("none", "batch")
+#: Initialisations of the weights, see :class:`ModelConfig` ``init``.
+INITS = ("torch", "he")
 INPUT_FILTERS = ("none", "impulse")
 #: The paper's input size (1600 inputs), used when a model is built without data.
 PAPER_IMAGE_SIZE = (40, 40)
@@ -88,6 +90,13 @@ class ModelConfig:
     hypotheses : int
         K, the number of DMPs the network proposes for one image, each with a score
         (:func:`split_hypotheses`). 1 (default) is the paper's network: one DMP, no score.
+    init : {"torch", "he"}
+        How the weights start. ``"torch"`` (default): PyTorch's default for each layer,
+        under which the paper's deep ReLU stack shrinks its input's variation by about
+        six times per layer, so that the code first sees mostly the biases; ``"he"``:
+        He et al.'s normal initialisation (variance ``gain**2 / fan_in``, the gain of
+        the activation that follows the layer; 1 for the output layer) and zero biases,
+        which keeps the variation through every layer. The paper does not say which.
     """
 
     encoder: str = "fc"
@@ -101,6 +110,7 @@ class ModelConfig:
     activation: str = "relu"
     n_outputs: int = 55
     hypotheses: int = 1
+    init: str = "torch"
 
     def __post_init__(self) -> None:
         if self.encoder not in ENCODERS:
@@ -141,6 +151,8 @@ class ModelConfig:
         if isinstance(self.hypotheses, bool) or int(self.hypotheses) < 1:
             raise ValueError(f"model.hypotheses must be an integer >= 1, got {self.hypotheses!r}")
         self.hypotheses = int(self.hypotheses)
+        if self.init not in INITS:
+            raise ValueError(f"model.init must be one of {INITS}, got {self.init!r}")
 
     @property
     def output_size(self) -> int:
@@ -287,7 +299,7 @@ class EncoderDecoder(nn.Module):
 
 
 def build_model(config: ModelConfig, seed: int | None = None) -> EncoderDecoder:
-    """Make the network described by ``config`` (weights from torch's default init).
+    """Make the network described by ``config`` (weights initialised as ``config.init``).
 
     ``seed`` makes the initial weights reproducible without touching the global RNG.
     """
@@ -312,7 +324,42 @@ def build_model(config: ModelConfig, seed: int | None = None) -> EncoderDecoder:
             enc, config.decoder_layers, config.n_outputs, config.activation, filt,
             hypotheses=config.hypotheses,
         )  # fmt: skip
+        if config.init == "he":
+            he_initialise(model)
     return model
+
+
+# The gain of He et al.'s initialisation for each activation (torch.nn.init.calculate_gain).
+_GAINS = {
+    nn.ReLU: ("relu", None),
+    nn.LeakyReLU: ("leaky_relu", 0.01),
+    nn.Tanh: ("tanh", None),
+    nn.Sigmoid: ("sigmoid", None),
+    nn.ELU: ("relu", None),
+    nn.GELU: ("relu", None),
+}
+
+
+def he_initialise(model: nn.Module) -> None:
+    """He et al.'s normal initialisation of every linear and convolutional layer of
+    ``model`` in place: weights ``N(0, gain**2 / fan_in)`` with the gain of the
+    activation that follows the layer in its ``nn.Sequential`` (a batch normalisation in
+    between is skipped; none follows: gain 1), biases 0."""
+    for seq in model.modules():
+        if not isinstance(seq, nn.Sequential):
+            continue
+        layers = list(seq)
+        for i, layer in enumerate(layers):
+            if not isinstance(layer, (nn.Linear, nn.Conv2d)):
+                continue
+            after = [type(m) for m in layers[i + 1 :] if not isinstance(m, nn.BatchNorm2d)]
+            name, param = _GAINS.get(after[0] if after else None, ("linear", None))
+            gain = nn.init.calculate_gain(name, param)  # linear: 1
+            fan_in = layer.weight[0].numel()  # inputs (x kernel size) of one output
+            with torch.no_grad():
+                layer.weight.normal_(0.0, gain / fan_in**0.5)
+                if layer.bias is not None:
+                    layer.bias.zero_()
 
 
 def hypotheses_output_size(n_params: int, hypotheses: int) -> int:
