@@ -206,6 +206,25 @@ def test_predicting_an_uploaded_image_is_the_library_prediction(client, runs, fm
     np.testing.assert_allclose(a["hypotheses"][0]["image"], pred.path_image[0], atol=1e-5)
 
 
+def test_an_uploaded_phone_photo_is_predicted_upright_in_the_frame_the_browser_shows(client, runs):
+    upright = render_strokes([np.array(s) for s in SEVEN], (280, 280))[20:250, 30:240]
+    exif = Image.Exif()
+    exif[0x0112] = 6  # the browser turns the raster 90 degrees clockwise to show it
+    buf = io.BytesIO()
+    Image.fromarray(np.ascontiguousarray(np.rot90(upright, 1))).save(buf, "JPEG", exif=exif)
+    url = "data:image/jpeg;base64," + base64.b64encode(buf.getvalue()).decode()
+    r = client.post("/api/predict", json={"image": url, "model": "net2"})
+    assert r.status_code == 200, r.text
+    a = r.json()
+    want = client.post("/api/predict", json={"image": _data_url(upright, "JPEG"), "model": "net2"})
+    assert a["image_size"] == [230, 210]
+    got, ref = (
+        np.array(a["hypotheses"][0]["image"]),
+        np.array(want.json()["hypotheses"][0]["image"]),
+    )
+    assert np.abs(got - ref).max() < 1.0  # pixels of the upright image; JPEG noise differs
+
+
 def test_strokes_are_drawn_with_a_round_pen_of_a_fourteenth_of_the_canvas():
     dot = render_strokes([np.array([[100.0, 50.0, 0.0]])], (280, 140))  # W = 280: pen 20
     assert dot.shape == (140, 280) and dot.dtype == np.uint8
