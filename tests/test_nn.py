@@ -230,6 +230,25 @@ def test_he_initialisation_keeps_the_images_variation_through_the_papers_network
         ModelConfig(init="xavier")
 
 
+def test_dropout_acts_in_training_only_after_the_hidden_layers_of_the_fc_encoder():
+    from img2dmp.nn.model import ModelConfig, build_model
+
+    net = build_model(ModelConfig(encoder_layers=[64, 32, 8], dropout=0.5), seed=0)
+    kinds = [type(m).__name__ for m in net.encoder.net]
+    assert kinds == ["Linear", "ReLU", "Dropout", "Linear", "ReLU", "Dropout", "Linear", "ReLU"]
+    x = torch.rand(4, 40, 40)
+    with torch.no_grad():
+        net.train()
+        assert not torch.equal(net(x), net(x))  # units dropped at random
+        net.eval()
+        assert torch.equal(net(x), net(x))
+        plain = build_model(ModelConfig(encoder_layers=[64, 32, 8]), seed=0).eval()
+        assert torch.allclose(net(x), plain(x))  # the same weights, nothing dropped
+    for bad in (1.0, -0.1, "0.2", True):
+        with pytest.raises(ValueError, match="model.dropout must be a number in"):
+            ModelConfig(dropout=bad)
+
+
 def test_conv_batch_norm_trains_saves_and_reloads(tmp_path):
     """``conv_norm: batch``: running statistics move in training, are saved and reloaded,
     and an evaluated image's output does not depend on the rest of its batch."""

@@ -90,6 +90,11 @@ class ModelConfig:
     hypotheses : int
         K, the number of DMPs the network proposes for one image, each with a score
         (:func:`split_hypotheses`). 1 (default) is the paper's network: one DMP, no score.
+    dropout : float
+        Share of the fully connected encoder's hidden units dropped at random in
+        training (after each activation but the code's; Srivastava et al. 2014), in
+        [0, 1); 0 (default, the paper's network as described): none. Prediction never
+        drops units.
     init : {"torch", "he"}
         How the weights start. ``"torch"`` (default): PyTorch's default for each layer,
         under which the paper's deep ReLU stack shrinks its input's variation by about
@@ -110,6 +115,7 @@ class ModelConfig:
     activation: str = "relu"
     n_outputs: int = 55
     hypotheses: int = 1
+    dropout: float = 0.0
     init: str = "torch"
 
     def __post_init__(self) -> None:
@@ -151,6 +157,10 @@ class ModelConfig:
         if isinstance(self.hypotheses, bool) or int(self.hypotheses) < 1:
             raise ValueError(f"model.hypotheses must be an integer >= 1, got {self.hypotheses!r}")
         self.hypotheses = int(self.hypotheses)
+        number = isinstance(self.dropout, (int, float)) and not isinstance(self.dropout, bool)
+        if not number or not 0 <= self.dropout < 1:
+            raise ValueError(f"model.dropout must be a number in [0, 1), got {self.dropout!r}")
+        self.dropout = float(self.dropout)
         if self.init not in INITS:
             raise ValueError(f"model.init must be one of {INITS}, got {self.init!r}")
 
@@ -203,14 +213,29 @@ class ImpulseFilter(nn.Module):
 class FullyConnectedEncoder(nn.Module):
     """The paper's encoder: the flattened image through fully connected layers.
 
-    ``H*W -> encoder_layers[0] -> ... -> encoder_layers[-1]``, activation after each.
+    ``H*W -> encoder_layers[0] -> ... -> encoder_layers[-1]``, activation after each, and
+    with ``dropout`` > 0 dropout after each but the code's (training only).
     """
 
-    def __init__(self, image_size: list[int], layers: list[int], activation: str = "relu"):
+    def __init__(
+        self,
+        image_size: list[int],
+        layers: list[int],
+        activation: str = "relu",
+        dropout: float = 0.0,
+    ):
         super().__init__()
         self.in_shape = tuple(image_size)
         self.out_features = layers[-1]
         self.net = _mlp([image_size[0] * image_size[1], *layers], activation, True)
+        if dropout > 0:
+            hidden = list(self.net)
+            with_dropout: list[nn.Module] = []
+            for i, m in enumerate(hidden):
+                with_dropout.append(m)
+                if not isinstance(m, nn.Linear) and i < len(hidden) - 1:
+                    with_dropout.append(nn.Dropout(dropout))
+            self.net = nn.Sequential(*with_dropout)
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:  # [B, H, W] -> [B, latent]
         return self.net(images.flatten(1))
@@ -309,7 +334,9 @@ def build_model(config: ModelConfig, seed: int | None = None) -> EncoderDecoder:
         if seed is not None:
             torch.manual_seed(seed)
         if config.encoder == "fc":
-            enc = FullyConnectedEncoder(size, config.encoder_layers, config.activation)
+            enc = FullyConnectedEncoder(
+                size, config.encoder_layers, config.activation, config.dropout
+            )
         else:
             enc = ConvEncoder(
                 size,
