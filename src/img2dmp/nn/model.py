@@ -97,8 +97,9 @@ class ModelConfig:
         drops units.
     init : {"torch", "he"}
         How the weights start. ``"torch"`` (default): PyTorch's default for each layer,
-        under which the paper's deep ReLU stack shrinks its input's variation by about
-        six times per layer, so that the code first sees mostly the biases; ``"he"``:
+        under which the paper's deep ReLU stack shrinks the images' variation (its
+        standard deviation across images) about 2.7-fold per layer, to 1/140 of the first
+        layer's at the code, which first sees mostly the biases; ``"he"``:
         He et al.'s normal initialisation (variance ``gain**2 / fan_in``, the gain of
         the activation that follows the layer; 1 for the output layer) and zero biases,
         which keeps the variation through every layer. The paper does not say which.
