@@ -40,6 +40,7 @@ import torch
 
 from img2dmp.data.store import load_dataset
 from img2dmp.dmp import rollout
+from img2dmp.nn.model import ACTIVATIONS
 from img2dmp.nn.normalise import ParamNormaliser
 
 # isort: split
@@ -80,8 +81,6 @@ def perfect_encoder_floor(
     paper's encoder) and the paper's decoder ``code-hidden-55``, trained ``epochs``
     epochs with cost (9) (mean squared normalised error; Adam 1e-3, cosine, batch 128)."""
     from torch import nn
-
-    from img2dmp.nn.model import ACTIVATIONS
 
     cfg = train.dmp_config
     norm = ParamNormaliser.fit(train.params, cfg, units=units)
@@ -156,7 +155,12 @@ def main(argv=None) -> int:
     p.add_argument(
         "--decoder-epochs", type=int, default=0, help="train the perfect-encoder network (0: no)"
     )
-    p.add_argument("--activation", default="relu", help="its activation (the paper's: relu)")
+    p.add_argument(
+        "--activation",
+        default="relu",
+        choices=sorted(ACTIVATIONS),
+        help="its activation (the paper's: relu)",
+    )
     args = p.parse_args(argv)
     print(format_record(run_record(__file__, sys.argv[1:] if argv is None else list(argv))))
     folder = Path(args.data)
