@@ -11,7 +11,14 @@ The model is a tiny one trained here, in a temporary directory: a 40-sample synt
 data set of one digit (``img2dmp generate``) and one epoch of the demo's network
 (``img2dmp train --config demo``), about 10 s. The image is
 one of the data set's, written as a PNG. One untimed prediction first warms the caches
-(numba's compiled code, the DMP response table, the OS's file cache).
+(numba's compiled code, the DMP response table, the OS's file cache, Python's bytecode).
+
+Python's bytecode cache: an installed package has its modules compiled (pip compiles them
+on install; Python writes the cache of an editable install on first import). Where
+``PYTHONDONTWRITEBYTECODE`` is set, as on some CI machines, every process would compile
+img2dmp's sources again, about 40 ms a prediction here; the timed commands then run
+without it and keep their bytecode in a private folder (``PYTHONPYCACHEPREFIX``), which
+the warm-up fills. ``--as-environment`` times them with the environment unchanged.
 
 ``--profile`` also prints where one prediction's time goes: the slowest imports
 (``python -X importtime``) and the functions with the most cumulative time (cProfile).
@@ -43,10 +50,10 @@ def img2dmp_command() -> list[str]:
     return [str(script)] if script.exists() else [sys.executable, "-m", "img2dmp"]
 
 
-def run(cmd: list[str], cwd: Path, timeout: float = 300.0) -> float:
+def run(cmd: list[str], cwd: Path, timeout: float = 300.0, env: dict | None = None) -> float:
     """Seconds from start to exit of ``cmd``; raises with its stderr when it fails."""
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout)
+    proc = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout, env=env)
     seconds = time.perf_counter() - t0
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
@@ -71,12 +78,27 @@ def make_model(work: Path, cli: list[str]) -> tuple[Path, Path]:
     return work / "run", png
 
 
-def time_commands(commands: dict[str, list[str]], work: Path, runs: int) -> dict:
+def bytecode_env(work: Path, as_environment: bool) -> tuple[dict, str]:
+    """The timed commands' environment and a line saying how Python caches bytecode in it
+    (module docstring)."""
+    env = dict(os.environ)
+    if as_environment or not env.get("PYTHONDONTWRITEBYTECODE"):
+        off = env.get("PYTHONDONTWRITEBYTECODE")
+        return env, f"bytecode cache: {'off (PYTHONDONTWRITEBYTECODE)' if off else 'on'}"
+    del env["PYTHONDONTWRITEBYTECODE"]
+    env["PYTHONPYCACHEPREFIX"] = str(work / "pycache")
+    return env, (
+        "bytecode cache: on, in a private folder (PYTHONDONTWRITEBYTECODE is set here; "
+        "--as-environment times without the cache)"
+    )
+
+
+def time_commands(commands: dict[str, list[str]], work: Path, runs: int, env: dict) -> dict:
     """``{name: [seconds]}``: the commands in alternation, ``runs`` rounds."""
     times = {name: [] for name in commands}
     for _ in range(runs):
         for name, cmd in commands.items():
-            times[name].append(run(cmd, work))
+            times[name].append(run(cmd, work, env=env))
     return times
 
 
@@ -106,6 +128,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=7, help="timed runs of each command")
     ap.add_argument("--profile", action="store_true", help="also show where predict's time goes")
+    ap.add_argument(
+        "--as-environment",
+        action="store_true",
+        help="time with the environment as it is, even if it turns Python's bytecode cache off",
+    )
     args = ap.parse_args()
     cli = img2dmp_command()
     work = Path(tempfile.mkdtemp(prefix="img2dmp-latency-"))
@@ -115,9 +142,12 @@ def main() -> None:
         run_dir, png = make_model(work, cli)
         print(f"tiny model trained in {time.perf_counter() - t0:.1f} s ({work})")
         predict = cli + ["predict", "--model", str(run_dir), str(png)]
-        run(predict, work)  # warm-up: numba's cache, the response table, the file cache
+        env, cache = bytecode_env(work, args.as_environment)
+        print(cache)
         commands = {"img2dmp --help": cli + ["--help"], "img2dmp predict (one image)": predict}
-        times = time_commands(commands, work, args.runs)
+        for cmd in commands.values():  # warm-up: numba, the response table, files, bytecode
+            run(cmd, work, env=env)
+        times = time_commands(commands, work, args.runs, env)
         print(f"\n{args.runs} runs each, as whole processes, in alternation")
         print(f"{'command':30s} {'min (s)':>8s} {'median':>8s} {'max':>8s} {'target':>8s}")
         for name, ts in times.items():

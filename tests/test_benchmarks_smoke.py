@@ -70,6 +70,21 @@ def test_latency_benchmark_finds_the_command_line(bench):
     assert bl.TARGETS["img2dmp --help"] == 0.5
 
 
+def test_latency_benchmark_times_with_python_s_bytecode_cache_on(bench, tmp_path, monkeypatch):
+    bl = bench("bench_latency")
+    monkeypatch.setenv("PYTHONDONTWRITEBYTECODE", "1")
+    env, line = bl.bytecode_env(tmp_path, as_environment=False)
+    assert "PYTHONDONTWRITEBYTECODE" not in env
+    assert env["PYTHONPYCACHEPREFIX"] == str(tmp_path / "pycache")
+    assert line.startswith("bytecode cache: on, in a private folder")
+    env, line = bl.bytecode_env(tmp_path, as_environment=True)
+    assert env["PYTHONDONTWRITEBYTECODE"] == "1" and line.startswith("bytecode cache: off")
+    monkeypatch.delenv("PYTHONDONTWRITEBYTECODE")
+    env, line = bl.bytecode_env(tmp_path, as_environment=False)
+    assert env.get("PYTHONPYCACHEPREFIX") != str(tmp_path / "pycache")
+    assert line == "bytecode cache: on"
+
+
 def test_time_to_accuracy_writes_curve_and_table(bench, tmp_path, capsys):
     tta = bench("time_to_accuracy")
     before = torch.get_num_threads()

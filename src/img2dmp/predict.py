@@ -552,9 +552,14 @@ def _overlay(path: Path, image: np.ndarray, paths: np.ndarray, probs, title: str
 
 
 def write_prediction(
-    out_dir: str | os.PathLike, stem: str, prediction: Prediction, overlay: bool = False
+    out_dir: str | os.PathLike,
+    stem: str,
+    prediction: Prediction,
+    overlay: bool = False,
+    text: str | None = None,
 ) -> list[Path]:
-    """Write ``<stem>_dmp.json`` (:meth:`Prediction.save`), ``<stem>_trajectory.csv``
+    """Write ``<stem>_dmp.json`` (:meth:`Prediction.save`; ``text``: its text as
+    :meth:`Prediction.to_json` gave it, if already made), ``<stem>_trajectory.csv``
     (:meth:`Prediction.trajectory_csv`) and, with ``overlay``, ``<stem>_overlay.png``
     (the model's input with the paths in the model frame) and
     ``<stem>_overlay_image.png`` (the user's own image with the paths in the image frame;
@@ -562,7 +567,8 @@ def write_prediction(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = [out / f"{stem}_dmp.json", out / f"{stem}_trajectory.csv"]
-    atomic_write_text(written[0], prediction.to_json(written[0]))  # checked first
+    text = prediction.to_json(written[0]) if text is None else text  # checked first
+    atomic_write_text(written[0], text)
     atomic_write_text(written[1], prediction.trajectory_csv())
     if overlay:
         p = prediction.probabilities

@@ -108,8 +108,8 @@ def run(args: argparse.Namespace) -> int:
         texts = [text.rstrip() for _, _, text in predictions]
         print(texts[0] if len(texts) == 1 else "[\n" + ",\n".join(texts) + "\n]")
         return 0
-    for path, pred, _ in predictions:
-        files = write_prediction(args.out, Path(path).stem, pred, overlay=args.overlay)
+    for path, pred, text in predictions:
+        files = write_prediction(args.out, Path(path).stem, pred, overlay=args.overlay, text=text)
         tau = float(pred.dmp.tau)
         print(f"{path}: tau = {tau:.3f} s -> " + ", ".join(str(f) for f in files))
     return 0
