@@ -247,6 +247,8 @@ def test_dropout_acts_in_training_only_after_the_hidden_layers_of_the_fc_encoder
     for bad in (1.0, -0.1, "0.2", True):
         with pytest.raises(ValueError, match="model.dropout must be a number in"):
             ModelConfig(dropout=bad)
+    with pytest.raises(ValueError, match="the 'conv' encoder has none"):
+        ModelConfig(encoder="conv", dropout=0.2)
 
 
 def test_conv_batch_norm_trains_saves_and_reloads(tmp_path):

@@ -43,12 +43,19 @@ def _activation(name: str) -> nn.Module:
     return ACTIVATIONS[name]()
 
 
-def _mlp(sizes: list[int], activation: str, last_activation: bool) -> nn.Sequential:
+def _mlp(
+    sizes: list[int], activation: str, last_activation: bool, dropout: float = 0.0
+) -> nn.Sequential:
+    """Linear layers of ``sizes`` with ``activation`` after each (the last one only with
+    ``last_activation``) and, with ``dropout`` > 0, dropout after each hidden layer's."""
     layers: list[nn.Module] = []
     for i in range(len(sizes) - 1):
+        hidden = i < len(sizes) - 2
         layers.append(nn.Linear(sizes[i], sizes[i + 1]))
-        if i < len(sizes) - 2 or last_activation:
+        if hidden or last_activation:
             layers.append(_activation(activation))
+        if hidden and dropout > 0:
+            layers.append(nn.Dropout(dropout))
     return nn.Sequential(*layers)
 
 
@@ -162,6 +169,12 @@ class ModelConfig:
         if not number or not 0 <= self.dropout < 1:
             raise ValueError(f"model.dropout must be a number in [0, 1), got {self.dropout!r}")
         self.dropout = float(self.dropout)
+        if self.dropout > 0 and self.encoder != "fc":
+            raise ValueError(
+                f"model.dropout ({self.dropout}) acts on the fully connected encoder's hidden "
+                f"layers; the {self.encoder!r} encoder has none (set model.encoder: fc or "
+                "model.dropout: 0)"
+            )
         if self.init not in INITS:
             raise ValueError(f"model.init must be one of {INITS}, got {self.init!r}")
 
@@ -228,15 +241,7 @@ class FullyConnectedEncoder(nn.Module):
         super().__init__()
         self.in_shape = tuple(image_size)
         self.out_features = layers[-1]
-        self.net = _mlp([image_size[0] * image_size[1], *layers], activation, True)
-        if dropout > 0:
-            hidden = list(self.net)
-            with_dropout: list[nn.Module] = []
-            for i, m in enumerate(hidden):
-                with_dropout.append(m)
-                if not isinstance(m, nn.Linear) and i < len(hidden) - 1:
-                    with_dropout.append(nn.Dropout(dropout))
-            self.net = nn.Sequential(*with_dropout)
+        self.net = _mlp([image_size[0] * image_size[1], *layers], activation, True, dropout)
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:  # [B, H, W] -> [B, latent]
         return self.net(images.flatten(1))
