@@ -276,8 +276,8 @@ class ImageTooLargeError(ValueError):
     """An image file with more pixels than PIL's decompression-bomb limit."""
 
 
-def _open_reduced(im, label: str):
-    """A loaded PIL image of at most ``MAX_WORK_PIXELS`` (JPEG: decoded at a reduced
+def _open_reduced(im, label: str, max_pixels: int = MAX_WORK_PIXELS):
+    """A loaded PIL image of at most ``max_pixels`` (JPEG: decoded at a reduced
     scale), the further integer reduction it needs and the scale the decoder applied
     (1 unless a JPEG was decoded at 1/2, 1/4 or 1/8); ``ValueError`` for an image beyond
     PIL's decompression-bomb limit."""
@@ -290,7 +290,7 @@ def _open_reduced(im, label: str):
             f"{label} has {w} x {h} = {w * h} pixels, more than the {limit} "
             "an image may have (PIL.Image.MAX_IMAGE_PIXELS)"
         )
-    factor = math.ceil(math.sqrt(w * h / MAX_WORK_PIXELS))
+    factor = math.ceil(math.sqrt(w * h / max_pixels))
     draft = None
     if factor > 1:
         draft = im.draft(None, (max(1, w // factor), max(1, h // factor)))  # JPEG only
@@ -298,7 +298,7 @@ def _open_reduced(im, label: str):
     # The decoder's scale, exactly: PIL's box is the image in the drafted pixels.
     scale = w / draft[1][2] if draft else 1.0
     w, h = im.size
-    return im, max(1, math.ceil(math.sqrt(w * h / MAX_WORK_PIXELS))), scale
+    return im, max(1, math.ceil(math.sqrt(w * h / max_pixels))), scale
 
 
 def full_scale(top: float) -> float:
@@ -341,31 +341,40 @@ def shown_size(im) -> tuple[int, int]:
     return (w, h) if _orientation(im) in _TURNED else (h, w)
 
 
-def _pil_grey(im, label: str) -> tuple[np.ndarray, float]:
-    """Grey levels in [0, 1] of a PIL image, upright (:func:`upright`), transparency
-    composited on white, reduced to at most ``MAX_WORK_PIXELS``, and the reduction (its
-    pixels per grey pixel)."""
+def _pil_levels(im, label: str, max_pixels: int = MAX_WORK_PIXELS) -> tuple[np.ndarray, float]:
+    """Levels in [0, 1] of a PIL image: RGB ``float32 [h, w, 3]`` for a colour image,
+    grey ``[h, w]`` otherwise; upright (:func:`upright`), transparency composited on
+    white, reduced to at most ``max_pixels``; and the reduction (its pixels per level
+    pixel)."""
     from PIL import Image
 
-    im, factor, scale = _open_reduced(im, label)
+    im, factor, scale = _open_reduced(im, label, max_pixels)
     im = upright(im)
     if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
         rgba = im.convert("RGBA")
         bg = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
-        im = Image.alpha_composite(bg, rgba)
+        im = Image.alpha_composite(bg, rgba).convert("RGB" if im.mode != "LA" else "L")
+    wide = im.mode.startswith("I") or im.mode == "F"  # more than 8 bits: grey
+    colour = not wide and im.mode not in ("1", "L")
+    if colour:
+        im = im.convert("RGB")
     if factor > 1:  # 8-bit images reduce as 8 bits: a quarter of the memory
-        wide = im.mode.startswith("I") or im.mode == "F"  # more than 8 bits
-        im = im.convert("F" if wide else "L")
-        im = im.reduce(factor)
-    grey = np.asarray(im.convert("F"), dtype=np.float64)
-    if grey.ndim != 2 or min(grey.shape) < 2:
-        raise ValueError(f"{label} has unusable size {grey.shape}")
-    return grey / full_scale(grey.max()), scale * factor
+        im = (im if colour else im.convert("F" if wide else "L")).reduce(factor)
+    if colour:
+        levels = np.asarray(im, dtype=np.float32) / np.float32(255.0)
+    else:
+        levels = np.array(im.convert("F"), dtype=np.float32)  # a copy: divided in place
+        levels /= np.float32(full_scale(float(levels.max()) if levels.size else 0.0))
+    if min(levels.shape[:2]) < 2:
+        raise ValueError(f"{label} has unusable size {levels.shape[:2]}")
+    return levels, scale * factor
 
 
-def _decode_framed(path: Path) -> tuple[np.ndarray, float, tuple[int, int]]:
-    """Grey levels in [0, 1] of an image file (:func:`_pil_grey`), the reduction (file
-    pixels per grey pixel) and the file's own size ``(H, W)``."""
+def _decode_framed(
+    path: Path, max_pixels: int = MAX_WORK_PIXELS
+) -> tuple[np.ndarray, float, tuple[int, int]]:
+    """Levels in [0, 1] of an image file (:func:`_pil_levels`), the reduction (file
+    pixels per level pixel) and the file's own size ``(H, W)``."""
     from PIL import Image, UnidentifiedImageError
 
     if not path.is_file():
@@ -376,7 +385,7 @@ def _decode_framed(path: Path) -> tuple[np.ndarray, float, tuple[int, int]]:
             im = Image.open(path)
         with im:
             size = shown_size(im)
-            grey, reduction = _pil_grey(im, f"image file {path}")
+            levels, reduction = _pil_levels(im, f"image file {path}", max_pixels)
     except ImageTooLargeError:
         raise
     except Image.DecompressionBombError as e:
@@ -387,20 +396,28 @@ def _decode_framed(path: Path) -> tuple[np.ndarray, float, tuple[int, int]]:
         if str(e).startswith(f"image file {path}"):
             raise
         raise ValueError(f"cannot decode image file {path}: {e}") from e
-    return grey, reduction, size
+    return levels, reduction, size
+
+
+def grey_of(levels: np.ndarray) -> np.ndarray:
+    """Grey levels ``[h, w]`` (float64) of levels ``[h, w]`` or RGB ``[h, w, 3]``: the
+    ITU-R 601-2 luma, as PIL's ``"L"``."""
+    if levels.ndim == 2:
+        return levels.astype(np.float64)
+    return levels.astype(np.float64) @ np.array([0.299, 0.587, 0.114])
 
 
 def _decode(path: Path) -> np.ndarray:
     """Grey levels in [0, 1] of an image file; transparency is composited on white."""
-    return _decode_framed(path)[0]
+    return grey_of(_decode_framed(path)[0])
 
 
-def _array_grey(source, label: str) -> tuple[np.ndarray, float]:
+def _array_levels(source, label: str) -> tuple[np.ndarray, float]:
     """A NumPy array ``[H, W]`` (grey), ``[H, W, 3]`` (RGB) or ``[H, W, 4]`` (RGBA,
-    composited on white) as grey levels at full size, checked (``ValueError`` naming
-    ``label``), and the level of white (:func:`full_scale`) to divide them by once the
-    image is reduced (a full-size float copy of a large photo is what reducing first
-    avoids)."""
+    composited on white) as levels at full size (grey ``[H, W]`` or RGB ``[H, W, 3]``),
+    checked (``ValueError`` naming ``label``), and the level of white
+    (:func:`full_scale`) to divide them by once the image is reduced (a full-size float
+    copy of a large photo is what reducing first avoids)."""
     a = np.asarray(source)
     if a.dtype.kind not in "buif":
         raise ValueError(f"{label} must hold numbers, got dtype {a.dtype}")
@@ -412,58 +429,73 @@ def _array_grey(source, label: str) -> tuple[np.ndarray, float]:
     if a.dtype.kind == "f" and not np.isfinite(a).all():
         raise ValueError(f"{label} contains NaN or inf")
     full = full_scale(a.max())
-    if a.ndim == 2:
+    if a.ndim == 2 or a.shape[2] == 3:
         return a, full
-    rgb = a[..., :3].astype(np.float64)
-    grey = rgb @ np.array([0.299, 0.587, 0.114])  # ITU-R 601-2 luma, as PIL's "L"
-    if a.shape[2] == 4:  # composite on white, as for image files
-        alpha = a[..., 3].astype(np.float64) / full
-        grey = grey * alpha + full * (1.0 - alpha)
-    return grey, full
+    alpha = a[..., 3:].astype(np.float32) / np.float32(full)  # composite on white
+    return a[..., :3] * alpha + np.float32(full) * (1.0 - alpha), full
 
 
-def _grey_levels_framed(source, name: str | None):
-    """Grey levels ``[h, w]`` in [0, 1] of a file, PIL image or array, the reduction (the
-    source's pixels per grey pixel), the source's size ``(H, W)`` and a label for
-    messages."""
+def _reduce_levels(levels: np.ndarray, factor: int) -> np.ndarray:
+    """:func:`_reduce` (area average) of grey ``[H, W]`` or RGB ``[H, W, 3]`` levels."""
+    if levels.ndim == 2:
+        return _reduce(levels, factor)
+    return np.stack([_reduce(levels[..., c], factor) for c in range(3)], axis=-1)
+
+
+def _levels_framed(source, name: str | None, max_pixels: int = MAX_WORK_PIXELS):
+    """Levels in [0, 1] (grey ``[h, w]`` or RGB ``[h, w, 3]``, float32) of a file, PIL
+    image or array, the reduction (the source's pixels per level pixel), the source's
+    size ``(H, W)`` and a label for messages."""
     from PIL import Image
 
     if isinstance(source, (str, os.PathLike)):
-        grey, reduction, size = _decode_framed(Path(source))
-        return grey, reduction, size, str(source)
+        levels, reduction, size = _decode_framed(Path(source), max_pixels)
+        return levels, reduction, size, str(source)
     if isinstance(source, Image.Image):
         label = name or "PIL image"
         size = shown_size(source)
-        grey, reduction = _pil_grey(source.copy(), label)
-        return grey, reduction, size, label
+        levels, reduction = _pil_levels(source.copy(), label, max_pixels)
+        return levels, reduction, size, label
     if not (isinstance(source, (np.ndarray, list, tuple)) or hasattr(source, "__array__")):
         raise ValueError(
             f"{name or 'image'} must be a file path, a PIL image or a NumPy array, got "
             f"{type(source).__name__}"
         )
     label = name or "image array"
-    grey, full = _array_grey(source, label)
-    size = (int(grey.shape[0]), int(grey.shape[1]))
-    factor = math.ceil(math.sqrt(grey.size / MAX_WORK_PIXELS))
-    grey = _reduce(grey, factor) if factor > 1 else grey.astype(np.float64)
-    return grey / full, float(factor), size, label
+    levels, full = _array_levels(source, label)
+    size = (int(levels.shape[0]), int(levels.shape[1]))
+    factor = math.ceil(math.sqrt(size[0] * size[1] / max_pixels))
+    levels = _reduce_levels(levels, factor) if factor > 1 else levels
+    return (levels / np.float32(full)).astype(np.float32), float(factor), size, label
 
 
 def _grey_levels(source, name: str | None) -> tuple[np.ndarray, str]:
     """Grey levels ``[H, W]`` in [0, 1] of a file, PIL image or array, and a label for
     messages."""
-    grey, _, _, label = _grey_levels_framed(source, name)
-    return grey, label
+    levels, _, _, label = _levels_framed(source, name)
+    return grey_of(levels), label
 
 
-def _ink_levels(grey: np.ndarray, label: str) -> np.ndarray:
-    """Ink ``[H, W]`` from grey levels: light ink on zero background, darkest ink = 1.
+def _ink_levels(levels: np.ndarray, label: str, clean: bool = True) -> np.ndarray:
+    """Ink ``[H, W]`` from levels (grey or RGB): light ink on zero background, ink = 1.
 
-    The polarity comes from the border: if the median of the outer ring (5 % of the
-    shorter side) is brighter than the median of the whole image, or than mid grey, the
-    ink is dark on light paper and the image is inverted. The background level (the
-    ring's median) is subtracted and the ink scaled to 1.
+    ``clean`` (the default): the handwriting separated from its paper by
+    :func:`img2dmp.data.paper.paper_ink` (lighting flattened, ink of any colour, ruled,
+    squared and dotted lines, text from the back, specks and the sheet's edge removed),
+    typical ink = 1. Otherwise the plain reading: the polarity from the border (if the
+    median of the outer ring, 5 % of the shorter side, is brighter than the median of the
+    whole image, or than mid grey, the ink is dark on light paper and the image is
+    inverted), the background level (the ring's median) subtracted and the darkest ink
+    scaled to 1.
     """
+    if clean:
+        from .paper import paper_ink
+
+        found = paper_ink(levels)
+        if found is None:
+            raise ValueError(f"{label} shows no ink (nothing stands out from the paper)")
+        return found.ink.astype(np.float64)
+    grey = grey_of(levels)
     ring = max(1, round(0.05 * min(grey.shape)))
     border = np.concatenate(
         [grey[:ring].ravel(), grey[-ring:].ravel(), grey[:, :ring].ravel(), grey[:, -ring:].ravel()]
@@ -547,13 +579,16 @@ def prepare_image(
     margin: float = DEFAULT_MARGIN,
     stroke_width_px: float | None = None,
     name: str | None = None,
+    clean: bool = True,
 ) -> np.ndarray:
     """Bring an image of one handwritten digit to the network's input.
 
-    Steps: grey levels in [0, 1]; polarity from the border (if the median of the outer
-    ring of pixels is brighter than the median of the whole image, the ink is dark on
-    light paper and the image is inverted); the background level (border median) is
-    subtracted and the ink scaled to 1; crop to the bounding box of pixels above
+    Steps: levels in [0, 1] (colour kept); the ink separated from its paper
+    (:func:`img2dmp.data.paper.paper_ink`: polarity from the border, lighting flattened,
+    ink of any colour on paper of any tint, ruled, squared and dotted lines, text showing
+    through from the back, specks and the sheet's edge removed; typical ink = 1; with
+    ``clean=False`` only the polarity and the border's level, the earlier reading); crop to
+    the bounding box of pixels above
     ``INK_THRESHOLD``; pad to a square around the box's centre; add ``margin`` of the
     side on every border; optionally thicken or thin the strokes to the training images'
     pen width (a thin pen photographed at high resolution would otherwise shrink to faint
@@ -578,6 +613,9 @@ def prepare_image(
         ``stroke_width_px``, see :func:`typical_stroke_width`); None keeps the width.
     name : str, optional
         Used in error messages for arrays and PIL images.
+    clean : bool
+        Separate the ink from the paper (default); False reads the image as plain paper
+        (for images known to be clean, and for comparisons).
 
     Returns
     -------
@@ -585,8 +623,9 @@ def prepare_image(
         Ink = 1, background = 0.
     """
     return prepare_image_framed(
-        source, image_size, margin=margin, stroke_width_px=stroke_width_px, name=name
-    )[0]
+        source, image_size, margin=margin, stroke_width_px=stroke_width_px, name=name,
+        clean=clean,
+    )[0]  # fmt: skip
 
 
 def _check_preparation(image_size, margin, stroke_width_px) -> tuple[int, int]:
@@ -613,6 +652,7 @@ def prepare_image_framed(
     margin: float = DEFAULT_MARGIN,
     stroke_width_px: float | None = None,
     name: str | None = None,
+    clean: bool = True,
 ) -> tuple[np.ndarray, ImageFrame]:
     """:func:`prepare_image` (same arguments), and the :class:`ImageFrame` that maps
     positions in ``source`` to positions in the prepared image and back.
@@ -623,12 +663,34 @@ def prepare_image_framed(
     the returned image, ``frame.to_image(xy)`` the reverse.
     """
     h_out, w_out = _check_preparation(image_size, margin, stroke_width_px)
-    grey, reduction, size, label = _grey_levels_framed(source, name)
+    levels, reduction, size, label = _levels_framed(source, name)
+    ink = _ink_levels(levels, label, clean)
+    out, edge = frame_ink(ink, (h_out, w_out), margin, stroke_width_px, label)
     # Positions are tracked on pixel edges (pixel j spans [j, j + 1]), where a reduction
     # or a resize is a pure scaling; CONTRACTS.md's centres are half a pixel less.
-    edge = _scaling(1.0 / reduction)
-    crop, r0, c0 = _crop_box(_ink_levels(grey, label), label)
-    edge = _shift(-c0, -r0) @ edge
+    return out, ImageFrame(_centred(edge @ _scaling(1.0 / reduction)), size, (h_out, w_out))
+
+
+def _centred(edge: np.ndarray) -> np.ndarray:
+    """A map of pixel-edge positions ``[3, 3]`` as the ``[2, 3]`` map of pixel centres."""
+    return (_shift(-0.5, -0.5) @ edge @ _shift(0.5, 0.5))[:2]
+
+
+def frame_ink(
+    ink: np.ndarray,
+    image_size: tuple[int, int],
+    margin: float = DEFAULT_MARGIN,
+    stroke_width_px: float | None = None,
+    label: str = "the image",
+) -> tuple[np.ndarray, np.ndarray]:
+    """An ink map ``[h, w]`` (ink = 1) as the model's input: cropped to the ink, the pen
+    width matched, framed and resized as :func:`prepare_image` does; ``float32 [H, W]``
+    and the ``[3, 3]`` affine map from pixel-edge positions of ``ink`` (pixel ``j``
+    spans ``[j, j + 1]``) to those of the result (sizes and margin as checked by
+    :func:`prepare_image`)."""
+    h_out, w_out = image_size
+    crop, r0, c0 = _crop_box(ink, label)
+    edge = _shift(-c0, -r0)
     factor = _work_factor(crop, margin, max(h_out, w_out))
     if stroke_width_px is not None:
         # The pen width is matched at the output's scale, which the framing fixes.
@@ -642,15 +704,14 @@ def prepare_image_framed(
         crop = _reduce(crop, factor)
         edge = _scaling(1.0 / factor) @ edge
     out, (total, top, left) = _frame_placed(crop, (h_out, w_out), margin)
-    edge = _scaling(w_out / total, h_out / total) @ _shift(left, top) @ edge
-    centre = _shift(-0.5, -0.5) @ edge @ _shift(0.5, 0.5)
-    return out, ImageFrame(centre[:2], size, (h_out, w_out))
+    return out, _scaling(w_out / total, h_out / total) @ _shift(left, top) @ edge
 
 
-def ink_view(source, max_side: int = 600, *, name: str | None = None):
+def ink_view(source, max_side: int = 600, *, name: str | None = None, clean: bool = True):
     """The whole of ``source`` (a path, PIL image or array, as for :func:`prepare_image`)
-    as ink levels for a picture: polarity from the border, background 0, ink 1, reduced
-    (area average) so that its longer side is at most ``max_side`` pixels.
+    as ink levels for a picture: the ink separated from the paper as
+    :func:`prepare_image` separates it (``clean``), background 0, ink 1, reduced (area
+    average) so that its longer side is at most ``max_side`` pixels.
 
     Returns
     -------
@@ -661,9 +722,9 @@ def ink_view(source, max_side: int = 600, *, name: str | None = None):
     """
     if isinstance(max_side, bool) or not isinstance(max_side, int) or max_side < 2:
         raise ValueError(f"max_side must be a whole number >= 2, got {max_side!r}")
-    grey, reduction, _, label = _grey_levels_framed(source, name)
-    factor = max(1, math.ceil(max(grey.shape) / max_side))
-    view = _reduce(_ink_levels(grey, label), factor)
+    levels, reduction, _, label = _levels_framed(source, name)
+    factor = max(1, math.ceil(max(levels.shape[:2]) / max_side))
+    view = _reduce(_ink_levels(levels, label, clean), factor)
     return view.astype(np.float32), 1.0 / (reduction * factor)
 
 
