@@ -1,0 +1,356 @@
+"""Finding the characters of a page and their reading order (NumPy, SciPy).
+
+:func:`find_characters` takes the ink of a page (:func:`img2dmp.data.paper.paper_ink`'s
+mask of pen strokes) and returns its characters, each a box and its own pixels, grouped
+into text lines and ordered for reading:
+
+1. **marks**: the 8-connected components of the ink, and the page's scale, the typical
+   character height ``height_px`` (the median component height, weighted by ink);
+2. **joined parts**: components that stack over one another (a 5's bar over its body,
+   the two strokes of a 4) are one character when one lies within the other's columns
+   (``JOIN_OVERLAP``), they are at most ``JOIN_GAP`` character heights apart and
+   together no taller than ``JOIN_HEIGHT`` heights; a small fragment joins the
+   character it nearly touches;
+3. **lines**: the page's writing direction (the angle along which the ink lines up,
+   :func:`img2dmp.data.paper.dominant_angle`), and the characters sorted across it: a
+   new line begins where the next character's middle row is more than ``LINE_GAP``
+   heights past the current line's;
+4. **touching characters**: in each line, the pitch (the median distance between
+   neighbouring characters' centres) says how many characters a wide mark holds; it is
+   cut at the columns of least ink, at least ``MIN_CUT_PITCH`` pitches apart;
+5. **reading order**: lines top to bottom, characters left to right; words where the
+   gap is wider than ``WORD_GAP`` heights and twice the line's usual gap.
+
+Positions are the ink map's pixels: boxes ``[x0, y0, x1, y1]`` are half-open (columns
+``x0 <= j < x1``), x = column, y = row (docs/CONTRACTS.md).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Parts stack into one character when the narrower lies within the wider's columns:
+#: their union is at most this much wider than the wider part.
+JOIN_OVERLAP = 1.15
+#: ... and at most this many character heights apart (vertically),
+JOIN_GAP = 0.45
+#: ... and together at most this many character heights tall.
+JOIN_HEIGHT = 1.7
+#: A fragment (at most this share of a character height on its longer side) joins the
+#: nearest character within this share of a height.
+FRAGMENT_SIZE = 0.3
+#: A new line starts this many character heights below the current one's middle.
+LINE_GAP = 0.55
+#: Cuts through touching characters are at least this share of the pitch apart.
+MIN_CUT_PITCH = 0.45
+#: A gap wider than this many character heights (and twice the line's usual) is a space.
+WORD_GAP = 0.6
+#: The most characters a page may hold.
+MAX_CHARACTERS = 5000
+
+
+@dataclass
+class PageCharacter:
+    """One character of a page.
+
+    Attributes
+    ----------
+    box : (x0, y0, x1, y1)
+        Half-open pixel bounds of its ink in the page's ink map.
+    mask : bool [y1 - y0, x1 - x0]
+        Its own pixels in the box (a neighbour's ink reaching into the box is not).
+    line, position, word : int
+        Its text line (0 = top), its place in the line (0 = left) and its word in the line.
+    index : int
+        Its place in reading order over the page.
+    parts : int
+        Components joined into it (1: one connected mark).
+    split : bool
+        Cut from a mark of touching characters.
+    """
+
+    box: tuple[int, int, int, int]
+    mask: np.ndarray
+    line: int = 0
+    position: int = 0
+    word: int = 0
+    index: int = 0
+    parts: int = 1
+    split: bool = False
+
+    @property
+    def centre(self) -> tuple[float, float]:
+        x0, y0, x1, y1 = self.box
+        return (x0 + x1) / 2.0, (y0 + y1) / 2.0
+
+
+@dataclass
+class PageLayout:
+    """The characters of a page in reading order, and what they were found with.
+
+    Attributes
+    ----------
+    characters : list of PageCharacter
+    lines : list of list of int
+        The indices of each line's characters, left to right.
+    angle_deg : float
+        The writing direction (degrees; positive: lines rise to the left, falling to the right).
+    height_px : float
+        The typical character height.
+    shape : (H, W)
+        The ink map's size.
+    """
+
+    characters: list[PageCharacter] = field(default_factory=list)
+    lines: list[list[int]] = field(default_factory=list)
+    angle_deg: float = 0.0
+    height_px: float = 0.0
+    shape: tuple[int, int] = (0, 0)
+
+
+@dataclass
+class _Mark:
+    """A group of components under construction: its box and the labels it holds."""
+
+    x0: int
+    y0: int
+    x1: int
+    y1: int
+    labels: list[int]
+    area: int
+
+    @property
+    def width(self) -> int:
+        return self.x1 - self.x0
+
+    @property
+    def height(self) -> int:
+        return self.y1 - self.y0
+
+
+def _marks(mask: np.ndarray) -> tuple[np.ndarray, list[_Mark]]:
+    """Labels of the 8-connected components of ``mask`` and one :class:`_Mark` each."""
+    from scipy.ndimage import find_objects, label
+
+    labels, n = label(mask, structure=np.ones((3, 3), bool))
+    if n > MAX_CHARACTERS * 4:
+        raise ValueError(
+            f"the page holds {n} separate marks, more than {MAX_CHARACTERS * 4}: is it a "
+            "page of handwriting?"
+        )
+    area = np.bincount(labels.ravel(), minlength=n + 1)
+    marks = []
+    for i, sl in enumerate(find_objects(labels), start=1):
+        if sl is not None:
+            marks.append(_Mark(sl[1].start, sl[0].start, sl[1].stop, sl[0].stop, [i], int(area[i])))
+    return labels, marks
+
+
+def typical_height(marks: list[_Mark]) -> float:
+    """The median height of the marks, each weighted by its ink (specks count little)."""
+    if not marks:
+        return 0.0
+    h = np.array([m.height for m in marks], float)
+    w = np.array([m.area for m in marks], float)
+    order = np.argsort(h)
+    cum = np.cumsum(w[order])
+    return float(h[order][np.searchsorted(cum, cum[-1] / 2.0)])
+
+
+def _stack(a: _Mark, b: _Mark, height: float) -> bool:
+    """Whether ``a`` and ``b`` are parts of one character (step 2 of the module docstring)."""
+    union_w = max(a.x1, b.x1) - min(a.x0, b.x0)
+    union_h = max(a.y1, b.y1) - min(a.y0, b.y0)
+    gap_y = max(a.y0, b.y0) - min(a.y1, b.y1)
+    gap_x = max(a.x0, b.x0) - min(a.x1, b.x1)
+    if union_h > JOIN_HEIGHT * height:
+        return False
+    if max(a.width, a.height, b.width, b.height) > 0 and (
+        min(max(a.width, a.height), max(b.width, b.height)) <= FRAGMENT_SIZE * height
+    ):
+        return max(gap_x, gap_y) <= FRAGMENT_SIZE * height  # a fragment near its character
+    return union_w <= JOIN_OVERLAP * max(a.width, b.width) and gap_y <= JOIN_GAP * height
+
+
+def _merge(a: _Mark, b: _Mark) -> _Mark:
+    return _Mark(min(a.x0, b.x0), min(a.y0, b.y0), max(a.x1, b.x1), max(a.y1, b.y1),
+                 a.labels + b.labels, a.area + b.area)  # fmt: skip
+
+
+def join_parts(marks: list[_Mark], height: float) -> list[_Mark]:
+    """Marks merged into characters until no two are parts of one (:func:`_stack`);
+    only marks whose boxes come within a character height of each other are compared."""
+    marks = sorted(marks, key=lambda m: m.x0)
+    changed = True
+    while changed:
+        changed = False
+        out: list[_Mark] = []
+        for m in marks:
+            for k in range(len(out) - 1, -1, -1):
+                o = out[k]
+                if o.x1 + height < m.x0 and o.x0 + 4 * height < m.x0:
+                    continue  # far to the left: sorted by x0, nothing to join there
+                if _stack(o, m, height):
+                    out[k] = _merge(o, m)
+                    changed = True
+                    break
+            else:
+                out.append(m)
+        marks = sorted(out, key=lambda m: m.x0)
+    return marks
+
+
+def _own_pixels(labels: np.ndarray, m: _Mark) -> np.ndarray:
+    """The pixels of ``m``'s components in its box, ``bool [height, width]``."""
+    crop = labels[m.y0 : m.y1, m.x0 : m.x1]
+    return np.isin(crop, m.labels)
+
+
+def _middle_row(pixels: np.ndarray, y0: int) -> float:
+    """The median row of a character's pixels (a long tail moves it less than the box)."""
+    counts = pixels.sum(axis=1).cumsum()
+    return y0 + float(np.searchsorted(counts, counts[-1] / 2.0))
+
+
+def group_lines(mids: np.ndarray, xs: np.ndarray, angle_deg: float, height: float):
+    """Line of every character (0 = top) from its middle row ``mids`` and centre column
+    ``xs``: sorted across the writing direction, a new line where the next middle is
+    more than ``LINE_GAP`` heights past the current line's median."""
+    across = mids - xs * math.tan(math.radians(angle_deg))
+    order = np.argsort(across, kind="stable")
+    line = np.zeros(len(mids), np.int64)
+    current: list[float] = []
+    n = 0
+    for i in order:
+        if current and across[i] - float(np.median(current)) > LINE_GAP * height:
+            n, current = n + 1, []
+        current.append(float(across[i]))
+        line[i] = n
+    return line
+
+
+def _pitch(lines: list[list[int]], centres: np.ndarray, height: float) -> float:
+    """The page's usual distance between neighbouring characters' centres in a line
+    (0.8 heights where no line has two)."""
+    steps = [np.diff(np.sort(centres[idx])) for idx in lines if len(idx) > 1]
+    steps = np.concatenate(steps) if steps else np.array([])
+    steps = steps[steps < 2.5 * height]  # spaces between words are not the pitch
+    return float(np.median(steps)) if steps.size else 0.8 * height
+
+
+def _cut_columns(profile: np.ndarray, k: int) -> list[int]:
+    """``k - 1`` columns at which to cut a mark of touching characters: each the column
+    of least ink (smoothed over three) near an equal division, at least
+    ``MIN_CUT_PITCH`` divisions from the previous cut."""
+    smooth = np.convolve(profile, np.ones(3) / 3.0, mode="same")
+    width = len(profile)
+    step = width / k
+    cuts: list[int] = []
+    for j in range(1, k):
+        lo = max(int(j * step - 0.4 * step), (cuts[-1] if cuts else 0) + int(MIN_CUT_PITCH * step))
+        hi = min(int(j * step + 0.4 * step), width - int(MIN_CUT_PITCH * step))
+        if hi <= lo:
+            continue
+        cuts.append(lo + int(np.argmin(smooth[lo:hi])))
+    return cuts
+
+
+def _split(m: _Mark, pixels: np.ndarray, pitch: float, width: float):
+    """``m`` as ``[(box, pixels), ...]``, cut into the characters it holds when it is
+    wider than one (step 4 of the module docstring)."""
+    k = max(1, round((m.width - width) / max(pitch, 1.0)) + 1) if m.width > width else 1
+    cuts = _cut_columns(pixels.sum(axis=0), k) if k > 1 else []
+    pieces = []
+    for a, b in zip([0, *cuts], [*cuts, m.width], strict=True):
+        part = np.zeros_like(pixels)
+        part[:, a:b] = pixels[:, a:b]
+        rows, cols = np.nonzero(part)
+        if rows.size == 0:
+            continue
+        r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+        box = (m.x0 + int(c0), m.y0 + int(r0), m.x0 + int(c1), m.y0 + int(r1))
+        pieces.append((box, part[r0:r1, c0:c1]))
+    return pieces
+
+
+def _words(chars: list[PageCharacter], height: float) -> None:
+    """Number the words of one line's characters (left to right): a new word after a
+    gap wider than ``WORD_GAP`` heights and twice the line's median gap."""
+    gaps = np.array([b.box[0] - a.box[2] for a, b in zip(chars, chars[1:], strict=False)])
+    usual = float(np.median(gaps)) if gaps.size else 0.0
+    word = 0
+    for i, c in enumerate(chars):
+        if i and gaps[i - 1] > max(WORD_GAP * height, 2.0 * usual):
+            word += 1
+        c.word, c.position = word, i
+
+
+def find_characters(mask, *, angle_deg: float | None = None) -> PageLayout:
+    """The characters of a page's ink mask, in reading order (module docstring).
+
+    Parameters
+    ----------
+    mask : bool array [H, W]
+        The pen strokes (e.g. :attr:`img2dmp.data.paper.PaperInk.mask`).
+    angle_deg : float, optional
+        The writing direction, if known; found from the ink otherwise.
+
+    Returns
+    -------
+    PageLayout
+        Empty (no characters) for a mask without ink.
+    """
+    from .paper import dominant_angle
+
+    mask = np.asarray(mask, dtype=bool)
+    if mask.ndim != 2:
+        raise ValueError(f"mask must be a 2-D array [H, W], got shape {mask.shape}")
+    labels, marks = _marks(mask)
+    if not marks:
+        return PageLayout(shape=mask.shape)
+    marks = join_parts(marks, typical_height(marks))
+    if len(marks) > MAX_CHARACTERS:
+        raise ValueError(
+            f"the page holds {len(marks)} characters, more than {MAX_CHARACTERS}: is it a "
+            "page of handwriting?"
+        )
+    height = typical_height(marks)
+    angle = dominant_angle(mask) if angle_deg is None else float(angle_deg)
+    pixels = [_own_pixels(labels, m) for m in marks]
+    mids = np.array([_middle_row(p, m.y0) for p, m in zip(pixels, marks, strict=True)])
+    xs = np.array([(m.x0 + m.x1) / 2.0 for m in marks])
+    line = group_lines(mids, xs, angle, height)
+    along = xs + mids * math.tan(math.radians(angle))
+    by_line = [list(np.flatnonzero(line == n)[np.argsort(along[line == n])]) for n in
+               range(int(line.max()) + 1)]  # fmt: skip
+    pitch = _pitch(by_line, along, height)
+    tall = [m.width for m in marks if m.height >= 0.5 * height]
+    width = float(np.median(tall)) if tall else height
+    layout = PageLayout(angle_deg=angle, height_px=height, shape=mask.shape)
+    for n, idx in enumerate(by_line):
+        chars = []
+        for i in idx:
+            pieces = _split(marks[i], pixels[i], pitch, width)
+            chars += [PageCharacter(box, px, line=n, parts=len(marks[i].labels),
+                                    split=len(pieces) > 1) for box, px in pieces]  # fmt: skip
+        _words(chars, height)
+        first = len(layout.characters)
+        layout.lines.append(list(range(first, first + len(chars))))
+        layout.characters += chars
+    for i, c in enumerate(layout.characters):
+        c.index = i
+    return layout
+
+
+__all__ = [
+    "MAX_CHARACTERS",
+    "PageCharacter",
+    "PageLayout",
+    "find_characters",
+    "group_lines",
+    "join_parts",
+    "typical_height",
+]
