@@ -20,7 +20,7 @@ LAYERS = [
     {"data"},
     {"nn", "checkpoint"},
     {"training", "train"},
-    {"predict"},
+    {"predict", "page"},
     {"evaluate", "export"},
     {"robot"},
     {"pipeline"},

@@ -8,6 +8,7 @@ here compare only *where* the pen went (NumPy only, no torch):
 - :func:`path_error_px` - both paths resampled from start to end, point to point;
 - :func:`chamfer_px` - symmetric Chamfer distance, free of order and direction;
 - :func:`on_ink_share` - share of the path that lies on the image's ink;
+- :func:`ink_written_share` - share of the image's ink that the path writes;
 - :func:`enclosed_area_px2`, :func:`area_ratio` - the area a closed digit encloses
   (:func:`closed_labels`: which labels of a data set are closed digits);
 - :func:`width_ratio`, :func:`start_error_px` - horizontal extent, where writing starts.
@@ -229,6 +230,38 @@ def on_ink_share(images, paths, threshold: float = 0.5, n_points: int = 128) -> 
     return (ink > threshold).mean(axis=1)
 
 
+def ink_written_share(
+    images, paths, radius_px: float = 1.5, threshold: float = 0.5, n_points: int = 256
+) -> np.ndarray:
+    """Share ``[M]`` in [0, 1] of each image's ink that its path writes.
+
+        w = #{ink pixels within radius_px of the path} / #{ink pixels}
+
+    with the ink pixels those above ``threshold`` (centres at integer coordinates) and the
+    path its ``n`` arc-length points (:func:`resample_by_arc_length`). The converse of
+    :func:`on_ink_share`: a path that writes only part of the image (one of two digits, a
+    letter's bar left out) has a low share; an image without ink gives 1 (nothing left
+    unwritten).
+    """
+    img = np.asarray(images, dtype=np.float64)
+    pts = resample_by_arc_length(_paths(paths), n_points)  # [M, n, 2]
+    if img.ndim != 3 or len(img) != len(pts):
+        raise ValueError(f"need images [M, H, W] for paths [M, T, d], got {img.shape}")
+    out = np.ones(len(img))
+    for m in range(len(img)):
+        rows, cols = np.nonzero(img[m] > threshold)
+        if rows.size == 0:
+            continue
+        near = np.zeros(rows.size, bool)
+        step = max(1, _CHUNK_ELEMENTS // n_points)
+        for s in range(0, rows.size, step):
+            dx = cols[s : s + step, None] - pts[m, None, :, 0]  # [k, n]
+            dy = rows[s : s + step, None] - pts[m, None, :, 1]
+            near[s : s + step] = (dx * dx + dy * dy).min(axis=1) <= radius_px**2
+        out[m] = near.mean()
+    return out
+
+
 def _polygon(paths) -> np.ndarray:
     """Vertices ``[M, T, 2]``: pen-up points moved onto the pen-down point before them."""
     p = _paths(paths)
@@ -337,6 +370,7 @@ __all__ = [
     "bilinear",
     "chamfer_px",
     "enclosed_area_px2",
+    "ink_written_share",
     "on_ink_share",
     "path_error_px",
     "pen_down",

@@ -58,6 +58,7 @@ from .data.images import (  # noqa: F401  (re-exported: their home was this modu
     ink_margin,
     ink_view,
     prepare_image,
+    prepare_image_found,
     prepare_image_framed,
     stroke_width,
     typical_stroke_width,
@@ -77,6 +78,53 @@ MAX_BATCH_SIZE = 1 << 20
 #: Most samples of one trajectory (``n_points``, ``img2dmp predict --points``): a record
 #: holds them as JSON text, about 60 bytes a sample and hypothesis.
 MAX_POINTS = 100_000
+#: A prediction is flagged ``off_ink`` when less of its path than this lies on the ink,
+#: ``unexplained_ink`` when less of the ink than this is written: both are below the 1st
+#: percentile of the recommended model's refined predictions on MNIST validation images
+#: (0.805 and 0.856; RESULTS 6.0), so a well-read digit is seldom flagged.
+MIN_PATH_ON_INK = 0.8
+MIN_INK_WRITTEN = 0.8
+#: The pen width assumed when a model did not record its training images' (pixels).
+DEFAULT_STROKE_WIDTH_PX = 2.4
+
+
+def fit_score(image: np.ndarray, path: np.ndarray, stroke_width_px: float | None = None) -> dict:
+    """How well a path ``[T, d]`` explains an image ``[H, W]`` (model frame, ink = 1):
+    ``path_on_ink`` (:func:`img2dmp.metrics.on_ink_share`) and ``ink_written``
+    (:func:`img2dmp.metrics.ink_written_share` within half the pen width and half a
+    pixel of the path)."""
+    from .metrics import ink_written_share, on_ink_share
+
+    width = stroke_width_px or DEFAULT_STROKE_WIDTH_PX
+    img, p = np.asarray(image)[None], np.asarray(path)[None]
+    return {
+        "path_on_ink": round(float(on_ink_share(img, p)[0]), 4),
+        "ink_written": round(float(ink_written_share(img, p, radius_px=0.5 * width + 0.5)[0]), 4),
+    }
+
+
+def count_characters(mask) -> int:
+    """Characters in an ink mask ``bool [H, W]`` at least half as tall as the tallest
+    (:func:`img2dmp.data.pages.find_characters`; specks and fragments do not count)."""
+    from .data.pages import find_characters
+
+    chars = find_characters(mask).characters
+    tallest = max((c.box[3] - c.box[1] for c in chars), default=0)
+    return int(sum(c.box[3] - c.box[1] >= 0.5 * tallest for c in chars))
+
+
+def fit_flags(fit: dict, n_characters: int = 1) -> list[str]:
+    """What is wrong with a prediction, from its :func:`fit_score` and the characters its
+    image holds (:func:`count_characters`): ``"off_ink"``, ``"unexplained_ink"``
+    (thresholds above) and ``"several_characters"``."""
+    flags = []
+    if fit["path_on_ink"] < MIN_PATH_ON_INK:
+        flags.append("off_ink")
+    if fit["ink_written"] < MIN_INK_WRITTEN:
+        flags.append("unexplained_ink")
+    if n_characters >= 2:
+        flags.append("several_characters")
+    return flags
 
 
 def check_count(name: str, value, lo: int, hi: int) -> int:
@@ -316,7 +364,10 @@ class Predictor:
             All hypotheses, ranked, in both frames; :meth:`Prediction.save` writes them.
         """
         n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
-        prepared, frame = self.prepare(image, match_stroke_width, name)
+        width = self.stroke_width if match_stroke_width else None
+        prepared, frame, mask = prepare_image_found(
+            image, self.image_size, margin=self.margin, stroke_width_px=width, name=name
+        )
         params, probs = self.predict_hypotheses(prepared[None])  # [1, K], ranked
         times, path = self.trajectories(params[0], n_points=n_points)  # [K, T], [K, T, d]
         o = self.refine_options
@@ -331,7 +382,21 @@ class Predictor:
             source=str(image) if isinstance(image, (str, os.PathLike)) else None,
             refine_steps=0 if o is None else int(o.steps),
             user_image=image,
+            stroke_width_px=self.stroke_width,
+            n_characters=count_characters(mask),
         )
+
+    def predict_page(
+        self, image, *, n_points: int = 100, match_stroke_width: bool = True, name=None
+    ):
+        """Every handwritten character of a photo or scan of a page, each a ranked set of
+        DMPs where it stands (:func:`img2dmp.page.read_page`): a
+        :class:`~img2dmp.page.PagePrediction` in reading order, with fit scores and flags;
+        ``.save(dir, stem)`` writes the page document and its picture."""
+        from .page import read_page
+
+        return read_page(self, image, n_points=n_points,
+                         match_stroke_width=match_stroke_width, name=name)  # fmt: skip
 
     def trajectories(self, params: DMPParams, times=None, n_points: int = 100):
         """Roll DMPs out (exact solution, eqs. 3-7).
@@ -411,6 +476,14 @@ class Prediction:
         Gradient steps on the ink each DMP got (0: the network's output).
     user_image : path, PIL image, array or None
         What was predicted from, as given (for pictures on it: :func:`write_prediction`).
+    fit : dict
+        How well the top hypothesis explains the image (:func:`fit_score`):
+        ``path_on_ink`` and ``ink_written``, shares in [0, 1].
+    flags : list of str
+        What looks wrong (:func:`fit_flags`): ``"off_ink"``, ``"unexplained_ink"``,
+        ``"several_characters"``; empty for an image read as one character.
+    n_characters : int
+        The characters found in the image (1 for a page's character).
     """
 
     def __init__(
@@ -425,6 +498,8 @@ class Prediction:
         source: str | None = None,
         refine_steps: int = 0,
         user_image=None,
+        stroke_width_px: float | None = None,
+        n_characters: int = 1,
     ):
         self.params = params.to_numpy()
         if len(self.params.batch_shape) != 1:
@@ -437,6 +512,8 @@ class Prediction:
         self.params_image = affine_dmp(self.params, dmp_config, frame.model_to_image)
         self.path_image = frame.to_image(self.path_model)
         self.user_image = user_image
+        self.fit = fit_score(image, self.path_model[0], stroke_width_px)
+        self.flags = fit_flags(self.fit, n_characters)
 
     @property
     def n_hypotheses(self) -> int:
@@ -474,6 +551,8 @@ class Prediction:
             hypotheses=hyps,
             image_frame={"image": self.source, **self.frame.to_dict()},
             refinement={"steps": self.refine_steps},
+            fit=self.fit,
+            flags=self.flags,
         )
 
     def to_json(self, name: str | os.PathLike = "DMP document") -> str:
@@ -593,6 +672,9 @@ __all__ = [
     "Prediction",
     "Predictor",
     "check_count",
+    "count_characters",
+    "fit_flags",
+    "fit_score",
     "ink_margin",
     "load_model",
     "prepare_image",

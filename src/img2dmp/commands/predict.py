@@ -26,13 +26,24 @@ A network with several hypotheses (model.hypotheses) gives all of them, ranked; 
 overlays draw the top one bold. --refine N pulls each DMP onto the ink of its image with N
 gradient steps near the network's output (img2dmp.nn.refine).
 
+Every prediction carries a fit score ("fit": the share of its path on the ink and of the
+ink its path writes) and "flags" for what looks wrong ("off_ink", "unexplained_ink",
+"several_characters"); a flagged image gets a one-line warning on stderr.
+
+--page reads every character of a photo or scan of a page (found, put in reading order,
+each predicted where it stands) and writes NAME_page.json (format "img2dmp-page",
+docs/PAGE.md) and NAME_page.png (the page with every box and path). --explain also writes
+NAME_explain.png: each step that separates the ink from the paper.
+
   img2dmp predict --model runs/paper my_digit.jpg --out pred --overlay
   img2dmp write --dmp pred/my_digit_dmp.json
+  img2dmp predict --model runs/real/run --refine 30 page.jpg --page --out pages
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from . import _args
@@ -69,14 +80,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="do not bring the strokes to the training images' pen width",
     )
+    p.add_argument(
+        "--page",
+        action="store_true",
+        help="each IMAGE is a page: read every character on it (NAME_page.json and "
+        "NAME_page.png in --out; without --out the page document is printed)",
+    )
+    p.add_argument(
+        "--explain",
+        action="store_true",
+        help="also draw each step that separates the ink from the paper (NAME_explain.png; "
+        "needs --out)",
+    )
 
 
 def output_files(args: argparse.Namespace) -> list[tuple[Path, str]]:
     """(file written, its image) for every image, in order; none without --out."""
     if not args.out:
         return []
-    suffixes = ["_dmp.json", "_trajectory.csv"]
-    suffixes += ["_overlay.png", "_overlay_image.png"] if args.overlay else []
+    if args.page:
+        suffixes = ["_page.json", "_page.png"]
+    else:
+        suffixes = ["_dmp.json", "_trajectory.csv"]
+        suffixes += ["_overlay.png", "_overlay_image.png"] if args.overlay else []
+    suffixes += ["_explain.png"] if args.explain else []
     return [
         (Path(args.out) / f"{Path(path).stem}{suffix}", path)
         for path in args.images
@@ -84,10 +111,71 @@ def output_files(args: argparse.Namespace) -> list[tuple[Path, str]]:
     ]
 
 
+def _check_options(args: argparse.Namespace) -> None:
+    if args.explain and not args.out:
+        raise ValueError("--explain draws into a file: give --out DIR")
+    if args.page and args.overlay:
+        raise ValueError("--overlay is for single characters: --page always draws the page "
+                         "(NAME_page.png)")  # fmt: skip
+
+
+def _warn(path, flags: list[str], fit: dict) -> None:
+    print(f"img2dmp predict: warning: {path}: {', '.join(flags)} (path on ink "
+          f"{fit['path_on_ink']:.2f}, ink written {fit['ink_written']:.2f}): it may not "
+          "show one character the model knows"
+          + ("; for a page of characters use --page" if "several_characters" in flags else ""),
+          file=sys.stderr)  # fmt: skip
+
+
+def _explain(args, path, layout_boxes=None) -> Path:
+    from ..data.images import paper_steps
+    from ..data.plotting import paper_steps_figure
+    from ..page import PAGE_WORK_PIXELS
+
+    if args.page:
+        found, reduction = paper_steps(path, max_pixels=PAGE_WORK_PIXELS)
+    else:
+        found, reduction = paper_steps(path)
+    out = Path(args.out) / f"{Path(path).stem}_explain.png"
+    if found is None:
+        raise ValueError(f"{path}: nothing stands out from the paper: no steps to draw")
+    boxes = None
+    if layout_boxes is not None:
+        boxes = [[v / reduction for v in box] for box in layout_boxes]
+    return paper_steps_figure(out, found, boxes, title=f"{path}: from the photo to the ink")
+
+
+def _run_pages(args, predictor) -> int:
+    pages = []
+    for path in args.images:  # all read before anything is written
+        with _args.reading_image(path):
+            pages.append((path, predictor.predict_page(path, n_points=args.points,
+                          match_stroke_width=not args.keep_stroke_width)))  # fmt: skip
+    if not args.out:
+        texts = [page.to_json().rstrip() for _, page in pages]
+        print(texts[0] if len(texts) == 1 else "[\n" + ",\n".join(texts) + "\n]")
+    for path, page in pages:
+        flagged = page.flagged
+        if page.flags or flagged:
+            which = ", ".join(f"{c.character.index} ({'/'.join(c.flags)})" for c in flagged[:8])
+            more = f" and {len(flagged) - 8} more" if len(flagged) > 8 else ""
+            what = "; ".join(page.flags) or f"characters flagged: {which}{more}"
+            print(f"img2dmp predict: warning: {path}: {what}", file=sys.stderr)
+        if not args.out:
+            continue
+        files = page.save(args.out, Path(path).stem)
+        if args.explain:
+            files.append(_explain(args, path, [c.character.box for c in page.characters]))
+        print(f"{path}: {len(page.characters)} characters in {len(page.lines)} lines, "
+              f"{len(flagged)} flagged -> " + ", ".join(str(f) for f in files))  # fmt: skip
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from ..nn.refine import RefineOptions
     from ..predict import Predictor, write_prediction
 
+    _check_options(args)
     _args.check_inputs(args.images, "image")
     if args.out:
         _args.check_output_dir(args.out, "--out")
@@ -96,6 +184,8 @@ def run(args: argparse.Namespace) -> int:
     predictor = Predictor.load(args.model, device=_args.check_device(args.device))
     if args.refine:
         predictor.refine_options = RefineOptions(steps=args.refine)
+    if args.page:
+        return _run_pages(args, predictor)
     predictions = []
     for path in args.images:  # all predicted and checked before anything is written
         with _args.reading_image(path):
@@ -104,12 +194,17 @@ def run(args: argparse.Namespace) -> int:
             )
         name = Path(args.out) / f"{Path(path).stem}_dmp.json" if args.out else path
         predictions.append((path, pred, pred.to_json(name)))
+    for path, pred, _ in predictions:
+        if pred.flags:
+            _warn(path, pred.flags, pred.fit)
     if not args.out:
         texts = [text.rstrip() for _, _, text in predictions]
         print(texts[0] if len(texts) == 1 else "[\n" + ",\n".join(texts) + "\n]")
         return 0
     for path, pred, text in predictions:
         files = write_prediction(args.out, Path(path).stem, pred, overlay=args.overlay, text=text)
+        if args.explain:
+            files.append(_explain(args, path))
         tau = float(pred.dmp.tau)
         print(f"{path}: tau = {tau:.3f} s -> " + ", ".join(str(f) for f in files))
     return 0

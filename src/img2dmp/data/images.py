@@ -662,13 +662,42 @@ def prepare_image_framed(
     map is affine: ``frame.to_model(xy)`` puts a point of the user's image where it is in
     the returned image, ``frame.to_image(xy)`` the reverse.
     """
+    out, frame, _ = prepare_image_found(
+        source, image_size, margin=margin, stroke_width_px=stroke_width_px, name=name,
+        clean=clean,
+    )  # fmt: skip
+    return out, frame
+
+
+def prepare_image_found(
+    source,
+    image_size=(40, 40),
+    *,
+    margin: float = DEFAULT_MARGIN,
+    stroke_width_px: float | None = None,
+    name: str | None = None,
+    clean: bool = True,
+):
+    """:func:`prepare_image_framed`, and the mask of the pen strokes found in ``source``
+    (``bool [h, w]`` at the resolution the image was read at; None with ``clean=False``):
+    what tells whether the image holds one character or several."""
     h_out, w_out = _check_preparation(image_size, margin, stroke_width_px)
     levels, reduction, size, label = _levels_framed(source, name)
-    ink = _ink_levels(levels, label, clean)
+    mask = None
+    if clean:
+        from .paper import paper_ink
+
+        found = paper_ink(levels)
+        if found is None:
+            raise ValueError(f"{label} shows no ink (nothing stands out from the paper)")
+        ink, mask = found.ink.astype(np.float64), found.mask
+    else:
+        ink = _ink_levels(levels, label, clean=False)
     out, edge = frame_ink(ink, (h_out, w_out), margin, stroke_width_px, label)
     # Positions are tracked on pixel edges (pixel j spans [j, j + 1]), where a reduction
     # or a resize is a pure scaling; CONTRACTS.md's centres are half a pixel less.
-    return out, ImageFrame(_centred(edge @ _scaling(1.0 / reduction)), size, (h_out, w_out))
+    frame = ImageFrame(_centred(edge @ _scaling(1.0 / reduction)), size, (h_out, w_out))
+    return out, frame, mask
 
 
 def _centred(edge: np.ndarray) -> np.ndarray:
@@ -728,6 +757,17 @@ def ink_view(source, max_side: int = 600, *, name: str | None = None, clean: boo
     return view.astype(np.float32), 1.0 / (reduction * factor)
 
 
+def paper_steps(source, *, name: str | None = None, max_pixels: int = MAX_WORK_PIXELS):
+    """Every step of the ink's separation from the paper for ``source`` (a path, PIL
+    image or array, read as :func:`prepare_image` reads it, at most ``max_pixels``):
+    :func:`img2dmp.data.paper.paper_ink` with ``keep_steps`` (None when nothing stands
+    out from the paper), and the reduction (the source's pixels per pixel of the steps)."""
+    from .paper import paper_ink
+
+    levels, reduction, _, _ = _levels_framed(source, name, max_pixels)
+    return paper_ink(levels, keep_steps=True), reduction
+
+
 def _output_size(image_size) -> tuple[int, int]:
     """``(H, W)`` of a prepared image, each in ``OUTPUT_SIDE_PX``, else ``ValueError``."""
     lo, hi = OUTPUT_SIDE_PX
@@ -758,8 +798,12 @@ __all__ = [
     "OUTPUT_SIDE_PX",
     "WORK_PER_OUTPUT_PX",
     "ink_margin",
+    "frame_ink",
+    "grey_of",
     "ink_view",
+    "paper_steps",
     "prepare_image",
+    "prepare_image_found",
     "prepare_image_framed",
     "shown_size",
     "stroke_width",

@@ -527,7 +527,7 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
     halo = dilate3(kept) & ~ruled
     ink = np.where(halo, np.clip(dark / lv.ink, 0.0, 1.0), 0.0).astype(np.float32)
     removed.update(rule_px=int(ruled.sum()), off_sheet_px=int((~sheet).sum()))
-    steps.update(rules=ruled, ink=ink)
+    steps.update(rules=ruled, candidates=weak, ink=ink)
     return PaperInk(ink, kept, width, polarity, removed, steps if keep_steps else {})
 
 

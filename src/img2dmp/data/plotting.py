@@ -377,3 +377,52 @@ def hypotheses_figure(
     ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.02), ncol=2,
               frameon=False, fontsize=_FONT)  # fmt: skip
     return save_figure(fig, path, dpi=dpi)
+
+
+def _shown(a: np.ndarray) -> np.ndarray:
+    """Channel planes ``[C, H, W]`` or levels ``[H, W(, 3)]`` as an image matplotlib shows."""
+    a = np.asarray(a, dtype=np.float32)
+    if a.ndim == 3 and a.shape[0] in (1, 3) and a.shape[2] not in (1, 3):
+        a = np.moveaxis(a, 0, 2)
+    if a.ndim == 3 and a.shape[2] == 1:
+        a = a[..., 0]
+    return np.clip(a, 0.0, 1.0)
+
+
+def paper_steps_figure(path: str | os.PathLike, found, boxes=None, title: str = "") -> Path:
+    """The steps of :func:`img2dmp.data.paper.paper_ink` (kept with ``keep_steps``) as one
+    PNG: the image, the paper's estimated colour, the ink's darkness against it, what
+    was removed (rules red, off the sheet grey) over the kept strokes, and the ink the
+    model reads, with the characters' boxes ``[[x0, y0, x1, y1], ...]`` when given."""
+    s = found.steps
+    dark, ink = s["darkness"], s["ink"]
+    removed = np.ones((*dark.shape, 3), np.float32)
+    removed[~s["sheet"]] = 0.8
+    removed[s["candidates"] & ~found.mask] = (0.95, 0.6, 0.1)
+    removed[found.mask] = 0.0
+    removed[s["rules"]] = (0.85, 0.1, 0.1)
+    shape = dark.shape
+    bg = np.broadcast_to(s["background"], (len(s["background"]), *shape))
+    panels = [("image", _shown(s["input"])), ("paper (background estimate)", _shown(bg)),
+              ("darkness against the paper", 1.0 - dark),
+              ("removed: rules red, faint marks, specks, edges orange, off the sheet grey",
+               removed),
+              (f"ink the model reads (pen {found.pen_width_px:.1f} px)", 1.0 - ink)]  # fmt: skip
+    aspect = shape[0] / shape[1]
+    fig, axes = plt.subplots(2, 3, figsize=(12, 8 * aspect + 0.8), squeeze=False)
+    for ax, (name, img) in zip(axes.ravel(), panels, strict=False):
+        ax.imshow(img, cmap="gray", vmin=0, vmax=1, interpolation="nearest")
+        ax.set_title(name, fontsize=_FONT + 1)
+    for x0, y0, x1, y1 in boxes if boxes is not None else []:
+        axes[1, 1].add_patch(plt.Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0,
+                                           fill=False, ec="tab:blue", lw=0.6))  # fmt: skip
+    counts = "\n".join(f"{k}: {v}" for k, v in found.removed.items())
+    axes[1, 2].text(0.02, 0.98, "removed\n" + counts, va="top", fontsize=_FONT + 1,
+                    family="monospace", transform=axes[1, 2].transAxes)  # fmt: skip
+    for ax in axes.ravel():
+        ax.set_xticks([])
+        ax.set_yticks([])
+    if title:
+        fig.suptitle(title, fontsize=_FONT + 2)
+    fig.tight_layout()
+    return save_figure(fig, path, dpi=110)

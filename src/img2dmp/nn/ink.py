@@ -132,7 +132,8 @@ def ink_coverage(
     pts = y[..., :2]
     with torch.no_grad():  # which path point is nearest each ink pixel (no gradient needed)
         dist = torch.cdist(xy, pts.detach().contiguous())  # [B, M, T], matrix-product form
-        dist = dist.masked_fill(up[:, None, :], float("inf"))
+        if bool(up.any()):  # a 2-D path is all pen-down: no copy of the [B, M, T] table
+            dist = dist.masked_fill(up[:, None, :], float("inf"))
         idx = dist.argmin(dim=-1)  # [B, M]
         none_down = up.all(dim=-1)  # [B]: no pen-down point, nothing covers
     near = torch.gather(pts, 1, idx[..., None].expand(-1, -1, 2))  # [B, M, 2], differentiable

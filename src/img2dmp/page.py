@@ -1,0 +1,342 @@
+"""Reading a page: every handwritten character of a photo or scan, as a DMP where it stands.
+
+:func:`read_page` (``load_model(run).predict_page(photo)``, ``img2dmp predict PHOTO
+--page``) runs in four steps:
+
+1. the photo is read upright at most ``PAGE_WORK_PIXELS`` (area average) and its ink
+   separated from the paper (:func:`img2dmp.data.paper.paper_ink`);
+2. the characters are found and put in reading order
+   (:func:`img2dmp.data.pages.find_characters`);
+3. each character's own ink (a neighbour's reaching into its box left out) is framed as
+   the model's input (:func:`img2dmp.data.images.frame_ink`), with the map back to the
+   photo's pixels, and all are predicted in one batch (refined, when the model is);
+4. each prediction is scored against its ink (:func:`img2dmp.predict.fit_score`) and
+   flagged where it does not fit, or where the character touches the photo's border.
+
+:class:`PagePrediction` holds the result; :meth:`PagePrediction.save` writes the page
+document ``<stem>_page.json`` (format ``img2dmp-page``, version 1, docs/PAGE.md) and a
+picture of the whole page ``<stem>_page.png``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ._files import atomic_write_bytes, atomic_write_text
+from .data import images as _images
+from .data.pages import PageCharacter, PageLayout, find_characters
+from .data.paper import dark_on_light, paper_ink
+
+#: The page document's format name and version.
+PAGE_FORMAT = "img2dmp-page"
+PAGE_VERSION = 1
+#: A page is read at most this many pixels (a 24-MP photo is reduced 3 x 3 to 2.7 MP):
+#: characters of a handwritten page are then still tens of pixels tall.
+PAGE_WORK_PIXELS = 2_000_000
+#: Pixels of paper kept around a character's ink before it is framed.
+_CROP_PAD_PX = 2
+#: Longest side of the page picture, pixels (a smaller photo is enlarged to it, up to
+#: four times, so that the paths stay visible).
+PICTURE_SIDE_PX = 1600
+
+
+@dataclass
+class CharacterPrediction:
+    """One character of a page and its prediction.
+
+    Attributes
+    ----------
+    character : PageCharacter
+        Where it was found (in the pixels of the page as read: :attr:`PagePrediction.reduction`
+        photo pixels per pixel).
+    box_image : (x0, y0, x1, y1)
+        Its box in the photo's own pixels (half-open, x = column).
+    prediction : Prediction
+        Its DMPs, ranked, in the model frame and the photo's (``prediction.frame`` maps
+        between the model's input and the photo).
+    flags : list of str
+        The prediction's flags (:func:`img2dmp.predict.fit_flags`) and ``"cut_by_border"``
+        when the character touches the photo's border.
+    """
+
+    character: PageCharacter
+    box_image: tuple[int, int, int, int]
+    prediction: object
+    flags: list = field(default_factory=list)
+
+    @property
+    def confidence(self) -> float:
+        """``path_on_ink x ink_written`` of the top hypothesis: 1 when the path lies on the
+        ink and writes all of it."""
+        f = self.prediction.fit
+        return round(float(f["path_on_ink"] * f["ink_written"]), 4)
+
+    def pen(self) -> np.ndarray:
+        """Pen state ``[T]`` (1 down, 0 up) of the top hypothesis' path."""
+        path = self.prediction.path_image[0]
+        if path.shape[1] < 3:
+            return np.ones(len(path), np.int64)
+        return (path[:, 2] >= 0.5).astype(np.int64)
+
+    def to_dict(self) -> dict:
+        """The character's entry of the page document."""
+        c, p = self.character, self.prediction
+        path = p.path_image[0]
+        return {
+            "index": c.index,
+            "line": c.line,
+            "position": c.position,
+            "word": c.word,
+            "box_image_px": [int(v) for v in self.box_image],
+            "path_image_px": np.round(path[:, :2], 3).tolist(),
+            "pen": self.pen().tolist(),
+            "times_s": np.round(p.times[0], 6).tolist(),
+            "probability": round(float(p.probabilities[0]), 6),
+            "confidence": self.confidence,
+            "fit": dict(p.fit),
+            "flags": list(self.flags),
+            "parts": c.parts,
+            "split": c.split,
+            "dmp": p.to_document(),
+        }
+
+
+class PagePrediction:
+    """Every character of a page, predicted (:func:`read_page`).
+
+    Attributes
+    ----------
+    characters : list of CharacterPrediction
+        In reading order.
+    layout : PageLayout
+        The segmentation (lines, writing direction, character height) in the pixels of
+        the page as read.
+    image_size : (H, W)
+        The photo's own size (upright), pixels.
+    reduction : float
+        Photo pixels per pixel of the page as read.
+    source : str or None
+        The photo's file, or None for an array or PIL image.
+    flags : list of str
+        Of the whole page: ``"no_ink"`` when nothing on it stands out from the paper.
+    removed : dict
+        What the preparation dropped (:attr:`img2dmp.data.paper.PaperInk.removed`).
+    """
+
+    def __init__(self, characters, layout, image_size, reduction, source, flags, removed,
+                 user_image=None, refine_steps=0):  # fmt: skip
+        self.characters = list(characters)
+        self.layout, self.image_size, self.reduction = layout, tuple(image_size), reduction
+        self.source, self.flags, self.removed = source, list(flags), dict(removed)
+        self.user_image, self.refine_steps = user_image, int(refine_steps)
+
+    @property
+    def lines(self) -> list[list[int]]:
+        return [list(idx) for idx in self.layout.lines]
+
+    @property
+    def flagged(self) -> list[CharacterPrediction]:
+        return [c for c in self.characters if c.flags]
+
+    def to_document(self) -> dict:
+        """The page document (format ``img2dmp-page`` version 1; docs/PAGE.md)."""
+        h, w = self.image_size
+        return {
+            "format": PAGE_FORMAT,
+            "version": PAGE_VERSION,
+            "image": self.source,
+            "image_size_px": [int(w), int(h)],
+            "writing_angle_deg": round(float(self.layout.angle_deg), 3),
+            "character_height_px": round(float(self.layout.height_px * self.reduction), 3),
+            "refinement": {"steps": self.refine_steps},
+            "flags": list(self.flags),
+            "removed": self.removed,
+            "lines": [{"index": i, "characters": idx} for i, idx in enumerate(self.lines)],
+            "characters": [c.to_dict() for c in self.characters],
+        }
+
+    def to_json(self) -> str:
+        import json
+
+        return json.dumps(self.to_document(), indent=1, allow_nan=False) + "\n"
+
+    def save(self, out_dir: str | os.PathLike, stem: str, picture: bool = True) -> list[Path]:
+        """Write ``<stem>_page.json`` and (``picture``) ``<stem>_page.png`` into
+        ``out_dir``, atomically; returns the files written."""
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        written = [out / f"{stem}_page.json"]
+        atomic_write_text(written[0], self.to_json())
+        if picture:
+            written.append(out / f"{stem}_page.png")
+            page_picture(self, written[-1])
+        return written
+
+    def __repr__(self) -> str:
+        return (
+            f"PagePrediction({len(self.characters)} characters in {len(self.lines)} lines, "
+            f"{len(self.flagged)} flagged, source {self.source or 'in memory'})"
+        )
+
+
+def _edge_shift(dx: float, dy: float) -> np.ndarray:
+    m = np.eye(3)
+    m[:2, 2] = dx, dy
+    return m
+
+
+def _character_ink(ink: np.ndarray, c: PageCharacter) -> tuple[np.ndarray, int, int]:
+    """The ink of one character alone (its own pixels and the pixel around them, the
+    neighbours' left out), with a little paper around it, and the crop's corner."""
+    from .data.paper import dilate3
+
+    x0, y0, x1, y1 = c.box
+    h, w = ink.shape
+    cx0, cy0 = max(0, x0 - _CROP_PAD_PX), max(0, y0 - _CROP_PAD_PX)
+    cx1, cy1 = min(w, x1 + _CROP_PAD_PX), min(h, y1 + _CROP_PAD_PX)
+    own = np.zeros((cy1 - cy0, cx1 - cx0), bool)
+    own[y0 - cy0 : y1 - cy0, x0 - cx0 : x1 - cx0] = c.mask
+    return np.where(dilate3(own), ink[cy0:cy1, cx0:cx1], 0.0), cx0, cy0
+
+
+def _touches_border(box, shape, reduction: float) -> bool:
+    x0, y0, x1, y1 = box
+    margin = max(1, math.ceil(1.0 / reduction))
+    return x0 < margin or y0 < margin or x1 > shape[1] - margin or y1 > shape[0] - margin
+
+
+def _box_in_image(box, reduction: float, size) -> tuple[int, int, int, int]:
+    x0, y0, x1, y1 = box
+    h, w = size
+    return (max(0, math.floor(x0 * reduction)), max(0, math.floor(y0 * reduction)),
+            min(w, math.ceil(x1 * reduction)), min(h, math.ceil(y1 * reduction)))  # fmt: skip
+
+
+def _preview(levels: np.ndarray) -> np.ndarray:
+    """The page as read, as ``uint8 [h, w, 3]`` at most ``PICTURE_SIDE_PX`` on a side."""
+    from PIL import Image
+
+    rgb = levels if levels.ndim == 3 else np.repeat(levels[..., None], 3, axis=2)
+    im = Image.fromarray(np.clip(rgb * 255.0 + 0.5, 0, 255).astype(np.uint8), mode="RGB")
+    scale = min(4.0, PICTURE_SIDE_PX / max(im.size))
+    if scale != 1.0:
+        im = im.resize((max(1, round(im.width * scale)), max(1, round(im.height * scale))),
+                       Image.Resampling.BOX if scale < 1 else Image.Resampling.BICUBIC)  # fmt: skip
+    return np.asarray(im)
+
+
+def _frame_characters(predictor, found, layout, reduction, size, label, match_stroke_width):
+    """Every character's model input ``[N, H, W]`` and :class:`ImageFrame` (model <->
+    photo)."""
+    width = predictor.stroke_width if match_stroke_width else None
+    inputs, frames = [], []
+    for c in layout.characters:
+        crop, cx0, cy0 = _character_ink(found.ink, c)
+        out, edge = _images.frame_ink(crop, predictor.image_size, predictor.margin, width,
+                                      f"{label}: character {c.index}")  # fmt: skip
+        to_model = edge @ _edge_shift(-cx0, -cy0) @ _images._scaling(1.0 / reduction)
+        frames.append(_images.ImageFrame(_images._centred(to_model), size, predictor.image_size))
+        inputs.append(out)
+    return inputs, frames
+
+
+def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool = True,
+              name: str | None = None) -> PagePrediction:  # fmt: skip
+    """Every character of a page (module docstring).
+
+    Parameters
+    ----------
+    predictor : Predictor
+        A loaded model (its refinement, if set, refines every character).
+    image : path, PIL image or array
+        The photo or scan (any size up to PIL's limit; read upright, at most
+        ``PAGE_WORK_PIXELS``), dark ink on light paper or light on dark.
+    n_points : int
+        Samples of each character's trajectory over its own ``[0, tau]``.
+    match_stroke_width : bool
+        Bring each character's strokes to the training images' pen width.
+    name : str, optional
+        Names an array or PIL image in messages.
+    """
+    from .predict import MAX_POINTS, Prediction, check_count
+
+    n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
+    levels, reduction, size, label = _images._levels_framed(image, name, PAGE_WORK_PIXELS)
+    source = str(image) if isinstance(image, (str, os.PathLike)) else None
+    steps = 0 if predictor.refine_options is None else int(predictor.refine_options.steps)
+    found = paper_ink(levels)
+    page = PagePrediction([], PageLayout(shape=levels.shape[:2]), size, reduction, source,
+                          ["no_ink"] if found is None else [],
+                          {} if found is None else found.removed, refine_steps=steps)  # fmt: skip
+    page.preview, page.dark_on_light = _preview(levels), dark_on_light(_to_planes(levels))
+    if found is None:
+        return page
+    page.layout = find_characters(found.mask)
+    if not page.layout.characters:
+        return page
+    inputs, frames = _frame_characters(predictor, found, page.layout, reduction, size, label,
+                                       match_stroke_width)  # fmt: skip
+    params, probs = predictor.predict_hypotheses(np.stack(inputs))  # [N, K], ranked
+    times, paths = predictor.trajectories(params, n_points=n_points)  # [N, K, T], [N, K, T, d]
+    for i, c in enumerate(page.layout.characters):
+        pred = Prediction(params[i], probs[i], times[i], paths[i], frames[i], predictor.dmp_config,
+                          inputs[i], source=source, refine_steps=steps,
+                          stroke_width_px=predictor.stroke_width)  # fmt: skip
+        border = _touches_border(c.box, found.ink.shape, reduction)
+        flags = list(pred.flags) + (["cut_by_border"] if border else [])
+        box = _box_in_image(c.box, reduction, size)
+        page.characters.append(CharacterPrediction(c, box, pred, flags))
+    return page
+
+
+def _to_planes(levels: np.ndarray) -> np.ndarray:
+    return levels[None] if levels.ndim == 2 else np.moveaxis(levels, 2, 0)
+
+
+#: Box colours of successive lines in the page picture; flagged characters are red.
+_LINE_COLOURS = ((0, 114, 178), (0, 158, 115), (204, 121, 167), (230, 159, 0), (86, 180, 233))
+_FLAGGED = (213, 0, 0)
+_PATH = (255, 0, 160)
+
+
+def page_picture(page: PagePrediction, path: str | os.PathLike) -> None:
+    """``path`` (PNG): the page with every character's box (coloured by line, red when
+    flagged), its index in reading order and its predicted path (top hypothesis, pen
+    down), written atomically."""
+    import io
+
+    from PIL import Image, ImageDraw
+
+    im = Image.fromarray(page.preview).convert("RGB")
+    draw = ImageDraw.Draw(im)
+    s = im.width / page.image_size[1]  # picture pixels per photo pixel
+    lw = max(1, round(im.width / 600))
+    for ch in page.characters:
+        x0, y0, x1, y1 = (v * s for v in ch.box_image)
+        colour = _FLAGGED if ch.flags else _LINE_COLOURS[ch.character.line % len(_LINE_COLOURS)]
+        draw.rectangle([x0, y0, x1, y1], outline=colour, width=lw)
+        draw.text((x0 + 1, y1 + 1), str(ch.character.index), fill=colour)
+        xy = (ch.prediction.path_image[0][:, :2] + 0.5) * s - 0.5
+        pen = ch.pen()
+        for a in range(len(xy) - 1):
+            if pen[a] and pen[a + 1]:
+                draw.line([tuple(xy[a]), tuple(xy[a + 1])], fill=_PATH, width=lw)
+    buf = io.BytesIO()
+    im.save(buf, format="PNG")
+    atomic_write_bytes(path, buf.getvalue())
+
+
+__all__ = [
+    "PAGE_FORMAT",
+    "PAGE_VERSION",
+    "PAGE_WORK_PIXELS",
+    "CharacterPrediction",
+    "PagePrediction",
+    "page_picture",
+    "read_page",
+]
