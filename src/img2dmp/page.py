@@ -123,7 +123,8 @@ class PagePrediction:
     source : str or None
         The photo's file, or None for an array or PIL image.
     flags : list of str
-        Of the whole page: ``"no_ink"`` when nothing on it stands out from the paper.
+        Of the whole page: ``"no_ink"`` when nothing on it stands out from the paper,
+        ``"mostly_unreadable"`` when more than half of its characters are flagged.
     removed : dict
         What the preparation dropped (:attr:`img2dmp.data.paper.PaperInk.removed`).
     """
@@ -132,7 +133,7 @@ class PagePrediction:
                  user_image=None, refine_steps=0):  # fmt: skip
         self.characters = list(characters)
         self.layout, self.image_size, self.reduction = layout, tuple(image_size), reduction
-        self.source, self.flags, self.removed = source, list(flags), dict(removed)
+        self.source, self._flags, self.removed = source, list(flags), dict(removed)
         self.user_image, self.refine_steps = user_image, int(refine_steps)
 
     @property
@@ -142,6 +143,14 @@ class PagePrediction:
     @property
     def flagged(self) -> list[CharacterPrediction]:
         return [c for c in self.characters if c.flags]
+
+    @property
+    def flags(self) -> list[str]:
+        """The page's flags: ``"no_ink"``, or ``"mostly_unreadable"`` when more than half
+        of its characters are flagged (a photo of something other than writing)."""
+        if self._flags or not self.characters:
+            return list(self._flags)
+        return ["mostly_unreadable"] if 2 * len(self.flagged) > len(self.characters) else []
 
     def to_document(self) -> dict:
         """The page document (format ``img2dmp-page`` version 1; docs/PAGE.md)."""
@@ -154,16 +163,18 @@ class PagePrediction:
             "writing_angle_deg": round(float(self.layout.angle_deg), 3),
             "character_height_px": round(float(self.layout.height_px * self.reduction), 3),
             "refinement": {"steps": self.refine_steps},
-            "flags": list(self.flags),
+            "flags": self.flags,
             "removed": self.removed,
             "lines": [{"index": i, "characters": idx} for i, idx in enumerate(self.lines)],
             "characters": [c.to_dict() for c in self.characters],
         }
 
     def to_json(self) -> str:
+        """The page document as compact JSON text (a page of 60 characters with four
+        hypotheses each is a few MB; indented, Python's encoder takes seconds)."""
         import json
 
-        return json.dumps(self.to_document(), indent=1, allow_nan=False) + "\n"
+        return json.dumps(self.to_document(), allow_nan=False, separators=(",", ":")) + "\n"
 
     def save(self, out_dir: str | os.PathLike, stem: str, picture: bool = True) -> list[Path]:
         """Write ``<stem>_page.json`` and (``picture``) ``<stem>_page.png`` into
@@ -323,11 +334,12 @@ def page_picture(page: PagePrediction, path: str | os.PathLike) -> None:
         draw.text((x0 + 1, y1 + 1), str(ch.character.index), fill=colour)
         xy = (ch.prediction.path_image[0][:, :2] + 0.5) * s - 0.5
         pen = ch.pen()
-        for a in range(len(xy) - 1):
-            if pen[a] and pen[a + 1]:
-                draw.line([tuple(xy[a]), tuple(xy[a + 1])], fill=_PATH, width=lw)
+        d = np.diff(np.concatenate([[0], pen, [0]]))
+        for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True):
+            if b - a > 1:  # one polyline per pen-down stroke
+                draw.line([tuple(p) for p in xy[a:b]], fill=_PATH, width=lw, joint="curve")
     buf = io.BytesIO()
-    im.save(buf, format="PNG")
+    im.save(buf, format="PNG", compress_level=3)
     atomic_write_bytes(path, buf.getvalue())
 
 

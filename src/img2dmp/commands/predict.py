@@ -159,7 +159,8 @@ def _run_pages(args, predictor) -> int:
         if page.flags or flagged:
             which = ", ".join(f"{c.character.index} ({'/'.join(c.flags)})" for c in flagged[:8])
             more = f" and {len(flagged) - 8} more" if len(flagged) > 8 else ""
-            what = "; ".join(page.flags) or f"characters flagged: {which}{more}"
+            listed = [f"characters flagged: {which}{more}"] if flagged else []
+            what = "; ".join(page.flags + listed)
             print(f"img2dmp predict: warning: {path}: {what}", file=sys.stderr)
         if not args.out:
             continue

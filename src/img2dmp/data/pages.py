@@ -15,9 +15,10 @@ into text lines and ordered for reading:
    :func:`img2dmp.data.paper.dominant_angle`), and the characters sorted across it: a
    new line begins where the next character's middle row is more than ``LINE_GAP``
    heights past the current line's;
-4. **touching characters**: in each line, the pitch (the median distance between
-   neighbouring characters' centres) says how many characters a wide mark holds; it is
-   cut at the columns of least ink, at least ``MIN_CUT_PITCH`` pitches apart;
+4. **touching characters**: the pitch (the median distance between neighbouring
+   characters' centres in a line) and the usual character width say how many
+   characters a wide mark holds; it is cut near equal divisions at the columns that
+   cross the fewest strokes, at least ``MIN_CUT_PITCH`` divisions apart;
 5. **reading order**: lines top to bottom, characters left to right; words where the
    gap is wider than ``WORD_GAP`` heights and twice the line's usual gap.
 
@@ -44,6 +45,9 @@ JOIN_HEIGHT = 1.7
 FRAGMENT_SIZE = 0.3
 #: A new line starts this many character heights below the current one's middle.
 LINE_GAP = 0.55
+#: A mark holds one more character for every character width it spans beyond this many
+#: (widths: the upper quartile of the page's characters', so narrow 1s do not count).
+SPLIT_WIDTHS = 1.7
 #: Cuts through touching characters are at least this share of the pitch apart.
 MIN_CUT_PITCH = 0.45
 #: A gap wider than this many character heights (and twice the line's usual) is a space.
@@ -241,12 +245,14 @@ def _pitch(lines: list[list[int]], centres: np.ndarray, height: float) -> float:
     return float(np.median(steps)) if steps.size else 0.8 * height
 
 
-def _cut_columns(profile: np.ndarray, k: int) -> list[int]:
-    """``k - 1`` columns at which to cut a mark of touching characters: each the column
-    of least ink (smoothed over three) near an equal division, at least
-    ``MIN_CUT_PITCH`` divisions from the previous cut."""
-    smooth = np.convolve(profile, np.ones(3) / 3.0, mode="same")
-    width = len(profile)
+def _cut_columns(pixels: np.ndarray, k: int) -> list[int]:
+    """``k - 1`` columns at which to cut a mark ``pixels [h, w]`` of touching characters:
+    near each equal division, the column that crosses the fewest strokes (runs of ink:
+    two characters touch where one stroke meets another), then the least ink, then the
+    nearest to the division; at least ``MIN_CUT_PITCH`` divisions from the last cut."""
+    runs = np.count_nonzero(np.diff(pixels.astype(np.int8), axis=0, prepend=0) == 1, axis=0)
+    ink = pixels.sum(axis=0) / max(1, int(pixels.sum(axis=0).max()))
+    width = pixels.shape[1]
     step = width / k
     cuts: list[int] = []
     for j in range(1, k):
@@ -254,15 +260,20 @@ def _cut_columns(profile: np.ndarray, k: int) -> list[int]:
         hi = min(int(j * step + 0.4 * step), width - int(MIN_CUT_PITCH * step))
         if hi <= lo:
             continue
-        cuts.append(lo + int(np.argmin(smooth[lo:hi])))
+        c = np.arange(lo, hi)
+        cost = runs[c] + 0.5 * ink[c] + 0.5 * ((c - j * step) / (0.4 * step)) ** 2
+        cuts.append(lo + int(np.argmin(cost)))
     return cuts
 
 
 def _split(m: _Mark, pixels: np.ndarray, pitch: float, width: float):
     """``m`` as ``[(box, pixels), ...]``, cut into the characters it holds when it is
-    wider than one (step 4 of the module docstring)."""
-    k = max(1, round((m.width - width) / max(pitch, 1.0)) + 1) if m.width > width else 1
-    cuts = _cut_columns(pixels.sum(axis=0), k) if k > 1 else []
+    wider than one (step 4 of the module docstring): as many as the pitch fits in its
+    width beyond a character's, or as character widths fit in it (``SPLIT_WIDTHS``
+    short of a whole one: a wide character is not cut)."""
+    by_pitch = round((m.width - width) / max(pitch, 1.0)) + 1 if m.width > width else 1
+    k = max(1, by_pitch, math.floor(m.width / max(width, 1.0) + 2.0 - SPLIT_WIDTHS))
+    cuts = _cut_columns(pixels, k) if k > 1 else []
     pieces = []
     for a, b in zip([0, *cuts], [*cuts, m.width], strict=True):
         part = np.zeros_like(pixels)
@@ -328,7 +339,7 @@ def find_characters(mask, *, angle_deg: float | None = None) -> PageLayout:
                range(int(line.max()) + 1)]  # fmt: skip
     pitch = _pitch(by_line, along, height)
     tall = [m.width for m in marks if m.height >= 0.5 * height]
-    width = float(np.median(tall)) if tall else height
+    width = float(np.percentile(tall, 75)) if tall else height
     layout = PageLayout(angle_deg=angle, height_px=height, shape=mask.shape)
     for n, idx in enumerate(by_line):
         chars = []

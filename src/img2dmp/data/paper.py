@@ -50,7 +50,7 @@ BACKGROUND_CELLS = 24
 BACKGROUND_PERCENTILE = 80
 #: A cell whose background is darker than this share of the paper's is off the sheet
 #: (when it connects to the image's border).
-TABLE_LEVEL = 0.6
+TABLE_LEVEL = 0.45
 #: Rules are searched within this angle of the rows and columns, degrees.
 MAX_RULE_ANGLE_DEG = 6.0
 #: A straight run of dark pixels this share of the sheet's width (height) long is a rule.
@@ -59,8 +59,10 @@ RULE_SHARE = 0.9
 PERIODIC_RULE_SHARE = 0.4
 #: Components thicker than this many pen widths are not pen strokes.
 THICK_FACTOR = 3.5
-#: Components smaller than this many pen widths squared are specks.
+#: Components smaller than this many pen widths squared are specks,
 SPECK_AREA_PEN2 = 2.5
+#: ... and so is any of fewer pixels than this (a page of specks has no pen width).
+MIN_STROKE_AREA_PX = 8
 #: A component along the image's border for this share of that side is the
 #: sheet's edge (a character cut by the border touches it over its own width only).
 EDGE_SHARE = 0.15
@@ -227,8 +229,8 @@ def sheet_mask(bg: np.ndarray, cell: int) -> np.ndarray:
     if not table.any():
         return np.ones((h, w), bool)
     table = binary_dilation(table, np.ones((3, 3), bool))
-    full = np.repeat(np.repeat(~table, cell, axis=0), cell, axis=1)
-    return full[:h, :w]
+    full = np.repeat(np.repeat(~table, cell, axis=0), cell, axis=1)[:h, :w]
+    return np.pad(full, ((0, h - full.shape[0]), (0, w - full.shape[1])), mode="edge")
 
 
 def _ring_labels(labels: np.ndarray) -> np.ndarray:
@@ -329,9 +331,10 @@ def _spans_short_of_ends(mask: np.ndarray, extent: tuple[int, int]) -> bool:
     return bool(cols[0] >= extent[0] + margin and cols[-1] < extent[1] - margin)
 
 
-def _row_rules(mask: np.ndarray, extent: tuple[int, int], angle_deg: float) -> np.ndarray:
+def _row_rules(mask: np.ndarray, extent: tuple[int, int], angle_deg: float):
     """Pixels of ``mask`` on rules along the rows at ``angle_deg`` (see the module
-    docstring, step 5), crossings kept; ``bool [H, W]``."""
+    docstring, step 5; ``bool [H, W]``), crossings not yet restored, and the rules'
+    thickness (rows of the widest band, with two rows of slack either side)."""
     off = _shear_rows(mask.shape, angle_deg)
     s = _sheared(mask, off)
     d = s.copy()  # two rows either side: a slightly wavy rule stays one run
@@ -343,7 +346,7 @@ def _row_rules(mask: np.ndarray, extent: tuple[int, int], angle_deg: float) -> n
     full = _long_runs(d, max(8, math.ceil(RULE_SHARE * width)), gap=3)
     bands = _bands(runs.any(axis=1))
     if not bands:
-        return np.zeros(mask.shape, bool)
+        return np.zeros(mask.shape, bool), 0
     periodic = _evenly_spaced([(a + b) / 2 for a, b in bands])
     chosen = np.zeros(d.shape[0], bool)
     for a, b in bands:
@@ -351,9 +354,8 @@ def _row_rules(mask: np.ndarray, extent: tuple[int, int], angle_deg: float) -> n
             chosen[a:b] = True
     rule = s & runs & chosen[:, None]
     if not periodic and not _spans_short_of_ends(s & ~rule, extent):
-        return np.zeros(mask.shape, bool)  # a tight crop's own stroke, not a rule
-    thickness = max(b - a for a, b in bands)
-    return _unsheared(rule & ~_crossings(s & ~rule, rule, thickness), off, mask.shape[0])
+        return np.zeros(mask.shape, bool), 0  # a tight crop's own stroke, not a rule
+    return _unsheared(rule, off, mask.shape[0]), max(b - a for a, b in bands)
 
 
 def _crossings(strokes: np.ndarray, rule: np.ndarray, reach: int) -> np.ndarray:
@@ -370,22 +372,40 @@ def _crossings(strokes: np.ndarray, rule: np.ndarray, reach: int) -> np.ndarray:
     return rule & above & below
 
 
-def rules(mask: np.ndarray, sheet: np.ndarray) -> tuple[np.ndarray, dict]:
+def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None
+          ) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Pixels of ``mask`` on ruled or squared paper's lines (both directions), and the
-    angles found (``{"rows_deg", "columns_deg"}``)."""
-    found = np.zeros(mask.shape, bool)
-    angles = {}
+    angles found (``{"rows_deg", "columns_deg"}``).
+
+    A rule pixel stays ink where a stroke crosses the rule: stroke pixels (ink on no rule
+    of either direction, so that squared paper's own crossings are not strokes) lie just
+    before and just after it across the rule, or (given the darkness ``dark``) it is
+    darker than the rules by more than half the way to the strokes' ink."""
+    found, per_axis, angles = np.zeros(mask.shape, bool), [], {}
     for axis, name in ((0, "rows_deg"), (1, "columns_deg")):
-        m = mask if axis == 0 else mask.T
-        sh = sheet if axis == 0 else sheet.T
+        m, sh = (mask, sheet) if axis == 0 else (mask.T, sheet.T)
         cols = np.flatnonzero(sh.any(axis=0))
         if cols.size < 8:
             continue
-        angle = dominant_angle(m)
-        angles[name] = angle
-        r = _row_rules(m, (int(cols[0]), int(cols[-1]) + 1), angle)
-        found |= r if axis == 0 else r.T
-    return found, angles
+        angles[name] = dominant_angle(m)
+        r, reach = _row_rules(m, (int(cols[0]), int(cols[-1]) + 1), angles[name])
+        if reach:
+            per_axis.append((axis, angles[name], r, reach))
+            found |= r if axis == 0 else r.T
+    strokes = mask & ~found
+    keep = np.zeros(mask.shape, bool)
+    for axis, angle, r, reach in per_axis:
+        st = strokes if axis == 0 else strokes.T
+        off = _shear_rows(st.shape, angle)
+        cross = _crossings(_sheared(st, off), _sheared(r, off), reach)
+        cross = _unsheared(cross, off, st.shape[0])
+        keep |= cross if axis == 0 else cross.T
+    if dark is not None and found.any() and strokes.any():
+        level = float(np.median(dark[found]))
+        ink_level = float(np.percentile(dark[strokes], 90))
+        if ink_level - level > 0.15:  # rules clearly lighter than the pen
+            keep |= found & (dark > level + 0.5 * (ink_level - level))
+    return found & ~keep, angles
 
 
 @dataclass
@@ -398,11 +418,11 @@ class _Levels:
     ink: float
 
 
-def thresholds(dark: np.ndarray, noise: float) -> _Levels | None:
+def thresholds(dark: np.ndarray, noise: float, exclude=None) -> _Levels | None:
     """The image's :class:`_Levels`, or None when nothing stands out from the paper's
-    noise (no ink)."""
+    noise (no ink); ``exclude`` (``bool [H, W]``): pixels that are not the pen's (rules)."""
     floor = max(0.08, 4.0 * noise)
-    candidates = dark[dark > floor]
+    candidates = dark[(dark > floor) & ~exclude] if exclude is not None else dark[dark > floor]
     if candidates.size < 4:
         return None
     ink = float(np.percentile(candidates, 90))
@@ -467,15 +487,15 @@ def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool):
     width = pen_width(area, boundary, keep)
     if shape_filters and width > 0:
         thick = 2.0 * area / np.maximum(boundary, 1)
-        speck = keep & (area < SPECK_AREA_PEN2 * width**2)
+        speck = keep & (area < max(SPECK_AREA_PEN2 * width**2, MIN_STROKE_AREA_PX))
+        keep &= ~speck  # a page of specks alone holds no ink
+        removed["specks"] = int(speck.sum())
         blob = keep & (thick > THICK_FACTOR * width)
         edge = keep & _along_border(labels, len(area) - 1)
-        drop = speck | blob | edge
-        if np.count_nonzero(keep & ~drop):  # never drop everything
-            removed.update(specks=int(speck.sum()), thick_components=int(blob.sum()))
-            removed["edge_components"] = int(edge.sum())
-            keep &= ~drop
-            width = pen_width(area, boundary, keep)
+        if np.count_nonzero(keep & ~blob & ~edge):  # the only strokes are strokes
+            removed.update(thick_components=int(blob.sum()), edge_components=int(edge.sum()))
+            keep &= ~blob & ~edge
+        width = pen_width(area, boundary, keep)
     return keep[labels], width, removed
 
 
@@ -520,7 +540,12 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
     if lv is None:
         return None
     weak = dark >= lv.weak
-    ruled, _ = rules(weak, sheet)
+    ruled, _ = rules(weak, sheet, dark)
+    if ruled.any():  # the pen's own level, which many rules would pull down
+        lv = thresholds(dark, _noise(a, bg) if cell else 0.0, exclude=ruled)
+        if lv is None:
+            return None
+        weak = dark >= lv.weak
     kept, width, removed = _kept_strokes(weak & ~ruled, dark, lv, shape_filters=cell > 0)
     if not kept.any():
         return None
