@@ -81,26 +81,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"height of the image on paper (default {DEFAULT_WRITING_HEIGHT_MM:g}; not with "
         "--page, which --width-mm scales)",
     )
-    parser.add_argument(
-        "--page",
-        action="store_true",
-        help="write a whole page: IMAGE is a page document (PAGE.json, from img2dmp predict "
-        "--page), or with --model a photo whose characters the model reads",
-    )
-    parser.add_argument(
-        "--width-mm",
-        type=_args.positive_float,
-        default=None,
-        help=f"with --page: width on paper of the page's characters (the union of their "
-        f"boxes, aspect kept; default {DEFAULT_PAGE_WIDTH_MM:g}); refused if the page does "
-        "not fit the sheet or the arm's reach",
-    )
-    parser.add_argument(
-        "--skip-flagged",
-        action="store_true",
-        help="with --page: do not write the characters that have flags (e.g. no_ink); "
-        "the others keep their places",
-    )
+    _add_page_arguments(parser)
     parser.add_argument("--force-n", type=float, default=5.0, help="contact force set point")
     parser.add_argument("--rate-hz", type=float, default=240.0, help="controller and physics rate")
     parser.add_argument(
@@ -128,6 +109,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     _args.add_refine(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _add_page_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--page``, ``--width-mm``, ``--skip-flagged``: a whole page in one run."""
+    parser.add_argument(
+        "--page",
+        action="store_true",
+        help="write a whole page: IMAGE is a page document (PAGE.json, from img2dmp predict "
+        "--page), or with --model a photo whose characters the model reads",
+    )
+    parser.add_argument(
+        "--width-mm",
+        type=_args.positive_float,
+        default=None,
+        help=f"with --page: width on paper of the page's characters (the union of their "
+        f"boxes, aspect kept; default {DEFAULT_PAGE_WIDTH_MM:g}); refused if the page does "
+        "not fit the sheet or the arm's reach",
+    )
+    parser.add_argument(
+        "--skip-flagged",
+        action="store_true",
+        help="with --page: do not write the characters that have flags (e.g. no_ink); "
+        "the others keep their places",
+    )
 
 
 def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
@@ -377,11 +382,14 @@ def _page_input(args):
 
 def _photo_view(path):
     """The photo as ink levels for the figure (reduced; any size spans the photo's
-    frame in the figure)."""
+    frame in the figure), or None if it cannot be shown: it is only a picture."""
     from img2dmp.data.images import ink_view
 
-    with _args.reading_image(path):
-        return ink_view(path, max_side=2048)[0]
+    try:
+        with _args.reading_image(path):
+            return ink_view(path, max_side=2048)[0]
+    except ValueError:  # e.g. a page without ink: the figure says "no photo"
+        return None
 
 
 def _page_photo(page, directory: str):
@@ -399,11 +407,9 @@ def _page_photo(page, directory: str):
         try:
             with Image.open(path) as im:
                 h, w = shown_size(im)
-            if (w, h) != tuple(page.image_size_px):
-                return None
-            return _photo_view(path)
-        except (OSError, ValueError):
+        except (OSError, ValueError, Image.DecompressionBombError):
             return None
+        return _photo_view(path) if (w, h) == tuple(page.image_size_px) else None
     return None
 
 
