@@ -437,7 +437,7 @@ def _run_page(args, scene_cfg, ctl_cfg) -> int:
     os.makedirs(args.out_dir, exist_ok=True)
     n, started = len(plan.characters), []
     with progress_bar(
-        total=plan.estimated_steps(options),
+        total=plan.estimated_steps(),
         unit="step",
         desc=f"writing {name}",
         enabled=not args.no_progress,

@@ -132,24 +132,30 @@ class PagePlan:
     def travels(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """``(from, to)`` world ``(x, y)`` of each travel: from the end of one character's
         path to the first point of the next."""
-        ends = [(cp.plan.xy_m[-1], cp.plan.xy_m[0]) for cp in self.characters]
-        return [(ends[k - 1][0], ends[k][1]) for k in range(1, len(ends))]
+        chars = self.characters
+        return [
+            (a.plan.xy_m[-1], b.plan.xy_m[0]) for a, b in zip(chars[:-1], chars[1:], strict=True)
+        ]
 
-    def estimated_steps(self, options: WritingOptions) -> int:
-        """About how many control steps the page takes (for a progress bar): each DMP's
-        duration plus a second for its approach, holds and lift, plus the travels."""
-        dt_s = options.dt_s
-        writing = sum(float(cp.params.tau) + 1.0 for cp in self.characters) / dt_s
-        cfg = options.controller_config
+    def travel_steps(self) -> int:
+        """Control steps of all the travels (up, across, down, rest)."""
+        dt_s, cfg = self.options.dt_s, self.options.controller_config
         moving = sum(len(travel_targets(a, b, dt_s)) for a, b in self.travels())
         per_travel = 2 * _rise_steps(self.travel_height_m, cfg, dt_s) + _settle_steps(dt_s)
-        return int(writing + moving + per_travel * len(self.travels()))
+        return moving + per_travel * len(self.travels())
 
-    def joined(self, dt_s: float) -> PlannedPath:
+    def estimated_steps(self) -> int:
+        """About how many control steps the page takes (for a progress bar): each DMP's
+        duration plus a second for its approach, holds and lift, plus the travels."""
+        writing_s = sum(float(cp.params.tau) + 1.0 for cp in self.characters)
+        return int(writing_s / self.options.dt_s) + self.travel_steps()
+
+    def joined(self) -> PlannedPath:
         """The characters' plans one after another, joined by their pen-up travels: the
         commanded path of the page, for the figure and the video. ``time_s`` counts the
-        samples at ``dt_s`` (the simulated time also holds the approaches and holds)."""
-        parts = []
+        samples at the control period (the simulated time also holds the approaches and
+        the held steps)."""
+        dt_s, parts = self.options.dt_s, []
         for k, cp in enumerate(self.characters):
             if k:
                 xy_m = travel_targets(self.characters[k - 1].plan.xy_m[-1], cp.plan.xy_m[0], dt_s)
@@ -253,13 +259,11 @@ def _plan_character(page: Page, c: PageCharacter, mapping, dt_s: float) -> Chara
 def _duration_bound_s(plan: PagePlan, options: WritingOptions) -> float:
     """The longest the page can take, as the duration of one DMP for
     :meth:`WritingOptions.check_video` (which adds one approach and one lift)."""
-    cfg, dt_s = options.controller_config, options.dt_s
+    cfg = options.controller_config
     per_extra = options.approach_timeout_s + cfg.lift_height_m / cfg.travel_speed_m_s + 0.2
-    travel_steps = plan.estimated_steps(options) - sum(
-        (float(cp.params.tau) + 1.0) / dt_s for cp in plan.characters
-    )
     taus = sum(float(cp.params.tau) for cp in plan.characters)
-    return taus + (len(plan.characters) - 1) * per_extra + travel_steps * dt_s
+    travels_s = plan.travel_steps() * options.dt_s
+    return taus + (len(plan.characters) - 1) * per_extra + travels_s
 
 
 _EDGES = ("bottom", "right", "top", "left")  # world -x, -y, +x, +y as the writer sees it
@@ -480,7 +484,7 @@ class PageRun(WritingRun):
         self.approach_times_s: list[float] = []
         if options.frame_interval_s is not None:
             # The video's paper shows the whole page's commanded path from the start.
-            joined = page_plan.joined(self.dt_s)
+            joined = page_plan.joined()
             self._inset = PaperInset(options.frame_size_px, joined.xy_m, joined.pen_down)
 
     def execute(self) -> PageResult:
@@ -549,7 +553,7 @@ class PageRun(WritingRun):
         return PageResult(
             log=log,
             metrics=metrics,
-            plan=self.page_plan.joined(self.dt_s),
+            plan=self.page_plan.joined(),
             mapping=self.mapping,
             scene_config=self.scene.config,
             controller_config=ctl_cfg,
