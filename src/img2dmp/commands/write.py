@@ -17,6 +17,16 @@ limits), and prints tracking-error, contact-force and per-stroke ink metrics. NA
 file's name without its extension: two inputs of one name are refused, naming both, and
 files already in ``--out-dir`` are replaced only with ``--force``; both are checked before
 the simulation starts.
+
+``--page`` writes a whole page in one run (:mod:`img2dmp.robot.page`): ``PAGE.json
+--page`` a page document (``img2dmp predict PHOTO --page`` writes one), ``PHOTO --page
+--model RUN [--refine N]`` the page the model reads in the photo
+(``Predictor.predict_page``). The characters' boxes together are written
+``--width-mm`` wide (aspect kept, centred on the paper), in reading order, the pen
+lifted and travelling between characters; ``--skip-flagged`` leaves out the characters
+with flags. The outputs are those of one DMP for the whole page (one log, one joint
+trajectory, one video) plus ``NAME_characters.csv``, one row of measures per character
+and the page's totals; NAME is the page document's or the photo's name.
 Needs the optional extra: ``pip install img2dmp[robot]``.
 """
 
@@ -28,11 +38,19 @@ import sys
 
 from . import _args
 
-HELP = "write a digit with a simulated KUKA arm (pybullet) and measure how well it went"
+HELP = "write a digit or a page with a simulated KUKA arm (pybullet) and measure how well it went"
+DEFAULT_WRITING_HEIGHT_MM = 40.0
+DEFAULT_PAGE_WIDTH_MM = 160.0  # img2dmp.robot.page.DEFAULT_WIDTH_MM (not imported: no NumPy here)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("images", nargs="*", metavar="IMAGE", help="image(s) of a digit")
+    parser.add_argument(
+        "images",
+        nargs="*",
+        metavar="IMAGE",
+        help="image(s) of a digit; with --page one page document (PAGE.json) or, with "
+        "--model, one photo of a page",
+    )
     parser.add_argument("--model", help="trained model: run directory or checkpoint (with IMAGE)")
     parser.add_argument("--dmp", metavar="JSON", help="one DMP to write (instead of IMAGE)")
     parser.add_argument(
@@ -57,8 +75,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out-dir", default="robot_out", help="directory for the outputs")
     _args.add_force(parser, "files in --out-dir")
     parser.add_argument(
-        "--writing-height-mm", type=float, default=40.0, help="height of the image on paper"
+        "--writing-height-mm",
+        type=float,
+        default=None,
+        help=f"height of the image on paper (default {DEFAULT_WRITING_HEIGHT_MM:g}; not with "
+        "--page, which --width-mm scales)",
     )
+    _add_page_arguments(parser)
     parser.add_argument("--force-n", type=float, default=5.0, help="contact force set point")
     parser.add_argument("--rate-hz", type=float, default=240.0, help="controller and physics rate")
     parser.add_argument(
@@ -86,6 +109,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     _args.add_refine(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _add_page_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--page``, ``--width-mm``, ``--skip-flagged``: a whole page in one run."""
+    parser.add_argument(
+        "--page",
+        action="store_true",
+        help="write a whole page: IMAGE is a page document (PAGE.json, from img2dmp predict "
+        "--page), or with --model a photo whose characters the model reads",
+    )
+    parser.add_argument(
+        "--width-mm",
+        type=_args.positive_float,
+        default=None,
+        help=f"with --page: width on paper of the page's characters (the union of their "
+        f"boxes, aspect kept; default {DEFAULT_PAGE_WIDTH_MM:g}); refused if the page does "
+        "not fit the sheet or the arm's reach",
+    )
+    parser.add_argument(
+        "--skip-flagged",
+        action="store_true",
+        help="with --page: do not write the characters that have flags (e.g. no_ink); "
+        "the others keep their places",
+    )
 
 
 def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
@@ -132,6 +179,15 @@ def _name(path) -> str:
 def check_files(args) -> None:
     """The inputs (there, readable, images that open) and the outputs (the overwrite rule,
     one name per input), before anything is loaded or simulated."""
+    if args.page:
+        _check_page_files(args)
+        return
+    for given, flag in (
+        (args.width_mm is not None, "--width-mm"),
+        (args.skip_flagged, "--skip-flagged"),
+    ):
+        if given:
+            raise ValueError(f"{flag} is for --page (a whole page)")
     if args.dmp and args.images:
         raise ValueError("give either IMAGE ... --model or --dmp, not both")
     if not args.dmp and not args.images:
@@ -146,8 +202,7 @@ def check_files(args) -> None:
     _args.check_inputs(images, "image")
     _args.check_images(images)
     _args.check_output_dir(args.out_dir, "--out-dir")
-    suffixes = ["_paper.png", "_render.png", "_log.csv"] + ([".gif"] if args.video else [])
-    suffixes += [".mp4"] if args.video and _mp4_available() else []
+    suffixes = _output_suffixes(args, False)
     outputs = [
         (os.path.join(args.out_dir, _name(path) + suffix), path)
         for path in inputs
@@ -159,6 +214,44 @@ def check_files(args) -> None:
         for path in inputs:
             base = _joints_base(args, _name(path), len(inputs))
             outputs += [(f, path) for f in export_paths(base)]
+    _args.check_outputs(outputs, args.force)
+
+
+def _output_suffixes(args, page: bool) -> list[str]:
+    suffixes = ["_paper.png", "_render.png", "_log.csv"] + (["_characters.csv"] if page else [])
+    suffixes += [".gif"] if args.video else []
+    return suffixes + ([".mp4"] if args.video and _mp4_available() else [])
+
+
+def _check_page_files(args) -> None:
+    """``--page``: one page document, or one photo with ``--model``; the options of one
+    DMP refused; the outputs checked."""
+    if len(args.images) != 1 or args.dmp:
+        raise ValueError("--page writes one page: give PAGE.json, or PHOTO --model RUN")
+    refused = (
+        (args.image, "--image is for --dmp (the page's photo is the document's image)"),
+        (args.image_size, "--image-size is for --dmp files, not for --page"),
+        (args.hypothesis != 1, "--hypothesis is not for --page: it writes each character's "
+                               "top hypothesis"),
+        (args.writing_height_mm is not None, "--writing-height-mm is not for --page: "
+                                             "--width-mm scales a page"),
+        (args.refine and not args.model, "--refine refines what --model reads in a photo; "
+                                         "a page document is written as it is"),
+    )  # fmt: skip
+    for given, message in refused:
+        if given:
+            raise ValueError(message)
+    source = args.images[0]
+    _args.check_inputs([source], "photo" if args.model else "page document")
+    if args.model:
+        _args.check_images([source])
+    _args.check_output_dir(args.out_dir, "--out-dir")
+    name = _name(source)
+    outputs = [(os.path.join(args.out_dir, name + s), source) for s in _output_suffixes(args, True)]
+    if args.export_joints:
+        from img2dmp.robot.joints import export_paths
+
+        outputs += [(f, source) for f in export_paths(_joints_base(args, name, 1))]
     _args.check_outputs(outputs, args.force)
 
 
@@ -192,23 +285,25 @@ def run(args) -> int:
     if not available():
         print(f"img2dmp write: error: {INSTALL_HINT}", file=sys.stderr)
         return 2
-    from img2dmp._progress import bar as progress_bar
-    from img2dmp.robot import (
-        ControllerConfig,
-        SceneConfig,
-        plot_writing,
-        save_log_csv,
-        save_render,
-        save_videos,
-        summary_lines,
-        write_dmp,
-    )
+    from img2dmp.robot import ControllerConfig, SceneConfig
 
     if args.frame_interval_s <= 0:
         raise ValueError(f"--frame-interval-s must be > 0, got {args.frame_interval_s}")
     check_files(args)
     scene_cfg = SceneConfig(paper_center_m=tuple(args.center_m))
     ctl_cfg = ControllerConfig(force_set_n=args.force_n)
+    if args.page:
+        return _run_page(args, scene_cfg, ctl_cfg)
+    return _run_dmps(args, scene_cfg, ctl_cfg)
+
+
+def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
+    """One run per input DMP (``IMAGE ... --model``, ``--dmp``)."""
+    from img2dmp._progress import bar as progress_bar
+    from img2dmp.robot import plot_writing, summary_lines, write_dmp
+
+    height_mm = args.writing_height_mm
+    height_mm = DEFAULT_WRITING_HEIGHT_MM if height_mm is None else height_mm
     os.makedirs(args.out_dir, exist_ok=True)
     for name, params, config, size, image in _inputs(args):
         est_steps = int((float(params.tau) + 2.0) * args.rate_hz)
@@ -220,7 +315,7 @@ def run(args) -> int:
                     params,
                     config,
                     size,
-                    writing_height_mm=args.writing_height_mm,
+                    writing_height_mm=height_mm,
                     control_rate_hz=args.rate_hz,
                     scene_config=scene_cfg,
                     controller_config=ctl_cfg,
@@ -233,17 +328,136 @@ def run(args) -> int:
             bar.total = bar.n
         base = os.path.join(args.out_dir, name)
         plot_writing(result, base + "_paper.png", image=image, title=f"{name}: KUKA iiwa writes")
-        save_render(result, base + "_render.png")
-        save_log_csv(result, base + "_log.csv")
-        written = [base + s for s in ("_paper.png", "_render.png", "_log.csv")]
-        if args.video:
-            written += save_videos(result, base, args.frame_interval_s)
-        if args.export_joints:
-            from img2dmp.robot.joints import JointTrajectory, save_joint_trajectory
-
-            n_inputs = len(args.images) or 1
-            trajectory = JointTrajectory.from_result(result)
-            written += save_joint_trajectory(trajectory, _joints_base(args, name, n_inputs))
+        written = [base + "_paper.png"] + _save_run(args, result, name, len(args.images) or 1)
         print("\n".join(summary_lines(name, result)))
         print("  wrote " + ", ".join(written))
+    return 0
+
+
+def _save_run(args, result, name: str, n_inputs: int) -> list[str]:
+    """The render, the log, the video and the joint trajectory of a run; the files."""
+    from img2dmp.robot import save_log_csv, save_render, save_videos
+
+    base = os.path.join(args.out_dir, name)
+    save_render(result, base + "_render.png")
+    save_log_csv(result, base + "_log.csv")
+    written = [base + "_render.png", base + "_log.csv"]
+    if args.video:
+        written += save_videos(result, base, args.frame_interval_s)
+    if args.export_joints:
+        from img2dmp.robot.joints import JointTrajectory, save_joint_trajectory
+
+        trajectory = JointTrajectory.from_result(result)
+        written += save_joint_trajectory(trajectory, _joints_base(args, name, n_inputs))
+    return written
+
+
+def _page_input(args):
+    """``(name, page, photo view or None)``: the page document, or the page the model
+    reads in the photo (``Predictor.predict_page(PHOTO).to_document()``)."""
+    import json
+
+    from img2dmp.robot import check_page_document, read_page
+
+    source = args.images[0]
+    if not args.model:
+        page = read_page(source)
+        return _name(source), page, _page_photo(page, os.path.dirname(source))
+    from img2dmp.predict import Predictor
+
+    predictor = Predictor.load(args.model)
+    if args.refine:
+        from img2dmp.nn.refine import RefineOptions
+
+        predictor.refine_options = RefineOptions(steps=args.refine)
+    with _args.reading_image(source):
+        document = predictor.predict_page(source).to_document()
+    try:  # checked as the file `img2dmp predict --page` would write would be read
+        document = json.loads(json.dumps(document))
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{source}: the model's page document is not plain JSON: {e}") from e
+    page = check_page_document(document, f"{source} (the page read by {args.model})")
+    return _name(source), page, _photo_view(source)
+
+
+def _photo_view(path):
+    """The photo as ink levels for the figure (reduced; any size spans the photo's
+    frame in the figure), or None if it cannot be shown: it is only a picture."""
+    from img2dmp.data.images import ink_view
+
+    try:
+        with _args.reading_image(path):
+            return ink_view(path, max_side=2048)[0]
+    except ValueError:  # e.g. a page without ink: the figure says "no photo"
+        return None
+
+
+def _page_photo(page, directory: str):
+    """The page document's photo for the figure, if it is there (as given, or next to
+    the document) and of the page's size; else None (the figure says so)."""
+    if page.image is None:
+        return None
+    from PIL import Image
+
+    from img2dmp.data.images import shown_size
+
+    for path in (page.image, os.path.join(directory, page.image)):
+        if not os.path.isfile(path):
+            continue
+        try:
+            with Image.open(path) as im:
+                h, w = shown_size(im)
+        except (OSError, ValueError, Image.DecompressionBombError):
+            return None
+        return _photo_view(path) if (w, h) == tuple(page.image_size_px) else None
+    return None
+
+
+def _run_page(args, scene_cfg, ctl_cfg) -> int:
+    """``--page``: every character of one page in one run."""
+    from img2dmp._progress import bar as progress_bar
+    from img2dmp.robot import (
+        WritingOptions,
+        page_summary_lines,
+        plan_page,
+        plot_page,
+        save_characters_csv,
+        write_page_plan,
+    )
+
+    options = WritingOptions(
+        control_rate_hz=args.rate_hz,
+        scene_config=scene_cfg,
+        controller_config=ctl_cfg,
+        frame_interval_s=args.frame_interval_s if args.video else None,
+    )
+    name, page, photo = _page_input(args)
+    width_mm = DEFAULT_PAGE_WIDTH_MM if args.width_mm is None else args.width_mm
+    plan = plan_page(page, options, width_mm=width_mm, skip_flagged=args.skip_flagged)
+    os.makedirs(args.out_dir, exist_ok=True)
+    n, started = len(plan.characters), []
+    with progress_bar(
+        total=plan.estimated_steps(),
+        unit="step",
+        desc=f"writing {name}",
+        enabled=not args.no_progress,
+    ) as bar:
+
+        def on_character(cp) -> None:
+            started.append(cp)
+            bar.set_description(f"writing {name}: {cp.label}, {len(started)} of {n}")
+
+        try:
+            result = write_page_plan(plan, progress=bar.update, on_character=on_character)
+        except RuntimeError as e:  # the simulated arm failed (e.g. never settled)
+            where = f" at {started[-1].label}" if started else ""
+            print(f"img2dmp write: {name}: simulation failed{where}: {e}", file=sys.stderr)
+            return 1
+        bar.total = bar.n
+    base = os.path.join(args.out_dir, name)
+    plot_page(result, base + "_paper.png", image=photo, title=f"{name}: KUKA iiwa writes a page")
+    save_characters_csv(result, base + "_characters.csv")
+    written = [base + "_paper.png", base + "_characters.csv"] + _save_run(args, result, name, 1)
+    print("\n".join(page_summary_lines(name, result)))
+    print("  wrote " + ", ".join(written))
     return 0

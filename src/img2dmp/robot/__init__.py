@@ -21,6 +21,11 @@ The DMP file format (:mod:`.dmpfile`) works without pybullet. See ``docs/ROBOT.m
   the DMP clock while the pen lands and lifts (:mod:`.strokes`)
 - :class:`JointTrajectory`, :func:`save_joint_trajectory`, :func:`load_joint_trajectory`,
   :func:`replay_joint_trajectory` - the joint trajectory for a real iiwa (:mod:`.joints`)
+- :func:`write_page` - every character of a page document in one run (:mod:`.page`:
+  :func:`plan_page`, :func:`write_page_plan`, :class:`PageRun`, :class:`PageResult`);
+  :func:`read_page`, :func:`check_page_document`, :class:`Page` - the page document
+  (:mod:`.pagefile`); :func:`plot_page`, :func:`save_characters_csv`,
+  :func:`page_summary_lines` - its outputs
 """
 
 from __future__ import annotations
@@ -58,6 +63,21 @@ _LAZY = {
     "save_joint_trajectory": ".joints",
     "load_joint_trajectory": ".joints",
     "replay_joint_trajectory": ".joints",
+    "write_page": ".page",
+    "plan_page": ".page",
+    "write_page_plan": ".page",
+    "page_mapping": ".page",
+    "PagePlan": ".page",
+    "PageRun": ".page",
+    "PageResult": ".page",
+    "CharacterRun": ".page",
+    "read_page": ".pagefile",
+    "check_page_document": ".pagefile",
+    "Page": ".pagefile",
+    "PageCharacter": ".pagefile",
+    "plot_page": ".outputs",
+    "save_characters_csv": ".outputs",
+    "page_summary_lines": ".outputs",
 }
 
 __all__ = [

@@ -140,12 +140,18 @@ class WritingController:
         self.last_ik_residual_m = 0.0
 
     def update_axis(
-        self, pen_down: bool, force_n: float, surface_z_m: float, hover: bool = False
+        self,
+        pen_down: bool,
+        force_n: float,
+        surface_z_m: float,
+        hover: bool = False,
+        up_height_m: float | None = None,
     ) -> float:
         """Advance the pen-axis admittance by one step; return the commanded tip height.
 
-        ``hover`` (pen up only): go to ``approach_clearance_m`` above the paper instead of
-        ``lift_height_m``, so that a touch-down that is due soon starts from there."""
+        Pen up only: ``hover`` goes to ``approach_clearance_m`` above the paper instead of
+        ``lift_height_m``, so that a touch-down that is due soon starts from there;
+        ``up_height_m`` goes to that height instead (a page's travel between characters)."""
         cfg = self.config
         self.force_filtered_n += self._alpha * (force_n - self.force_filtered_n)
         above = surface_z_m + cfg.approach_clearance_m
@@ -159,7 +165,8 @@ class WritingController:
             limit = cfg.max_axis_speed_m_s
             self.z_c += float(np.clip(speed, -limit, limit)) * self.dt
         else:
-            height = cfg.approach_clearance_m if hover else cfg.lift_height_m
+            height = cfg.lift_height_m if up_height_m is None else up_height_m
+            height = cfg.approach_clearance_m if hover else height
             step = surface_z_m + height - self.z_c
             limit = cfg.travel_speed_m_s * self.dt
             self.z_c += float(np.clip(step, -limit, limit))

@@ -1,6 +1,7 @@
 """Files written after a writing run: CSV log, the paper next to the commanded path and
 the input image, camera renders and the video (animated GIF; MP4 with imageio-ffmpeg,
-:mod:`.animation`). Every file is written atomically
+:mod:`.animation`); for a page (:mod:`.page`) also its figure with the characters
+numbered and the table of the characters' measures. Every file is written atomically
 (:mod:`img2dmp._files`: temporary file, then ``os.replace``); figures go through the one
 figure writer :func:`img2dmp._files.save_figure`."""
 
@@ -35,12 +36,14 @@ def save_log_csv(result: WritingResult, path) -> None:
     Columns: ``time_s, phase, dmp_time_s, pen_down, cmd_x_m, cmd_y_m, cmd_z_m, tip_x_m,
     tip_y_m, tip_z_m, force_n, torque_1_nm .. torque_7_nm`` (world frame, metres), then
     ``dwell`` (1: the DMP clock held), ``q_1_rad .. q_7_rad`` and ``qd_1_rad_s ..
-    qd_7_rad_s`` (joint positions and velocities after the step).
+    qd_7_rad_s`` (joint positions and velocities after the step), then the result's
+    :meth:`~img2dmp.robot.WritingResult.extra_log_columns` (a page: ``character``).
     """
     log = result.log
+    extra = result.extra_log_columns()
     f = io.StringIO(newline="")
     w = csv.writer(f)
-    w.writerow(LOG_CSV_HEADER)
+    w.writerow((*LOG_CSV_HEADER, *extra))
     for i in range(log.n_steps):
         w.writerow(
             [
@@ -55,6 +58,7 @@ def save_log_csv(result: WritingResult, path) -> None:
                 int(log.dwell[i]),
                 *(f"{v:.8f}" for v in log.joint_q_rad[i]),
                 *(f"{v:.6f}" for v in log.joint_qd_rad_s[i]),
+                *(column[i] for column in extra.values()),
             ]
         )
     atomic_write_text(path, f.getvalue())
@@ -95,13 +99,16 @@ def _plot_pixels(ax, result: WritingResult, image: np.ndarray | None) -> None:
     """The input image (if any) under the DMP's path in pixels, pen down and pen up."""
     plan = result.plan
     h, w = result.mapping.image_size
+    x0, y0, x1, y1 = result.mapping.area_px
     if image is not None:
+        # An image of another size (a reduced view of a photo) still spans the pixels of
+        # the frame the DMP is in.
         ax.imshow(image, cmap="gray_r", vmin=0, vmax=1, extent=(-0.5, w - 0.5, h - 0.5, -0.5))
         ax.set_title("input image and the DMP (pixels)", fontsize=10)
     else:
-        ax.set_xlim(-0.5, w - 0.5)
-        ax.set_ylim(h - 0.5, -0.5)
         ax.set_title("the DMP (pixels; no input image)", fontsize=10)
+    ax.set_xlim(x0 - 0.5, x1 - 0.5)
+    ax.set_ylim(y1 - 0.5, y0 - 0.5)
     down = np.where(plan.pen_down, plan.xy_px[:, 0], np.nan)  # [T]
     ax.plot(down, plan.xy_px[:, 1], color=COMMANDED_COLOR, lw=1.2, label="DMP, pen down")
     up = ~plan.pen_down
@@ -133,9 +140,8 @@ def _plot_paper(ax, result: WritingResult) -> None:
         ax.plot(cmd_up[:, 0], cmd_up[:, 1], ":", color="tab:orange", lw=1.0,
                 label="commanded path, pen up")  # fmt: skip
     _mark_start_and_direction(ax, cmd)
-    h, w = result.mapping.image_size
-    half_w = w * result.mapping.metres_per_px * 1e3 / 2
-    half_h = h * result.mapping.metres_per_px * 1e3 / 2
+    width_mm, height_mm = result.mapping.area_size_mm
+    half_w, half_h = width_mm / 2, height_mm / 2
     ax.add_patch(
         plt.Rectangle(
             (-half_w, -half_h),
@@ -144,7 +150,7 @@ def _plot_paper(ax, result: WritingResult) -> None:
             fill=False,
             ls=":",
             color="gray",
-            label="writing area (image)",
+            label="writing area (image)" if _whole_image(result.mapping) else "writing area",
         )  # fmt: skip
     )
     ax.set_xlim(-half_w * 1.1, half_w * 1.1)
@@ -158,6 +164,11 @@ def _plot_paper(ax, result: WritingResult) -> None:
         fontsize=10,
     )
     _legend_below(ax)
+
+
+def _whole_image(mapping) -> bool:
+    h, w = mapping.image_size
+    return tuple(mapping.area_px) == (0, 0, w, h)
 
 
 def _plot_force(ax, result: WritingResult) -> None:
@@ -220,10 +231,10 @@ def _legend_below(ax) -> None:
 
 
 def _shade_write_phase(ax, log) -> None:
-    write = log.in_phase("write")  # [S]
-    if write.any():
-        t = log.time_s[write]
-        ax.axvspan(t[0], t[-1], color="gray", alpha=0.08, lw=0, label="write phase")
+    """Each run of write-phase steps (one per DMP: a page has one per character)."""
+    for i, (a, b) in enumerate(stroke_spans(log.in_phase("write"))):
+        ax.axvspan(log.time_s[a], log.time_s[b], color="gray", alpha=0.08, lw=0,
+                   label="write phase" if i == 0 else None)  # fmt: skip
 
 
 def _shade_dwell(ax, log) -> None:
@@ -299,5 +310,169 @@ def summary_lines(name: str, result: WritingResult) -> list[str]:
             f"  strokes (share of each commanded pen-down stroke with ink) {'; '.join(parts)}; "
             f"DMP held {m['dwell_s']:.2f} s for the pen to land and lift (force in band "
             f"{100 * m['force_in_band_share_with_dwell']:.1f} % counting that time)"
+        )
+    return lines
+
+
+# --- a page (img2dmp.robot.page) ----------------------------------------------------------
+
+CHARACTERS_CSV_HEADER = (
+    "index", "line", "written", "flags", "confidence", "start_s", "end_s", "strokes",
+    "length_mm", "ink_share", "stroke_ink_share_min", "ink_on_path_share", "ink_length_mm",
+    "placement_error_mm", "force_mean_n", "force_std_n", "force_in_band_share",
+    "contact_share", "tracking_error_mean_mm", "tracking_error_max_mm", "dwell_s",
+    "approach_s",
+)  # fmt: skip
+_PAGE_TOTALS = (
+    "length_mm", "ink_share", "stroke_ink_share_min", "ink_on_path_share", "ink_length_mm",
+    "force_mean_n", "force_std_n", "force_in_band_share", "contact_share",
+    "tracking_error_mean_mm", "tracking_error_max_mm", "dwell_s", "approach_s",
+)  # fmt: skip
+
+
+def plot_page(result, path, image: np.ndarray | None = None, title=None) -> None:
+    """PNG of a page (a ``PageResult``): the panels of :func:`plot_writing` over the whole
+    page - the photo's written area with the DMPs in its pixels, the ink on the paper
+    over the commanded paths (travels dotted), force and tracking error over time (one
+    grey band per character) - with every character's number at its place and in time,
+    and the characters left out (``skip_flagged``) drawn as dashed boxes.
+
+    ``image``: the photo (ink = 1), of any resolution: it is stretched over the photo's
+    pixel frame (e.g. a reduced view from :func:`img2dmp.data.images.ink_view`).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(
+        2, 2, figsize=(11, 9.4), gridspec_kw={"height_ratios": [3, 2]}, layout="constrained"
+    )
+    _plot_pixels(axes[0, 0], result, image)
+    axes[0, 0].set_title(
+        "the photo's written area and the characters' DMPs (pixels)"
+        if image is not None
+        else "the characters' DMPs (photo pixels; no photo)",
+        fontsize=10,
+    )
+    _plot_paper(axes[0, 1], result)
+    _plot_force(axes[1, 0], result)
+    _plot_tracking_error(axes[1, 1], result)
+    _number_characters(axes, result)
+    n = len(result.characters)
+    written = sum(r.written for r in result.characters)
+    fig.suptitle(title or f"KUKA iiwa writes a page: {written} of {n} characters (pybullet)")
+    save_figure(fig, path, dpi=FIGURE_DPI)
+
+
+def _number_characters(axes, result) -> None:
+    """Each character's index at its box (pixels and paper) and over its time; dashed
+    boxes for the characters not written."""
+    import matplotlib.pyplot as plt
+
+    text = {"fontsize": 8, "color": "tab:blue", "ha": "right", "va": "bottom"}
+    for r in result.characters:
+        x0, y0, x1, y1 = r.character.box_image_px
+        corners_px = [[x0 - 0.5, y0 - 0.5], [x1 - 0.5, y1 - 0.5]]
+        corners_mm = _paper_mm(result, result.mapping.to_table(corners_px))
+        label = str(r.character.index) if r.written else f"{r.character.index} (skipped)"
+        axes[0, 0].text(x0 - 0.5, y0 - 0.5, label, **text)
+        axes[0, 1].text(*corners_mm[0], label, **text)
+        if not r.written:
+            box = {"fill": False, "ls": "--", "color": "gray"}
+            axes[0, 0].add_patch(plt.Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, **box))
+            (ax0, ay1), (ax1, ay0) = corners_mm
+            axes[0, 1].add_patch(plt.Rectangle((ax0, ay0), ax1 - ax0, ay1 - ay0, **box))
+            continue
+        a, b = r.steps
+        t_mid = (result.log.time_s[a] + result.log.time_s[b - 1]) / 2
+        for ax in axes[1]:
+            ax.annotate(
+                str(r.character.index),
+                (t_mid, 0.02),
+                xycoords=("data", "axes fraction"),
+                ha="center",
+                fontsize=8,
+                color="tab:blue",
+            )
+
+
+def _character_row(r) -> list:
+    c, m = r.character, r.metrics
+    head = [c.index, c.line, int(r.written), " ".join(c.flags), f"{c.confidence:.4f}"]
+    if not r.written:
+        return head + [""] * (len(CHARACTERS_CSV_HEADER) - len(head))
+    return head + [
+        f"{m['start_s']:.4f}", f"{m['end_s']:.4f}", len(m["strokes"]),
+        *(f"{m[k]:.4f}" for k in CHARACTERS_CSV_HEADER[8:]),
+    ]  # fmt: skip
+
+
+def save_characters_csv(result, path) -> None:
+    """One row per character of a page (a ``PageResult``), in reading order, then a row
+    ``page`` of the totals.
+
+    Columns (``CHARACTERS_CSV_HEADER``): ``index, line, written`` (1/0), ``flags``
+    (space-separated), ``confidence``, ``start_s, end_s`` (page time), ``strokes``,
+    ``length_mm`` (commanded pen-down length), ``ink_share`` (the share of it with ink),
+    ``stroke_ink_share_min``, ``ink_on_path_share`` (the share of the ink on the commanded
+    path), ``ink_length_mm``, ``placement_error_mm`` (ink centre to commanded path centre),
+    ``force_mean_n, force_std_n, force_in_band_share, contact_share,
+    tracking_error_mean_mm, tracking_error_max_mm`` (the pen-down time with the DMP
+    running), ``dwell_s, approach_s``; empty for a character not written
+    (:func:`img2dmp.robot.page.character_metrics`, :func:`~img2dmp.robot.page.page_metrics`).
+    """
+    m = result.metrics
+    f = io.StringIO(newline="")
+    w = csv.writer(f)
+    w.writerow(CHARACTERS_CSV_HEADER)
+    for r in result.characters:
+        w.writerow(_character_row(r))
+    total = {k: f"{m[k]:.4f}" for k in _PAGE_TOTALS}
+    total.update(
+        index="page",
+        written=m["characters_written"],
+        strokes=len(m["strokes"]),
+        start_s="0.0000",
+        end_s=f"{m['simulated_s']:.4f}",
+        placement_error_mm=f"{m['placement_error_max_mm']:.4f}",  # the worst character's
+    )
+    w.writerow([total.get(k, "") for k in CHARACTERS_CSV_HEADER])
+    atomic_write_text(path, f.getvalue())
+
+
+def page_summary_lines(name: str, result) -> list[str]:
+    """A page's measures in words: the totals, then one line per character."""
+    m = result.metrics
+    between = (
+        "no ink between characters"
+        if m["travel_contact_s"] == 0
+        else f"the pen touched the paper for {m['travel_contact_s']:.3f} s between characters"
+    )
+    lines = [
+        f"{name}: {m['characters_written']} of {m['characters']} characters written on "
+        f"{m['width_mm']:.1f} x {m['height_mm']:.1f} mm; commanded paths inked "
+        f"{100 * m['ink_share']:.1f} %, ink on the commanded paths "
+        f"{100 * m['ink_on_path_share']:.1f} %; {between}",
+        f"  tracking error {m['tracking_error_mean_mm']:.3f} mm mean, "
+        f"{m['tracking_error_max_mm']:.3f} mm max; contact force {m['force_mean_n']:.3f} ± "
+        f"{m['force_std_n']:.3f} N (set {m['force_set_n']:g} N), within ±20 % "
+        f"{100 * m['force_in_band_share']:.1f} % of the pen-down time; "
+        f"{m['simulated_s']:.2f} s simulated at {m['control_rate_hz']:g} Hz, "
+        f"{m['real_time_factor']:.1f}x real time",
+    ]
+    for r in result.characters:
+        c, cm = r.character, r.metrics
+        head = f"  character {c.index} (line {c.line}"
+        head += f", flags {' '.join(c.flags)})" if c.flags else ")"
+        if not r.written:
+            lines.append(f"{head}: skipped")
+            continue
+        lines.append(
+            f"{head}: path inked {100 * cm['ink_share']:.1f} %, ink on the path "
+            f"{100 * cm['ink_on_path_share']:.1f} %, placed within "
+            f"{cm['placement_error_mm']:.2f} mm; force {cm['force_mean_n']:.2f} ± "
+            f"{cm['force_std_n']:.2f} N; tracking {cm['tracking_error_mean_mm']:.3f} mm mean, "
+            f"{cm['tracking_error_max_mm']:.3f} mm max"
         )
     return lines

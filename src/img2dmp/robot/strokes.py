@@ -107,14 +107,25 @@ def _densify(points: np.ndarray, spacing_m: float) -> tuple[np.ndarray, np.ndarr
     return dense, weight
 
 
+def ink_trace(tip_xy_m: np.ndarray, touching: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`ink_points` and the length (m) of ink each point stands for: half of each
+    neighbouring piece of the tip's path, 0 for the steps on which the tip rested (a
+    touch-down holds it at one point for a while)."""
+    touching = np.asarray(touching, dtype=bool)
+    points, weights = [], []
+    for a, b in stroke_spans(touching):
+        dense, weight = _densify(np.asarray(tip_xy_m[a : b + 1], dtype=float), RESAMPLE_M)
+        points.append(dense)
+        weights.append(weight)
+    if not points:
+        return np.zeros((0, 2)), np.zeros(0)
+    return np.concatenate(points), np.concatenate(weights)
+
+
 def ink_points(tip_xy_m: np.ndarray, touching: np.ndarray) -> np.ndarray:
     """The ink of a run as points ``[m, 2]`` at most ``RESAMPLE_M`` apart: the tip's path
     between consecutive steps that both touched the paper, and lone touching steps."""
-    touching = np.asarray(touching, dtype=bool)
-    parts = []
-    for a, b in stroke_spans(touching):
-        parts.append(_densify(np.asarray(tip_xy_m[a : b + 1], dtype=float), RESAMPLE_M)[0])
-    return np.concatenate(parts) if parts else np.zeros((0, 2))
+    return ink_trace(tip_xy_m, touching)[0]
 
 
 def coverage(path_xy_m: np.ndarray, ink_xy_m: np.ndarray, tolerance_m: float) -> float:
@@ -131,6 +142,34 @@ def coverage(path_xy_m: np.ndarray, ink_xy_m: np.ndarray, tolerance_m: float) ->
     if weight.sum() <= 0.0:
         return float(near.all())
     return float(weight[near].sum() / weight.sum())
+
+
+def ink_on_path_share(
+    path_xy_m: np.ndarray,
+    pen_down,
+    ink_xy_m: np.ndarray,
+    ink_weight=None,
+    tolerance_m: float = INK_TOLERANCE_M,
+) -> float:
+    """Share of the ink ``ink_xy_m [m, 2]`` within ``tolerance_m`` of the pen-down parts
+    of the commanded path ``path_xy_m [n, 2]`` (``pen_down [n]``): the converse of
+    :func:`coverage`, which finds commanded path without ink; this finds ink off the
+    path. ``ink_weight [m]``: the length each ink point stands for (:func:`ink_trace`);
+    without it (or if it sums to 0) every point counts alike. NaN without ink."""
+    from scipy.spatial import cKDTree
+
+    ink = np.asarray(ink_xy_m, dtype=float).reshape(-1, 2)
+    if len(ink) == 0:
+        return float("nan")
+    path = ink_points(np.asarray(path_xy_m, dtype=float), pen_down)  # the strokes, dense
+    if len(path) == 0:
+        return 0.0
+    dist, _ = cKDTree(path).query(ink, distance_upper_bound=tolerance_m)
+    near = np.isfinite(dist)
+    w = np.ones(len(ink)) if ink_weight is None else np.asarray(ink_weight, dtype=float)
+    if w.sum() <= 0.0:
+        w = np.ones(len(ink))
+    return float(w[near].sum() / w.sum())
 
 
 def ink_distance_m(ink_a_m: np.ndarray, ink_b_m: np.ndarray) -> float:

@@ -43,7 +43,8 @@ from .strokes import StrokeGate, stroke_report
 
 # The pen points straight down; the flange's x axis points back towards the robot.
 PEN_DOWN_ROTATION = np.diag([-1.0, 1.0, -1.0])
-PHASES = ("approach", "write", "lift")
+# "travel": between the characters of a page (:mod:`img2dmp.robot.page`), pen up.
+PHASES = ("approach", "write", "lift", "travel")
 PEN_THRESHOLD = 0.5
 IK_TOLERANCE_M = 1e-4
 # Writing starts once the force has stayed this close to the set point (relative).
@@ -61,6 +62,8 @@ IMAGE_SIDE_PX = (16, 4096)
 MAX_VIDEO_BYTES = 1 << 30
 # The longest approach before giving up, seconds of simulated time.
 MAX_APPROACH_TIMEOUT_S = 600.0
+# The path stays this far inside the sheet's edges.
+SHEET_MARGIN_M = 0.002
 
 
 def _is_finite(v) -> bool:
@@ -97,49 +100,87 @@ class PaperMapping:
 
     The image's up direction (decreasing row) points away from the robot (world +x),
     its right direction (increasing column) points to the writer's right (world -y), and
-    the image centre lands on ``center_m``. ``writing_height_mm`` is the height of the
-    whole image on paper, so a digit filling a 28-pixel MNIST image is about that tall.
+    the centre of the written area (the whole image unless ``area_px`` says otherwise)
+    lands on ``center_m``. ``writing_height_mm`` is the height of that area on paper, so
+    a digit filling a 28-pixel MNIST image is about that tall.
 
     Parameters
     ----------
     image_size : tuple (H, W)
         Image size in pixels.
     writing_height_mm : float
-        Height on paper of the full image height H.
+        Height on paper of the written area (the full image height H by default).
     center_m : tuple (x, y)
-        World position of the image centre, metres.
+        World position of the written area's centre, metres.
+    area_px : tuple (x0, y0, x1, y1) or None
+        The written area: half-open integer pixel bounds (columns ``x0 <= j < x1``,
+        rows ``y0 <= i < y1``) inside the image, e.g. the characters of a page; None:
+        the whole image.
     """
 
     image_size: tuple[int, int]
     writing_height_mm: float = 40.0
     center_m: tuple[float, float] = (0.55, 0.0)
+    area_px: tuple[int, int, int, int] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "image_size", _image_size(self.image_size))
         check_positive("writing_height_mm", self.writing_height_mm)
         if not (len(self.center_m) == 2 and all(_is_finite(v) for v in self.center_m)):
             raise ValueError(f"center_m must be two finite numbers (x, y), got {self.center_m!r}")
+        h, w = self.image_size
+        area = (0, 0, w, h) if self.area_px is None else self.area_px
+        try:
+            ok = len(area) == 4 and all(_is_finite(v) and int(v) == v for v in area)
+            x0, y0, x1, y1 = (int(v) for v in area)
+            ok = ok and 0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise ValueError(
+                f"area_px must be integers (x0, y0, x1, y1) with 0 <= x0 < x1 <= {w} and "
+                f"0 <= y0 < y1 <= {h}, got {self.area_px!r}"
+            )
+        object.__setattr__(self, "area_px", (x0, y0, x1, y1))
+
+    @classmethod
+    def for_width(cls, image_size, area_px, width_mm: float, center_m) -> PaperMapping:
+        """The mapping that writes ``area_px`` ``width_mm`` wide (its aspect kept)."""
+        x0, y0, x1, y1 = area_px
+        width_mm = check_positive("width_mm", width_mm)
+        return cls(image_size, width_mm * (y1 - y0) / (x1 - x0), center_m, area_px)
 
     @property
     def metres_per_px(self) -> float:
-        return self.writing_height_mm * 1e-3 / self.image_size[0]
+        return self.writing_height_mm * 1e-3 / (self.area_px[3] - self.area_px[1])
+
+    @property
+    def area_size_mm(self) -> tuple[float, float]:
+        """Width and height of the written area on paper, mm."""
+        x0, y0, x1, y1 = self.area_px
+        return (x1 - x0) * self.metres_per_px * 1e3, (y1 - y0) * self.metres_per_px * 1e3
+
+    def _center_px(self) -> tuple[float, float]:
+        # Pixel centres: the area's columns x0 .. x1 - 1 have their middle at (x0 + x1 - 1) / 2.
+        x0, y0, x1, y1 = self.area_px
+        return (x0 + x1 - 1) / 2, (y0 + y1 - 1) / 2
 
     def to_table(self, xy_px) -> np.ndarray:
         """``[..., 2]`` pixels (x = column, y = row) to world ``[..., 2]`` (x, y) metres."""
         xy = np.asarray(xy_px, dtype=float)
-        h, w = self.image_size
+        cx, cy = self._center_px()
         s = self.metres_per_px
-        wx = self.center_m[0] - (xy[..., 1] - (h - 1) / 2) * s
-        wy = self.center_m[1] - (xy[..., 0] - (w - 1) / 2) * s
+        wx = self.center_m[0] - (xy[..., 1] - cy) * s
+        wy = self.center_m[1] - (xy[..., 0] - cx) * s
         return np.stack([wx, wy], axis=-1)
 
     def to_pixels(self, xy_m) -> np.ndarray:
         """Inverse of :meth:`to_table`."""
         xy = np.asarray(xy_m, dtype=float)
-        h, w = self.image_size
+        cx, cy = self._center_px()
         s = self.metres_per_px
-        col = (w - 1) / 2 - (xy[..., 1] - self.center_m[1]) / s
-        row = (h - 1) / 2 - (xy[..., 0] - self.center_m[0]) / s
+        col = cx - (xy[..., 1] - self.center_m[1]) / s
+        row = cy - (xy[..., 0] - self.center_m[0]) / s
         return np.stack([col, row], axis=-1)
 
 
@@ -374,6 +415,11 @@ class WritingResult:
     render: np.ndarray | None = None
     start_joints_rad: np.ndarray | None = None
 
+    def extra_log_columns(self) -> dict[str, np.ndarray]:
+        """Columns the CSV log has after the log's fields, by name (``[S]`` each): none
+        for one DMP (a page adds the character each step belongs to)."""
+        return {}
+
 
 def _pen_channel(y: np.ndarray, n_dims: int) -> np.ndarray:
     if n_dims == 2:
@@ -445,18 +491,23 @@ def plan_path(
     )
 
 
+def sheet_bounds_m(scene_config: SceneConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The lowest and highest world ``(x, y)`` a path may reach on the sheet: its edges
+    less ``SHEET_MARGIN_M``."""
+    center, size = np.array(scene_config.paper_center_m), np.array(scene_config.paper_size_m)
+    return center - size / 2 + SHEET_MARGIN_M, center + size / 2 - SHEET_MARGIN_M
+
+
 def check_path(scene: WritingScene, plan: PlannedPath, controller_config: ControllerConfig):
     """Raise ``ValueError`` if the path leaves the paper or the arm's reach.
 
-    Every point must lie on the sheet (with a 2 mm margin); the arm must reach the tip
+    Every point must lie on the sheet (:func:`sheet_bounds_m`); the arm must reach the tip
     positions along the path (on the paper, and ``lift_height_m`` above it) with the
     pen vertical, to within 0.1 mm and inside the joint limits. Returns the joint
     angles that put the tip above the first point (the start posture).
     """
     cfg = scene.config
-    margin = 0.002
-    lo = np.array(cfg.paper_center_m) - np.array(cfg.paper_size_m) / 2 + margin
-    hi = np.array(cfg.paper_center_m) + np.array(cfg.paper_size_m) / 2 - margin
+    lo, hi = sheet_bounds_m(cfg)
     outside = np.any((plan.xy_m < lo) | (plan.xy_m > hi), axis=1)
     if outside.any():
         i = int(np.argmax(outside))
@@ -768,14 +819,15 @@ class WritingRun:
             hover[max(0, k - lead) : k] = True
         return hover & ~down
 
-    def lift(self) -> None:
-        """Lift the pen at the DMP's end point, and wait for it to get there."""
+    def lift(self, *, last: bool = True) -> None:
+        """Lift the pen at the DMP's end point, and wait for it to get there; ``last``:
+        nothing is written after it, so the video keeps a frame of the finished writing."""
         cfg = self.options.controller_config
         end_xy_m = self.mapping.to_table(self.dmp.y[:2])
         lift_s = cfg.lift_height_m / cfg.travel_speed_m_s + 0.2
         for _ in range(int(round(lift_s / self.dt_s))):
             self.control_step("lift", end_xy_m, False, self.dmp.t)
-        if self.options.frame_interval_s is not None:
+        if last and self.options.frame_interval_s is not None:
             self.record_frame()  # the video ends on the finished digit
 
     def control_step(
@@ -787,13 +839,16 @@ class WritingRun:
         *,
         dwell: bool = False,
         hover: bool = False,
+        up_height_m: float | None = None,
     ) -> float:
         """One control period and physics step towards ``xy_m``; return the force after.
         ``dwell``: the DMP clock is held on this step (logged); ``hover``: a pen that is
-        up waits at the approach clearance (:meth:`WritingController.update_axis`)."""
+        up waits at the approach clearance; ``up_height_m``: a pen that is up goes to
+        this height above the paper instead of ``lift_height_m``
+        (:meth:`WritingController.update_axis`)."""
         scene, ctl = self.scene, self.controller
         q, qd = scene.joint_state()
-        ctl.update_axis(pen_down, scene.contact_force_n(), self.surface_z_m, hover)
+        ctl.update_axis(pen_down, scene.contact_force_n(), self.surface_z_m, hover, up_height_m)
         tau = ctl.torques(xy_m, q, qd)  # [7]
         scene.step(tau)
         self.time_s += self.dt_s
@@ -908,7 +963,7 @@ class WritingRun:
         # For the close-up the arm is moved up out of the camera's view (after the
         # simulation: it is only a picture).
         self.scene.reset_joints(np.array(HOME_JOINTS_RAD))
-        paper = self.scene.render(*size, shadow=False, **_paper_view(self.mapping))
+        paper = self.scene.render(*size, shadow=False, **_paper_view(self.mapping, size))
         return np.concatenate([arm, paper], axis=1)
 
     def _report_progress(self) -> None:
@@ -926,12 +981,15 @@ _VIDEO_VIEW = {
 }
 
 
-def _paper_view(mapping: PaperMapping) -> dict:
-    """Top-down close-up of the writing area, image-up pointing away from the robot."""
-    height_m = mapping.writing_height_mm * 1e-3
+def _paper_view(mapping: PaperMapping, size_px: tuple[int, int]) -> dict:
+    """Top-down close-up of the writing area, image-up pointing away from the robot, with
+    room around it: the camera's 45 degree field of view is vertical, the area's width
+    lies across a picture of ``size_px`` (w, h)."""
+    width_mm, height_mm = mapping.area_size_mm
+    extent_m = max(height_mm, width_mm * size_px[1] / size_px[0]) * 1e-3
     return {
         "target_m": (mapping.center_m[0], mapping.center_m[1], 0.0),
-        "distance_m": max(0.05, 1.5 * height_m / (2 * math.tan(math.radians(22.5)))),
+        "distance_m": max(0.05, 1.5 * extent_m / (2 * math.tan(math.radians(22.5)))),
         "yaw_deg": -90.0,
         "pitch_deg": -89.9,
     }

@@ -1,0 +1,722 @@
+"""Writing a whole page: every character of a page document at its place on the paper.
+
+A page document (:mod:`img2dmp.robot.pagefile`, from ``img2dmp predict PHOTO --page``)
+gives each character's box in the photo and its DMP. :func:`write_page` writes them
+all, in reading order, in **one** simulation session, so that the log, the joint
+trajectory and the video are continuous:
+
+1. **Layout** (:func:`page_mapping`): the page's written area, the union of all its
+   characters' boxes (flagged ones included, so that ``skip_flagged`` moves nothing),
+   is written ``width_mm`` wide with its aspect kept (one scale for x and y) and its
+   centre on the paper's centre. Each character's DMP is its top hypothesis in the
+   photo's pixels, mapped to the paper by this one :class:`PaperMapping`; the blank
+   margins of the photo play no part.
+2. **Plan and check, before anything moves** (:func:`plan_page`, then
+   :func:`write_page_plan`): every character's exact path at the control rate must lie
+   on the sheet (``ValueError`` naming the character, by how many mm it sticks out and
+   the widest page that fits), the arm must reach it with the pen vertical on the paper
+   and at the lift height (:func:`img2dmp.robot.writing.check_path`), and the travels
+   between characters at ``travel_height_m``.
+3. **Write** (:class:`PageRun`, a :class:`WritingRun`): for each character the stages of
+   one DMP (approach, write with the stroke gate, lift), then a **travel** to the next
+   character's first point: the pen rises to ``travel_height_m`` above the paper, moves
+   in a straight line (minimum-jerk, at most ``TRAVEL_SPEED_M_S``), comes down to the
+   lift height and waits ``TRAVEL_SETTLE_S``, so that every approach starts as the first
+   one does. The DMP runs online, one step per control period, as in :func:`write_dmp`.
+4. **Measure** (:func:`character_metrics`): per character, what :func:`write_dmp`
+   measures for one DMP (tracking error, contact force, per-stroke ink) on its own steps,
+   plus the share of its commanded path that has ink (``ink_share``), the share of its
+   ink that lies on its commanded path (``ink_on_path_share``) and where its ink's centre
+   is against its commanded path's (``placement_error_mm``); and the page's totals.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..dmp import DMPConfig, DMPIntegrator, DMPParams
+from .animation import PaperInset
+from .controller import WritingController
+from .pagefile import Page, PageCharacter, read_page
+from .scene import WritingScene
+from .strokes import ink_on_path_share, ink_trace, min_jerk_along, stroke_report
+from .writing import (
+    IK_TOLERANCE_M,
+    PEN_DOWN_ROTATION,
+    PHASES,
+    SHEET_MARGIN_M,
+    PaperMapping,
+    PlannedPath,
+    WritingLog,
+    WritingOptions,
+    WritingResult,
+    WritingRun,
+    check_path,
+    checked_dmp,
+    plan_path,
+    sheet_bounds_m,
+    writing_metrics,
+)
+
+DEFAULT_WIDTH_MM = 160.0
+# The pen travels between characters this high above the paper: clear of the ink and of
+# the 6 mm lift height it writes with, reachable everywhere on the sheet.
+TRAVEL_HEIGHT_M = 0.02
+# Top speed of a travel in the plane (its minimum-jerk profile peaks at 1.875 times the
+# mean speed).
+TRAVEL_SPEED_M_S = 0.1
+MIN_JERK_PEAK = 1.875
+# Back at the lift height above the next character, the arm rests this long before the
+# approach, which then starts as the first character's does (from rest).
+TRAVEL_SETTLE_S = 0.1
+
+
+@dataclass(frozen=True)
+class CharacterPlan:
+    """One character to write: its entry in the page and its checked plan.
+
+    Attributes
+    ----------
+    character : PageCharacter
+    params : DMPParams
+        Its top hypothesis in the photo's pixels (NumPy float64), what runs online.
+    config : DMPConfig
+    plan : PlannedPath
+        The exact path at the control rate, mapped to the paper.
+    """
+
+    character: PageCharacter
+    params: DMPParams
+    config: DMPConfig
+    plan: PlannedPath
+
+    @property
+    def label(self) -> str:
+        c = self.character
+        return f"character {c.index} (line {c.line})"
+
+
+@dataclass(frozen=True)
+class PagePlan:
+    """A page laid out on the paper and planned, ready to write.
+
+    Attributes
+    ----------
+    page : Page
+    mapping : PaperMapping
+        The photo's pixels to the paper (:func:`page_mapping`).
+    characters : tuple of CharacterPlan
+        The characters to write, in reading order.
+    skipped : tuple of PageCharacter
+        The flagged characters left out (``skip_flagged``).
+    width_mm : float
+    travel_height_m : float
+    options : WritingOptions
+        The settings it was planned at (control rate, scene, controller), which the
+        run uses.
+    """
+
+    page: Page
+    mapping: PaperMapping
+    characters: tuple
+    skipped: tuple
+    width_mm: float
+    travel_height_m: float
+    options: WritingOptions
+
+    def travels(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """``(from, to)`` world ``(x, y)`` of each travel: from the end of one character's
+        path to the first point of the next."""
+        chars = self.characters
+        return [
+            (a.plan.xy_m[-1], b.plan.xy_m[0]) for a, b in zip(chars[:-1], chars[1:], strict=True)
+        ]
+
+    def travel_steps(self) -> int:
+        """Control steps of all the travels (up, across, down, rest)."""
+        dt_s, cfg = self.options.dt_s, self.options.controller_config
+        moving = sum(len(travel_targets(a, b, dt_s)) for a, b in self.travels())
+        per_travel = 2 * _rise_steps(self.travel_height_m, cfg, dt_s) + _settle_steps(dt_s)
+        return moving + per_travel * len(self.travels())
+
+    def estimated_steps(self) -> int:
+        """About how many control steps the page takes (for a progress bar): each DMP's
+        duration plus a second for its approach, holds and lift, plus the travels."""
+        writing_s = sum(float(cp.params.tau) + 1.0 for cp in self.characters)
+        return int(writing_s / self.options.dt_s) + self.travel_steps()
+
+    def joined(self) -> PlannedPath:
+        """The characters' plans one after another, joined by their pen-up travels: the
+        commanded path of the page, for the figure and the video. ``time_s`` counts the
+        samples at the control period (the simulated time also holds the approaches and
+        the held steps)."""
+        dt_s, parts = self.options.dt_s, []
+        for k, cp in enumerate(self.characters):
+            if k:
+                xy_m = travel_targets(self.characters[k - 1].plan.xy_m[-1], cp.plan.xy_m[0], dt_s)
+                parts.append((self.mapping.to_pixels(xy_m), np.zeros(len(xy_m), bool), xy_m))
+            parts.append((cp.plan.xy_px, cp.plan.pen_down, cp.plan.xy_m))
+        xy_px, pen, xy_m = (np.concatenate([p[i] for p in parts]) for i in range(3))
+        return PlannedPath(np.arange(len(pen)) * dt_s, xy_px, pen, xy_m)
+
+
+def page_mapping(page: Page, width_mm: float, center_m) -> PaperMapping:
+    """The layout rule: the page's written area (the union of its characters' boxes,
+    :attr:`Page.written_area_px`) ``width_mm`` wide, aspect kept, centred on
+    ``center_m``."""
+    w, h = page.image_size_px
+    return PaperMapping.for_width((h, w), page.written_area_px, width_mm, center_m)
+
+
+def travel_targets(from_xy_m, to_xy_m, dt_s: float) -> np.ndarray:
+    """``[n, 2]`` in-plane targets of a travel, one per control step after the start:
+    a minimum-jerk straight line whose top speed is ``TRAVEL_SPEED_M_S``."""
+    a, b = np.asarray(from_xy_m, dtype=float), np.asarray(to_xy_m, dtype=float)
+    duration_s = MIN_JERK_PEAK * float(np.linalg.norm(b - a)) / TRAVEL_SPEED_M_S
+    n = max(1, math.ceil(duration_s / dt_s))
+    return min_jerk_along(np.array([a, b]), n + 1)[1:]
+
+
+def _rise_steps(travel_height_m: float, cfg, dt_s: float) -> int:
+    """Steps for the pen to go between the lift height and the travel height."""
+    return math.ceil((travel_height_m - cfg.lift_height_m) / cfg.travel_speed_m_s / dt_s)
+
+
+def _settle_steps(dt_s: float) -> int:
+    return math.ceil(TRAVEL_SETTLE_S / dt_s)
+
+
+def plan_page(
+    page: Page,
+    options: WritingOptions | None = None,
+    *,
+    width_mm: float = DEFAULT_WIDTH_MM,
+    skip_flagged: bool = False,
+    travel_height_m: float = TRAVEL_HEIGHT_M,
+) -> PagePlan:
+    """Lay out a page on the paper and plan every character to write (no simulation).
+
+    Parameters
+    ----------
+    page : Page
+        From :func:`img2dmp.robot.pagefile.read_page` or ``check_page_document``.
+    options : WritingOptions
+        The control rate, the scene (where the paper is) and the controller; its
+        ``writing_height_mm`` is not used (``width_mm`` sets the scale).
+    width_mm : float
+        Width of the page's written area on paper.
+    skip_flagged : bool
+        Leave out the characters with flags (they keep their place in the layout).
+    travel_height_m : float
+        Height of the pen above the paper while it travels between characters; above
+        the controller's ``lift_height_m``.
+
+    Raises
+    ------
+    ValueError
+        Nothing to write, a character's DMP that cannot be written, or a page that does
+        not fit the sheet (naming the character, by how much, and the widest page that
+        fits).
+    """
+    options = options or WritingOptions()
+    if not isinstance(page, Page):
+        raise ValueError(f"page must be a Page (read_page), got {type(page).__name__}")
+    if not isinstance(skip_flagged, bool):
+        raise ValueError(f"skip_flagged must be True or False, got {skip_flagged!r}")
+    lift_m = options.controller_config.lift_height_m
+    if not (isinstance(travel_height_m, (int, float)) and lift_m < travel_height_m <= 0.2):
+        raise ValueError(
+            f"travel_height_m must be in ({lift_m:g}, 0.2] m (above the lift height), "
+            f"got {travel_height_m!r}"
+        )
+    mapping = page_mapping(page, width_mm, options.scene_config.paper_center_m)
+    chosen = [c for c in page.characters if not (skip_flagged and c.flags)]
+    skipped = tuple(c for c in page.characters if skip_flagged and c.flags)
+    if not chosen:
+        why = "all of them are flagged (skip_flagged)" if page.characters else "it has none"
+        raise ValueError(f"{page.path}: no characters to write: {why}")
+    plans = tuple(_plan_character(page, c, mapping, options.dt_s) for c in chosen)
+    plan = PagePlan(page, mapping, plans, skipped, float(width_mm), float(travel_height_m), options)
+    check_page_fits(plan, options.scene_config)
+    options.check_video(_duration_bound_s(plan, options))
+    return plan
+
+
+def _plan_character(page: Page, c: PageCharacter, mapping, dt_s: float) -> CharacterPlan:
+    where = f"{page.path}: character {c.index} (line {c.line})"
+    try:
+        plan = plan_path(c.params_image, c.config, mapping, dt_s)
+    except ValueError as e:
+        raise ValueError(f"{where}: {e}") from None
+    return CharacterPlan(c, checked_dmp(c.params_image, c.config), c.config, plan)
+
+
+def _duration_bound_s(plan: PagePlan, options: WritingOptions) -> float:
+    """The longest the page can take, as the duration of one DMP for
+    :meth:`WritingOptions.check_video` (which adds one approach and one lift)."""
+    cfg = options.controller_config
+    per_extra = options.approach_timeout_s + cfg.lift_height_m / cfg.travel_speed_m_s + 0.2
+    taus = sum(float(cp.params.tau) for cp in plan.characters)
+    travels_s = plan.travel_steps() * options.dt_s
+    return taus + (len(plan.characters) - 1) * per_extra + travels_s
+
+
+_EDGES = ("bottom", "right", "top", "left")  # world -x, -y, +x, +y as the writer sees it
+
+
+def check_page_fits(plan: PagePlan, scene_config) -> None:
+    """``ValueError`` if a character's path leaves the sheet (less its margin): naming
+    the first such character in reading order, how many mm it sticks out past which
+    edge, and the widest page that fits (the layout scales about the paper's centre)."""
+    lo, hi = sheet_bounds_m(scene_config)
+    center = np.array(plan.mapping.center_m)
+    max_width_mm = math.inf
+    first = None
+    for cp in plan.characters:
+        xy = cp.plan.xy_m  # [T, 2]
+        over = np.concatenate([lo - xy, xy - hi], axis=1)  # [T, 4] > 0: outside
+        if first is None and over.max() > 0:
+            t, edge = np.unravel_index(int(np.argmax(over)), over.shape)
+            first = (cp, float(over[t, edge]) * 1e3, _EDGES[edge])
+        # Each offset from the centre grows with the width; the page fits while every
+        # point's offset stays inside the bounds.
+        u = (xy - center) / plan.width_mm  # [T, 2] metres per mm of width
+        with np.errstate(divide="ignore"):
+            limit = np.where(u > 0, (hi - center) / u, np.where(u < 0, (lo - center) / u, np.inf))
+        max_width_mm = min(max_width_mm, float(limit.min()))
+    if first is not None:
+        cp, excess_mm, edge = first
+        raise ValueError(
+            f"{plan.page.path}: the page does not fit the sheet at a width of "
+            f"{plan.width_mm:g} mm: {cp.label} reaches {excess_mm:.1f} mm past the sheet's "
+            f"{edge} edge (less its {SHEET_MARGIN_M * 1e3:g} mm margin); the page fits at a width "
+            f"of at most {max_width_mm:.1f} mm (width_mm, --width-mm)"
+        )
+
+
+def check_page_reach(scene: WritingScene, plan: PagePlan, controller_config) -> np.ndarray:
+    """``ValueError`` naming the character (or the travel) if the arm cannot reach a
+    character's path (:func:`check_path`) or a travel at ``plan.travel_height_m``, the
+    pen vertical; returns the start posture (the tip above the first point)."""
+    q_start = None
+    for cp in plan.characters:
+        try:
+            q = check_path(scene, cp.plan, controller_config)
+        except ValueError as e:
+            raise ValueError(f"{plan.page.path}: {cp.label}: {e}") from None
+        q_start = q if q_start is None else q_start
+    z_m = scene.config.paper_top_z + plan.travel_height_m
+    q = q_start
+    for k, (a, b) in enumerate(plan.travels(), start=1):
+        n = max(2, math.ceil(float(np.linalg.norm(b - a)) / 1e-3) + 1)  # 1 mm apart
+        for xy in np.linspace(a, b, n):
+            q, residual = scene.solve_ik([*xy, z_m], PEN_DOWN_ROTATION, q, max_iterations=100)
+            if residual > IK_TOLERANCE_M:
+                prev, nxt = plan.characters[k - 1].label, plan.characters[k].label
+                raise ValueError(
+                    f"{plan.page.path}: the arm cannot reach the travel from {prev} to {nxt} "
+                    f"{plan.travel_height_m * 1e3:g} mm above the paper: at world "
+                    f"({xy[0]:.3f}, {xy[1]:.3f}) m the pen tip misses by "
+                    f"{residual * 1e3:.1f} mm with the pen vertical; move the writing area "
+                    "closer or lower the travel height"
+                )
+    return q_start
+
+
+def write_page_plan(
+    plan: PagePlan,
+    *,
+    progress: Callable[[int], object] | None = None,
+    on_character: Callable[[CharacterPlan], object] | None = None,
+) -> PageResult:
+    """Write a planned page (:func:`plan_page`) in one simulation session.
+
+    The arm's reach along every character and travel is checked first
+    (:func:`check_page_reach`); then the arm starts at rest above the first character's
+    first point and :class:`PageRun` writes them all. ``progress(n_steps)`` is called
+    after each batch of simulated steps, ``on_character(character_plan)`` as each
+    character starts. ``RuntimeError`` if the pen does not settle or land.
+    """
+    if not isinstance(plan, PagePlan):
+        raise ValueError(f"plan must be a PagePlan (plan_page), got {type(plan).__name__}")
+    options = plan.options
+    scene_cfg, ctl_cfg = options.scene_config, options.controller_config
+    scene = WritingScene(scene_cfg, time_step_s=options.dt_s)
+    try:
+        q_start = check_page_reach(scene, plan, ctl_cfg)
+        scene.reset_joints(q_start)
+        lift_z_m = scene_cfg.paper_top_z + ctl_cfg.lift_height_m
+        controller = WritingController(scene, ctl_cfg, PEN_DOWN_ROTATION, q_start, lift_z_m)
+        run = PageRun(scene, plan, controller, progress=progress, on_character=on_character)
+        return run.execute()
+    finally:
+        scene.close()
+
+
+def write_page(
+    page,
+    options: WritingOptions | None = None,
+    *,
+    width_mm: float = DEFAULT_WIDTH_MM,
+    skip_flagged: bool = False,
+    travel_height_m: float = TRAVEL_HEIGHT_M,
+    progress: Callable[[int], object] | None = None,
+    on_character: Callable[[CharacterPlan], object] | None = None,
+) -> PageResult:
+    """Write every character of a page with the simulated arm (module docstring).
+
+    Parameters
+    ----------
+    page : Page or path
+        A checked page, or the path of a page document (:func:`read_page`).
+    options : WritingOptions
+        Control rate, scene, controller, timeouts, video; ``writing_height_mm`` is not
+        used (``width_mm`` sets the scale).
+    width_mm, skip_flagged, travel_height_m
+        See :func:`plan_page`.
+    progress, on_character
+        See :func:`write_page_plan`.
+
+    Returns
+    -------
+    PageResult
+        One log for the whole page; per-character runs and the page's totals.
+
+    Raises
+    ------
+    ValueError
+        A bad document, or a page that does not fit the sheet or the arm's reach
+        (before anything moves).
+    RuntimeError
+        The pen did not settle or land within the approach timeout.
+    """
+    if not isinstance(page, Page):
+        page = read_page(page)
+    plan = plan_page(
+        page, options, width_mm=width_mm, skip_flagged=skip_flagged, travel_height_m=travel_height_m
+    )
+    return write_page_plan(plan, progress=progress, on_character=on_character)
+
+
+@dataclass
+class CharacterRun:
+    """What became of one character of a page.
+
+    Attributes
+    ----------
+    character : PageCharacter
+    written : bool
+        False for a character left out (``skip_flagged``).
+    steps : (first, end) or None
+        Its steps of the page's log, ``log.time_s[first:end]``: approach, writing, lift.
+    plan : PlannedPath or None
+    metrics : dict
+        :func:`character_metrics` (empty if not written).
+    """
+
+    character: PageCharacter
+    written: bool
+    steps: tuple[int, int] | None = None
+    plan: PlannedPath | None = None
+    metrics: dict = field(default_factory=dict)
+
+
+@dataclass
+class PageResult(WritingResult):
+    """A :class:`WritingResult` for the whole page, plus what each character got.
+
+    ``log`` covers the page from the first step to the last lift (travels included, as
+    phase ``"travel"``); ``plan`` is :meth:`PagePlan.joined`; ``metrics`` the page's
+    totals (:func:`page_metrics`). The joint trajectory, the render, the video and the
+    CSV log are made from it as from one DMP's result.
+
+    Attributes
+    ----------
+    page_plan : PagePlan
+    characters : list of CharacterRun
+        One per character of the page, in reading order (skipped ones included).
+    step_character : ndarray [S] int
+        The index of the character each log step belongs to; -1 on the travels.
+    """
+
+    page_plan: PagePlan | None = None
+    characters: list = field(default_factory=list)
+    step_character: np.ndarray | None = None
+
+    def extra_log_columns(self) -> dict[str, np.ndarray]:
+        return {"character": self.step_character}
+
+
+class PageRun(WritingRun):
+    """All the characters of a planned page in one run: for each, the stages of one DMP
+    (:meth:`WritingRun.approach`, :meth:`~WritingRun.write`, :meth:`~WritingRun.lift`)
+    on its plan and a fresh :class:`DMPIntegrator`, then :meth:`travel` to the next.
+
+    The scene must hold the arm at rest above the first character's first point.
+
+    Parameters
+    ----------
+    scene : WritingScene
+    page_plan : PagePlan
+        Checked (:func:`check_page_reach`).
+    controller : WritingController
+    progress : callable or None
+        ``progress(n_steps)``, as for :class:`WritingRun`.
+    on_character : callable or None
+        ``on_character(character_plan)`` as each character starts.
+    """
+
+    def __init__(self, scene, page_plan: PagePlan, controller, *, progress=None, on_character=None):
+        first = page_plan.characters[0]
+        dmp = DMPIntegrator(first.params, first.config)
+        options = page_plan.options
+        super().__init__(
+            scene, first.plan, controller, options, dmp, page_plan.mapping, progress=progress
+        )
+        self.page_plan = page_plan
+        self.on_character = on_character
+        self.spans: list[tuple[int, int]] = []  # [first, end) steps per written character
+        self.approach_times_s: list[float] = []
+        if options.frame_interval_s is not None:
+            # The video's paper shows the whole page's commanded path from the start.
+            joined = page_plan.joined()
+            self._inset = PaperInset(options.frame_size_px, joined.xy_m, joined.pen_down)
+
+    def execute(self) -> PageResult:
+        """Write every character, travelling between them; return the page's result."""
+        wall0 = time.perf_counter()
+        chars = self.page_plan.characters
+        for k, cp in enumerate(chars):
+            if k:
+                self.travel(cp.plan.xy_m[0])
+            self.write_character(cp, last=k == len(chars) - 1)
+        self._report_progress()
+        return self.result(time.perf_counter() - wall0)
+
+    def write_character(self, cp: CharacterPlan, *, last: bool) -> None:
+        """Approach, write and lift one character (the arm above its first point)."""
+        if self.on_character is not None:
+            self.on_character(cp)
+        self.plan, self.dmp = cp.plan, DMPIntegrator(cp.params, cp.config)
+        self.approach_s = 0.0  # the approach timeout is per character
+        first = self.n_steps
+        self.approach()
+        self.write()
+        self.lift(last=last)
+        self.spans.append((first, self.n_steps))
+        self.approach_times_s.append(self.approach_s)
+
+    def travel(self, to_xy_m) -> None:
+        """From the lifted pen at the current DMP's end point to rest ``lift_height_m``
+        above ``to_xy_m``: up to the travel height, a straight line, down, a short rest."""
+        cfg, dt_s = self.options.controller_config, self.dt_s
+        up_m = self.page_plan.travel_height_m
+        here = self.mapping.to_table(self.dmp.y[:2])
+        rise = _rise_steps(up_m, cfg, dt_s)
+        for _ in range(rise):
+            self.control_step("travel", here, False, 0.0, up_height_m=up_m)
+        for xy_m in travel_targets(here, to_xy_m, dt_s):
+            self.control_step("travel", xy_m, False, 0.0, up_height_m=up_m)
+        for _ in range(rise + _settle_steps(dt_s)):
+            self.control_step("travel", to_xy_m, False, 0.0)
+
+    @property
+    def n_steps(self) -> int:
+        """Control steps so far."""
+        return len(self._columns["time_s"])
+
+    def result(self, wall_s: float) -> PageResult:
+        """The page's log, per-character runs and totals, the render and the frames."""
+        log = self.log()
+        ctl_cfg = self.options.controller_config
+        runs, step_character = self._character_runs(log)
+        metrics = page_metrics(log, runs, ctl_cfg.force_set_n)
+        metrics.update(
+            {
+                "simulated_s": float(self.time_s),
+                "wall_s": float(wall_s),
+                "real_time_factor": float(self.time_s / wall_s) if wall_s > 0 else float("inf"),
+                "control_rate_hz": 1.0 / self.dt_s,
+                "force_set_n": ctl_cfg.force_set_n,
+                "approach_s": float(sum(self.approach_times_s)),
+                "width_mm": self.mapping.area_size_mm[0],
+                "height_mm": self.mapping.area_size_mm[1],
+                "mm_per_px": self.mapping.metres_per_px * 1e3,
+            }
+        )
+        self.flush_ink()
+        return PageResult(
+            log=log,
+            metrics=metrics,
+            plan=self.page_plan.joined(),
+            mapping=self.mapping,
+            scene_config=self.scene.config,
+            controller_config=ctl_cfg,
+            frames=self.frames,
+            render=self.final_render(),
+            start_joints_rad=self.start_joints_rad,
+            page_plan=self.page_plan,
+            characters=runs,
+            step_character=step_character,
+        )
+
+    def _character_runs(self, log: WritingLog) -> tuple[list[CharacterRun], np.ndarray]:
+        """A :class:`CharacterRun` per character of the page (reading order) and the
+        character of every log step."""
+        f_set = self.options.controller_config.force_set_n
+        step_character = np.full(log.n_steps, -1, dtype=int)
+        done = {}
+        for cp, (a, b), approach_s in zip(
+            self.page_plan.characters, self.spans, self.approach_times_s, strict=True
+        ):
+            step_character[a:b] = cp.character.index
+            m = character_metrics(cp.plan, log_steps(log, a, b), f_set)
+            m["approach_s"] = float(approach_s)
+            done[cp.character.index] = CharacterRun(cp.character, True, (a, b), cp.plan, m)
+        runs = [done.get(c.index, CharacterRun(c, False)) for c in self.page_plan.page.characters]
+        return runs, step_character
+
+
+def log_steps(log: WritingLog, first: int, end: int) -> WritingLog:
+    """The steps ``first:end`` of a log, as a log."""
+    return WritingLog(**{name: log[name][first:end] for name in log})
+
+
+def _centroid(points: np.ndarray, length_m: np.ndarray) -> np.ndarray:
+    """The centre ``[2]`` of a trace by length (the points' mean if it has none): a pen
+    resting at a touch-down leaves a dot, not ink to weigh."""
+    if len(points) == 0:
+        return np.full(2, np.nan)
+    if length_m.sum() <= 0.0:
+        return points.mean(axis=0)
+    return (points * length_m[:, None]).sum(axis=0) / length_m.sum()
+
+
+def character_metrics(plan: PlannedPath, log: WritingLog, force_set_n: float) -> dict:
+    """What :func:`write_dmp` measures for one DMP, on one character's steps of a page.
+
+    Returns
+    -------
+    dict with
+        :func:`writing_metrics` (tracking error, force, contact over the pen-down time
+        with the DMP running) and :func:`stroke_report` (per stroke); ``length_mm`` -
+        the commanded pen-down length; ``ink_share`` - the share of it with ink within
+        ``INK_TOLERANCE_M`` (the strokes' ink shares weighted by length);
+        ``ink_on_path_share`` - the share of the ink (by length) within that distance
+        of the commanded pen-down path; ``ink_length_mm``; ``ink_centroid_m`` and
+        ``path_centroid_m`` - world (x, y) of the centres by length of the ink and of the
+        commanded pen-down path; ``placement_error_mm`` - the distance between them;
+        ``start_s``, ``end_s`` - the page time of its first and last step.
+    """
+    m = writing_metrics(log, force_set_n)
+    m.update(stroke_report(plan, log, force_set_n))
+    lengths = np.array([s["length_mm"] for s in m["strokes"]])
+    shares = np.array([s["ink_share"] for s in m["strokes"]])
+    length_mm = float(lengths.sum())
+    ink, ink_w = ink_trace(log.tip_m[:, :2], log.force_n > 0.0)  # [m, 2], [m]
+    path, path_w = ink_trace(plan.xy_m, plan.pen_down)  # the commanded strokes, dense
+    ink_c, path_c = _centroid(ink, ink_w), _centroid(path, path_w)
+    dt_s = float(np.median(np.diff(log.time_s))) if log.n_steps > 1 else 0.0
+    m.update(
+        {
+            "length_mm": length_mm,
+            "ink_share": float((shares * lengths).sum() / length_mm)
+            if length_mm > 0
+            else float(shares.mean())
+            if len(shares)
+            else float("nan"),
+            "ink_on_path_share": ink_on_path_share(plan.xy_m, plan.pen_down, ink, ink_w),
+            "ink_length_mm": float(ink_w.sum() * 1e3),
+            "ink_centroid_m": ink_c.tolist(),
+            "path_centroid_m": path_c.tolist(),
+            "placement_error_mm": float(np.linalg.norm(ink_c - path_c) * 1e3),
+            "start_s": float(log.time_s[0] - dt_s) if log.n_steps else float("nan"),
+            "end_s": float(log.time_s[-1]) if log.n_steps else float("nan"),
+        }
+    )
+    return m
+
+
+def _weighted(values, weights) -> float:
+    v, w = np.asarray(values, dtype=float), np.asarray(weights, dtype=float)
+    ok = np.isfinite(v) & (w > 0)
+    return float((v[ok] * w[ok]).sum() / w[ok].sum()) if ok.any() else float("nan")
+
+
+def page_metrics(log: WritingLog, runs: list[CharacterRun], force_set_n: float) -> dict:
+    """The page's totals.
+
+    Returns
+    -------
+    dict with
+        :func:`writing_metrics` over every character's pen-down time with its DMP
+        running; ``strokes`` (every character's, each with its ``character``),
+        ``stroke_ink_share_min``, ``dwell_s``, ``force_in_band_share_with_dwell`` as for
+        one DMP; ``ink_share`` (weighted by commanded length) and ``ink_on_path_share``
+        (weighted by ink length) over the written characters, their ``length_mm`` and
+        ``ink_length_mm`` summed; ``placement_error_max_mm``;
+        ``travel_contact_s`` - time the pen touched the paper while travelling between
+        characters (0: no ink between them); ``characters``, ``characters_written``,
+        ``characters_skipped``.
+    """
+    m = writing_metrics(log, force_set_n)
+    written = [r.metrics for r in runs if r.written]
+    strokes = [
+        {"character": r.character.index, **s}
+        for r in runs
+        if r.written
+        for s in r.metrics["strokes"]
+    ]
+    dt_s = float(np.median(np.diff(log.time_s))) if log.n_steps > 1 else 0.0
+    down = log.in_phase("write") & log.pen_down
+    in_band = np.abs(log.force_n[down] - force_set_n) <= 0.2 * force_set_n
+    travel = log.phase == PHASES.index("travel")
+    m.update(
+        {
+            "strokes": strokes,
+            "stroke_ink_share_min": min((s["ink_share"] for s in strokes), default=float("nan")),
+            "dwell_s": float(log.dwell.sum() * dt_s),
+            "force_in_band_share_with_dwell": float(in_band.mean()) if in_band.size else math.nan,
+            "ink_share": _weighted(
+                [c["ink_share"] for c in written], [c["length_mm"] for c in written]
+            ),
+            "ink_on_path_share": _weighted(
+                [c["ink_on_path_share"] for c in written], [c["ink_length_mm"] for c in written]
+            ),
+            "length_mm": float(sum(c["length_mm"] for c in written)),
+            "ink_length_mm": float(sum(c["ink_length_mm"] for c in written)),
+            "placement_error_max_mm": max((c["placement_error_mm"] for c in written), default=0.0),
+            "travel_contact_s": float((travel & (log.force_n > 0.0)).sum() * dt_s),
+            "characters": len(runs),
+            "characters_written": len(written),
+            "characters_skipped": len(runs) - len(written),
+        }
+    )
+    return m
+
+
+__all__ = [
+    "DEFAULT_WIDTH_MM",
+    "TRAVEL_HEIGHT_M",
+    "CharacterPlan",
+    "CharacterRun",
+    "PagePlan",
+    "PageResult",
+    "PageRun",
+    "character_metrics",
+    "check_page_fits",
+    "check_page_reach",
+    "log_steps",
+    "page_mapping",
+    "page_metrics",
+    "plan_page",
+    "read_page",
+    "travel_targets",
+    "write_page",
+    "write_page_plan",
+]
