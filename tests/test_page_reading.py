@@ -1,0 +1,138 @@
+"""Reading a page (img2dmp.page, `predict --page`, `write --page`) on photos drawn here."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from drawn import on_paper, page, ruled
+from img2dmp.cli import main
+from img2dmp.data.dmpfile import check_dmp_document
+from img2dmp.predict import load_model
+
+LINES = [[("1", 40), ("7", 110), ("0", 190)], [("5", 60), ("0", 150)]]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory, train_tiny_runs):
+    work = tmp_path_factory.mktemp("page_run")
+    return train_tiny_runs(work, lambda k: work / f"run{k}")[1]
+
+
+def _photo(path, lines=LINES, size=(300, 520), orientation=None):
+    """A photo of ``lines`` in blue ink on ruled paper, saved as PNG (upright raster, or
+    stored turned with the EXIF ``orientation`` that turns it back); the true boxes."""
+    ink, boxes = page(lines, size=size)
+    rgb = on_paper(ink, ruled(size, 33.0, angle_deg=1.0), colour=(0.1, 0.15, 0.6))
+    im = Image.fromarray((np.clip(rgb, 0, 1) * 255).astype(np.uint8))
+    if orientation is None:
+        im.save(path)
+    else:  # 6: the viewer turns the stored raster 90 degrees clockwise
+        exif = Image.Exif()
+        exif[0x0112] = orientation
+        im.transpose(Image.Transpose.ROTATE_90).save(path, exif=exif)
+    return boxes
+
+
+def _close(found, true, tol=5.0) -> bool:
+    return all(abs(a - b) <= tol for a, b in zip(found, true, strict=True))
+
+
+def test_a_page_is_read_character_by_character_in_reading_order(tmp_path, run):
+    boxes = _photo(tmp_path / "p.png")
+    result = load_model(run).predict_page(tmp_path / "p.png")
+    assert [len(x) for x in result.lines] == [3, 2]
+    doc = json.loads(result.to_json())
+    assert (doc["format"], doc["version"], doc["image_size_px"]) == ("img2dmp-page", 1, [520, 300])
+    chars = doc["characters"]
+    assert [c["line"] for c in chars] == [0, 0, 0, 1, 1]
+    assert [c["index"] for c in chars] == list(range(5))
+    for c, box in zip(chars, boxes, strict=True):
+        assert _close(c["box_image_px"], box), (c["box_image_px"], box)
+        xy = np.array(c["path_image_px"])
+        assert len(xy) == len(c["pen"]) == len(c["times_s"]) and set(c["pen"]) <= {0, 1}
+        assert np.all(np.diff(c["times_s"]) > 0)
+        # the path is near its own character: its centre within the character's box, grown
+        x0, y0, x1, y1 = c["box_image_px"]
+        cx, cy = xy.mean(axis=0)
+        pad = 0.5 * max(x1 - x0, y1 - y0)
+        assert x0 - pad < cx < x1 + pad and y0 - pad < cy < y1 + pad
+        assert 0 <= c["confidence"] <= 1 and set(c["fit"]) == {"path_on_ink", "ink_written"}
+        check_dmp_document(c["dmp"], "character dmp")  # the one DMP format, as write reads it
+
+
+def test_the_page_document_and_picture_are_written_and_read_back_by_the_robot(tmp_path, run):
+    from img2dmp.robot.pagefile import read_page
+
+    _photo(tmp_path / "p.png")
+    files = load_model(run).predict_page(tmp_path / "p.png").save(tmp_path / "out", "p")
+    assert [f.name for f in files] == ["p_page.json", "p_page.png"]
+    assert Image.open(files[1]).width >= 1000
+    read = read_page(files[0])
+    assert len(read.characters) == 5 and read.image_size_px == (520, 300)
+
+
+def test_boxes_are_in_the_upright_photo_s_frame(tmp_path, run):
+    boxes = _photo(tmp_path / "turned.png", orientation=6)
+    result = load_model(run).predict_page(tmp_path / "turned.png")
+    assert result.image_size == (300, 520)
+    assert len(result.characters) == 5
+    for c, box in zip(result.characters, boxes, strict=True):
+        assert _close(c.box_image, box)
+
+
+def test_an_empty_page_has_no_characters_and_says_so(tmp_path, run):
+    Image.fromarray(np.full((200, 300, 3), 230, np.uint8)).save(tmp_path / "e.png")
+    result = load_model(run).predict_page(tmp_path / "e.png")
+    assert result.characters == [] and result.flags == ["no_ink"]
+    assert json.loads(result.to_json())["characters"] == []
+
+
+def test_a_single_prediction_of_several_characters_is_flagged(tmp_path, run):
+    _photo(tmp_path / "p.png")
+    pred = load_model(run).predict(tmp_path / "p.png")
+    assert "several_characters" in pred.flags
+    doc = pred.to_document()
+    assert doc["flags"] == pred.flags and set(doc["fit"]) == {"path_on_ink", "ink_written"}
+    one = _photo(tmp_path / "one.png", lines=[[("7", 200)]])
+    assert one and "several_characters" not in load_model(run).predict(tmp_path / "one.png").flags
+
+
+def test_predict_page_on_the_command_line(tmp_path, run, capsys):
+    _photo(tmp_path / "p.png")
+    out = tmp_path / "out"
+    code = main(["predict", "--model", str(run), str(tmp_path / "p.png"), "--page",
+                 "--out", str(out), "--explain"])  # fmt: skip
+    assert code == 0
+    assert {f.name for f in out.iterdir()} == {"p_page.json", "p_page.png", "p_explain.png"}
+    assert "5 characters in 2 lines" in capsys.readouterr().out
+    assert main(["predict", "--model", str(run), str(tmp_path / "p.png"), "--page",
+                 "--overlay"]) == 2  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--overlay" in err[0]
+
+
+def test_a_one_pixel_strip_is_one_line_of_error(tmp_path, run, capsys):
+    Image.fromarray(np.full((1, 400), 200, np.uint8)).save(tmp_path / "strip.png")
+    assert main(["predict", "--model", str(run), str(tmp_path / "strip.png"), "--page"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "strip.png" in err[0]
+
+
+def test_the_robot_writes_a_three_character_page_read_from_a_photo(tmp_path, run):
+    pytest.importorskip("pybullet")
+    _photo(tmp_path / "p.png", lines=[[("1", 60), ("0", 160), ("7", 260)]])
+    robot = tmp_path / "robot"
+    code = main(["write", str(tmp_path / "p.png"), "--page", "--model", str(run),
+                 "--width-mm", "80", "--out-dir", str(robot), "--no-progress"])  # fmt: skip
+    assert code == 0
+    with open(robot / "p_characters.csv") as f:
+        rows = [r for r in csv.DictReader(f) if r["index"] != "page"]
+    assert len(rows) == 3
+    for r in rows:  # each character inked along what was commanded, and only there
+        assert r["written"] == "1" and float(r["ink_share"]) > 0.95, r
+        assert float(r["ink_on_path_share"]) > 0.95, r
