@@ -43,6 +43,7 @@ DEFAULTS = {
     "image_size": 28,
     "resize_mode": "scale",
     "augment": 0,
+    "paper": 0.0,
     "seed": 0,
     "n_kernels": 25,
     "mnist_split": "train",
@@ -59,6 +60,7 @@ FLAG_FIELDS = {
     "image_size": "image_size",
     "resize": "resize_mode",
     "augment": "augment",
+    "paper": "paper",
     "seed": "seed",
     "scaling": "scaling",
     "n_kernels": "n_kernels",
@@ -123,6 +125,17 @@ def _paths(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _share(text: str) -> float:
+    """A number in [0, 1] (argparse type)."""
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be a share in [0, 1], got {text!r}")
+    return v
+
+
 def _options(parser: argparse.ArgumentParser) -> None:
     # Every flag defaults to None: it overrides --config only when given.
     def add(flag: str, text: str, shown_default: str | None = None, **kwargs) -> None:
@@ -133,6 +146,13 @@ def _options(parser: argparse.ArgumentParser) -> None:
     add("--source", "pen paths to use", choices=SOURCES)
     _args.add_digits(parser, _field("digits", "labels to keep", "0-9"))
     add("--augment", "affine copies added per training sample", type=_args.int_at_least(0), **n)
+    add(
+        "--paper",
+        "share of the affine copies photographed on generated paper (ruled, squared, "
+        "dotted, plain; shading, blur, noise, JPEG) and read back as a photo is",
+        type=_share,
+        metavar="SHARE",
+    )
     add("--seed", "seed of the augmentation", type=_args.int_at_least(0), **n)
     add("--image-size", "side of the stored images", type=_args.int_at_least(8), metavar="PX")
     add("--resize", "how to reach --image-size", choices=RESIZE_MODES)

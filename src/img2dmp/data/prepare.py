@@ -82,6 +82,11 @@ class PrepareOptions:
     augment : int
         Affine copies added per training sample (validation and test are never
         augmented).
+    paper : float
+        Share in [0, 1] of those copies photographed on generated paper and read back
+        through the paper-aware preparation (:mod:`img2dmp.data.on_paper`: ruled,
+        squared, dotted or plain paper, tints, shading, blur, noise, JPEG): training on
+        cluttered paper, the paper's future work. 0: none.
     affine : AffineRanges
         Ranges of those transforms.
     seed : int
@@ -118,6 +123,7 @@ class PrepareOptions:
     image_size: int = MNIST_SIZE
     resize_mode: str = "scale"
     augment: int = 0
+    paper: float = 0.0
     affine: AffineRanges = field(default_factory=AffineRanges)
     seed: int = 0
     scaling: str | None = None
@@ -155,6 +161,12 @@ class PrepareOptions:
             raise ValueError(f"resize_mode='pad' needs image_size >= {MNIST_SIZE}")
         if not isinstance(self.augment, int) or self.augment < 0:
             raise ValueError(f"augment must be an integer >= 0, got {self.augment!r}")
+        if isinstance(self.paper, bool) or not (
+            isinstance(self.paper, (int, float)) and 0.0 <= self.paper <= 1.0
+        ):
+            raise ValueError(f"paper must be a share in [0, 1], got {self.paper!r}")
+        if self.paper and not self.augment:
+            raise ValueError("paper puts augmented copies on paper: it needs augment >= 1")
         if not isinstance(self.seed, int) or self.seed < 0:
             raise ValueError(f"seed must be an integer >= 0, got {self.seed!r}")
         if self.mnist_split not in ("train", "test", "both"):
@@ -509,12 +521,33 @@ def _augment(images, paths, raw_split, options: PrepareOptions, progress: bool):
         sl = slice(lo, lo + chunk)
         aug_images[sl] = warp_images(images[src[sl]], mats[sl]).clamp(0.0, 1.0).numpy()
     aug_paths = warp_points(paths[src], mats)
+    if options.paper:
+        aug_images, aug_paths = _on_paper(rng, images[train], aug_images, aug_paths, options,
+                                          progress)  # fmt: skip
     return (
         np.concatenate([images, aug_images]),
         np.concatenate([paths, aug_paths]),
         np.concatenate([rows, src]),
         np.concatenate([copy, np.tile(np.arange(1, options.augment + 1), len(train))]),
     )
+
+
+def _on_paper(rng, originals, images, paths, options: PrepareOptions, progress: bool):
+    """A share ``options.paper`` of the copies ``images [A, S, S]``, ``paths [A, T, d]``
+    photographed on generated paper and read back (:func:`img2dmp.data.on_paper.paper_copies`),
+    framed and as wide a pen as the original training images (``originals``) are."""
+    from .images import ink_margin, typical_stroke_width
+    from .on_paper import paper_copies
+
+    pick = np.flatnonzero(rng.random(len(images)) < options.paper)
+    if pick.size == 0:
+        return images, paths
+    margin, width = ink_margin(originals[:500]), typical_stroke_width(originals[:500])
+    got = paper_copies(rng, images[pick], paths[pick], margin=margin,
+                       stroke_width_px=width or None, progress=progress)  # fmt: skip
+    images, paths = images.copy(), np.array(paths, copy=True)
+    images[pick], paths[pick] = got.images, got.paths.astype(paths.dtype)
+    return images, paths
 
 
 def _fit_statistics(fit, labels: np.ndarray) -> dict:
