@@ -5,7 +5,7 @@ import { api, el, fitCanvas, flagText, initHeader, showError, showMessage } from
 
 // Box colours of successive lines (as the page picture of img2dmp predict --page).
 const LINE_COLOURS = ["#0072b2", "#009e73", "#cc79a7", "#e69f00", "#56b4e9"];
-const COLOURS = { path: "#e0007a", travel: "rgba(29,35,48,0.55)", pen: "#1c9a5a" };
+const COLOURS = { path: "rgba(224, 0, 122, 0.85)", travel: "rgba(29,35,48,0.55)", pen: "#1c9a5a" };
 // Seconds (at 1x) the lifted pen takes from one character to the next.
 const TRAVEL_S = 0.25;
 
@@ -257,7 +257,7 @@ function photoMap(canvas) {
 function lineWidth(canvas) {
   const page = state.answer.page;
   const s = canvas.getBoundingClientRect().width / page.image_size_px[0];
-  return Math.max(1.5, Math.min(4, (page.character_height_px * s) / 12));
+  return Math.max(1.5, Math.min(4, (page.character_height_px * s) / 15));
 }
 
 /** Character `c`'s path up to sample k: pen-down runs solid, pen-up travel dashed
@@ -265,10 +265,11 @@ function lineWidth(canvas) {
 function drawCharacter(ctx, c, k, map, withTravel) {
   const pts = c.path_image_px.map(map);
   const last = Math.min(k, pts.length - 1);
+  const isDown = (i) => c.pen[i - 1] >= 0.5 && c.pen[i] >= 0.5; // the segment to point i
   for (let i = 1; i <= last; ) {
-    const down = c.pen[i - 1] >= 0.5 && c.pen[i] >= 0.5;
+    const down = isDown(i);
     const start = i - 1;
-    while (i <= last && (c.pen[i - 1] >= 0.5 && c.pen[i] >= 0.5) === down) i++;
+    while (i <= last && isDown(i) === down) i++;
     if (!down && !withTravel) continue;
     ctx.setLineDash(down ? [] : [3, 4]);
     ctx.beginPath();
