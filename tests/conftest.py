@@ -60,3 +60,43 @@ def train_tiny_runs():
     """``train_tiny_runs(work, run_dir)``: run directories ``run_dir(k)`` of tiny networks
     with k = 1 and k = 2 hypotheses (for tests of prediction, serving and the browser)."""
     return _train_tiny_runs
+
+
+def _stroke(*corners, n: int = 30):
+    import numpy as np
+
+    c = np.asarray(corners, dtype=np.float64)
+    return np.concatenate([np.linspace(c[i], c[i + 1], n) for i in range(len(c) - 1)])
+
+
+def _handwritten_page():
+    """A page of five characters drawn in two lines on light paper: "1 7 0" above "L 7",
+    the last touching the right border. ``(image uint8 [200, 360], boxes)``: each
+    character's ink box ``(x0, y0, x1, y1)`` (half-open, ink > 1/2) in reading order."""
+    import numpy as np
+
+    from img2dmp.data.render import render_paths
+
+    h, w = 200, 360
+    t = np.linspace(0.0, 2.0 * np.pi, 80)
+    chars = [
+        _stroke((60, 30), (60, 80)),  # 1
+        _stroke((128, 30), (154, 30), (138, 80)),  # 7
+        np.stack([230 + 14 * np.cos(t), 55 + 25 * np.sin(t)], 1),  # 0
+        _stroke((70, 120), (70, 170), (94, 170)),  # L
+        _stroke((w - 26, 120), (w, 120), (w - 16, 170)),  # 7 cut by the border
+    ]
+    n = max(len(c) for c in chars)
+    paths = np.stack([np.concatenate([c, np.repeat(c[-1:], n - len(c), 0)]) for c in chars])
+    ink = render_paths(paths, (h, w), 5.0).numpy()  # [5, H, W]
+    boxes = []
+    for k in range(len(chars)):
+        rows, cols = np.nonzero(ink[k] > 0.5)
+        boxes.append((int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1))
+    return np.clip(235.0 - 200.0 * ink.max(0), 0, 255).astype(np.uint8), boxes
+
+
+@pytest.fixture(scope="session")
+def handwritten_page():
+    """``(image, boxes)`` of :func:`_handwritten_page`: a generated photo of a page."""
+    return _handwritten_page()

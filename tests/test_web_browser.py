@@ -3,7 +3,11 @@
 - Draw: a digit drawn with the mouse is predicted, its trajectory played over the model's
   input, the ranked hypotheses listed, the DMP downloaded and read back; a pen draws too;
   an API error (a text file as the image) shows its detail in the page; the model
-  switcher switches; the simulated robot writes the prediction and shows the paper;
+  switcher switches; the simulated robot writes the prediction and shows the paper; a
+  flagged prediction gets its one-line note, an unflagged one none;
+- Page: a photo of a page chosen on the Page view shows every character's box over its
+  ink, the count of characters and lines, writes them one after the other, marks and
+  lists the flagged one, and downloads the page document;
 - Record: two strokes traced over an MNIST image are saved as ``image_<n>.json`` in the
   shared recordings' format, with the two strokes.
 
@@ -241,6 +245,11 @@ def test_draw_with_the_mouse_predicts_plays_and_downloads_the_dmp(page, server, 
     assert "%" in items.first.inner_text()
     assert page.locator("#input-image").evaluate("i => i.naturalWidth") > 0
     assert page.locator("#draw-error").is_hidden()
+    flags = page.locator("#result").get_attribute("data-flags")
+    note = page.locator("#fit-note")
+    assert note.is_visible() == bool(flags)  # the note when flagged, nothing otherwise
+    if flags:
+        assert note.inner_text().startswith("This does not look like one character: ")
     _wait_played(page)
     page.screenshot(path=str(shots / "draw-predicted.png"), full_page=True)
 
@@ -348,6 +357,81 @@ def test_the_robot_writes_the_prediction(page, server, shots):
     assert page.locator("#summary").inner_text().strip()
     page.locator("#paper").scroll_into_view_if_needed()
     page.screenshot(path=str(shots / "draw-robot.png"), full_page=True)
+
+
+# -- Page ----------------------------------------------------------------------------------
+
+
+def _css_box(page, selector: str) -> tuple[float, float, float, float]:
+    b = page.locator(selector).bounding_box()
+    return b["x"], b["y"], b["x"] + b["width"], b["y"] + b["height"]
+
+
+def _paths_drawn(page) -> int:
+    """Painted pixels of the Page view's layer of written paths."""
+    return page.evaluate(
+        """() => {
+          const c = document.getElementById('paths');
+          const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+          let n = 0;
+          for (let i = 3; i < d.length; i += 4) if (d[i] > 0) n++;
+          return n;
+        }"""
+    )
+
+
+def test_a_page_photo_is_boxed_counted_written_and_its_flagged_character_marked(
+    page, server, shots, tmp_path, handwritten_page
+):
+    from PIL import Image
+
+    image, boxes = handwritten_page
+    photo = tmp_path / "page.png"
+    Image.fromarray(image).save(photo)
+    page.goto(server["url"] + "/page")
+    page.locator('#site-header .tabs a[aria-current="page"]', has_text="Page").wait_for()
+    # every value data-drawn takes, to see the characters written one after the other
+    page.evaluate(
+        """() => {
+          window.drawn = [];
+          const card = document.getElementById('page-card');
+          new MutationObserver(() => window.drawn.push(Number(card.dataset.drawn)))
+            .observe(card, { attributes: true, attributeFilter: ['data-drawn'] });
+        }"""
+    )
+    page.locator("#photo-file").set_input_files(str(photo))
+    page.locator('#page-card[data-characters="5"]').wait_for()
+    card = page.locator("#page-card")
+    assert card.get_attribute("data-lines") == "2"
+    assert page.locator("#page-count").inner_text() == "5\u00a0characters in 2\u00a0lines"
+    assert page.locator("#boxes .box").count() == 5
+    x, y, x1, _ = _css_box(page, "#photo")
+    s = (x1 - x) / image.shape[1]  # CSS pixels per photo pixel
+    for i, (bx0, by0, bx1, by1) in enumerate(boxes):
+        got = _css_box(page, f'#boxes .box[data-index="{i}"]')
+        want = (x + bx0 * s, y + by0 * s, x + bx1 * s, y + by1 * s)
+        assert np.abs(np.subtract(got, want)).max() <= 1.5 * s + 1, (i, got, want)
+    page.select_option("#speed", "10")
+    page.locator('#page-card[data-state="done"]').wait_for()
+    assert page.locator("#play-status").inner_text() == "5 of 5 characters written"
+    drawn = [d for i, d in enumerate(page.evaluate("window.drawn")) if i == 0 or d != 0]
+    assert sorted(set(drawn)) == drawn and drawn[-1] == 5 and len(set(drawn)) >= 3, drawn
+    assert _paths_drawn(page) > 0
+    # the character cut by the border is flagged: a red box, why on hover, in the list
+    box = page.locator('#boxes .box.flagged[data-index="4"]')
+    assert "cut_by_border" in box.get_attribute("data-flags")
+    assert "border" in box.get_attribute("title")
+    item = page.locator('#flagged .flag-item[data-index="4"]')
+    assert "border" in item.inner_text()
+    item.hover()
+    assert "focus" in box.get_attribute("class")
+    page.screenshot(path=str(shots / "page-read.png"), full_page=True)
+    with page.expect_download() as dl:
+        page.locator("#download-page").click()
+    assert dl.value.suggested_filename == "page_page.json"
+    doc = json.loads(Path(dl.value.path()).read_text())
+    assert doc["format"] == "img2dmp-page" and len(doc["characters"]) == 5
+    assert all(c["dmp"]["format"] == "img2dmp-dmp" for c in doc["characters"])
 
 
 # -- Record --------------------------------------------------------------------------------

@@ -83,11 +83,12 @@ class CharacterPrediction:
             return np.ones(len(path), np.int64)
         return (path[:, 2] >= 0.5).astype(np.int64)
 
-    def to_dict(self) -> dict:
-        """The character's entry of the page document."""
+    def to_dict(self, dmp: bool = True) -> dict:
+        """The character's entry of the page document (without its ``"dmp"`` unless
+        ``dmp``: a tenth of the size, for a quick look at the page)."""
         c, p = self.character, self.prediction
         path = p.path_image[0]
-        return {
+        entry = {
             "index": c.index,
             "line": c.line,
             "position": c.position,
@@ -102,8 +103,10 @@ class CharacterPrediction:
             "flags": list(self.flags),
             "parts": c.parts,
             "split": c.split,
-            "dmp": p.to_document(),
         }
+        if dmp:
+            entry["dmp"] = p.to_document()
+        return entry
 
 
 class PagePrediction:
@@ -152,8 +155,9 @@ class PagePrediction:
             return list(self._flags)
         return ["mostly_unreadable"] if 2 * len(self.flagged) > len(self.characters) else []
 
-    def to_document(self) -> dict:
-        """The page document (format ``img2dmp-page`` version 1; docs/PAGE.md)."""
+    def to_document(self, dmps: bool = True) -> dict:
+        """The page document (format ``img2dmp-page`` version 1; docs/PAGE.md); without
+        the characters' ``"dmp"`` documents unless ``dmps``."""
         h, w = self.image_size
         return {
             "format": PAGE_FORMAT,
@@ -166,7 +170,7 @@ class PagePrediction:
             "flags": self.flags,
             "removed": self.removed,
             "lines": [{"index": i, "characters": idx} for i, idx in enumerate(self.lines)],
-            "characters": [c.to_dict() for c in self.characters],
+            "characters": [c.to_dict(dmps) for c in self.characters],
         }
 
     def to_json(self) -> str:

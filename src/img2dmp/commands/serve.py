@@ -1,13 +1,14 @@
 """Serve the browser front end: draw a digit and see the predicted movement, have the
 simulated KUKA iiwa write it, trace images to record new demonstrations (docs/WEB.md).
 
-The pages are at http://HOST:PORT/ (Draw) and /record (Record); the HTTP API under /api,
-its reference at /docs. Predictions run in the server's thread pool, one at a time per
-model (torch on one thread); each robot run in a process of its own, at most --max-jobs
-at once, the others waiting in turn. Recordings are written as DATA_DIR/image_<n>.json in
-the recorded-path format, atomically and under a lock on DATA_DIR, so
-`img2dmp prepare --recorded DATA_DIR --mnist DIR` reads them; an existing recording is
-replaced only when the page asks to. Nothing is written outside --data-dir and --jobs-dir.
+The pages are at http://HOST:PORT/ (Draw), /page (Page: every character of a photo of a
+page) and /record (Record); the HTTP API under /api, its reference at /docs. Predictions
+run in the server's thread pool, one at a time per model (torch on one thread); each
+robot run in a process of its own, at most --max-jobs at once, the others waiting in
+turn. Recordings are written as DATA_DIR/image_<n>.json in the recorded-path format,
+atomically and under a lock on DATA_DIR, so `img2dmp prepare --recorded DATA_DIR --mnist
+DIR` reads them; an existing recording is replaced only when the page asks to. Nothing is
+written outside --data-dir and --jobs-dir.
 
 Needs the optional extra: pip install 'img2dmp[web]' (and img2dmp[robot] for the arm).
 
@@ -29,6 +30,9 @@ from . import _args
 HELP = "the browser front end: draw, predict, write with the robot, record"
 #: The model served when no --model is given, if it exists (what `make demo` trains).
 DEFAULT_MODEL = os.path.join("out", "demo", "run")
+#: Largest photo of a page, MB (img2dmp.web.pages.PAGE_UPLOAD_MB; a literal: this module
+#: must not import torch).
+PAGE_UPLOAD_MB = 64.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -56,6 +60,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="robot runs at the same time; more wait in a queue")  # fmt: skip
     p.add_argument("--max-upload-mb", metavar="X", type=_args.positive_float, default=4.0,
                    help="larger request bodies are refused (413)")  # fmt: skip
+    p.add_argument("--max-page-mb", metavar="X", type=_args.positive_float,
+                   default=PAGE_UPLOAD_MB, help="larger photos of a page (the Page view's "
+                   "upload) are refused (413)")  # fmt: skip
     p.add_argument("--jobs-dir", metavar="DIR",
                    help="where robot runs write their pictures (default: a temporary "
                    "folder, removed at the end)")  # fmt: skip
@@ -120,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
         data_dir=args.data_dir,
         max_jobs=args.max_jobs,
         max_upload_mb=args.max_upload_mb,
+        max_page_mb=args.max_page_mb,
         jobs_dir=args.jobs_dir,
     )
     from ..web.models import warm_up

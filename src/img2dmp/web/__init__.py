@@ -1,8 +1,9 @@
 """The browser front end's back end: ``img2dmp serve`` (docs/WEB.md).
 
 - :func:`create_app` - the FastAPI application (:mod:`.app`): predictions of drawn or
-  uploaded digits, robot runs in their own processes (:mod:`.jobs`), the Record page's
-  images and recordings (:mod:`.recordings`), the static pages in ``web/static/``.
+  uploaded digits, pages read from photos (:mod:`.pages`), robot runs in their own
+  processes (:mod:`.jobs`), the Record page's images and recordings (:mod:`.recordings`),
+  the static pages in ``web/static/``.
 
 Needs the optional extra ``pip install 'img2dmp[web]'`` (FastAPI, uvicorn); importing
 this package does not import them, :func:`create_app` does.

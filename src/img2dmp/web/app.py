@@ -1,12 +1,13 @@
 """The HTTP API of ``img2dmp serve`` (docs/WEB.md) as a FastAPI application.
 
 :func:`create_app` builds it: the models loaded once (:mod:`.models`), the Record page's
-images and recordings (:mod:`.recordings`), robot runs in their own processes
-(:mod:`.jobs`) and the static pages. Every refusal is a 4xx answer ``{"detail": one
-line}`` naming the field or value: request bodies larger than ``max_upload_mb`` (from
-``Content-Length`` and while reading, before parsing), JSON that is not strict JSON (no
-``NaN`` or ``Infinity``), FastAPI's validation errors, and the checks of the modules
-below. The endpoints that work are plain functions, run in FastAPI's thread pool.
+images and recordings (:mod:`.recordings`), the pages read from photos (:mod:`.pages`),
+robot runs in their own processes (:mod:`.jobs`) and the static pages. Every refusal is a
+4xx answer ``{"detail": one line}`` naming the field or value: request bodies larger than
+``max_upload_mb`` (``max_page_mb`` for a page's photo; from ``Content-Length`` and while
+reading, before parsing), JSON that is not strict JSON (no ``NaN`` or ``Infinity``),
+FastAPI's validation errors, and the checks of the modules below. The endpoints that work
+are plain functions, run in FastAPI's thread pool.
 """
 
 from __future__ import annotations
@@ -17,13 +18,14 @@ from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Annotated
 
-from fastapi import FastAPI, HTTPException, Request
+from fastapi import FastAPI, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.routing import APIRoute
 from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 from pydantic import BaseModel, ConfigDict, Field
+from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from .. import __version__
@@ -31,8 +33,10 @@ from .._files import parse_json
 from .errors import WebError, one_line, show
 from .jobs import JobManager, check_write
 from .models import LoadedModel, load_models, predict_with, prediction_answer
+from .pages import PAGE_TYPES, PAGE_UPLOAD_MB, PageStore, check_page_type, page_answer, read_photo
 from .recordings import FolderImages, MnistImages, Recordings
 from .strokes import (
+    MAX_IMAGE_PIXELS,
     MAX_POINTS,
     MAX_STROKES,
     canvas_bounds,
@@ -119,27 +123,33 @@ class _StrictJSONRoute(APIRoute):
 
 class BodyLimit:
     """ASGI middleware: a body above ``max_bytes`` gets 413, refused from its
-    ``Content-Length`` before anything is read, or while it is read (chunked bodies)."""
+    ``Content-Length`` before anything is read, or while it is read (chunked bodies).
+    ``paths`` gives some paths a limit of their own: ``{path: (max_bytes, option)}``."""
 
-    def __init__(self, app, max_bytes: int):
+    def __init__(self, app, max_bytes: int, paths: dict | None = None):
         self.app = app
         self.max_bytes = int(max_bytes)
+        self.paths = {k: (int(n), option) for k, (n, option) in (paths or {}).items()}
 
-    def _too_large(self, read: str) -> str:
-        mb = self.max_bytes / (1 << 20)
-        return f"body: more than the {mb:.3g} MB allowed (--max-upload-mb): {read}"
+    def _limit(self, path: str) -> tuple[int, str]:
+        return self.paths.get(path, (self.max_bytes, "--max-upload-mb"))
+
+    def _too_large(self, path: str, read: str) -> str:
+        max_bytes, option = self._limit(path)
+        return f"body: more than the {max_bytes / (1 << 20):.3g} MB allowed ({option}): {read}"
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
+        path, max_bytes = scope.get("path", ""), self._limit(scope.get("path", ""))[0]
         length = dict(scope.get("headers") or ()).get(b"content-length")
         if length is not None:
             text = length.decode("latin-1").strip()
             if not text.isdigit():
                 answer = JSONResponse({"detail": f"Content-Length: {show(text)} is no size"}, 400)
                 return await answer(scope, receive, send)
-            if int(text) > self.max_bytes:
-                too_large = self._too_large(f"Content-Length {int(text)} bytes")
+            if int(text) > max_bytes:
+                too_large = self._too_large(path, f"Content-Length {int(text)} bytes")
                 answer = JSONResponse({"detail": too_large}, 413)
                 return await answer(scope, receive, send)
         total = 0
@@ -149,8 +159,8 @@ class BodyLimit:
             message = await receive()
             if message["type"] == "http.request":
                 total += len(message.get("body", b""))
-                if total > self.max_bytes:
-                    raise HTTPException(413, self._too_large(f"{total} bytes read"))
+                if total > max_bytes:
+                    raise HTTPException(413, self._too_large(path, f"{total} bytes read"))
             return message
 
         await self.app(scope, limited, send)
@@ -201,10 +211,13 @@ def _install_error_handlers(app: FastAPI) -> None:
 
 
 class ServerState:
-    """What the endpoints share: the models, the recordings, the robot's jobs."""
+    """What the endpoints share: the models, the recordings, the robot's jobs, the pages
+    read."""
 
-    def __init__(self, models: dict[str, LoadedModel], recordings: Recordings, jobs: JobManager):
+    def __init__(self, models: dict[str, LoadedModel], recordings: Recordings, jobs: JobManager,
+                 pages: PageStore | None = None):  # fmt: skip
         self.models, self.recordings, self.jobs = models, recordings, jobs
+        self.pages = pages if pages is not None else PageStore()
 
     def model(self, model_id: str | None) -> LoadedModel:
         """The model of ``model_id`` (None: the first); 409 without models, 422 for an
@@ -230,6 +243,7 @@ def create_app(
     max_upload_mb: float = 4.0,
     jobs_dir=None,
     static_dir=None,
+    max_page_mb: float = PAGE_UPLOAD_MB,
 ) -> FastAPI:
     """The application of ``img2dmp serve`` (docs/WEB.md).
 
@@ -246,11 +260,13 @@ def create_app(
     max_jobs : int
         Robot runs at the same time; more wait.
     max_upload_mb : float
-        Largest request body, MB.
+        Largest request body, MB (but for ``POST /api/predict_page``).
     jobs_dir : path-like, optional
         Where robot runs write (default: a temporary folder).
     static_dir : path-like, optional
         The pages (default: the package's ``web/static``).
+    max_page_mb : float
+        Largest photo of a page (``POST /api/predict_page``), MB.
 
     Raises
     ------
@@ -263,6 +279,8 @@ def create_app(
         raise ValueError(f"--max-jobs must be an integer >= 1, got {max_jobs!r}")
     if not 0 < max_upload_mb < float("inf"):
         raise ValueError(f"--max-upload-mb must be a number > 0, got {max_upload_mb!r}")
+    if not 0 < max_page_mb < float("inf"):
+        raise ValueError(f"--max-page-mb must be a number > 0, got {max_page_mb!r}")
     source = MnistImages(mnist) if mnist is not None else None
     source = FolderImages(images) if images is not None else source
     state = ServerState(
@@ -281,9 +299,12 @@ def create_app(
                          "simulated KUKA iiwa, record demonstrations (docs/WEB.md).")  # fmt: skip
     app.router.route_class = _StrictJSONRoute
     app.state.img2dmp = state
-    app.add_middleware(BodyLimit, max_bytes=int(max_upload_mb * (1 << 20)))
+    page_limit = (int(max_page_mb * (1 << 20)), "--max-page-mb")
+    app.add_middleware(BodyLimit, max_bytes=int(max_upload_mb * (1 << 20)),
+                       paths={"/api/predict_page": page_limit})  # fmt: skip
     _install_error_handlers(app)
     _predict_routes(app, state)
+    _page_routes(app, state, max_page_mb)
     _image_routes(app, state)
     _job_routes(app, state)
     _static_routes(app, Path(static_dir) if static_dir is not None else STATIC_DIR)
@@ -321,6 +342,54 @@ def _predict_routes(app: FastAPI, state: ServerState) -> None:
             raise WebError(422, str(e) if str(e).startswith(name) else f"{name}: {e}") from None
         elapsed_ms = 1e3 * (time.perf_counter() - t0)
         return Response(prediction_answer(model, pred, elapsed_ms), media_type="application/json")
+
+
+PAGE_NAME = "the photo's file name, for the page document's image and file name"
+
+
+def _page_body(max_page_mb: float) -> dict:
+    """The OpenAPI description of ``POST /api/predict_page``'s body: a file's bytes."""
+    binary = {"schema": {"type": "string", "format": "binary"}}
+    return {
+        "requestBody": {
+            "required": True,
+            "description": f"The photo's PNG or JPEG file, at most {max_page_mb:g} MB "
+            f"(--max-page-mb) and {MAX_IMAGE_PIXELS:,} pixels",
+            "content": {kind: binary for kind in PAGE_TYPES if kind != "image/jpg"},
+        }
+    }
+
+
+def _page_routes(app: FastAPI, state: ServerState, max_page_mb: float) -> None:
+    def read(loaded: LoadedModel, raw: bytes, n_points: int, name: str | None) -> bytes:
+        t0 = time.perf_counter()
+        page = read_photo(loaded, raw, n_points, name, state.pages.reading)
+        page_id = state.pages.add(page)
+        return page_answer(loaded, page, page_id, 1e3 * (time.perf_counter() - t0))
+
+    @app.post("/api/predict_page", openapi_extra=_page_body(max_page_mb))
+    async def predict_page(
+        request: Request,
+        model: Annotated[str | None, Query(description="an id of GET /api/models")] = None,
+        n_points: Annotated[int, Query(ge=N_POINTS_RANGE[0], le=N_POINTS_RANGE[1])] = 100,
+        name: Annotated[str | None, Query(max_length=255, description=PAGE_NAME)] = None,
+    ) -> Response:
+        """Every handwritten character of a photo of a page, in reading order: the page
+        document without the characters' DMPs; ``document`` is the whole one's URL."""
+        loaded = state.model(model)
+        check_page_type(request.headers.get("content-type"))
+        raw = await request.body()
+        answer = await run_in_threadpool(read, loaded, raw, n_points, name)
+        return Response(answer, media_type="application/json")
+
+    @app.get("/api/pages/{page_id}")
+    def page_document(page_id: str) -> Response:
+        """The whole page document (img2dmp-page, every character's DMP) of a page read
+        lately, as a file ``<stem>_page.json``."""
+        text, filename = state.pages.document(page_id)
+        disposition = f'attachment; filename="{filename}"'
+        return Response(text, media_type="application/json",
+                        headers={"Content-Disposition": disposition})  # fmt: skip
 
 
 def _image_routes(app: FastAPI, state: ServerState) -> None:
@@ -384,6 +453,10 @@ def _static_routes(app: FastAPI, static: Path) -> None:
     @app.get("/record", include_in_schema=False)
     def record_page() -> FileResponse:
         return page("record.html")
+
+    @app.get("/page", include_in_schema=False)
+    def page_page() -> FileResponse:
+        return page("page.html")
 
     app.mount("/static", StaticFiles(directory=static, check_dir=False), name="static")
 

@@ -109,11 +109,14 @@ def _hypotheses(pred: Prediction) -> list[dict]:
 
 
 def warm_up(model: LoadedModel) -> None:
-    """One prediction of a drawn "1", so that the first request does not pay for the
-    caches (numba's compiled rollout, the DMP response table)."""
+    """One prediction of a drawn "1" and one page of two, so that the first request does
+    not pay for the caches (numba's compiled rollout, the DMP response table, the page
+    reading's first run)."""
     image = np.full((64, 64), 255, np.uint8)
     image[12:52, 29:35] = 0
     predict_with(model, image, 100, "warm-up")
+    with model.lock:
+        model.predictor.predict_page(np.tile(image, (1, 2)), name="warm-up page")
 
 
 def predict_with(model: LoadedModel, image, n_points: int, name: str) -> Prediction:
@@ -134,6 +137,8 @@ def prediction_answer(model: LoadedModel, pred: Prediction, elapsed_ms: float) -
         "image_size": list(pred.frame.image_size),
         "input_image": png_data_url(pred.image),
         "hypotheses": _hypotheses(pred),
+        "fit": dict(pred.fit),
+        "flags": list(pred.flags),
         "dmp": pred.to_document(),
         "csv": pred.trajectory_csv(),
     }

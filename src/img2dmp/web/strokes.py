@@ -132,12 +132,9 @@ def decode_data_url(text: str):
     Raises
     ------
     WebError
-        422 naming ``image`` for another kind of URL, bad base64, bytes that are no PNG or
-        JPEG, more than ``MAX_IMAGE_PIXELS`` pixels (checked from the header, before
-        decoding) or data that do not decode.
+        422 naming ``image`` for another kind of URL, bad base64, or bytes that
+        :func:`decode_image_bytes` refuses.
     """
-    from PIL import Image, UnidentifiedImageError
-
     m = _DATA_URL.match(text)
     if not m:
         raise WebError(
@@ -149,23 +146,41 @@ def decode_data_url(text: str):
         raw = base64.b64decode(text[m.end() :], validate=True)
     except (binascii.Error, ValueError) as e:
         raise WebError(422, f"image: the base64 data is not valid ({e})") from None
+    return decode_image_bytes(raw, "image")
+
+
+def decode_image_bytes(raw: bytes, what: str):
+    """The bytes of a PNG or JPEG file as a loaded PIL image (its EXIF tag kept).
+
+    Raises
+    ------
+    WebError
+        422 naming ``what`` for bytes that are no PNG or JPEG, more than
+        ``MAX_IMAGE_PIXELS`` pixels (checked from the header, before decoding) or data
+        that do not decode.
+    """
+    from PIL import Image, UnidentifiedImageError
+
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
             im = Image.open(io.BytesIO(raw))
         if im.format not in _FORMATS:
-            raise WebError(422, f"image: must be a PNG or JPEG image, got {im.format}")
+            raise WebError(422, f"{what}: must be a PNG or JPEG image, got {im.format}")
         w, h = im.size
         if w * h > MAX_IMAGE_PIXELS:
             raise WebError(
-                422, f"image: {w} x {h} pixels is more than the {MAX_IMAGE_PIXELS:,} allowed"
+                422, f"{what}: {w} x {h} pixels is more than the {MAX_IMAGE_PIXELS:,} allowed"
             )
         im.load()
     except WebError:
         raise
-    except (UnidentifiedImageError, Image.DecompressionBombError, OSError, SyntaxError,
-            ValueError, EOFError) as e:  # fmt: skip
-        raise WebError(422, f"image: cannot be decoded as a PNG or JPEG image ({e})") from None
+    except UnidentifiedImageError:  # PIL's message names only the BytesIO object
+        raise WebError(
+            422, f"{what}: cannot be decoded as a PNG or JPEG image (it starts {show(raw[:8])})"
+        ) from None
+    except (Image.DecompressionBombError, OSError, SyntaxError, ValueError, EOFError) as e:
+        raise WebError(422, f"{what}: cannot be decoded as a PNG or JPEG image ({e})") from None
     return im
 
 
@@ -178,6 +193,7 @@ __all__ = [
     "canvas_size",
     "check_strokes",
     "decode_data_url",
+    "decode_image_bytes",
     "grey_png",
     "render_strokes",
 ]

@@ -1,8 +1,9 @@
-// Shared by both pages: the header (tabs + model switcher), fetch helpers, messages,
-// high-DPI canvases. Plain ES module, no dependencies.
+// Shared by the pages: the header (tabs + model switcher), fetch helpers, messages,
+// what a prediction's flags mean, high-DPI canvases. Plain ES module, no dependencies.
 
 const PAGES = [
   { id: "draw", label: "Draw", href: "/" },
+  { id: "page", label: "Page", href: "/page" },
   { id: "record", label: "Record", href: "/record" },
 ];
 const MODEL_KEY = "img2dmp.model";
@@ -36,10 +37,16 @@ async function errorDetail(res) {
   return short ? `${res.status} ${res.statusText}: ${short}` : `${res.status} ${res.statusText}`;
 }
 
-/** fetch + JSON; throws ApiError (with the API's detail) on a non-2xx answer. */
+/**
+ * fetch + JSON; throws ApiError (with the API's detail) on a non-2xx answer. A Blob or
+ * File `body` is sent as its own bytes (with its type), anything else as JSON.
+ */
 export async function api(path, { method = "GET", body, signal } = {}) {
   const opts = { method, signal, headers: { Accept: "application/json" } };
-  if (body !== undefined) {
+  if (body instanceof Blob) {
+    opts.headers["Content-Type"] = body.type || "application/octet-stream";
+    opts.body = body;
+  } else if (body !== undefined) {
     opts.headers["Content-Type"] = "application/json";
     opts.body = JSON.stringify(body);
   }
@@ -95,6 +102,21 @@ export function showError(box, err, prefix = "") {
   console.error(err);
 }
 
+const pct = (share) => `${Math.round(100 * share)}\u00a0%`;
+
+/** What each flag of a prediction means (`fit`: its path_on_ink and ink_written). */
+const FLAG_TEXT = {
+  off_ink: (fit) => `the path leaves the ink (on ink ${pct(fit.path_on_ink)})`,
+  unexplained_ink: (fit) => `part of the ink is not written (written ${pct(fit.ink_written)})`,
+  several_characters: () => "the image holds several characters",
+  cut_by_border: () => "it touches the photo's border, so part of it may be cut off",
+};
+
+/** The flags as one clause ("the path leaves the ink (on ink 62 %); ..."), "" for none. */
+export function flagText(flags, fit) {
+  return (flags || []).map((f) => (FLAG_TEXT[f] ? FLAG_TEXT[f](fit || {}) : f)).join("; ");
+}
+
 /**
  * Size a canvas's backing store to its CSS size times devicePixelRatio and return a 2-D
  * context drawing in CSS pixels.
@@ -134,7 +156,7 @@ function el(tag, attrs = {}, ...children) {
 }
 export { el };
 
-/** The header: project name, the two pages as tabs, the model switcher slot. */
+/** The header: project name, the pages as tabs, the model switcher slot. */
 function buildHeader(page) {
   const header = document.getElementById("site-header");
   header.className = "site-header";

@@ -1,7 +1,8 @@
 // The Draw page: draw (or drop) a digit, predict its DMP, watch it written, download it,
 // have the simulated robot write it.
-import { api, ApiError, capture, downloadText, el, fitCanvas, initHeader, showError, showMessage }
-  from "./common.js";
+import {
+  api, ApiError, capture, downloadText, el, fitCanvas, flagText, initHeader, showError, showMessage,
+} from "./common.js";
 
 // Strokes are kept in a fixed logical frame (LOGICAL x LOGICAL), whatever the CSS size.
 const LOGICAL = 320;
@@ -16,6 +17,7 @@ const ui = {
   placeholder: $("draw-placeholder"), dropLabel: $("drop-label"), file: $("file"),
   drawError: $("draw-error"), result: $("result"), inputImage: $("input-image"),
   seenOverlay: $("seen-overlay"), seenEmpty: $("seen-empty"), meta: $("result-meta"),
+  fitNote: $("fit-note"),
   hyps: $("hypotheses"), replay: $("replay"), dlDmp: $("download-dmp"),
   dlCsv: $("download-csv"), write: $("write"), job: $("job"), jobProgress: $("job-progress"),
   jobStatus: $("job-status"), robotError: $("robot-error"), jobResult: $("job-result"),
@@ -237,10 +239,24 @@ function showAnswer(answer) {
     `Model ${answer.model} \u00b7 input ${w}\u00d7${h}\u00a0px \u00b7 ` +
     `movement ${top.tau_s.toFixed(2)}\u00a0s \u00b7 ` +
     `answered in ${Math.round(answer.elapsed_ms)}\u00a0ms`;
+  showFlags(answer);
   renderHypotheses();
   for (const b of [ui.replay, ui.dlDmp, ui.dlCsv, ui.write]) b.disabled = false;
   ui.write.disabled = state.job !== null;
   animate();
+}
+
+/** One line under the result when the prediction is flagged; nothing when it is not. */
+function showFlags(answer) {
+  const text = flagText(answer.flags, answer.fit);
+  ui.result.dataset.flags = (answer.flags || []).join(" ");
+  ui.fitNote.replaceChildren();
+  ui.fitNote.hidden = !text;
+  if (!text) return;
+  ui.fitNote.append(`This does not look like one character: ${text}.`);
+  if (answer.flags.includes("several_characters")) {
+    ui.fitNote.append(" ", el("a", { href: "/page" }, "Read it on the Page view"), ".");
+  }
 }
 
 function renderHypotheses() {
