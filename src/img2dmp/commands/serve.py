@@ -63,6 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-page-mb", metavar="X", type=_args.positive_float,
                    default=PAGE_UPLOAD_MB, help="larger photos of a page (the Page view's "
                    "upload) are refused (413)")  # fmt: skip
+    _args.add_refine(p)
     p.add_argument("--jobs-dir", metavar="DIR",
                    help="where robot runs write their pictures (default: a temporary "
                    "folder, removed at the end)")  # fmt: skip
@@ -129,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
         max_upload_mb=args.max_upload_mb,
         max_page_mb=args.max_page_mb,
         jobs_dir=args.jobs_dir,
+        refine=args.refine,
     )
     from ..web.models import warm_up
 

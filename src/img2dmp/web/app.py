@@ -244,6 +244,7 @@ def create_app(
     jobs_dir=None,
     static_dir=None,
     max_page_mb: float = PAGE_UPLOAD_MB,
+    refine: int = 0,
 ) -> FastAPI:
     """The application of ``img2dmp serve`` (docs/WEB.md).
 
@@ -267,6 +268,9 @@ def create_app(
         The pages (default: the package's ``web/static``).
     max_page_mb : float
         Largest photo of a page (``POST /api/predict_page``), MB.
+    refine : int
+        Gradient steps every prediction of a model loaded from a path is refined with on
+        its ink (``img2dmp serve --refine``; 0: the network's output).
 
     Raises
     ------
@@ -284,7 +288,7 @@ def create_app(
     source = MnistImages(mnist) if mnist is not None else None
     source = FolderImages(images) if images is not None else source
     state = ServerState(
-        load_models(models), Recordings(data_dir, source), JobManager(jobs_dir, max_jobs)
+        load_models(models, refine), Recordings(data_dir, source), JobManager(jobs_dir, max_jobs)
     )
 
     @asynccontextmanager

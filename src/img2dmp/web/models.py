@@ -60,8 +60,10 @@ def model_id(path: str | os.PathLike) -> str:
     return p.parent.name if p.name == "run" and p.parent.name else p.name
 
 
-def load_models(sources) -> dict[str, LoadedModel]:
-    """Every model of ``sources`` (paths, or ``(id, Predictor)`` pairs), in order, by id.
+def load_models(sources, refine: int = 0) -> dict[str, LoadedModel]:
+    """Every model of ``sources`` (paths, or ``(id, Predictor)`` pairs), in order, by id;
+    those loaded from paths refine their predictions with ``refine`` steps
+    (``img2dmp serve --refine``).
 
     Raises ``FileNotFoundError`` or ``ValueError`` (from :func:`img2dmp.predict.load_model`)
     naming a path that holds no model.
@@ -73,7 +75,7 @@ def load_models(sources) -> dict[str, LoadedModel]:
             path = str(name)
         else:
             name, path = model_id(source), os.fspath(source)
-            predictor = load_model(source)
+            predictor = load_model(source, refine=refine)
         unique, n = name, 1
         while unique in models:
             n += 1
