@@ -1,0 +1,270 @@
+"""Reading pages (issue 30): generated pages with known pen paths, and real photos.
+
+Generated pages (``--pages N``): MNIST digits with their recorded pen paths (the split
+``--split``, validation by default: choices are made there; the test split for the
+figures) written by :func:`img2dmp.data.clutter.generate_page` on ruled, squared, dotted
+and plain paper in turn, and the same pages on plain white paper (the control). Each page
+is read by ``predict_page`` and its characters matched one to one with the true ones
+(intersection over union of the boxes >= 0.5). Reported per paper kind:
+
+- **found**: the share of true characters matched by exactly one found character (not
+  split, not merged with a neighbour, not missed);
+- **Chamfer**: the order-free distance between the predicted path (top hypothesis) and
+  the person's, in photo pixels per 20 px of character height (the box's), cluttered and
+  plain, and their ratio;
+- **on the pen's line**: the share of the predicted path on the true ink (> 0.5).
+
+``--crops`` also measures the characters cropped by hand (the true box grown by 30 %),
+each predicted alone with the paper-aware preparation and with the plain one: what
+preparation does without segmentation (the issue's "cropped by hand" row).
+
+Real photos (``--photos DIR``: a folder with ``photos.json`` as in ``../shared/data/photos``):
+the characters found per line against the digits written out (miscounted: the sum over
+lines of |found - true| over the characters), and the path on ink / ink written, both
+against the photo's own ink (:func:`img2dmp.data.paper.paper_ink` at the page's
+resolution; on ink: within one pixel of it; written: ink pixels within half the pen width
+and 1.5 px of a predicted path).
+
+    python experiments/page_reading.py --model runs/real/run --refine 30 --pages 24 \\
+        --photos ../shared/data/photos --out /tmp/pages
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from _provenance import format_record, run_record
+
+KINDS = ("ruled", "squared", "dotted", "plain")
+
+
+def _iou(a, b) -> float:
+    x0, y0 = max(a[0], b[0]), max(a[1], b[1])
+    x1, y1 = min(a[2], b[2]), min(a[3], b[3])
+    inter = max(0, x1 - x0) * max(0, y1 - y0)
+    area = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return inter / area if area > 0 else 0.0
+
+
+def match(found_boxes, true_boxes) -> dict[int, int]:
+    """True index -> found index, for true characters that exactly one found box covers
+    with IoU >= 0.5 and that box no other true character."""
+    iou = np.array([[_iou(f, t) for f in found_boxes] for t in true_boxes]).reshape(
+        len(true_boxes), len(found_boxes)
+    )
+    hits = iou >= 0.5
+    out = {}
+    for t in range(len(true_boxes)):
+        f = np.flatnonzero(hits[t])
+        if len(f) == 1 and hits[:, f[0]].sum() == 1:
+            out[t] = int(f[0])
+    return out
+
+
+def _down(path: np.ndarray) -> np.ndarray:
+    return path[path[:, 2] >= 0.5, :2] if path.shape[1] > 2 else path[:, :2]
+
+
+def _scores(pred_path, true_path, ink, box) -> tuple[float, float]:
+    """(Chamfer per 20 px of character height, share of the predicted path on the ink)."""
+    from img2dmp.metrics import chamfer_px, on_ink_share
+
+    height = max(1.0, box[3] - box[1])
+    c = float(chamfer_px(pred_path[None, :, :2], _down(true_path)[None])[0]) * 20.0 / height
+    x0, y0 = max(0, box[0] - 40), max(0, box[1] - 40)
+    crop = ink[y0 : box[3] + 40, x0 : box[2] + 40]
+    on = float(on_ink_share(crop[None], (pred_path[:, :2] - [x0, y0])[None])[0])
+    return c, on
+
+
+def _read_generated(model, page, image, crops: bool):
+    """Per true character of ``page`` read from ``image``: found (bool), Chamfer, on line,
+    and with ``crops`` the same for the hand-cropped character (paper-aware, plain)."""
+    result = model.predict_page(image)
+    found = [c.box_image for c in result.characters]
+    m = match(found, [tuple(b) for b in page.boxes])
+    rows = []
+    for t, box in enumerate(page.boxes):
+        row = {"found": t in m}
+        if t in m:
+            pred = result.characters[m[t]].prediction.path_image[0]
+            row["chamfer"], row["on_line"] = _scores(pred, page.paths[t], page.ink, box)
+        if crops:
+            row.update(_crop_scores(model, page, image, t))
+        rows.append(row)
+    return rows
+
+
+def _crop_scores(model, page, image, t: int) -> dict:
+    box = page.boxes[t]
+    w, h = box[2] - box[0], box[3] - box[1]
+    x0, y0 = max(0, int(box[0] - 0.3 * w)), max(0, int(box[1] - 0.3 * h))
+    x1, y1 = int(box[2] + 0.3 * w), int(box[3] + 0.3 * h)
+    crop = image[y0:y1, x0:x1]
+    out = {}
+    for name, clean in (("crop_paper", True), ("crop_plain", False)):
+        try:
+            from img2dmp.data.images import prepare_image_framed
+
+            prepared, frame = prepare_image_framed(crop, model.image_size, margin=model.margin,
+                                                   stroke_width_px=model.stroke_width,
+                                                   clean=clean)  # fmt: skip
+        except ValueError:
+            continue
+        params, _ = model.predict_hypotheses(prepared[None])
+        _, y = model.trajectories(params[0, 0])
+        xy = frame.to_image(y) + [x0, y0]
+        out[name], out[name + "_on_line"] = _scores(xy, page.paths[t], page.ink, box)
+    return out
+
+
+def generated(model, args) -> dict:
+    """Every page's rows, by paper kind and condition."""
+    import warnings
+
+    from img2dmp.data.clutter import generate_page, page_sources_from_recorded
+
+    from img2dmp.data.recorded import load_recorded, split_of_index
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        recs = load_recorded(Path(args.data) / "ijs-mnist-trajectories" / "trajectories.tar.gz",
+                             progress=False)  # fmt: skip
+    code = {"validation": 1, "test": 2}[args.split]
+    recs = [r for r in recs if split_of_index(r.image_index) == code]
+    sources = page_sources_from_recorded(recs)
+    out: dict = {k: {"cluttered": [], "plain": []} for k in KINDS}
+    for p in range(args.pages):
+        rng = np.random.default_rng(args.seed + p)
+        pick = rng.choice(len(sources), int(rng.integers(8, 31)), replace=False)
+        kind = KINDS[p % len(KINDS)]
+        page = generate_page(rng, [sources[i] for i in pick], kind=kind)
+        for cond, image in (("cluttered", page.image), ("plain", page.plain_image)):
+            out[kind][cond] += _read_generated(
+                model, page, image, args.crops and cond == "cluttered"
+            )
+        print(f"page {p + 1}/{args.pages} ({kind}, {len(pick)} characters)", flush=True)
+    return out
+
+
+def _mean(rows, key):
+    v = [r[key] for r in rows if key in r]
+    return float(np.mean(v)) if v else float("nan")
+
+
+def summarise_generated(out: dict) -> list[dict]:
+    table = []
+    for kind in [*KINDS, "cluttered (ruled, squared, dotted)"]:
+        kinds = KINDS[:3] if kind.startswith("cluttered") else (kind,)
+        clut = [r for k in kinds for r in out[k]["cluttered"]]
+        plain = [r for k in kinds for r in out[k]["plain"]]
+        if not clut:
+            continue
+        row = {"paper": kind, "characters": len(clut)}
+        row["found"] = float(np.mean([r["found"] for r in clut]))
+        row["found_plain"] = float(np.mean([r["found"] for r in plain]))
+        for key in ("chamfer", "on_line"):
+            row[key], row[key + "_plain"] = _mean(clut, key), _mean(plain, key)
+        row["chamfer_ratio"] = row["chamfer"] / row["chamfer_plain"]
+        for key in ("crop_paper", "crop_plain", "crop_paper_on_line", "crop_plain_on_line"):
+            row[key] = _mean(clut, key)
+        table.append(row)
+    return table
+
+
+def photos(model, folder: Path) -> list[dict]:
+    """Per photo: characters per line found and true, miscounted share, path on ink, ink
+    written (module docstring)."""
+    from img2dmp.data.images import _levels_framed
+    from img2dmp.data.paper import dilate3, paper_ink
+    from img2dmp.page import PAGE_WORK_PIXELS
+
+    spec = json.loads((folder / "photos.json").read_text())
+    rows = []
+    for photo in spec["photos"]:
+        path = folder / photo["file"]
+        result = model.predict_page(path)
+        true = [len(line.replace(" ", "")) for line in photo["lines"]]
+        found = [len(x) for x in result.lines]
+        n = max(len(true), len(found))
+        tt, ff = true + [0] * (n - len(true)), found + [0] * (n - len(found))
+        levels, reduction, _, _ = _levels_framed(path, None, PAGE_WORK_PIXELS)
+        ink = paper_ink(levels)
+        near = dilate3(ink.mask)
+        paths = [(c.prediction.path_image[0][:, :2] + 0.5) / reduction - 0.5
+                 for c in result.characters]  # fmt: skip
+        on = _on_mask(near, paths)
+        written = _written(ink.mask, paths, 0.5 * ink.pen_width_px + 1.5)
+        rows.append({"photo": photo["file"], "true_per_line": true, "found_per_line": found,
+                     "miscounted": sum(abs(a - b) for a, b in zip(tt, ff, strict=True)) / sum(true),
+                     "path_on_ink": on, "ink_written": written,
+                     "flagged": len(result.flagged)})  # fmt: skip
+    return rows
+
+
+def _on_mask(mask, paths) -> float:
+    from img2dmp.metrics import resample_by_arc_length
+
+    pts = np.concatenate([resample_by_arc_length(p[None], 64)[0] for p in paths])
+    r = np.clip(np.round(pts[:, 1]).astype(int), 0, mask.shape[0] - 1)
+    c = np.clip(np.round(pts[:, 0]).astype(int), 0, mask.shape[1] - 1)
+    return float(mask[r, c].mean())
+
+
+def _written(mask, paths, radius) -> float:
+    from scipy.ndimage import distance_transform_edt
+
+    from img2dmp.metrics import resample_by_arc_length
+
+    drawn = np.zeros(mask.shape, bool)
+    for p in paths:
+        pts = resample_by_arc_length(p[None], 256)[0]
+        r = np.clip(np.round(pts[:, 1]).astype(int), 0, mask.shape[0] - 1)
+        c = np.clip(np.round(pts[:, 0]).astype(int), 0, mask.shape[1] - 1)
+        drawn[r, c] = True
+    return float((distance_transform_edt(~drawn)[mask] <= radius).mean())
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--model", required=True)
+    p.add_argument("--refine", type=int, default=30)
+    p.add_argument("--data", default="../shared/data")
+    p.add_argument("--pages", type=int, default=24)
+    p.add_argument("--split", choices=("validation", "test"), default="validation")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--crops", action="store_true", help="also hand-cropped characters")
+    p.add_argument("--photos", help="a folder of photos with photos.json")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--out", required=True)
+    args = p.parse_args(argv)
+    import torch
+
+    from img2dmp.predict import load_model
+
+    torch.set_num_threads(args.threads)
+    model = load_model(args.model, refine=args.refine)
+    start = time.perf_counter()
+    report = {"run": run_record(__file__, argv)}
+    if args.pages:
+        report["generated"] = summarise_generated(generated(model, args))
+    if args.photos:
+        report["photos"] = photos(model, Path(args.photos))
+    report["wall_s"] = round(time.perf_counter() - start, 1)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "page_reading.json").write_text(json.dumps(report, indent=1))
+    print(format_record(report["run"]))
+    print(json.dumps({k: v for k, v in report.items() if k != "run"}, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
