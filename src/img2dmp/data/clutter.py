@@ -45,7 +45,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from PIL import Image, ImageDraw, ImageFilter
+from PIL import Image, ImageDraw, ImageFilter, ImageFont
 from scipy import ndimage
 
 from .recorded import RecordedPath
@@ -102,7 +102,7 @@ _LIGHT_CELLS = 64
 _TABLE_CELLS = 256
 # Height in grid cells of bleed-through text drawn at reduced resolution (the blur hides
 # anything finer).
-_BLEED_CELLS_PER_X_HEIGHT = 5.0
+_BLEED_CELLS_PER_X_HEIGHT = 8.0
 # Printed lines, dots and pen strokes narrower than this would vanish into the sensor.
 _MIN_PRINT_WIDTH_PX = 0.7
 
@@ -552,9 +552,9 @@ def _draw_bleed(rng, spacing: float, o: PaperOptions) -> dict:
     return {
         "strength": _uniform(rng, o.bleed_strength),
         "x_height": max(2.0, _uniform(rng, o.bleed_x_height_rel) * spacing),
-        "pitch": float(rng.uniform(1.9, 2.8)),  # row pitch in x-heights
+        "pitch": float(rng.uniform(2.2, 3.2)),  # row pitch in x-heights
         "angle_deg": float(rng.uniform(-2.0, 2.0)),
-        "blur": float(rng.uniform(0.6, 1.4)),  # in x-heights / _BLEED_CELLS_PER_X_HEIGHT
+        "blur": float(rng.uniform(0.08, 0.25)),  # the paper's blur, in x-heights
     }
 
 
@@ -651,12 +651,18 @@ def _table_field(rng, plan: _PaperPlan) -> _Field:
 
 
 def _bleed_field(rng, plan: _PaperPlan) -> _Field:
-    """Text printed on the back: rows of glyph-like marks, mirrored and blurred."""
+    """Text printed on the back: rows of random words in PIL's default font, mirrored,
+    blurred by the paper, slightly turned; drawn at a resolution where the x-height is
+    _BLEED_CELLS_PER_X_HEIGHT cells (the blur hides anything finer)."""
     h, w = plan.size_hw
     b = plan.bleed
     scale = max(1.0, b["x_height"] / _BLEED_CELLS_PER_X_HEIGHT)  # pixels per cell
     hl, wl = max(2, math.ceil(h / scale)), max(2, math.ceil(w / scale))
     xh = b["x_height"] * hl / h  # x-height in cells
+    font = ImageFont.load_default(size=max(4, round(_FONT_SIZE_PER_X_HEIGHT * xh)))
+    # Without FreeType PIL falls back to a bitmap font, which knows no anchors.
+    anchor = "ls" if isinstance(font, ImageFont.FreeTypeFont) else None
+    advance = max(font.getlength("etaoin shrdlu") / 13, 1.0)  # mean width of a character
     canvas = Image.new("L", (wl, hl), 0)
     draw = ImageDraw.Draw(canvas)
     left, right = rng.uniform(0.0, 0.15, 2) * wl
@@ -665,27 +671,28 @@ def _bleed_field(rng, plan: _PaperPlan) -> _Field:
         if rng.random() < 0.12:  # a paragraph break
             continue
         end = wl - right if rng.random() < 0.8 else rng.uniform(left, wl - right)
-        _draw_text_row(rng, draw, float(base), float(left), float(end), xh)
-    canvas = canvas.filter(ImageFilter.GaussianBlur(b["blur"] * xh / 2.5))
+        text = _random_words(rng, int((end - left) / advance) + 1)
+        draw.text((float(left), float(base)), text, fill=255, font=font, anchor=anchor)
+    canvas = canvas.filter(ImageFilter.GaussianBlur(b["blur"] * xh))
     canvas = canvas.rotate(b["angle_deg"], Image.Resampling.BILINEAR)
     marks = np.asarray(canvas, dtype=np.float32)[:, ::-1] * (b["strength"] / 255.0)
     return _field(marks)
 
 
-def _draw_text_row(rng, draw: ImageDraw.ImageDraw, base: float, left: float, end: float, xh):
-    # Glyphs as rectangles: x-height letters, ascenders (b, d, l) and descenders (p, q).
-    n = int((end - left) / (0.5 * xh)) + 1
-    widths = rng.uniform(0.45, 0.9, n) * xh
-    kind = rng.random(n)
-    word_end = rng.random(n) < 0.18
-    x = left
-    for i in range(n):
-        if x + widths[i] > end:
-            break
-        top = base - (1.45 if kind[i] < 0.25 else 1.0) * xh
-        bottom = base + (0.4 * xh if 0.25 <= kind[i] < 0.33 else 0.0)
-        draw.rectangle((x, top, x + widths[i], bottom), fill=255)
-        x += widths[i] + (0.6 if word_end[i] else 0.13) * xh
+# PIL's default font (Aileron) has an x-height of about half its size.
+_FONT_SIZE_PER_X_HEIGHT = 2.0
+_LETTERS = np.array(list("etaoinshrdlucmfwypvbgkqjxz"))
+_LETTER_WEIGHTS = np.array(
+    [12.7, 9.1, 8.2, 7.5, 7.0, 6.7, 6.3, 6.1, 6.0, 4.3, 4.0, 2.8, 2.8, 2.4, 2.2, 2.4, 2.0,
+     1.9, 1.0, 1.5, 2.0, 0.8, 0.1, 0.2, 0.2, 0.1]
+)  # fmt: skip
+
+
+def _random_words(rng, n_chars: int) -> str:
+    """About ``n_chars`` characters of random lower-case words (English letter counts)."""
+    letters = rng.choice(_LETTERS, n_chars, p=_LETTER_WEIGHTS / _LETTER_WEIGHTS.sum())
+    spaces = rng.random(n_chars) < 0.17
+    return "".join(np.where(spaces, " ", letters))
 
 
 # --- the printed pattern, as the camera sees it ---------------------------------------
