@@ -143,6 +143,34 @@ def test_plain_paper_has_no_pattern():
     assert paper.meta["line_width_px"] is None and paper.meta["dot_radius_px"] is None
 
 
+def test_bleed_through_is_faint_rows_of_marks_on_the_paper_only():
+    options = dataclasses.replace(
+        QUIET, bleed_probability=1.0, bleed_strength=(0.1, 0.1), edge_probability=1.0
+    )
+    paper = random_paper(np.random.default_rng(14), (300, 400), "plain", options=options)
+    assert paper.meta["bleed"]
+    mask = paper.meta["sheet_mask"]
+    sheet = ndimage.binary_erosion(mask, iterations=3)
+    lum = paper.rgb.mean(-1)
+    dark = 1.0 - lum / np.median(lum[sheet])
+    assert 0.03 < dark[sheet].max() <= 0.1 + 1e-3  # faint, never darker than its strength
+    # Rows of text (the sheet's pattern is turned by at most 2 degrees): runs of rows
+    # with marks, separated by blank ones.
+    on_sheet = sheet[:, 60:-60]
+    rows = (dark[:, 60:-60] * on_sheet).sum(1) / np.maximum(on_sheet.sum(1), 1)
+    runs, n = ndimage.label(rows > 0.5 * rows.max())
+    assert n >= 3
+    # The table beyond the edge shows no text: it is the same with the bleed-through off.
+    plain = random_paper(
+        np.random.default_rng(14),
+        (300, 400),
+        "plain",
+        options=dataclasses.replace(options, bleed_strength=(0.0, 0.0)),
+    )
+    table = ~ndimage.binary_dilation(mask, iterations=2)
+    np.testing.assert_allclose(paper.rgb[table], plain.rgb[table], atol=1e-6)
+
+
 @pytest.mark.parametrize("kind", ["ruled", "squared", "dotted", "plain"])
 def test_turned_and_bent_pattern_lies_where_the_meta_says(kind):
     # With the default turn and waviness, pixels on a rule (phase ~ 0) are darker than

@@ -30,10 +30,14 @@ centre of pixel ``[i, j]`` is ``(x=j, y=i)``; boxes ``[x0, y0, x1, y1]`` are hal
 pixel bounds (``x0 <= j < x1``). Images are float32 in [0, 1] (RGB ``[H, W, 3]``) until
 :func:`photo_finish` makes them uint8.
 
-Bounded memory. Sizes up to :data:`MAX_PIXELS` (6000 x 4000, 24 MP) are accepted. Smooth
-fields (lighting, the table's texture, the bleed-through) are drawn on coarse grids and
-interpolated, and every full-resolution step works on bands of :data:`_BAND_PIXELS`
-pixels, so beyond the float32 outputs only a few band-sized temporaries are alive.
+Speed and bounded memory. Sizes up to :data:`MAX_PIXELS` (6000 x 4000, 24 MP) are
+accepted. Smooth fields (lighting, the table's texture, the bleed-through, the sensor
+noise) are drawn on coarse grids and interpolated; the printed pattern is exact per pixel
+but separable in the sheet's frame, so it is read from 1-D look-up tables (:class:`_Axis`);
+and every float32 step at full resolution works on bands of :data:`_BAND_PIXELS` pixels,
+so beyond the outputs only a few band-sized temporaries are alive. The camera's steps work
+on uint8 images (PIL). A page adds its ink map (float32 [H, W]), and characters are
+rendered on their own neighbourhoods only.
 """
 
 from __future__ import annotations
@@ -342,11 +346,12 @@ class Paper:
         on plain paper only the bleed-through's scale), ``angle_deg``, ``offset_px``
         (where the pattern's rules sit, see :func:`pattern_phase`), ``wave`` (the
         waviness: ``amplitude_px``, ``wavelength_px``, ``phase_x``, ``phase_y``),
-        ``line_colour``, ``line_rgb``, ``line_width_px``, ``margin`` (bool),
-        ``shadow`` (None, ``"half-plane"`` or ``"blob"``), ``bleed`` (bool), ``edge``
-        (the sides where the table shows, a list of ``"top"``, ``"bottom"``, ``"left"``,
-        ``"right"``), ``table_rgb`` and ``sheet_mask`` (bool [H, W], True where paper is
-        visible).
+        ``line_colour``, ``line_rgb``, ``line_width_px`` (ruled and squared, else None),
+        ``dot_radius_px`` (dotted, else None), ``margin`` (bool), ``shadow`` (None,
+        ``"half-plane"`` or ``"blob"``), ``bleed`` (bool), ``edge`` (the sides where the
+        table shows: a list of ``"top"``, ``"bottom"``, ``"left"``, ``"right"``),
+        ``table`` and ``table_rgb`` (None without an edge) and ``sheet_mask`` (bool
+        [H, W], True where paper is visible).
     """
 
     rgb: np.ndarray
@@ -742,26 +747,24 @@ _SUBPIXEL = 8
 
 
 def _axes(plan: _PaperPlan) -> tuple[_Axis, _Axis]:
+    """The sheet coordinates u and v of every pixel, as :class:`_Axis` tables."""
     h, w = plan.size_hw
-    x, y = np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64)
-    zero_x, zero_y = np.full(w, (w - 1) / 2), np.full(h, (h - 1) / 2)
+    cx, cy = np.array([(w - 1) / 2]), np.array([(h - 1) / 2])
+
+    def coords(x, y):
+        return _sheet_coords(x, y, plan.size_hw, plan.angle_rad, plan.wave)
+
+    # u(x, y) = u(cx, y) + (u(x, cy) - u(cx, cy)), exactly; the same for v.
+    on_y = coords(cx, np.arange(h, dtype=np.float64))
+    on_x = coords(np.arange(w, dtype=np.float64), cy)
+    centre = coords(cx, cy)
     axes = []
     for which in (0, 1):  # u, v
-        # The parts that depend on y alone and on x alone (the centre maps to 0).
-        on_y = _sheet_coords(zero_x[:1], y, plan.size_hw, plan.angle_rad, plan.wave)[which]
-        on_x = _sheet_coords(x, zero_y[:1], plan.size_hw, plan.angle_rad, plan.wave)[which]
-        on_x = (
-            on_x
-            - _sheet_coords(zero_x[:1], zero_y[:1], plan.size_hw, plan.angle_rad, plan.wave)[which]
-        )
-        rows = np.round(on_y * _SUBPIXEL).astype(np.int64)
-        cols = np.round(on_x * _SUBPIXEL).astype(np.int64)
+        rows = np.round(on_y[which] * _SUBPIXEL).astype(np.int64)
+        cols = np.round((on_x[which] - centre[which]) * _SUBPIXEL).astype(np.int64)
         origin = (rows.min() + cols.min()) / _SUBPIXEL
-        axes.append(
-            _Axis(
-                (rows - rows.min()).astype(np.int32), (cols - cols.min()).astype(np.int32), origin
-            )
-        )
+        rows, cols = (rows - rows.min()).astype(np.int32), (cols - cols.min()).astype(np.int32)
+        axes.append(_Axis(rows, cols, float(origin)))
     return axes[0], axes[1]
 
 
@@ -871,17 +874,18 @@ def _paint_band(plan: _PaperPlan, fields: dict, printed, r0: int, r1: int, out, 
         np.take(printed.rgb, _pattern_rows(printed, r0, r1), axis=0, out=out)
         if printed.margin is not None:
             _paint_margin(plan, printed, r0, r1, out)
-    light = _field_rows(fields["light"], plan.size_hw, r0, r1)
+    light = _field_rows(fields["light"], plan.size_hw, r0, r1)  # [rows, W]
     if "bleed" in fields:
         # Grey marks: their absorption is the same in every channel, so it joins the light.
-        light = light * (1.0 - _field_rows(fields["bleed"], plan.size_hw, r0, r1))
-    if plan.edges:
-        _paint_table(plan, fields["table"], r0, r1, out, mask)
-    out *= light[..., None]
+        out *= (light * (1.0 - _field_rows(fields["bleed"], plan.size_hw, r0, r1)))[..., None]
+    else:
+        out *= light[..., None]
+    if plan.edges:  # the table beyond the edge, lit by the same light (no bleed-through)
+        _paint_table(plan, fields["table"], light, r0, r1, out, mask)
     np.minimum(out, np.float32(1.0), out=out)
 
 
-def _paint_table(plan: _PaperPlan, table: _Field, r0: int, r1: int, out, mask) -> None:
+def _paint_table(plan: _PaperPlan, table: _Field, light, r0: int, r1: int, out, mask) -> None:
     """Beyond the sheet's edge the table; one pixel of anti-aliasing across the edge."""
     w = plan.size_hw[1]
     y = np.arange(r0, r1, dtype=np.float32)[:, None]
@@ -901,7 +905,7 @@ def _paint_table(plan: _PaperPlan, table: _Field, r0: int, r1: int, out, mask) -
     shade = _field_rect(table, plan.size_hw, (r0 + i0, r0 + i1), (j0, j1))[..., None]
     sub = out[i0:i1, j0:j1]
     sub *= alpha
-    sub += (1.0 - alpha) * (shade * plan.table_rgb)
+    sub += (1.0 - alpha) * (shade * light[i0:i1, j0:j1, None] * plan.table_rgb)
 
 
 def pattern_phase(paper_meta: dict, size_hw, x, y) -> np.ndarray:
@@ -1422,23 +1426,14 @@ def generate_page(
     -------
     GeneratedPage
     """
-    _check_rng(rng)
-    sources = _check_characters(characters)
-    options = _check_options("options", options, PageOptions)
-    paper_options = _check_options("paper_options", paper_options, PaperOptions)
-    if kind is not None and kind not in KINDS:
-        raise ValueError(f"kind must be one of {list(KINDS)} or None, got {kind!r}")
-    if pen_colour is not None:
-        pen_colour = _check_rgb("pen_colour", pen_colour)
-    if pen_width_px is not None:
-        pen_width_px = _check_number("pen_width_px", pen_width_px, 1.0, 30.0)
+    sources, options, paper_options, pen_colour, pen_width_px = _check_page_arguments(
+        rng, characters, kind, options, paper_options, pen_colour, pen_width_px
+    )
     kind = kind or paper_options.kinds[int(rng.integers(len(paper_options.kinds)))]
     layout = _lay_out(rng, sources, kind, options, paper_options)
     h_px, size, margin = _fit_page(rng, layout, len(sources), size_hw, options, paper_options)
-    pen_w = pen_width_px or min(
-        _uniform(rng, options.pen_width_px), options.pen_width_max_rel * h_px
-    )
-    pen_w = max(pen_w, 1.0)
+    drawn_width = min(_uniform(rng, options.pen_width_px), options.pen_width_max_rel * h_px)
+    pen_w = pen_width_px or max(drawn_width, 1.0)
     paper = random_paper(rng, size, kind, options=_page_paper_options(paper_options, layout, h_px))
     paths = _place(rng, layout, h_px, pen_w, size, margin, paper.meta)
     ink, boxes, region = _render_characters(paths, pen_w, size)
@@ -1446,7 +1441,25 @@ def generate_page(
     opacity = _uniform(rng, options.opacity)
     scene, plain = _write_ink(paper.rgb, ink, colour, opacity, region)
     image, finish = _finish(rng, scene, None, None, None, None)
-    meta = {
+    return GeneratedPage(
+        image=image,
+        plain_image=plain,
+        ink=ink,
+        boxes=boxes,
+        paths=paths,
+        labels=[s.label for s in sources],
+        lines=layout.lines,
+        order=np.arange(len(sources), dtype=np.int64),
+        words=layout.words,
+        pen_width_px=float(pen_w),
+        pen_colour=colour,
+        kind=kind,
+        meta=_page_meta(paper, finish, layout, h_px, opacity),
+    )
+
+
+def _page_meta(paper: Paper, finish: dict, layout: _Layout, h_px: float, opacity) -> dict:
+    return {
         "paper": paper.meta,
         "finish": finish,
         "char_height_px": h_px,
@@ -1456,22 +1469,20 @@ def generate_page(
         "opacity": opacity,
         "line_angles_deg": layout.angles_deg,
     }
-    n = len(sources)
-    return GeneratedPage(
-        image=image,
-        plain_image=plain,
-        ink=ink,
-        boxes=boxes,
-        paths=paths,
-        labels=[s.label for s in sources],
-        lines=layout.lines,
-        order=np.arange(n, dtype=np.int64),
-        words=layout.words,
-        pen_width_px=float(pen_w),
-        pen_colour=colour,
-        kind=kind,
-        meta=meta,
-    )
+
+
+def _check_page_arguments(rng, characters, kind, options, paper_options, colour, width):
+    _check_rng(rng)
+    sources = _check_characters(characters)
+    options = _check_options("options", options, PageOptions)
+    paper_options = _check_options("paper_options", paper_options, PaperOptions)
+    if kind is not None and kind not in KINDS:
+        raise ValueError(f"kind must be one of {list(KINDS)} or None, got {kind!r}")
+    if colour is not None:
+        colour = _check_rgb("pen_colour", colour)
+    if width is not None:
+        width = _check_number("pen_width_px", width, 1.0, 30.0)
+    return sources, options, paper_options, colour, width
 
 
 #: Most characters on one page.
