@@ -26,6 +26,9 @@ from .images import prepare_image_found
 SCALE = (2.5, 6.0)
 #: Paper around the character on each side, in image sides (drawn per side).
 MARGIN = (0.1, 0.8)
+#: A copy whose path lies less than this much on the prepared ink is not kept (the
+#: preparation lost the character to the clutter: a few in a hundred).
+MIN_ON_INK = 0.6
 
 
 @dataclass
@@ -38,7 +41,8 @@ class PaperCopies:
     paths : float [M, T, d]
         In the pixels of ``images``.
     failed : int
-        Copies whose ink the preparation could not find (left as they were).
+        Copies whose ink the preparation could not find, or whose path is not on it
+        (left as they were).
     """
 
     images: np.ndarray
@@ -68,7 +72,9 @@ def _enlarged(image: np.ndarray, scale: float, pads) -> np.ndarray:
 def on_paper_copy(rng, image, path, *, margin: float, stroke_width_px: float | None):
     """One sample ``image [S, S]``, ``path [T, d]`` (its pixels) photographed on
     generated paper and read back (module docstring): the prepared image and the path in
-    its pixels, or None when the preparation finds no ink."""
+    its pixels, or None when the preparation finds no ink or the path is not on what it
+    found (``MIN_ON_INK``)."""
+    from ..metrics import on_ink_share
     from .clutter import photo_finish, put_ink, random_paper, random_pen_colour
 
     s = image.shape[0]
@@ -81,34 +87,72 @@ def on_paper_copy(rng, image, path, *, margin: float, stroke_width_px: float | N
     try:
         out, frame, _ = prepare_image_found(photo, image.shape, margin=margin,
                                             stroke_width_px=stroke_width_px)  # fmt: skip
-    except ValueError:  # nothing left of the ink (a faint pen in deep shadow)
-        return None
+    except ValueError as e:  # nothing left of the ink (a faint pen in deep shadow)
+        if "no ink" in str(e) or "no pixel" in str(e):
+            return None
+        raise
     xy = np.array(path, dtype=np.float64)
     k = round(s * scale) / s  # the enlargement exactly (whole pixels)
     # pixel j spans [j, j + 1], so the centre of image pixel j is at (j + 0.5) k - 0.5
     xy[:, 0] = (xy[:, 0] + 0.5) * k - 0.5 + x0
     xy[:, 1] = (xy[:, 1] + 0.5) * k - 0.5 + y0
-    return out, frame.to_model(xy)
+    moved = frame.to_model(xy)
+    if on_ink_share(out[None], moved[None])[0] < MIN_ON_INK:
+        return None  # the preparation kept something else (a shadow, a rule), not the ink
+    return out, moved
 
 
-def paper_copies(rng, images, paths, *, margin: float, stroke_width_px: float | None,
-                 progress: bool = False) -> PaperCopies:  # fmt: skip
-    """Every sample ``images [M, S, S]``, ``paths [M, T, d]`` on generated paper
-    (:func:`on_paper_copy`); a copy whose ink the preparation cannot find stays as it was
-    (counted in ``failed``)."""
-    from .._progress import bar
+#: Samples per job of :func:`paper_copies` (each job one random stream).
+CHUNK = 256
 
-    out_images = np.array(images, dtype=np.float32, copy=True)
-    out_paths = np.array(paths, dtype=np.float64, copy=True)
-    failed = 0
-    for i in bar(range(len(out_images)), desc="on paper", unit="image", enabled=progress):
-        got = on_paper_copy(rng, out_images[i], out_paths[i], margin=margin,
-                            stroke_width_px=stroke_width_px)  # fmt: skip
+
+def _copy_chunk(job):
+    seed_seq, images, paths, margin, width = job
+    rng = np.random.default_rng(seed_seq)
+    out_images, out_paths, failed = images.copy(), paths.copy(), 0
+    for i in range(len(images)):
+        got = on_paper_copy(rng, images[i], paths[i], margin=margin, stroke_width_px=width)
         if got is None:
             failed += 1
             continue
         out_images[i], out_paths[i] = got
-    return PaperCopies(out_images, out_paths, failed)
+    return out_images, out_paths, failed
 
 
-__all__ = ["MARGIN", "SCALE", "PaperCopies", "on_paper_copy", "paper_copies"]
+def paper_copies(rng, images, paths, *, margin: float, stroke_width_px: float | None,
+                 workers: int = 1, progress: bool = False) -> PaperCopies:  # fmt: skip
+    """Every sample ``images [M, S, S]``, ``paths [M, T, d]`` on generated paper
+    (:func:`on_paper_copy`); a copy whose ink the preparation cannot find stays as it was
+    (counted in ``failed``). Chunks of ``CHUNK`` samples, each with its own stream drawn
+    from ``rng``, run in ``workers`` processes: the result does not depend on ``workers``."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from .._progress import bar
+
+    images = np.asarray(images, dtype=np.float32)
+    paths = np.asarray(paths, dtype=np.float64)
+    n_chunks = -(-len(images) // CHUNK)
+    seeds = np.random.SeedSequence(int(rng.integers(2**63))).spawn(n_chunks)
+    jobs = [(seeds[k], images[k * CHUNK : (k + 1) * CHUNK], paths[k * CHUNK : (k + 1) * CHUNK],
+             margin, stroke_width_px) for k in range(n_chunks)]  # fmt: skip
+    pool = None
+    if workers > 1 and n_chunks > 1:
+        pool = ProcessPoolExecutor(min(workers, n_chunks), multiprocessing.get_context("spawn"))
+    parts = []
+    try:
+        results = pool.map(_copy_chunk, jobs) if pool else map(_copy_chunk, jobs)
+        with bar(total=len(images), desc="on paper", unit="image", enabled=progress) as b:
+            for part in results:
+                parts.append(part)
+                b.update(len(part[0]))
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    if not parts:
+        return PaperCopies(images.copy(), paths.copy(), 0)
+    return PaperCopies(np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
+                       sum(p[2] for p in parts))  # fmt: skip
+
+
+__all__ = ["CHUNK", "MARGIN", "SCALE", "PaperCopies", "on_paper_copy", "paper_copies"]

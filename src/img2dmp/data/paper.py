@@ -8,9 +8,13 @@ drops the rest, in named steps (each kept for a picture with ``keep_steps``;
 
 1. **polarity**: dark ink on light paper, or light on dark (then inverted), from the
    border as :mod:`img2dmp.data.images` has always read it;
-2. **background**: the paper's own colour at every pixel, per channel: a high
-   percentile in cells of about 1/24 of the shorter side (ink covers a minority of
-   every cell), closed over 3 x 3 cells (so a cell full of ink takes its neighbours'
+2. **background**: the paper's own colour at every pixel, per channel: for a small
+   image (a character's crop, under ``SURFACE_MAX_SIDE``) a quadratic surface fitted to
+   the pixels that are not darker than it, times the soft shadows its even cells show;
+   else a high
+   percentile in cells of about 1/24 of the shorter side and at least
+   ``CELL_PEN_WIDTHS`` pen widths (ink covers a minority of every cell), closed over
+   3 x 3 cells (so a cell full of ink takes its neighbours'
    paper) and interpolated bilinearly: lighting and tint divide out;
 3. **darkness**: how much light the ink absorbs relative to that paper, the largest of
    the channels (blue ink on yellow paper is dark in red and green, black ink in all);
@@ -24,9 +28,10 @@ drops the rest, in named steps (each kept for a picture with ``keep_steps``;
 6. **strokes**: hysteresis: a connected set of dark pixels is ink when it holds pixels
    of at least ``strong`` darkness (a share of the page's ink level), so faint marks
    (text from the back, dotted lines, shadows' edges) go unless a stroke passes through;
-7. **shapes**: components smaller than a few pen widths squared (specks, the dots of
-   dotted paper) and components much thicker than the pen (``THICK_FACTOR``: a shadow's
-   band, the sheet's edge) are dropped;
+7. **shapes**: components smaller than a few pen widths squared (specks), small marks
+   at an even spacing (the dots of dotted paper), marks along the image's border (the
+   sheet's edge) and components much thicker than the pen (``THICK_FACTOR``: a
+   shadow's band) are dropped;
 8. **ink**: the darkness scaled so that the typical ink is 1, on the kept strokes and a
    pixel around them (anti-aliased edges kept), 0 elsewhere.
 
@@ -44,8 +49,15 @@ import numpy as np
 
 #: Below this shorter side, one background level for the whole image (the border's).
 LOCAL_BACKGROUND_MIN_SIDE = 64
+#: Below this shorter side (a character's crop), the paper is a smooth surface times a
+#: soft shadow,
+SURFACE_MAX_SIDE = 400
+#: ... the shadow measured in cells whose brightness spreads less than this (paper).
+EVEN_CELL = 0.08
 #: Cells of the background estimate: about this many along the shorter side.
 BACKGROUND_CELLS = 24
+#: ... and at least this many pen widths (:func:`rough_pen_width`) on a side.
+CELL_PEN_WIDTHS = 2.5
 #: The paper's level in a cell: this percentile of its pixels, per channel.
 BACKGROUND_PERCENTILE = 80
 #: A cell whose background is darker than this share of the paper's is off the sheet
@@ -63,6 +75,10 @@ THICK_FACTOR = 3.5
 SPECK_AREA_PEN2 = 2.5
 #: ... and so is any of fewer pixels than this (a page of specks has no pen width).
 MIN_STROKE_AREA_PX = 8
+#: Dots of dotted paper: marks at most this many pen widths across,
+DOT_SIZE_PEN = 2.5
+#: ... at least this many of them, evenly spaced.
+MIN_DOTS = 8
 #: A component along the image's border for this share of that side is the
 #: sheet's edge (a character cut by the border touches it over its own width only).
 EDGE_SHARE = 0.15
@@ -178,17 +194,99 @@ def _upsample(grid: np.ndarray, cell: int, shape: tuple[int, int]) -> np.ndarray
 
 def background(planes: np.ndarray) -> tuple[np.ndarray, int]:
     """The paper's level at every pixel of channel planes ``[C, H, W]`` (dark-on-light
-    levels), per channel, and the cell side used (0: one level per channel, the border's
-    median, for a small image; then ``[C, 1, 1]``)."""
+    levels), per channel, and the cell side used (0 for no cells: one level per channel,
+    the border's median, for a tiny image, then ``[C, 1, 1]``; or the smooth surface of
+    a character's crop)."""
     from scipy.ndimage import gaussian_filter, grey_closing
 
     if min(planes.shape[1:]) < LOCAL_BACKGROUND_MIN_SIDE:
         return np.median(_ring(planes), axis=-1).astype(np.float32)[:, None, None], 0
-    cell = max(2, min(planes.shape[1:]) // BACKGROUND_CELLS)
+    if min(planes.shape[1:]) < SURFACE_MAX_SIDE:
+        surface = smooth_background(planes)
+        return surface * shadow_factor(planes, surface), 0
+    # A cell must hold paper beside a stroke: at least a few pen widths (a thick pen in a
+    # small crop), and the closing over 3 x 3 cells then covers a cell full of ink.
+    width = rough_pen_width(planes)
+    cell = max(2, min(planes.shape[1:]) // BACKGROUND_CELLS, math.ceil(CELL_PEN_WIDTHS * width))
     grid, cell = _cell_percentile(planes, cell, BACKGROUND_PERCENTILE)
     grid = grey_closing(grid, size=(1, 3, 3))
     grid = gaussian_filter(grid, sigma=(0, 0.7, 0.7), mode="nearest")
     return _upsample(grid, cell, planes.shape[1:]), cell
+
+
+def _surface_terms(h: int, w: int, rows, cols) -> np.ndarray:
+    """The quadratic surface's terms ``[6, ...]`` at pixel ``rows``, ``cols`` (scaled to
+    [-1, 1] over an image of ``h x w``)."""
+    y = 2.0 * rows / max(h - 1, 1) - 1.0
+    x = 2.0 * cols / max(w - 1, 1) - 1.0
+    x, y = np.broadcast_arrays(x, y)
+    return np.stack([np.ones_like(x), x, y, x * x, x * y, y * y])
+
+
+def smooth_background(planes: np.ndarray) -> np.ndarray:
+    """The paper of a small image (a character's crop) as a quadratic surface per channel
+    ``[C, H, W]``: fitted to about 20,000 pixels, each fit leaving out the pixels well
+    darker than the last (ink and rules), four times. A crop is too small for cells
+    that hold more paper than ink, and its lighting is a gradient at most."""
+    c, h, w = planes.shape
+    step = max(1, round(math.sqrt(h * w / 20_000)))
+    rows, cols = np.mgrid[0:h:step, 0:w:step]
+    terms = _surface_terms(h, w, rows.ravel().astype(np.float64), cols.ravel().astype(np.float64))
+    sub = planes[:, ::step, ::step].reshape(c, -1).astype(np.float64)
+    lum, keep = _luma(sub), np.ones(sub.shape[1], bool)
+    for _ in range(4):
+        coef = np.linalg.lstsq(terms[:, keep].T, lum[keep], rcond=None)[0]
+        resid = lum - coef @ terms
+        sigma = 1.4826 * float(np.median(np.abs(resid[keep] - np.median(resid[keep]))))
+        keep = resid > -2.5 * max(sigma, 1e-3)
+    coefs = np.linalg.lstsq(terms[:, keep].T, sub[:, keep].T, rcond=None)[0]  # [6, C]
+    full = _surface_terms(h, w, np.arange(h, dtype=np.float64)[:, None],
+                          np.arange(w, dtype=np.float64)[None, :])  # fmt: skip
+    out = np.einsum("kc,khw->chw", coefs, full)
+    return np.clip(out, 1e-3, None).astype(np.float32)
+
+
+def shadow_factor(planes: np.ndarray, surface: np.ndarray) -> np.ndarray:
+    """How much darker than the smooth ``surface`` the paper is locally (a soft shadow on
+    a crop), ``float32 [H, W]``: in cells of at least ``CELL_PEN_WIDTHS`` pen widths, the
+    80th percentile of the brightness against the surface where the cell is even (its
+    20th and 80th percentiles within ``EVEN_CELL`` of each other: paper, lit or in
+    shadow), spread into the cells that hold ink by normalised convolution; 1 where no
+    even cell is near."""
+    from scipy.ndimage import gaussian_filter
+
+    ratio = _luma(planes) / np.maximum(_luma(surface), 1e-3)
+    cell = max(8, min(ratio.shape) // 12, math.ceil(CELL_PEN_WIDTHS * rough_pen_width(planes)))
+    lo, _ = _cell_percentile(ratio[None], cell, 20)
+    hi, cell = _cell_percentile(ratio[None], cell, 80)
+    even = ((hi - lo) < EVEN_CELL)[0].astype(np.float32)
+    weight = gaussian_filter(even, 1.0, mode="nearest")
+    value = gaussian_filter(even * hi[0], 1.0, mode="nearest")
+    factor = np.where(weight > 0.05, value / np.maximum(weight, 1e-6), 1.0)
+    factor = np.clip(factor, 0.3, 1.0).astype(np.float32)
+    return _upsample(factor[None], cell, ratio.shape)[0]
+
+
+def rough_pen_width(planes: np.ndarray) -> float:
+    """A first estimate of the pen's width (pixels) before the paper is known: the
+    strokes darker than half the darkest ink against the image's brightest tenth,
+    measured as :func:`pen_width` measures them; on every s-th pixel of a large image
+    (about a million)."""
+    from scipy.ndimage import label
+
+    step = max(1, round(math.sqrt(planes[0].size / 1_000_000)))
+    lum = _luma(planes[:, ::step, ::step])
+    dark = 1.0 - lum / max(float(np.percentile(lum, 90)), 1e-3)
+    top = float(np.percentile(dark, 99.5))
+    if top < 0.15:
+        return 0.0
+    mask = dark > 0.5 * top
+    labels, n = label(mask, structure=np.ones((3, 3), bool))
+    area = np.bincount(labels.ravel(), minlength=n + 1)
+    boundary = np.bincount(labels[mask & ~_erode3(mask)], minlength=n + 1)
+    keep = area >= 4
+    keep[0] = False
+    return pen_width(area, boundary, keep) * step
 
 
 def darkness(planes: np.ndarray, bg: np.ndarray) -> np.ndarray:
@@ -322,19 +420,23 @@ def _evenly_spaced(centres: list[float]) -> bool:
 
 
 def _spans_short_of_ends(mask: np.ndarray, extent: tuple[int, int]) -> bool:
-    """Whether the pixels of ``mask`` [H', W] keep clear of both ends of the columns
-    ``extent`` (what a character crossed by a rule does, and a tight crop's stroke not)."""
-    cols = np.flatnonzero(mask.any(axis=0))
-    if cols.size == 0:
+    """Whether the pixels of ``mask`` [H', W] (but the outermost 0.5 % either way) keep
+    clear of both ends of the columns ``extent`` (what a character crossed by a rule
+    does, and a tight crop's stroke not)."""
+    counts = mask.sum(axis=0)
+    if not counts.any():
         return False
+    cum = np.cumsum(counts) / counts.sum()  # a speck near an end does not count
+    first, last = int(np.searchsorted(cum, 0.005)), int(np.searchsorted(cum, 0.995))
     margin = max(2, round(0.02 * (extent[1] - extent[0])))
-    return bool(cols[0] >= extent[0] + margin and cols[-1] < extent[1] - margin)
+    return bool(first >= extent[0] + margin and last < extent[1] - margin)
 
 
-def _row_rules(mask: np.ndarray, extent: tuple[int, int], angle_deg: float):
+def _row_rules(mask: np.ndarray, extent: tuple[int, int], angle_deg: float, others=None):
     """Pixels of ``mask`` on rules along the rows at ``angle_deg`` (see the module
     docstring, step 5; ``bool [H, W]``), crossings not yet restored, and the rules'
-    thickness (rows of the widest band, with two rows of slack either side)."""
+    thickness (rows of the widest band, with two rows of slack either side). ``others``:
+    rules already found across these (not ink that could reach the ends)."""
     off = _shear_rows(mask.shape, angle_deg)
     s = _sheared(mask, off)
     d = s.copy()  # two rows either side: a slightly wavy rule stays one run
@@ -353,7 +455,8 @@ def _row_rules(mask: np.ndarray, extent: tuple[int, int], angle_deg: float):
         if periodic or full[a:b].any():
             chosen[a:b] = True
     rule = s & runs & chosen[:, None]
-    if not periodic and not _spans_short_of_ends(s & ~rule, extent):
+    rest = s & ~rule if others is None else s & ~rule & ~_sheared(others, off)
+    if not periodic and not _spans_short_of_ends(rest, extent):
         return np.zeros(mask.shape, bool), 0  # a tight crop's own stroke, not a rule
     return _unsheared(rule, off, mask.shape[0]), max(b - a for a, b in bands)
 
@@ -388,7 +491,8 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None
         if cols.size < 8:
             continue
         angles[name] = dominant_angle(m)
-        r, reach = _row_rules(m, (int(cols[0]), int(cols[-1]) + 1), angles[name])
+        r, reach = _row_rules(m, (int(cols[0]), int(cols[-1]) + 1), angles[name],
+                              found if axis == 0 else found.T)  # fmt: skip
         if reach:
             per_axis.append((axis, angles[name], r, reach))
             found |= r if axis == 0 else r.T
@@ -467,36 +571,91 @@ def _components(mask: np.ndarray, dark: np.ndarray, strong: float):
 def pen_width(area: np.ndarray, boundary: np.ndarray, keep: np.ndarray) -> float:
     """Typical stroke width of the kept components: ``2 area / boundary`` (a stroke of
     width t and length L has area t L and about 2 L boundary pixels), the median over
-    their pixels (so long strokes count more than specks)."""
+    their length (so long strokes count more than specks, and a thick blob no more than
+    its outline's half)."""
     idx = np.flatnonzero(keep)
     if idx.size == 0:
         return 0.0
     thick = 2.0 * area[idx] / np.maximum(boundary[idx], 1)
     order = np.argsort(thick)
-    cum = np.cumsum(area[idx][order])
+    cum = np.cumsum(boundary[idx][order])
     return float(thick[order][np.searchsorted(cum, cum[-1] / 2.0)])
 
 
 def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool):
     """The components of ``mask`` that are pen strokes (hysteresis; with
-    ``shape_filters`` also not specks nor blobs), the pen width and what was dropped."""
+    ``shape_filters`` also not the sheet's edge, specks nor blobs), the pen width and
+    what was dropped."""
     labels, area, boundary, strong_px = _components(mask, dark, lv.strong)
     keep = strong_px >= 2
     keep[0] = False
     removed = {"faint_components": int(np.count_nonzero(~keep[1:]))}
+    if shape_filters:
+        edge = keep & _along_border(labels, len(area) - 1)
+        if np.count_nonzero(keep & ~edge):  # the edge first: its band is no pen width
+            keep &= ~edge
+            removed["edge_components"] = int(edge.sum())
     width = pen_width(area, boundary, keep)
     if shape_filters and width > 0:
         thick = 2.0 * area / np.maximum(boundary, 1)
         speck = keep & (area < max(SPECK_AREA_PEN2 * width**2, MIN_STROKE_AREA_PX))
         keep &= ~speck  # a page of specks alone holds no ink
         removed["specks"] = int(speck.sum())
-        blob = keep & (thick > THICK_FACTOR * width)
-        edge = keep & _along_border(labels, len(area) - 1)
-        if np.count_nonzero(keep & ~blob & ~edge):  # the only strokes are strokes
-            removed.update(thick_components=int(blob.sum()), edge_components=int(edge.sum()))
-            keep &= ~blob & ~edge
+        dots = _dot_lattice(labels, area, keep, width)
+        keep &= ~dots
+        removed["dots"] = int(dots.sum())
+        # thick and faint: a shadow's band (a thick pen is as dark as a thin one)
+        level = _component_medians(labels, dark, len(area) - 1)
+        blob = keep & (thick > THICK_FACTOR * width) & (level < 0.6 * lv.ink)
+        if np.count_nonzero(keep & ~blob):  # the only strokes are strokes
+            removed["thick_components"] = int(blob.sum())
+            keep &= ~blob
         width = pen_width(area, boundary, keep)
     return keep[labels], width, removed
+
+
+def _component_medians(labels: np.ndarray, dark: np.ndarray, n: int) -> np.ndarray:
+    """Per label (index 0: the background): the median darkness of its pixels."""
+    flat = labels.ravel()
+    inside = flat > 0
+    lab, val = flat[inside], dark.ravel()[inside]
+    order = np.lexsort((val, lab))
+    lab, val = lab[order], val[order]
+    starts = np.searchsorted(lab, np.arange(n + 1))
+    ends = np.searchsorted(lab, np.arange(n + 1), side="right")
+    mid = np.minimum((starts + ends) // 2, max(len(val) - 1, 0))
+    return np.where(ends > starts, val[mid] if len(val) else 0.0, 0.0)
+
+
+def _dot_lattice(labels: np.ndarray, area: np.ndarray, keep: np.ndarray, width: float):
+    """Per label: the dots of dotted paper. Small marks (at most ``DOT_SIZE_PEN`` pen widths
+    across) are dots when at least ``MIN_DOTS`` of them sit at an even spacing (their
+    nearest neighbours' distances agree within 25 %): a pen's own dots are few and
+    scattered, a printed pattern's many and regular."""
+    from scipy.ndimage import find_objects
+    from scipy.spatial import cKDTree
+
+    small = np.zeros(len(area), bool)
+    for lab, sl in enumerate(find_objects(labels), start=1):
+        if sl is not None and keep[lab]:
+            size = max(sl[0].stop - sl[0].start, sl[1].stop - sl[1].start)
+            small[lab] = size <= DOT_SIZE_PEN * max(width, 1.0)
+    idx = np.flatnonzero(small)
+    if idx.size < MIN_DOTS:
+        return np.zeros(len(area), bool)
+    rows, cols = np.nonzero(np.isin(labels, idx))
+    lab = labels[rows, cols]
+    n = np.bincount(lab, minlength=len(area))[idx]
+    centres = np.stack([np.bincount(lab, rows, len(area))[idx] / n,
+                        np.bincount(lab, cols, len(area))[idx] / n], -1)  # fmt: skip
+    nearest = cKDTree(centres).query(centres, k=2)[0][:, 1]
+    med = float(np.median(nearest))
+    even = np.abs(nearest - med) <= 0.25 * med
+    if np.count_nonzero(even) < MIN_DOTS:
+        return np.zeros(len(area), bool)
+    out = np.zeros(len(area), bool)
+    out[idx[even]] = True
+    return out
 
 
 def _along_border(labels: np.ndarray, n: int) -> np.ndarray:
@@ -535,18 +694,19 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
     dark = darkness(a, bg)
     sheet = sheet_mask(bg, cell)
     dark = np.where(sheet, dark, 0.0).astype(np.float32)
-    lv = thresholds(dark, _noise(a, bg) if cell else 0.0)
+    local = min(a.shape[1:]) >= LOCAL_BACKGROUND_MIN_SIDE  # not one level for the image
+    lv = thresholds(dark, _noise(a, bg) if local else 0.0)
     steps = {"input": np.asarray(levels), "background": bg, "darkness": dark, "sheet": sheet}
     if lv is None:
         return None
     weak = dark >= lv.weak
     ruled, _ = rules(weak, sheet, dark)
     if ruled.any():  # the pen's own level, which many rules would pull down
-        lv = thresholds(dark, _noise(a, bg) if cell else 0.0, exclude=ruled)
+        lv = thresholds(dark, _noise(a, bg) if local else 0.0, exclude=ruled)
         if lv is None:
             return None
         weak = dark >= lv.weak
-    kept, width, removed = _kept_strokes(weak & ~ruled, dark, lv, shape_filters=cell > 0)
+    kept, width, removed = _kept_strokes(weak & ~ruled, dark, lv, shape_filters=local)
     if not kept.any():
         return None
     halo = dilate3(kept) & ~ruled

@@ -544,7 +544,8 @@ def _on_paper(rng, originals, images, paths, options: PrepareOptions, progress: 
         return images, paths
     margin, width = ink_margin(originals[:500]), typical_stroke_width(originals[:500])
     got = paper_copies(rng, images[pick], paths[pick], margin=margin,
-                       stroke_width_px=width or None, progress=progress)  # fmt: skip
+                       stroke_width_px=width or None, workers=os.cpu_count() or 1,
+                       progress=progress)  # fmt: skip
     images, paths = images.copy(), np.array(paths, copy=True)
     images[pick], paths[pick] = got.images, got.paths.astype(paths.dtype)
     return images, paths
