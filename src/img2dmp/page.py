@@ -291,7 +291,7 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
     page.preview, page.dark_on_light = _preview(levels), dark_on_light(_to_planes(levels))
     if found is None:
         return page
-    page.layout = find_characters(found.mask)
+    page.layout = find_characters(found.mask, core=found.core, grow=_grow(found.pen_width_px))
     if not page.layout.characters:
         return page
     inputs, frames = _frame_characters(predictor, found, page.layout, reduction, size, label,
@@ -307,6 +307,11 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
         box = _box_in_image(c.box, reduction, size)
         page.characters.append(CharacterPrediction(c, box, pred, flags))
     return page
+
+
+def _grow(pen_width_px: float) -> int:
+    """Pixels from a stroke's core to its edge: half the pen, at least two."""
+    return max(2, math.ceil(0.5 * pen_width_px))
 
 
 def _to_planes(levels: np.ndarray) -> np.ndarray:

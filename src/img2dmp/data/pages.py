@@ -299,7 +299,34 @@ def _words(chars: list[PageCharacter], height: float) -> None:
         c.word, c.position = word, i
 
 
-def find_characters(mask, *, angle_deg: float | None = None) -> PageLayout:
+def _own_ink(layout: PageLayout, mask: np.ndarray, grow: int) -> None:
+    """Give every character the pixels of ``mask`` within ``grow`` pixels of its own
+    (found on the cores), nearest first; its box and mask become theirs."""
+    from scipy.ndimage import maximum_filter
+
+    owner = np.zeros(mask.shape, np.int32)
+    for c in layout.characters:
+        x0, y0, x1, y1 = c.box
+        owner[y0:y1, x0:x1][c.mask] = c.index + 1
+    for _ in range(grow):  # one ring of pixels at a time: the nearest character's
+        grown = maximum_filter(owner, size=3)
+        owner = np.where((owner == 0) & mask, grown, owner)
+    for c, sl in zip(layout.characters, _objects(owner, len(layout.characters)), strict=True):
+        if sl is None:
+            continue
+        c.mask = owner[sl] == c.index + 1
+        c.box = (sl[1].start, sl[0].start, sl[1].stop, sl[0].stop)
+
+
+def _objects(labels: np.ndarray, n: int):
+    from scipy.ndimage import find_objects
+
+    found = find_objects(labels, max_label=n)
+    return found + [None] * (n - len(found))
+
+
+def find_characters(mask, *, angle_deg: float | None = None, core=None,
+                    grow: int = 4) -> PageLayout:  # fmt: skip
     """The characters of a page's ink mask, in reading order (module docstring).
 
     Parameters
@@ -308,6 +335,9 @@ def find_characters(mask, *, angle_deg: float | None = None) -> PageLayout:
         The pen strokes (e.g. :attr:`img2dmp.data.paper.PaperInk.mask`).
     angle_deg : float, optional
         The writing direction, if known; found from the ink otherwise.
+    core : bool array [H, W], optional
+        The strokes' cores (:attr:`img2dmp.data.paper.PaperInk.core`): the characters are
+        found on them, then each takes the pixels of ``mask`` within ``grow`` pixels.
 
     Returns
     -------
@@ -319,6 +349,10 @@ def find_characters(mask, *, angle_deg: float | None = None) -> PageLayout:
     mask = np.asarray(mask, dtype=bool)
     if mask.ndim != 2:
         raise ValueError(f"mask must be a 2-D array [H, W], got shape {mask.shape}")
+    if core is not None:
+        layout = find_characters(np.asarray(core, bool) & mask, angle_deg=angle_deg)
+        _own_ink(layout, mask, grow)
+        return layout
     labels, marks = _marks(mask)
     if not marks:
         return PageLayout(shape=mask.shape)

@@ -63,6 +63,8 @@ BACKGROUND_PERCENTILE = 80
 #: A cell whose background is darker than this share of the paper's is off the sheet
 #: (when it connects to the image's border).
 TABLE_LEVEL = 0.45
+#: A stroke's core is inked at least this much (of the typical ink).
+CORE_LEVEL = 0.45
 #: Rules are searched within this angle of the rows and columns, degrees.
 MAX_RULE_ANGLE_DEG = 6.0
 #: A straight run of dark pixels this share of the sheet's width (height) long is a rule.
@@ -114,6 +116,12 @@ class PaperInk:
     dark_on_light: bool
     removed: dict = field(default_factory=dict)
     steps: dict = field(default_factory=dict)
+
+    @property
+    def core(self) -> np.ndarray:
+        """The strokes' cores, ``bool [H, W]``: kept pixels at least ``CORE_LEVEL`` inked
+        (a blurred photo's halos joined two strokes that the cores keep apart)."""
+        return self.mask & (self.ink >= CORE_LEVEL)
 
 
 _LUMA = (0.299, 0.587, 0.114)  # ITU-R 601-2, as PIL's "L"
