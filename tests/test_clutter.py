@@ -274,8 +274,13 @@ def test_photo_finish_keeps_the_picture_and_adds_the_asked_noise():
     )
 
 
+# Small writing keeps the pages small and the tests fast.
+SMALL = PageOptions(char_height_px=(30.0, 50.0))
+
+
 def _synthetic_page(seed: int, n: int = 14, **kwargs):
     rng = np.random.default_rng(seed)
+    kwargs.setdefault("options", SMALL)
     return generate_page(rng, page_sources_from_synthetic(rng, n), **kwargs)
 
 
@@ -305,7 +310,11 @@ def test_boxes_hold_the_paths_and_their_ink(page):
         assert (cols[0], rows[0], cols[-1] + 1, rows[-1] + 1) == (x0, y0, x1, y1)
         assert cx0 >= 0 and cy0 >= 0 and cx1 <= w and cy1 <= h  # inside the margins
         np.maximum(union[cy0:cy1, cx0:cx1], own, out=union[cy0:cy1, cx0:cx1])
-    np.testing.assert_allclose(page.ink, union, atol=1e-5)  # no other ink on the page
+    # No other ink on the page. (The page renders its characters in batches, whose
+    # longest segment sets how finely all of them are sampled; that moves the ink at the
+    # ends of strokes by a few hundredths, as test_render_affine measures.)
+    np.testing.assert_allclose(page.ink, union, atol=0.03)
+    assert np.mean(np.abs(page.ink - union)) < 1e-4
     inside = np.zeros((h, w), bool)
     for x0, y0, x1, y1 in page.boxes:
         inside[y0:y1, x0:x1] = True
@@ -335,9 +344,7 @@ def test_plain_image_is_the_same_ink_on_white(page):
 
 @pytest.mark.parametrize("seed", range(5))
 def test_reading_order_and_lines_agree_with_positions(seed):
-    options = PageOptions(
-        n_lines=(2, 4), tight_probability=0.5, line_angle_deg=4.0, char_height_px=(30.0, 60.0)
-    )
+    options = dataclasses.replace(SMALL, n_lines=(2, 4), tight_probability=0.5)
     page = _synthetic_page(seed, n=18, options=options)
     lines, boxes = page.lines, page.boxes.astype(float)
     assert np.array_equal(page.order, np.arange(18))
@@ -391,7 +398,7 @@ def test_recorded_paths_make_pages():
                 break
     sources = page_sources_from_recorded(recorded)
     assert [s.label for s in sources] == [str(r.label) for r in recorded]
-    page = generate_page(np.random.default_rng(12), sources, kind="squared")
+    page = generate_page(np.random.default_rng(12), sources, kind="squared", options=SMALL)
     assert page.labels == [str(r.label) for r in recorded]
     for path in page.paths:
         x, y = np.round(path[:, :2]).astype(int).T

@@ -1409,8 +1409,9 @@ def generate_page(
         The paper's kind; None draws one of ``paper_options.kinds``.
     size_hw : (H, W), optional
         The page's size (integers in [8, 8192], at most 24 MP); default sized to the
-        writing and its margins. A given size lowers the character height if the
-        writing would not fit, and refuses when even the lowest does not.
+        writing and its margins (widened to at most 2 : 1). A given size lowers the
+        character height if the writing would not fit, and refuses when even the lowest
+        does not.
     options : PageOptions
         Layout, pen and margins; default ``PageOptions()``.
     paper_options : PaperOptions
@@ -1715,25 +1716,64 @@ def _render_characters(paths, pen_w: float, size_hw) -> tuple[np.ndarray, np.nda
     and the rows and columns ``(y0, y1, x0, x1)`` that hold any ink.
 
     Each character is rendered on its own neighbourhood only (its pen-down points plus
-    the reach of the pen's soft edge), so a big page costs what its characters do."""
+    the reach of the pen's soft edge), so a big page costs what its characters do; the
+    neighbourhoods go to :func:`render_paths` in batches (one batched call costs little
+    more than one character, and far less than many small calls on a busy machine)."""
     h, w = size_hw
     ink = np.zeros((h, w), np.float32)
     boxes = np.zeros((len(paths), 4), np.int64)
+    windows = [_window(p, pen_w, size_hw) for p in paths]  # (x0, y0, x1, y1) each
+    for batch in _batches(windows):
+        crops = _render_batch([paths[i] for i in batch], [windows[i] for i in batch], pen_w)
+        for i, crop in zip(batch, crops, strict=True):
+            x0, y0, x1, y1 = windows[i]
+            np.maximum(ink[y0:y1, x0:x1], crop, out=ink[y0:y1, x0:x1])
+            down = paths[i][paths[i][:, 2] > 0, :2]
+            boxes[i] = _ink_box(crop, down - (x0, y0)) + (x0, y0, x0, y0)
+    lo, hi = np.min(windows, 0), np.max(windows, 0)
+    return ink, boxes, (int(lo[1]), int(hi[3]), int(lo[0]), int(hi[2]))
+
+
+def _window(path: np.ndarray, pen_w: float, size_hw) -> tuple[int, int, int, int]:
+    """``(x0, y0, x1, y1)``: the pixels a character's ink can reach, inside the page."""
+    h, w = size_hw
     reach = math.ceil(pen_w) + 4  # beyond it render_paths leaves < 1e-3 of ink
-    union = [h, 0, w, 0]
-    for i, p in enumerate(paths):
-        down = p[p[:, 2] > 0, :2]
-        x0, y0 = (max(0, math.floor(v) - reach) for v in down.min(0))
-        x1 = min(w, math.ceil(down[:, 0].max()) + reach + 1)
-        y1 = min(h, math.ceil(down[:, 1].max()) + reach + 1)
-        local = p.copy()
-        local[:, 0] -= x0
-        local[:, 1] -= y0
-        crop = render_paths(local.astype(np.float32), (y1 - y0, x1 - x0), pen_w).numpy()
-        np.maximum(ink[y0:y1, x0:x1], crop, out=ink[y0:y1, x0:x1])
-        boxes[i] = _ink_box(crop, down - (x0, y0)) + (x0, y0, x0, y0)
-        union = [min(union[0], y0), max(union[1], y1), min(union[2], x0), max(union[3], x1)]
-    return ink, boxes, tuple(union)
+    down = path[path[:, 2] > 0, :2]
+    x0, y0 = (max(0, math.floor(v) - reach) for v in down.min(0))
+    x1 = min(w, math.ceil(down[:, 0].max()) + reach + 1)
+    y1 = min(h, math.ceil(down[:, 1].max()) + reach + 1)
+    return x0, y0, x1, y1
+
+
+# Most pixels of one batch of character neighbourhoods (all of the batch's largest size).
+_RENDER_BATCH_PIXELS = 1 << 21
+
+
+def _batches(windows) -> list[list[int]]:
+    """Consecutive characters (of similar size, in reading order) grouped into batches."""
+    batches, current, big = [], [], (0, 0)
+    for i, (x0, y0, x1, y1) in enumerate(windows):
+        size = (max(big[0], y1 - y0), max(big[1], x1 - x0))
+        if current and (len(current) + 1) * size[0] * size[1] > _RENDER_BATCH_PIXELS:
+            batches.append(current)
+            current, size = [], (y1 - y0, x1 - x0)
+        current.append(i)
+        big = size
+    return batches + [current]
+
+
+def _render_batch(paths, windows, pen_w: float) -> list[np.ndarray]:
+    # Paths shifted into their windows and padded to one length with pen-up copies of
+    # their last point (pen-up segments are not drawn); each render cut to its window.
+    n_points = max(len(p) for p in paths)
+    hc = max(y1 - y0 for _, y0, _, y1 in windows)
+    wc = max(x1 - x0 for x0, _, x1, _ in windows)
+    points = np.zeros((len(paths), n_points, 3), np.float32)  # [B, T, 3]
+    for b, (p, (x0, y0, _, _)) in enumerate(zip(paths, windows, strict=True)):
+        points[b, : len(p)] = p - (x0, y0, 0)
+        points[b, len(p) :, :2] = points[b, len(p) - 1, :2]
+    images = render_paths(points, (hc, wc), pen_w).numpy()  # [B, hc, wc]
+    return [im[: y1 - y0, : x1 - x0] for im, (x0, y0, x1, y1) in zip(images, windows, strict=True)]
 
 
 def _ink_box(crop: np.ndarray, down: np.ndarray) -> np.ndarray:
