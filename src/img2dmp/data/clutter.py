@@ -1218,12 +1218,13 @@ class PageOptions:
     char_angle_deg : float
         Each character leans by up to this many degrees, in [0, 30]; default 5.
     gap_rel : (low, high)
-        Mean gap between the characters of a word on most pages, in [-0.5, 5]; default
-        (0.12, 0.5).
+        Mean gap between the characters of a word on most pages, in [-0.5, 5]: from
+        the inked edge of one character's rightmost stroke to the next one's leftmost
+        (so the pen's width is added between their paths); default (0.12, 0.5).
     tight_probability : float
         Chance that a page is written tightly, with the mean gap drawn from
-        ``tight_gap_rel`` (default (-0.06, 0.06): characters close together, some
-        touching); default 0.3.
+        ``tight_gap_rel`` (default (-0.03, 0.06): characters close together, now and
+        then touching); default 0.3.
     gap_jitter_rel : float
         Each gap varies by up to this, in [0, 1]; default 0.06.
     word_length : (low, high)
@@ -1260,7 +1261,7 @@ class PageOptions:
     char_angle_deg: float = 5.0
     gap_rel: tuple[float, float] = (0.12, 0.5)
     tight_probability: float = 0.3
-    tight_gap_rel: tuple[float, float] = (-0.06, 0.06)
+    tight_gap_rel: tuple[float, float] = (-0.03, 0.06)
     gap_jitter_rel: float = 0.06
     word_length: tuple[int, int] = (1, 10)
     word_gap_rel: tuple[float, float] = (0.7, 1.6)
@@ -1431,10 +1432,12 @@ def generate_page(
         rng, characters, kind, options, paper_options, pen_colour, pen_width_px
     )
     kind = kind or paper_options.kinds[int(rng.integers(len(paper_options.kinds)))]
-    layout = _lay_out(rng, sources, kind, options, paper_options)
-    h_px, size, margin = _fit_page(rng, layout, len(sources), size_hw, options, paper_options)
-    drawn_width = min(_uniform(rng, options.pen_width_px), options.pen_width_max_rel * h_px)
-    pen_w = pen_width_px or max(drawn_width, 1.0)
+    h_px = _uniform(rng, options.char_height_px)
+    drawn = min(_uniform(rng, options.pen_width_px), options.pen_width_max_rel * h_px)
+    pen_rel = (pen_width_px or drawn) / h_px  # gaps are between the strokes' inked edges
+    layout = _lay_out(rng, sources, kind, options, paper_options, pen_rel)
+    h_px, size, margin = _fit_page(rng, layout, len(sources), h_px, size_hw, options, paper_options)
+    pen_w = pen_width_px or max(pen_rel * h_px, 1.0)  # thinner if the writing had to shrink
     paper = random_paper(rng, size, kind, options=_page_paper_options(paper_options, layout, h_px))
     paths = _place(rng, layout, h_px, pen_w, size, margin, paper.meta)
     ink, boxes, region = _render_characters(paths, pen_w, size)
@@ -1508,7 +1511,7 @@ def _check_characters(characters) -> list[CharacterSource]:
 # --- layout, in units of the character height ------------------------------------------
 
 
-def _lay_out(rng, sources, kind: str, o: PageOptions, paper: PaperOptions) -> _Layout:
+def _lay_out(rng, sources, kind: str, o: PageOptions, paper: PaperOptions, pen_rel) -> _Layout:
     n = len(sources)
     n_lines = int(rng.integers(o.n_lines[0], o.n_lines[1] + 1))
     n_lines = min(n, max(n_lines, math.ceil(n / o.max_per_line)))
@@ -1528,7 +1531,9 @@ def _lay_out(rng, sources, kind: str, o: PageOptions, paper: PaperOptions) -> _L
     paths, lines, words, lengths = [], [], [], []
     start = 0
     for k, count in enumerate(counts):
-        line_paths, line_words, length = _line(rng, sources[start : start + count], gap, o)
+        line_paths, line_words, length = _line(
+            rng, sources[start : start + count], gap + pen_rel, o
+        )
         paths += line_paths
         lines += [k] * count
         words += [w + (words[-1] + 1 if words else 0) for w in line_words]
@@ -1632,15 +1637,14 @@ def _min_margin(o: PageOptions, paper: PaperOptions) -> float:
 _MAX_ASPECT = 2.0
 
 
-def _fit_page(rng, layout: _Layout, n: int, size_hw, o: PageOptions, paper: PaperOptions):
-    """The character height (px), the page's size (H, W) and its least margin (a share
-    of the side), drawn so that the writing fits."""
+def _fit_page(rng, layout: _Layout, n: int, h_px: float, size_hw, o: PageOptions, paper):
+    """The character height (px: ``h_px``, lowered if the writing would not fit), the
+    page's size (H, W) and its least margin (a share of the side)."""
     x_lo, y_lo, x_hi, y_hi = _down_bounds(layout.paths)
     slack = layout.spacing if layout.on_rules else 0.0  # room to move onto a rule
     extent = np.array([y_hi - y_lo + slack, x_hi - x_lo + slack])  # [2] (y, x), units of h
     pad_rel = o.pen_width_max_rel  # the pen's half width on either side, in units of h
     m_min = _min_margin(o, paper)
-    h_px = _uniform(rng, o.char_height_px)
     lo = o.char_height_px[0]
     if size_hw is not None:
         size = np.array(_check_size("size_hw", size_hw))
