@@ -361,6 +361,19 @@ def test_reading_order_and_lines_agree_with_positions(seed):
                     assert centre[b, 1] > centre[a, 1]
 
 
+def test_gaps_are_between_the_inked_edges():
+    # Synthetic digits are one stroke each, so each is one blob of ink unless it touches
+    # a neighbour: pages with positive gaps (even with the widest pen) never touch, pages
+    # with negative ones do.
+    apart = dataclasses.replace(SMALL, tight_probability=0.0, pen_width_max_rel=0.2)
+    touching = dataclasses.replace(SMALL, tight_probability=1.0, tight_gap_rel=(-0.25, -0.2))
+    for seed in range(3):
+        for options, together in ((apart, False), (touching, True)):
+            page = _synthetic_page(seed, n=10, options=options, pen_width_px=6.0)
+            _, blobs = ndimage.label(page.ink > 0.5)
+            assert (blobs < 10) == together
+
+
 def test_the_same_seed_gives_the_same_page():
     a = _synthetic_page(9, n=6)
     b = _synthetic_page(9, n=6)
