@@ -374,6 +374,20 @@ def test_gaps_are_between_the_inked_edges():
             assert (blobs < 10) == together
 
 
+def test_writing_on_the_rules_sits_on_them():
+    options = dataclasses.replace(SMALL, on_rules_probability=1.0, n_lines=(2, 3))
+    for seed in range(3):
+        page = _synthetic_page(seed, n=12, kind="ruled", options=options)
+        assert page.meta["on_rules"]
+        h = page.meta["char_height_px"]
+        for k in range(page.lines.max() + 1):
+            paths = [p[p[:, 2] > 0] for p, i in zip(page.paths, page.lines, strict=True) if i == k]
+            x = np.array([p[:, 0].mean() for p in paths])
+            bottom = np.array([p[:, 1].max() for p in paths])  # the baseline, jittered
+            phase = pattern_phase(page.meta["paper"], page.ink.shape, x, bottom)
+            assert -0.15 * h < np.median(phase) < 0.05 * h  # on the rule or just above it
+
+
 def test_the_same_seed_gives_the_same_page():
     a = _synthetic_page(9, n=6)
     b = _synthetic_page(9, n=6)
