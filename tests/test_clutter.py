@@ -274,8 +274,13 @@ def test_photo_finish_keeps_the_picture_and_adds_the_asked_noise():
     )
 
 
+# Small writing keeps the pages small and the tests fast.
+SMALL = PageOptions(char_height_px=(30.0, 50.0))
+
+
 def _synthetic_page(seed: int, n: int = 14, **kwargs):
     rng = np.random.default_rng(seed)
+    kwargs.setdefault("options", SMALL)
     return generate_page(rng, page_sources_from_synthetic(rng, n), **kwargs)
 
 
@@ -305,7 +310,11 @@ def test_boxes_hold_the_paths_and_their_ink(page):
         assert (cols[0], rows[0], cols[-1] + 1, rows[-1] + 1) == (x0, y0, x1, y1)
         assert cx0 >= 0 and cy0 >= 0 and cx1 <= w and cy1 <= h  # inside the margins
         np.maximum(union[cy0:cy1, cx0:cx1], own, out=union[cy0:cy1, cx0:cx1])
-    np.testing.assert_allclose(page.ink, union, atol=1e-5)  # no other ink on the page
+    # No other ink on the page. (The page renders its characters in batches, whose
+    # longest segment sets how finely all of them are sampled; that moves the ink at the
+    # ends of strokes by a few hundredths, as test_render_affine measures.)
+    np.testing.assert_allclose(page.ink, union, atol=0.03)
+    assert np.mean(np.abs(page.ink - union)) < 1e-4
     inside = np.zeros((h, w), bool)
     for x0, y0, x1, y1 in page.boxes:
         inside[y0:y1, x0:x1] = True
@@ -333,11 +342,9 @@ def test_plain_image_is_the_same_ink_on_white(page):
         assert seen[ink > 0.9].mean() < seen[ink == 0].mean() - 20
 
 
-@pytest.mark.parametrize("seed", range(5))
+@pytest.mark.parametrize("seed", range(3))
 def test_reading_order_and_lines_agree_with_positions(seed):
-    options = PageOptions(
-        n_lines=(2, 4), tight_probability=0.5, line_angle_deg=4.0, char_height_px=(30.0, 60.0)
-    )
+    options = dataclasses.replace(SMALL, n_lines=(2, 4), tight_probability=0.5)
     page = _synthetic_page(seed, n=18, options=options)
     lines, boxes = page.lines, page.boxes.astype(float)
     assert np.array_equal(page.order, np.arange(18))
@@ -352,6 +359,33 @@ def test_reading_order_and_lines_agree_with_positions(seed):
             for b in below:
                 if boxes[a, 0] < boxes[b, 2] and boxes[b, 0] < boxes[a, 2]:  # x overlap
                     assert centre[b, 1] > centre[a, 1]
+
+
+def test_gaps_are_between_the_inked_edges():
+    # Synthetic digits are one stroke each, so each is one blob of ink unless it touches
+    # a neighbour: pages with positive gaps (even with the widest pen) never touch, pages
+    # with negative ones do.
+    apart = dataclasses.replace(SMALL, tight_probability=0.0, pen_width_max_rel=0.2)
+    touching = dataclasses.replace(SMALL, tight_probability=1.0, tight_gap_rel=(-0.25, -0.2))
+    for seed in range(2):
+        for options, together in ((apart, False), (touching, True)):
+            page = _synthetic_page(seed, n=10, options=options, pen_width_px=6.0)
+            _, blobs = ndimage.label(page.ink > 0.5)
+            assert (blobs < 10) == together
+
+
+def test_writing_on_the_rules_sits_on_them():
+    options = dataclasses.replace(SMALL, on_rules_probability=1.0, n_lines=(2, 3))
+    for seed in range(2):
+        page = _synthetic_page(seed, n=12, kind="ruled", options=options)
+        assert page.meta["on_rules"]
+        h = page.meta["char_height_px"]
+        for k in range(page.lines.max() + 1):
+            paths = [p[p[:, 2] > 0] for p, i in zip(page.paths, page.lines, strict=True) if i == k]
+            x = np.array([p[:, 0].mean() for p in paths])
+            bottom = np.array([p[:, 1].max() for p in paths])  # the baseline, jittered
+            phase = pattern_phase(page.meta["paper"], page.ink.shape, x, bottom)
+            assert -0.15 * h < np.median(phase) < 0.05 * h  # on the rule or just above it
 
 
 def test_the_same_seed_gives_the_same_page():
@@ -391,7 +425,7 @@ def test_recorded_paths_make_pages():
                 break
     sources = page_sources_from_recorded(recorded)
     assert [s.label for s in sources] == [str(r.label) for r in recorded]
-    page = generate_page(np.random.default_rng(12), sources, kind="squared")
+    page = generate_page(np.random.default_rng(12), sources, kind="squared", options=SMALL)
     assert page.labels == [str(r.label) for r in recorded]
     for path in page.paths:
         x, y = np.round(path[:, :2]).astype(int).T

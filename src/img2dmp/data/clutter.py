@@ -1218,12 +1218,13 @@ class PageOptions:
     char_angle_deg : float
         Each character leans by up to this many degrees, in [0, 30]; default 5.
     gap_rel : (low, high)
-        Mean gap between the characters of a word on most pages, in [-0.5, 5]; default
-        (0.12, 0.5).
+        Mean gap between the characters of a word on most pages, in [-0.5, 5]: from
+        the inked edge of one character's rightmost stroke to the next one's leftmost
+        (so the pen's width is added between their paths); default (0.12, 0.5).
     tight_probability : float
         Chance that a page is written tightly, with the mean gap drawn from
-        ``tight_gap_rel`` (default (-0.06, 0.06): characters close together, some
-        touching); default 0.3.
+        ``tight_gap_rel`` (default (-0.03, 0.06): characters close together, now and
+        then touching); default 0.3.
     gap_jitter_rel : float
         Each gap varies by up to this, in [0, 1]; default 0.06.
     word_length : (low, high)
@@ -1260,7 +1261,7 @@ class PageOptions:
     char_angle_deg: float = 5.0
     gap_rel: tuple[float, float] = (0.12, 0.5)
     tight_probability: float = 0.3
-    tight_gap_rel: tuple[float, float] = (-0.06, 0.06)
+    tight_gap_rel: tuple[float, float] = (-0.03, 0.06)
     gap_jitter_rel: float = 0.06
     word_length: tuple[int, int] = (1, 10)
     word_gap_rel: tuple[float, float] = (0.7, 1.6)
@@ -1409,8 +1410,9 @@ def generate_page(
         The paper's kind; None draws one of ``paper_options.kinds``.
     size_hw : (H, W), optional
         The page's size (integers in [8, 8192], at most 24 MP); default sized to the
-        writing and its margins. A given size lowers the character height if the
-        writing would not fit, and refuses when even the lowest does not.
+        writing and its margins (widened to at most 2 : 1). A given size lowers the
+        character height if the writing would not fit, and refuses when even the lowest
+        does not.
     options : PageOptions
         Layout, pen and margins; default ``PageOptions()``.
     paper_options : PaperOptions
@@ -1430,10 +1432,12 @@ def generate_page(
         rng, characters, kind, options, paper_options, pen_colour, pen_width_px
     )
     kind = kind or paper_options.kinds[int(rng.integers(len(paper_options.kinds)))]
-    layout = _lay_out(rng, sources, kind, options, paper_options)
-    h_px, size, margin = _fit_page(rng, layout, len(sources), size_hw, options, paper_options)
-    drawn_width = min(_uniform(rng, options.pen_width_px), options.pen_width_max_rel * h_px)
-    pen_w = pen_width_px or max(drawn_width, 1.0)
+    h_px = _uniform(rng, options.char_height_px)
+    drawn = min(_uniform(rng, options.pen_width_px), options.pen_width_max_rel * h_px)
+    pen_rel = (pen_width_px or drawn) / h_px  # gaps are between the strokes' inked edges
+    layout = _lay_out(rng, sources, kind, options, paper_options, pen_rel)
+    h_px, size, margin = _fit_page(rng, layout, len(sources), h_px, size_hw, options, paper_options)
+    pen_w = pen_width_px or max(pen_rel * h_px, 1.0)  # thinner if the writing had to shrink
     paper = random_paper(rng, size, kind, options=_page_paper_options(paper_options, layout, h_px))
     paths = _place(rng, layout, h_px, pen_w, size, margin, paper.meta)
     ink, boxes, region = _render_characters(paths, pen_w, size)
@@ -1507,7 +1511,7 @@ def _check_characters(characters) -> list[CharacterSource]:
 # --- layout, in units of the character height ------------------------------------------
 
 
-def _lay_out(rng, sources, kind: str, o: PageOptions, paper: PaperOptions) -> _Layout:
+def _lay_out(rng, sources, kind: str, o: PageOptions, paper: PaperOptions, pen_rel) -> _Layout:
     n = len(sources)
     n_lines = int(rng.integers(o.n_lines[0], o.n_lines[1] + 1))
     n_lines = min(n, max(n_lines, math.ceil(n / o.max_per_line)))
@@ -1527,7 +1531,9 @@ def _lay_out(rng, sources, kind: str, o: PageOptions, paper: PaperOptions) -> _L
     paths, lines, words, lengths = [], [], [], []
     start = 0
     for k, count in enumerate(counts):
-        line_paths, line_words, length = _line(rng, sources[start : start + count], gap, o)
+        line_paths, line_words, length = _line(
+            rng, sources[start : start + count], gap + pen_rel, o
+        )
         paths += line_paths
         lines += [k] * count
         words += [w + (words[-1] + 1 if words else 0) for w in line_words]
@@ -1631,15 +1637,14 @@ def _min_margin(o: PageOptions, paper: PaperOptions) -> float:
 _MAX_ASPECT = 2.0
 
 
-def _fit_page(rng, layout: _Layout, n: int, size_hw, o: PageOptions, paper: PaperOptions):
-    """The character height (px), the page's size (H, W) and its least margin (a share
-    of the side), drawn so that the writing fits."""
+def _fit_page(rng, layout: _Layout, n: int, h_px: float, size_hw, o: PageOptions, paper):
+    """The character height (px: ``h_px``, lowered if the writing would not fit), the
+    page's size (H, W) and its least margin (a share of the side)."""
     x_lo, y_lo, x_hi, y_hi = _down_bounds(layout.paths)
     slack = layout.spacing if layout.on_rules else 0.0  # room to move onto a rule
     extent = np.array([y_hi - y_lo + slack, x_hi - x_lo + slack])  # [2] (y, x), units of h
     pad_rel = o.pen_width_max_rel  # the pen's half width on either side, in units of h
     m_min = _min_margin(o, paper)
-    h_px = _uniform(rng, o.char_height_px)
     lo = o.char_height_px[0]
     if size_hw is not None:
         size = np.array(_check_size("size_hw", size_hw))
@@ -1715,25 +1720,64 @@ def _render_characters(paths, pen_w: float, size_hw) -> tuple[np.ndarray, np.nda
     and the rows and columns ``(y0, y1, x0, x1)`` that hold any ink.
 
     Each character is rendered on its own neighbourhood only (its pen-down points plus
-    the reach of the pen's soft edge), so a big page costs what its characters do."""
+    the reach of the pen's soft edge), so a big page costs what its characters do; the
+    neighbourhoods go to :func:`render_paths` in batches (one batched call costs little
+    more than one character, and far less than many small calls on a busy machine)."""
     h, w = size_hw
     ink = np.zeros((h, w), np.float32)
     boxes = np.zeros((len(paths), 4), np.int64)
+    windows = [_window(p, pen_w, size_hw) for p in paths]  # (x0, y0, x1, y1) each
+    for batch in _batches(windows):
+        crops = _render_batch([paths[i] for i in batch], [windows[i] for i in batch], pen_w)
+        for i, crop in zip(batch, crops, strict=True):
+            x0, y0, x1, y1 = windows[i]
+            np.maximum(ink[y0:y1, x0:x1], crop, out=ink[y0:y1, x0:x1])
+            down = paths[i][paths[i][:, 2] > 0, :2]
+            boxes[i] = _ink_box(crop, down - (x0, y0)) + (x0, y0, x0, y0)
+    lo, hi = np.min(windows, 0), np.max(windows, 0)
+    return ink, boxes, (int(lo[1]), int(hi[3]), int(lo[0]), int(hi[2]))
+
+
+def _window(path: np.ndarray, pen_w: float, size_hw) -> tuple[int, int, int, int]:
+    """``(x0, y0, x1, y1)``: the pixels a character's ink can reach, inside the page."""
+    h, w = size_hw
     reach = math.ceil(pen_w) + 4  # beyond it render_paths leaves < 1e-3 of ink
-    union = [h, 0, w, 0]
-    for i, p in enumerate(paths):
-        down = p[p[:, 2] > 0, :2]
-        x0, y0 = (max(0, math.floor(v) - reach) for v in down.min(0))
-        x1 = min(w, math.ceil(down[:, 0].max()) + reach + 1)
-        y1 = min(h, math.ceil(down[:, 1].max()) + reach + 1)
-        local = p.copy()
-        local[:, 0] -= x0
-        local[:, 1] -= y0
-        crop = render_paths(local.astype(np.float32), (y1 - y0, x1 - x0), pen_w).numpy()
-        np.maximum(ink[y0:y1, x0:x1], crop, out=ink[y0:y1, x0:x1])
-        boxes[i] = _ink_box(crop, down - (x0, y0)) + (x0, y0, x0, y0)
-        union = [min(union[0], y0), max(union[1], y1), min(union[2], x0), max(union[3], x1)]
-    return ink, boxes, tuple(union)
+    down = path[path[:, 2] > 0, :2]
+    x0, y0 = (max(0, math.floor(v) - reach) for v in down.min(0))
+    x1 = min(w, math.ceil(down[:, 0].max()) + reach + 1)
+    y1 = min(h, math.ceil(down[:, 1].max()) + reach + 1)
+    return x0, y0, x1, y1
+
+
+# Most pixels of one batch of character neighbourhoods (all of the batch's largest size).
+_RENDER_BATCH_PIXELS = 1 << 21
+
+
+def _batches(windows) -> list[list[int]]:
+    """Consecutive characters (of similar size, in reading order) grouped into batches."""
+    batches, current, big = [], [], (0, 0)
+    for i, (x0, y0, x1, y1) in enumerate(windows):
+        size = (max(big[0], y1 - y0), max(big[1], x1 - x0))
+        if current and (len(current) + 1) * size[0] * size[1] > _RENDER_BATCH_PIXELS:
+            batches.append(current)
+            current, size = [], (y1 - y0, x1 - x0)
+        current.append(i)
+        big = size
+    return batches + [current]
+
+
+def _render_batch(paths, windows, pen_w: float) -> list[np.ndarray]:
+    # Paths shifted into their windows and padded to one length with pen-up copies of
+    # their last point (pen-up segments are not drawn); each render cut to its window.
+    n_points = max(len(p) for p in paths)
+    hc = max(y1 - y0 for _, y0, _, y1 in windows)
+    wc = max(x1 - x0 for x0, _, x1, _ in windows)
+    points = np.zeros((len(paths), n_points, 3), np.float32)  # [B, T, 3]
+    for b, (p, (x0, y0, _, _)) in enumerate(zip(paths, windows, strict=True)):
+        points[b, : len(p)] = p - (x0, y0, 0)
+        points[b, len(p) :, :2] = points[b, len(p) - 1, :2]
+    images = render_paths(points, (hc, wc), pen_w).numpy()  # [B, hc, wc]
+    return [im[: y1 - y0, : x1 - x0] for im, (x0, y0, x1, y1) in zip(images, windows, strict=True)]
 
 
 def _ink_box(crop: np.ndarray, down: np.ndarray) -> np.ndarray:
