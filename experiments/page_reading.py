@@ -129,7 +129,6 @@ def generated(model, args) -> dict:
     import warnings
 
     from img2dmp.data.clutter import generate_page, page_sources_from_recorded
-
     from img2dmp.data.recorded import load_recorded, split_of_index
 
     with warnings.catch_warnings():
