@@ -92,10 +92,8 @@ def test_every_character_of_a_page_is_boxed_around_its_ink_in_reading_order(
     page = answer["page"]
     assert answer["model"] == "net1" and page["format"] == "img2dmp-page"
     assert page["image_size_px"] == [360, 200] and page["image"] == "my page.png"
-    assert page["flags"] == [] and [line["characters"] for line in page["lines"]] == [
-        [0, 1, 2],
-        [3, 4],
-    ]
+    assert "no_ink" not in page["flags"]
+    assert [line["characters"] for line in page["lines"]] == [[0, 1, 2], [3, 4]]
     chars = page["characters"]
     assert [c["index"] for c in chars] == [0, 1, 2, 3, 4]
     for c, want in zip(chars, boxes, strict=True):
@@ -105,6 +103,7 @@ def test_every_character_of_a_page_is_boxed_around_its_ink_in_reading_order(
     assert not any("cut_by_border" in c["flags"] for c in chars[:4])
     # the library's own reading of the same image
     ref = load_model(runs[1]).predict_page(image).to_document(dmps=False)
+    assert page["flags"] == ref["flags"]  # the one-epoch network's are "mostly_unreadable"
     for c, r in zip(chars, ref["characters"], strict=True):
         assert c["box_image_px"] == r["box_image_px"] and c["flags"] == r["flags"]
         np.testing.assert_allclose(c["path_image_px"], r["path_image_px"], atol=1e-3)
