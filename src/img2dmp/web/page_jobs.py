@@ -15,9 +15,10 @@ does:
    writes :data:`PAGE_FILES` and the measures of the page and of every character.
 
 The video is a time lapse of at most :data:`MAX_PAGE_FRAMES` frames, each shown 0.1 s:
-a frame costs about 0.08 s to render and 0.03 s to encode (2-core Xeon) and 0.5 MB of
-memory until the GIF is written, so a page of a few minutes kept every 0.1 s, as one
-DMP's video is, would take longer to film than to write and hold gigabytes.
+a frame costs about 0.09 s to render and 0.03 s to encode (AMD EPYC, 2 cores shared)
+and 0.5 MB of memory until the GIF is written, so a page of a few minutes kept every
+0.1 s, as one DMP's video is, would take longer to film than to write and hold
+gigabytes.
 """
 
 from __future__ import annotations
@@ -30,15 +31,18 @@ from pathlib import Path, PurePath
 from .._files import atomic_write_text
 from ..robot.page import DEFAULT_WIDTH_MM
 from .errors import WebError
-from .jobs import BEGUN, CONTROL_RATE_HZ, FRAME_INTERVAL_S, SHARE, SIMULATION_SHARE, run_in_job_dir
+from .jobs import (
+    BEGUN,
+    CONTROL_RATE_HZ,
+    FRAME_INTERVAL_S,
+    JOB_FILES,
+    SHARE,
+    SIMULATION_SHARE,
+    run_in_job_dir,
+)
 
 #: The outputs of a page's job, by the key of ``files`` in ``GET /api/jobs/{id}``.
-PAGE_FILES = {
-    "paper": "paper.png",
-    "animation": "animation.gif",
-    "log": "log.csv",
-    "characters": "characters.csv",
-}
+PAGE_FILES = {**JOB_FILES, "characters": "characters.csv"}
 #: Most frames of a page's video (a 12 s time lapse); a longer page is kept at longer
 #: intervals.
 MAX_PAGE_FRAMES = 120
@@ -96,14 +100,7 @@ def run_page_job(job_dir: str, options: dict, report) -> None:
 
 
 def _write_page(d: Path, options: dict, report) -> dict:
-    from ..robot import (
-        page_summary_lines,
-        plot_page,
-        save_characters_csv,
-        save_log_csv,
-        save_video,
-        write_page_plan,
-    )
+    from ..robot import page_summary_lines
 
     doc = json.loads((d / "page.json").read_text(encoding="utf-8"))
     filename, name = options["filename"], PurePath(options["filename"]).stem
@@ -113,26 +110,39 @@ def _write_page(d: Path, options: dict, report) -> dict:
     plan = dataclasses.replace(
         plan, options=dataclasses.replace(plan.options, frame_interval_s=interval_s)
     )
+    result = _run(plan, expected, report)
+    report[SHARE] = SIMULATION_SHARE
+    _save_outputs(result, d, name, video=interval_s is not None)
+    report[SHARE] = 1.0
+    speed = None if interval_s is None else interval_s / FRAME_INTERVAL_S
+    return {"summary": page_summary_lines(name, result), "page": page_measures(result, speed)}
+
+
+def _run(plan, expected_steps: int, report):
+    """The simulation of a planned page, reporting its progress and the characters begun."""
+    from ..robot import write_page_plan
+
     steps = [0]
 
     def advance(n: int) -> None:
         steps[0] += n
-        report[SHARE] = SIMULATION_SHARE * min(1.0, steps[0] / expected)
+        report[SHARE] = SIMULATION_SHARE * min(1.0, steps[0] / expected_steps)
 
     def begin(_character) -> None:
         report[BEGUN] += 1
 
-    result = write_page_plan(plan, progress=advance, on_character=begin)
-    report[SHARE] = SIMULATION_SHARE
+    return write_page_plan(plan, progress=advance, on_character=begin)
+
+
+def _save_outputs(result, d: Path, name: str, video: bool) -> None:
+    from ..robot import plot_page, save_characters_csv, save_log_csv, save_video
+
     plot_page(result, d / PAGE_FILES["paper"], title=f"{name}: KUKA iiwa writes a page")
     save_characters_csv(result, d / PAGE_FILES["characters"])
     save_log_csv(result, d / PAGE_FILES["log"])
-    if interval_s is not None:
+    if video:
         # Every frame shown FRAME_INTERVAL_S: a long page plays as a time lapse.
         save_video(result, d / PAGE_FILES["animation"], FRAME_INTERVAL_S)
-    report[SHARE] = 1.0
-    speed = None if interval_s is None else interval_s / FRAME_INTERVAL_S
-    return {"summary": page_summary_lines(name, result), "page": page_measures(result, speed)}
 
 
 def _frame_interval_s(duration_s: float) -> float:
