@@ -7,7 +7,10 @@
   flagged prediction gets its one-line note, an unflagged one none;
 - Page: a photo of a page chosen on the Page view shows every character's box over its
   ink, the count of characters and lines, writes them one after the other, marks and
-  lists the flagged one, and downloads the page document;
+  lists the flagged one, and downloads the page document; the arm writes a page of three
+  characters, naming the character it writes, and shows the page's figure (full size in
+  a new tab), its totals and its table; a width at which it does not fit shows the
+  server's line; reading a photo again clears the arm's result;
 - Record: two strokes traced over an MNIST image are saved as ``image_<n>.json`` in the
   shared recordings' format, with the two strokes.
 
@@ -432,6 +435,71 @@ def test_a_page_photo_is_boxed_counted_written_and_its_flagged_character_marked(
     doc = json.loads(Path(dl.value.path()).read_text())
     assert doc["format"] == "img2dmp-page" and len(doc["characters"]) == 5
     assert all(c["dmp"]["format"] == "img2dmp-dmp" for c in doc["characters"])
+
+
+def test_the_arm_writes_the_page_shown_and_a_new_reading_clears_it(
+    page, server, shots, tmp_path, handwritten_page
+):
+    pytest.importorskip("pybullet", reason="the robot extra is not installed")
+    from PIL import Image
+
+    photo = tmp_path / "line.png"
+    Image.fromarray(handwritten_page[0][:100]).save(photo)  # the first line: "1 7 0"
+    page.goto(server["url"] + "/page")
+    page.locator("#photo-file").set_input_files(str(photo))
+    page.locator('#page-card[data-characters="3"]').wait_for()
+    card = page.locator("#arm-card")
+    assert card.is_visible() and page.locator("#arm-write").is_enabled()
+    # a width at which the page leaves the sheet: the server's one line, nothing runs
+    page.locator("#arm-width").fill("900")
+    page.locator("#arm-write").click()
+    error = page.locator("#arm-error.error")
+    error.wait_for()
+    assert "does not fit the sheet at a width of 900 mm" in error.inner_text()
+    assert page.locator("#arm-job").is_hidden()
+    # every status line the job shows, to see it name the characters
+    page.evaluate(
+        """() => {
+          window.armStatus = [];
+          new MutationObserver(() => window.armStatus.push(
+            document.getElementById('arm-status').textContent))
+            .observe(document.getElementById('arm-status'), { childList: true });
+        }"""
+    )
+    page.locator("#arm-width").fill("60")
+    page.locator("#arm-video").uncheck()  # the video would take longer than the writing
+    page.locator("#arm-write").click()
+    job = page.locator("#arm-job")
+    job.wait_for()
+    assert error.is_hidden()
+    page.locator('#arm-job[data-status="done"], #arm-job[data-status="failed"]').wait_for(
+        timeout=90_000
+    )
+    assert job.get_attribute("data-status") == "done", page.locator("#arm-error").inner_text()
+    page.wait_for_function("() => document.getElementById('arm-paper').naturalWidth > 1000")
+    named = [t for t in page.evaluate("window.armStatus") if " of 3 " in t]
+    assert named and all(t.startswith("The arm is writing character ") for t in named), named
+    href = page.locator("#arm-paper-link").get_attribute("href")
+    assert (
+        href.endswith("/paper.png")
+        and page.locator("#arm-paper-open").get_attribute("target") == "_blank"
+    )
+    totals = page.locator("#arm-totals").inner_text()
+    assert totals.startswith("3 of 3 characters written on 60.0") and "inked" in totals
+    assert page.locator("#arm-table tbody tr").count() == 3
+    assert page.locator("#arm-csv").get_attribute("download") == "line_page_characters.csv"
+    assert page.locator("#arm-animation-figure").is_hidden()  # no video asked for
+    page.locator("#arm-paper").scroll_into_view_if_needed()
+    page.screenshot(path=str(shots / "page-robot.png"), full_page=True)
+    # reading the photo again (a new page id) leaves nothing of the run behind
+    page.locator("#photo-file").set_input_files(str(photo))
+    page.locator("#arm-result").wait_for(state="hidden")
+    page.locator('#page-card[data-characters="3"]').wait_for()
+    assert (
+        page.locator("#arm-job").is_hidden()
+        and page.locator("#arm-paper").get_attribute("src") is None
+    )
+    assert page.locator("#arm-table tbody tr").count() == 0
 
 
 # -- Record --------------------------------------------------------------------------------

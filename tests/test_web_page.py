@@ -11,14 +11,22 @@
 - a body that is no image, sent as JSON, empty, too large (413 naming --max-page-mb, a
   limit of its own: the other endpoints keep --max-upload-mb) or of too many pixels is a
   one-line 4xx;
-- a single image's prediction (``POST /api/predict``) carries its fit and flags.
+- a single image's prediction (``POST /api/predict``) carries its fit and flags;
+- the arm writes a page read here (``POST /api/pages/{id}/write``, a robot job): its
+  progress names the character being written, in order, and when done every character
+  is inked (the commanded path's ink share > 0.9, in the job's answer and in its
+  ``characters.csv``) and the figure, the video, the log and the table download; a width
+  at which the page does not fit the sheet is a one-line 422 naming the widest that
+  fits, an unknown page 404, nothing to write (every character flagged and skipped) 422.
 
 The network is tiny (one epoch): the boxes come from the page's ink, not the network.
 """
 
 from __future__ import annotations
 
+import csv
 import io
+import time
 import warnings
 
 import numpy as np
@@ -33,6 +41,7 @@ with warnings.catch_warnings():  # starlette's note that it prefers httpx2 to ht
 
 from img2dmp import load_model
 from img2dmp.data.dmpfile import check_dmp_document
+from img2dmp.robot import available
 from img2dmp.web import create_app
 from img2dmp.web.strokes import render_strokes
 
@@ -83,10 +92,8 @@ def test_every_character_of_a_page_is_boxed_around_its_ink_in_reading_order(
     page = answer["page"]
     assert answer["model"] == "net1" and page["format"] == "img2dmp-page"
     assert page["image_size_px"] == [360, 200] and page["image"] == "my page.png"
-    assert page["flags"] == [] and [line["characters"] for line in page["lines"]] == [
-        [0, 1, 2],
-        [3, 4],
-    ]
+    assert "no_ink" not in page["flags"]
+    assert [line["characters"] for line in page["lines"]] == [[0, 1, 2], [3, 4]]
     chars = page["characters"]
     assert [c["index"] for c in chars] == [0, 1, 2, 3, 4]
     for c, want in zip(chars, boxes, strict=True):
@@ -96,6 +103,7 @@ def test_every_character_of_a_page_is_boxed_around_its_ink_in_reading_order(
     assert not any("cut_by_border" in c["flags"] for c in chars[:4])
     # the library's own reading of the same image
     ref = load_model(runs[1]).predict_page(image).to_document(dmps=False)
+    assert page["flags"] == ref["flags"]  # the one-epoch network's are "mostly_unreadable"
     for c, r in zip(chars, ref["characters"], strict=True):
         assert c["box_image_px"] == r["box_image_px"] and c["flags"] == r["flags"]
         np.testing.assert_allclose(c["path_image_px"], r["path_image_px"], atol=1e-3)
@@ -190,3 +198,85 @@ def test_the_page_view_is_served_and_its_limit_is_an_option(client, capsys):
     assert cli.main(["serve", "--help"]) == 0
     assert "--max-page-mb" in capsys.readouterr().out
     assert cli.main(["serve", "--max-page-mb", "0"]) == 2
+
+
+# --- the arm writes the page ----------------------------------------------------------------
+
+needs_robot = pytest.mark.skipif(not available(), reason="needs pybullet (img2dmp[robot])")
+
+
+def _poll(client, job_id: str, timeout_s: float = 180.0) -> tuple[dict, list]:
+    """The job's last state and every ``character`` it reported while running."""
+    seen, end = [], time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        state = client.get(f"/api/jobs/{job_id}").json()
+        if state["character"] is not None:
+            seen.append(state["character"])
+        if state["status"] in ("done", "failed"):
+            return state, seen
+        time.sleep(0.05)
+    raise AssertionError(f"job {job_id} did not end within {timeout_s} s: {state}")
+
+
+@needs_robot
+def test_the_arm_writes_a_page_read_here_and_inks_every_character(client, handwritten_page):
+    answer = _read(client, _file(handwritten_page[0]), name="note.png", model="net1")
+    r = client.post(f"/api/pages/{answer['id']}/write", json={"width_mm": 100, "video": True})
+    assert r.status_code == 202, r.text
+    job = r.json()
+    assert job["kind"] == "page" and job["status"] == "queued" and job["page"] is None
+    assert set(job["files"]) == {"paper", "animation", "log", "characters"}
+    state, seen = _poll(client, job["id"])
+    assert state["status"] == "done", state["error"]
+    # the progress named each character as the arm began it, in reading order
+    assert seen and {c["of"] for c in seen} == {5}
+    assert [c["number"] for c in seen] == sorted(c["number"] for c in seen)
+    assert all(c["index"] == c["number"] - 1 for c in seen)
+    page = state["page"]
+    assert page["totals"]["characters_written"] == 5 == len(page["characters"])
+    assert page["totals"]["width_mm"] == pytest.approx(100.0)
+    for c in page["characters"]:
+        assert c["written"] and c["ink_share"] > 0.9, c
+    assert page["video_speed"] >= 1.0
+    assert state["summary"][0].startswith("note_page: 5 of 5 characters written on 100.0 x ")
+    kinds = {"paper": "image/png", "animation": "image/gif", "log": "text/csv",
+             "characters": "text/csv"}  # fmt: skip
+    files = {}
+    for key, mime in kinds.items():
+        r = client.get(state["files"][key])
+        assert r.status_code == 200 and r.headers["content-type"].startswith(mime), key
+        files[key] = r.content
+    rows = list(csv.DictReader(io.StringIO(files["characters"].decode())))
+    assert [row["index"] for row in rows] == ["0", "1", "2", "3", "4", "page"]
+    for row, c in zip(rows, page["characters"], strict=False):
+        assert float(row["ink_share"]) == pytest.approx(c["ink_share"], abs=1e-4)
+    assert Image.open(io.BytesIO(files["paper"])).size[0] > 1000  # full size for a new tab
+    for name in ("page.json", "result.json", "dmp.json", "job.log"):
+        _one_line_error(client.get(f"/api/jobs/{job['id']}/files/{name}"), 404)
+
+
+@needs_robot
+def test_a_page_the_arm_cannot_write_is_refused_with_one_line(client, handwritten_page):
+    answer = _read(client, _file(handwritten_page[0]), name="note.png", model="net1")
+    url = f"/api/pages/{answer['id']}/write"
+    detail = _one_line_error(client.post(url, json={"width_mm": 2000}), 422)
+    assert detail.startswith("note_page.json: the page does not fit the sheet at a width of 2000")
+    assert "the page fits at a width of at most" in detail
+    # the tiny network's characters are all flagged: skipping them leaves nothing
+    detail = _one_line_error(client.post(url, json={"skip_flagged": True}), 422)
+    assert "no characters to write" in detail
+    for body, field in (({"width_mm": 0}, "width_mm"), ({"width_mm": "100"}, "width_mm"),
+                        ({"skip_flagged": 1}, "skip_flagged")):  # fmt: skip
+        assert _one_line_error(client.post(url, json=body), 422).startswith(field)
+    assert "not kept" in _one_line_error(
+        client.post("/api/pages/0123456789abcdef/write", json={}), 404
+    )
+
+
+def test_writing_a_page_without_the_robot_answers_503(client, handwritten_page, monkeypatch):
+    import img2dmp.robot
+
+    answer = _read(client, _file(handwritten_page[0]))
+    monkeypatch.setattr(img2dmp.robot, "available", lambda: False)
+    r = client.post(f"/api/pages/{answer['id']}/write", json={})
+    assert "img2dmp[robot]" in _one_line_error(r, 503)

@@ -33,6 +33,7 @@ from .._files import parse_json
 from .errors import WebError, one_line, show
 from .jobs import JobManager, check_write
 from .models import LoadedModel, load_models, predict_with, prediction_answer
+from .page_jobs import DEFAULT_WIDTH_MM, submit_page
 from .pages import PAGE_TYPES, PAGE_UPLOAD_MB, PageStore, check_page_type, page_answer, read_photo
 from .recordings import FolderImages, MnistImages, Recordings
 from .strokes import (
@@ -83,6 +84,14 @@ class WriteRequest(_Body):
 
     dmp: dict
     hypothesis: int = Field(1, ge=1)
+    video: bool = True
+
+
+class PageWriteRequest(_Body):
+    """``POST /api/pages/{id}/write``: how the arm writes a page read lately."""
+
+    width_mm: float = Field(DEFAULT_WIDTH_MM, gt=0, description="the page's written width, mm")
+    skip_flagged: bool = Field(False, description="leave out the characters with flags")
     video: bool = True
 
 
@@ -432,6 +441,18 @@ def _job_routes(app: FastAPI, state: ServerState) -> None:
         doc = check_write(body.dmp, body.hypothesis)
         return _json(state.jobs.submit(doc, body.hypothesis, body.video), 202)
 
+    @app.post("/api/pages/{page_id}/write", status_code=202)
+    def write_page(page_id: str, body: PageWriteRequest) -> Response:
+        """Queue a run of the simulated KUKA iiwa writing every character of a page read
+        lately (its whole document), ``width_mm`` wide; 422 if it does not fit."""
+        from ..robot import available
+
+        if not available():
+            raise WebError(503, "the robot needs pybullet: pip install 'img2dmp[robot]'")
+        answer = submit_page(state.jobs, state.pages, page_id, body.width_mm,
+                             body.skip_flagged, body.video)  # fmt: skip
+        return _json(answer, 202)
+
     @app.get("/api/jobs/{job_id}")
     def job(job_id: str) -> dict:
         """A robot run's state, progress, outcome and files."""
@@ -439,7 +460,8 @@ def _job_routes(app: FastAPI, state: ServerState) -> None:
 
     @app.get("/api/jobs/{job_id}/files/{name}", response_class=FileResponse)
     def job_file(job_id: str, name: str) -> FileResponse:
-        """One output of a finished run: paper.png, animation.gif or log.csv."""
+        """One output of a finished run: paper.png, animation.gif, log.csv (and a page's
+        characters.csv)."""
         return FileResponse(state.jobs.file(job_id, name))
 
 

@@ -1,12 +1,14 @@
 """Robot runs for the web API: the simulated KUKA iiwa writes a DMP in its own process.
 
-Each job is a folder ``JOBS_DIR/<id>/`` holding the checked DMP document (``dmp.json``,
-written through :mod:`img2dmp.data.dmpfile`), then the outputs under fixed names
-(:data:`JOB_FILES`), the process's output (``job.log``) and its outcome
-(``result.json``). A job runs in a process of its own (multiprocessing, "spawn"), so
-that pybullet never holds up the server's predictions; at most ``max_jobs`` run at once
-and the others wait in order. The running process reports its progress (0-1) through a
-shared double; a failure is one line in ``error``.
+Each job is a folder ``JOBS_DIR/<id>/`` holding what it writes (here the checked DMP
+document, ``dmp.json``, written through :mod:`img2dmp.data.dmpfile`; a page's job, in
+:mod:`.page_jobs`, its page document), then the outputs under fixed names (:data:`JOB_FILES`
+for a DMP), the process's output (``job.log``) and its outcome (``result.json``). A job
+runs in a process of its own (multiprocessing, "spawn"), so that pybullet never holds up
+the server's predictions; at most ``max_jobs`` run at once and the others wait in order,
+whatever they write. The running process reports through a shared array of doubles
+(:data:`SHARE`: the progress, 0-1; :data:`BEGUN`: the characters of a page begun); a
+failure is one line in ``error``.
 """
 
 from __future__ import annotations
@@ -39,22 +41,32 @@ FRAME_INTERVAL_S = 0.1
 CONTROL_RATE_HZ = 240.0
 #: Share of the progress bar the simulation fills; the pictures the rest.
 SIMULATION_SHARE = 0.9
+#: The places in a job's shared report: the progress (0-1), the characters begun.
+SHARE, BEGUN = 0, 1
 _POLL_S = 0.1
 
 
-def run_job(job_dir: str, hypothesis: int, video: bool, progress) -> None:
+def run_job(job_dir: str, options: dict, report) -> None:
     """Write the job's DMP with the simulated arm (the child process's whole work).
 
     Reads ``job_dir/dmp.json``, writes the outputs of :data:`JOB_FILES` (the animation only
-    with ``video``) and ``result.json``: ``{"status": "done", "summary": [lines]}`` or
-    ``{"status": "failed", "error": one line}``. ``progress`` is a shared double (0-1).
+    with ``options["video"]``) and ``result.json`` (:func:`run_in_job_dir`), the
+    hypothesis of rank ``options["hypothesis"]``. ``report[SHARE]``: the progress (0-1).
     """
+    hypothesis, video = options["hypothesis"], options["video"]
+    run_in_job_dir(job_dir, lambda d: {"summary": _write(d, hypothesis, video, report)})
+
+
+def run_in_job_dir(job_dir: str, work) -> None:
+    """Run ``work(Path(job_dir))`` in a job's process, its output going to ``job.log``,
+    and write its outcome, ``result.json``: ``{"status": "done", **work's dict}`` or
+    ``{"status": "failed", "error": one line}``."""
     d = Path(job_dir)
     log = os.open(d / "job.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     os.dup2(log, 1)
     os.dup2(log, 2)
     try:
-        outcome = {"status": "done", "summary": _write(d, hypothesis, video, progress)}
+        outcome = {"status": "done", **work(d)}
     except (ValueError, OSError) as e:  # the DMP cannot be written, or a file failed
         outcome = {"status": "failed", "error": one_line(str(e) or type(e).__name__)}
     except RuntimeError as e:  # the simulated arm failed (e.g. never settled)
@@ -67,7 +79,7 @@ def run_job(job_dir: str, hypothesis: int, video: bool, progress) -> None:
     sys.stderr.flush()
 
 
-def _write(d: Path, hypothesis: int, video: bool, progress) -> list[str]:
+def _write(d: Path, hypothesis: int, video: bool, report) -> list[str]:
     from ..robot import (
         load_dmp_json,
         plot_writing,
@@ -82,7 +94,7 @@ def _write(d: Path, hypothesis: int, video: bool, progress) -> list[str]:
 
     def advance(n: int) -> None:
         steps["done"] += n
-        progress.value = SIMULATION_SHARE * min(1.0, steps["done"] / steps["expected"])
+        report[SHARE] = SIMULATION_SHARE * min(1.0, steps["done"] / steps["expected"])
 
     result = write_dmp(
         params,
@@ -93,13 +105,13 @@ def _write(d: Path, hypothesis: int, video: bool, progress) -> list[str]:
         render_size_px=None,
         progress=advance,
     )
-    progress.value = SIMULATION_SHARE
+    report[SHARE] = SIMULATION_SHARE
     name = f"hypothesis {hypothesis}"
     plot_writing(result, d / JOB_FILES["paper"], title=f"{name}: KUKA iiwa writes")
     save_log_csv(result, d / JOB_FILES["log"])
     if video:
         save_video(result, d / JOB_FILES["animation"], FRAME_INTERVAL_S)
-    progress.value = 1.0
+    report[SHARE] = 1.0
     return summary_lines(name, result)
 
 
@@ -120,18 +132,28 @@ def check_write(doc, hypothesis) -> dict:
 
 @dataclass
 class Job:
-    """One robot run and what is known of it."""
+    """One robot run and what is known of it.
+
+    ``target(job_dir, options, report)`` is what its process runs; ``files`` its outputs
+    (key of ``files`` in its state: file name); ``characters`` the indices of a page's
+    characters it writes, in order (empty for one DMP); ``page`` a page's measures
+    (the outcome's ``"page"``).
+    """
 
     id: str
     dir: Path
-    hypothesis: int
-    video: bool
+    kind: str
+    target: object
+    options: dict
+    files: dict
+    characters: tuple = ()
     status: str = "queued"
     error: str | None = None
     summary: list = field(default_factory=list)
-    progress: object = None
+    page: dict | None = None
+    report: object = None
     process: object = None
-    last_progress: float = 0.0
+    last_report: tuple = (0.0, 0.0)
     started_at: float | None = None  # UNIX time
     ended_at: float | None = None
 
@@ -146,7 +168,7 @@ class JobManager:
     max_jobs : int
         Runs at the same time.
     target : callable
-        What a job's process runs (:func:`run_job`; picklable, for "spawn").
+        What the process of a DMP's job runs (:func:`run_job`; picklable, for "spawn").
     """
 
     def __init__(self, jobs_dir=None, max_jobs: int = 1, target=run_job):
@@ -165,13 +187,25 @@ class JobManager:
 
     def submit(self, doc: dict, hypothesis: int, video: bool) -> dict:
         """Queue a run of a checked document (:func:`check_write`); its state."""
+        options = {"hypothesis": hypothesis, "video": bool(video)}
+
+        def write_input(d: Path) -> None:
+            write_dmp_document(d / "dmp.json", doc)
+
+        return self.submit_job("dmp", self.target, options, JOB_FILES, write_input)
+
+    def submit_job(self, kind: str, target, options: dict, files: dict, write_input,
+                   characters=()) -> dict:  # fmt: skip
+        """Queue a job of any kind (a page's: :mod:`.page_jobs`); its state.
+        ``write_input(job_dir)`` writes what its process reads; the rest as :class:`Job`."""
         with self._lock:
             if len(self._waiting) >= MAX_WAITING:
                 raise WebError(429, f"{MAX_WAITING} robot runs are waiting already; try later")
-            job = Job(secrets.token_hex(8), Path(), hypothesis, bool(video))
+            job = Job(secrets.token_hex(8), Path(), kind, target, dict(options), dict(files),
+                      tuple(characters))  # fmt: skip
             job.dir = self.dir / job.id
             job.dir.mkdir()
-            write_dmp_document(job.dir / "dmp.json", doc)
+            write_input(job.dir)
             self._jobs[job.id] = job
             self._waiting.append(job)
             state = self._state(job)
@@ -185,13 +219,13 @@ class JobManager:
             return self._state(self._job(job_id))
 
     def file(self, job_id: str, name: str) -> Path:
-        """The output ``name`` (one of :data:`JOB_FILES`' names) of a job; 404 unless the
-        job is known and the file written."""
+        """The output ``name`` (one of its ``files``' names) of a job; 404 unless the job
+        is known and the file written."""
         with self._lock:
             job = self._job(job_id)
-        if name not in JOB_FILES.values():
+        if name not in job.files.values():
             raise WebError(404, f"name: no job file {show(name)}; the files are "
-                           f"{', '.join(JOB_FILES.values())}")  # fmt: skip
+                           f"{', '.join(job.files.values())}")  # fmt: skip
         path = job.dir / name
         if job.status != "done" or not path.is_file():
             raise WebError(404, f"job {job_id} has no {name} (status {job.status})")
@@ -207,18 +241,20 @@ class JobManager:
         position = None
         if job.status == "queued":
             position = next(i for i, j in enumerate(self._waiting, start=1) if j is job)
-        progress = {"queued": 0.0, "done": 1.0}.get(job.status, job.last_progress)
-        if job.status == "running" and job.progress is not None:
-            progress = float(job.progress.value)
+        share, begun = job.last_report
+        if job.status == "running" and job.report is not None:
+            share, begun = job.report[SHARE], job.report[BEGUN]
+        progress = {"queued": 0.0, "done": 1.0}.get(job.status, share)
         files = {
             key: f"/api/jobs/{job.id}/files/{name}"
             if job.status == "done" and (job.dir / name).is_file()
             else None
-            for key, name in JOB_FILES.items()
+            for key, name in job.files.items()
         }
-        return {"id": job.id, "status": job.status, "position": position,
-                "progress": round(progress, 4), "error": job.error,
-                "summary": list(job.summary), "files": files,
+        return {"id": job.id, "kind": job.kind, "status": job.status, "position": position,
+                "progress": round(float(progress), 4),
+                "character": _character(job, int(begun)), "error": job.error,
+                "summary": list(job.summary), "files": files, "page": job.page,
                 "started_at": job.started_at, "ended_at": job.ended_at}  # fmt: skip
 
     def _ensure_thread(self) -> None:
@@ -241,9 +277,9 @@ class JobManager:
         running = sum(1 for j in self._jobs.values() if j.status == "running")
         while self._waiting and running < self.max_jobs:
             job = self._waiting.popleft()
-            job.progress = self._ctx.Value("d", 0.0, lock=False)
-            args = (str(job.dir), job.hypothesis, job.video, job.progress)
-            process = self._ctx.Process(target=self.target, args=args, daemon=True)
+            job.report = self._ctx.Array("d", 2, lock=False)  # SHARE, BEGUN
+            args = (str(job.dir), job.options, job.report)
+            process = self._ctx.Process(target=job.target, args=args, daemon=True)
             try:
                 process.start()
             except Exception as e:  # no process: the job fails, the server goes on
@@ -257,7 +293,7 @@ class JobManager:
         for job in self._jobs.values():
             if job.status != "running" or job.process.exitcode is None:
                 continue
-            job.last_progress = float(job.progress.value)
+            job.last_report = (float(job.report[SHARE]), float(job.report[BEGUN]))
             code = job.process.exitcode
             job.process.join()
             job.process.close()
@@ -271,6 +307,7 @@ class JobManager:
             job.ended_at = time.time()
             job.error = outcome.get("error")
             job.summary = list(outcome.get("summary", []))
+            job.page = outcome.get("page")
 
     def close(self, timeout_s: float = 5.0) -> None:
         """Stop: end the running processes (the ones started here), forget the waiting
@@ -300,4 +337,21 @@ class JobManager:
             time.sleep(_POLL_S / 2)
 
 
-__all__ = ["JOB_FILES", "Job", "JobManager", "check_write", "run_job"]
+def _character(job: Job, begun: int) -> dict | None:
+    """The page's character being written (``number`` of ``of`` in the job's order, and
+    its ``index`` in the page), None unless a page's job is writing one."""
+    if job.status != "running" or not 1 <= begun <= len(job.characters):
+        return None
+    return {"number": begun, "of": len(job.characters), "index": job.characters[begun - 1]}
+
+
+__all__ = [
+    "BEGUN",
+    "JOB_FILES",
+    "SHARE",
+    "Job",
+    "JobManager",
+    "check_write",
+    "run_in_job_dir",
+    "run_job",
+]

@@ -1,7 +1,9 @@
 // The Page view: choose or drop a photo of a page; every character's box and index over
 // the photo, the predicted paths written in reading order (pen lifted between them), the
-// flagged characters marked and listed, the page document to download.
+// flagged characters marked and listed, the page document to download; the arm writes it
+// (page_arm.js).
 import { api, el, fitCanvas, flagText, initHeader, showError, showMessage } from "./common.js";
+import { armCard } from "./page_arm.js";
 
 // Box colours of successive lines (as the page picture of img2dmp predict --page).
 const LINE_COLOURS = ["#0072b2", "#009e73", "#cc79a7", "#e69f00", "#56b4e9"];
@@ -32,6 +34,7 @@ const state = {
 };
 
 const models = initHeader("page", ui.message);
+const arm = armCard(markArm);
 
 // ---------------------------------------------------------------- the photo ------
 
@@ -85,6 +88,7 @@ async function readPage() {
   const seq = ++state.seq;
   if (state.abort) state.abort.abort();
   state.abort = new AbortController();
+  arm.reset(); // a new reading: the arm's run of the previous one goes
   setState("loading");
   showMessage(ui.message, "", "");
   ui.summary.textContent = `Reading ${state.file.name || "the photo"}\u2026`;
@@ -141,6 +145,7 @@ function showPage(answer) {
   ui.download.hidden = false;
   drawBoxes(page);
   listFlagged(flagged);
+  arm.show(answer);
   ui.legend.hidden = chars.length === 0;
   if (chars.length === 0) {
     setState("done");
@@ -392,6 +397,12 @@ function drawTravel(ctx, i, u, map, width) {
   ctx.stroke();
   ctx.setLineDash([]);
   drawPen(ctx, at, false, width);
+}
+
+/** Mark the box of the character the arm is writing (null: none). */
+function markArm(index) {
+  for (const b of ui.boxes.querySelectorAll(".box.arm")) b.classList.remove("arm");
+  if (index !== null) boxOf(index)?.classList.add("arm");
 }
 
 function markCurrent(index) {

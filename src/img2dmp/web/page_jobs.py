@@ -1,0 +1,192 @@
+"""The arm writes a page read in the browser: ``POST /api/pages/{id}/write`` (docs/WEB.md).
+
+A page's job is a robot job (:mod:`.jobs`: queued with the DMPs' jobs, in its own
+process) that writes the whole page document of a page read lately (the
+:class:`~.pages.PageStore`'s, every character's DMP) with
+:func:`img2dmp.robot.page.write_page`'s two steps, as ``img2dmp write PAGE.json --page``
+does:
+
+1. before it is queued, :func:`plan_page_job` checks the document and lays the page out
+   (:func:`~img2dmp.robot.page.plan_page`: no simulation), so that a page that does not
+   fit the sheet at the width asked for is refused at once with the library's one line
+   (naming the widest width that fits);
+2. its process (:func:`run_page_job`) plans it again from ``page.json`` and writes it
+   (:func:`~img2dmp.robot.page.write_page_plan`), reporting the characters it begins, then
+   writes :data:`PAGE_FILES` and the measures of the page and of every character.
+
+The video is a time lapse of at most :data:`MAX_PAGE_FRAMES` frames, each shown 0.1 s:
+a frame costs about 0.09 s to render and 0.03 s to encode (AMD EPYC, 2 cores shared)
+and 0.5 MB of memory until the GIF is written, so a page of a few minutes kept every
+0.1 s, as one DMP's video is, would take longer to film than to write and hold
+gigabytes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path, PurePath
+
+from .._files import atomic_write_text
+from ..robot.page import DEFAULT_WIDTH_MM
+from .errors import WebError
+from .jobs import (
+    BEGUN,
+    CONTROL_RATE_HZ,
+    FRAME_INTERVAL_S,
+    JOB_FILES,
+    SHARE,
+    SIMULATION_SHARE,
+    run_in_job_dir,
+)
+
+#: The outputs of a page's job, by the key of ``files`` in ``GET /api/jobs/{id}``.
+PAGE_FILES = {**JOB_FILES, "characters": "characters.csv"}
+#: Most frames of a page's video (a 12 s time lapse); a longer page is kept at longer
+#: intervals.
+MAX_PAGE_FRAMES = 120
+#: The page's totals in the job's answer (:func:`img2dmp.robot.page.page_metrics` and
+#: the run's), those of the first lines of ``img2dmp write --page``.
+_TOTALS = (
+    "characters", "characters_written", "characters_skipped", "width_mm", "height_mm",
+    "ink_share", "ink_on_path_share", "placement_error_max_mm", "travel_contact_s",
+    "force_mean_n", "force_std_n", "force_set_n", "force_in_band_share",
+    "tracking_error_mean_mm", "tracking_error_max_mm", "simulated_s", "control_rate_hz",
+)  # fmt: skip
+
+
+def plan_page_job(text: str, filename: str, width_mm: float, skip_flagged: bool) -> tuple:
+    """The indices of the characters a job of this page document (its JSON ``text``, named
+    ``filename``) writes, in order, from its layout at ``width_mm``; 422 with the
+    library's one line when it cannot be written (e.g. it does not fit the sheet)."""
+    try:
+        plan = _plan(json.loads(text), filename, width_mm, skip_flagged)
+    except ValueError as e:
+        raise WebError(422, str(e)) from None
+    return tuple(cp.character.index for cp in plan.characters)
+
+
+def _plan(doc: dict, filename: str, width_mm: float, skip_flagged: bool):
+    from ..robot import WritingOptions, check_page_document, plan_page
+
+    page = check_page_document(doc, filename)
+    options = WritingOptions(control_rate_hz=CONTROL_RATE_HZ, render_size_px=None)
+    return plan_page(page, options, width_mm=width_mm, skip_flagged=skip_flagged)
+
+
+def submit_page(jobs, pages, page_id: str, width_mm: float, skip_flagged: bool, video: bool):
+    """Queue the arm writing page ``page_id`` of ``pages`` (404 if not kept) with the
+    ``jobs`` manager; the job's state."""
+    text, filename = pages.document(page_id)
+    characters = plan_page_job(text, filename, width_mm, skip_flagged)
+    options = {"filename": filename, "width_mm": float(width_mm),
+               "skip_flagged": bool(skip_flagged), "video": bool(video)}  # fmt: skip
+    return jobs.submit_job(
+        "page",
+        run_page_job,
+        options,
+        PAGE_FILES,
+        lambda d: atomic_write_text(d / "page.json", text),
+        characters,
+    )
+
+
+def run_page_job(job_dir: str, options: dict, report) -> None:
+    """The process of a page's job: write ``job_dir/page.json`` with the arm
+    (:func:`run_in_job_dir`). ``report[SHARE]``: the progress (0-1); ``report[BEGUN]``:
+    the characters begun."""
+    run_in_job_dir(job_dir, lambda d: _write_page(d, options, report))
+
+
+def _write_page(d: Path, options: dict, report) -> dict:
+    from ..robot import page_summary_lines
+
+    doc = json.loads((d / "page.json").read_text(encoding="utf-8"))
+    filename, name = options["filename"], PurePath(options["filename"]).stem
+    plan = _plan(doc, filename, options["width_mm"], options["skip_flagged"])
+    expected = max(1, plan.estimated_steps())
+    interval_s = _frame_interval_s(expected / CONTROL_RATE_HZ) if options["video"] else None
+    plan = dataclasses.replace(
+        plan, options=dataclasses.replace(plan.options, frame_interval_s=interval_s)
+    )
+    result = _run(plan, expected, report)
+    report[SHARE] = SIMULATION_SHARE
+    _save_outputs(result, d, name, video=interval_s is not None)
+    report[SHARE] = 1.0
+    speed = None if interval_s is None else interval_s / FRAME_INTERVAL_S
+    return {"summary": page_summary_lines(name, result), "page": page_measures(result, speed)}
+
+
+def _run(plan, expected_steps: int, report):
+    """The simulation of a planned page, reporting its progress and the characters begun."""
+    from ..robot import write_page_plan
+
+    steps = [0]
+
+    def advance(n: int) -> None:
+        steps[0] += n
+        report[SHARE] = SIMULATION_SHARE * min(1.0, steps[0] / expected_steps)
+
+    def begin(_character) -> None:
+        report[BEGUN] += 1
+
+    return write_page_plan(plan, progress=advance, on_character=begin)
+
+
+def _save_outputs(result, d: Path, name: str, video: bool) -> None:
+    from ..robot import plot_page, save_characters_csv, save_log_csv, save_video
+
+    plot_page(result, d / PAGE_FILES["paper"], title=f"{name}: KUKA iiwa writes a page")
+    save_characters_csv(result, d / PAGE_FILES["characters"])
+    save_log_csv(result, d / PAGE_FILES["log"])
+    if video:
+        # Every frame shown FRAME_INTERVAL_S: a long page plays as a time lapse.
+        save_video(result, d / PAGE_FILES["animation"], FRAME_INTERVAL_S)
+
+
+def _frame_interval_s(duration_s: float) -> float:
+    """Simulated seconds between two video frames: FRAME_INTERVAL_S, or longer so that a
+    page of about ``duration_s`` keeps at most MAX_PAGE_FRAMES."""
+    return max(FRAME_INTERVAL_S, math.ceil(100 * duration_s / MAX_PAGE_FRAMES) / 100)
+
+
+def page_measures(result, video_speed: float | None) -> dict:
+    """The ``"page"`` of a finished page's job: ``totals`` (:func:`page_metrics`' numbers),
+    one entry per character in reading order (``index, line, written, flags`` and, when
+    written, the numbers of ``characters.csv``), and how many times faster than the
+    simulation the video plays (null without a video). Not-a-number is null."""
+    from ..robot.outputs import CHARACTERS_CSV_HEADER
+
+    m = result.metrics
+    totals = {k: _number(m[k]) for k in _TOTALS}
+    chars = []
+    for r in result.characters:
+        c = r.character
+        entry = {"index": c.index, "line": c.line, "written": r.written, "flags": list(c.flags)}
+        if r.written:
+            entry["strokes"] = len(r.metrics["strokes"])
+            entry.update({k: _number(r.metrics[k]) for k in CHARACTERS_CSV_HEADER[8:]})
+            entry.update(start_s=_number(r.metrics["start_s"]), end_s=_number(r.metrics["end_s"]))
+        chars.append(entry)
+    speed = None if video_speed is None else round(float(video_speed), 3)
+    return {"totals": totals, "characters": chars, "video_speed": speed}
+
+
+def _number(value) -> float | int | None:
+    """A measure for strict JSON: ints stay ints, NaN and infinities become None."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return value
+    value = float(value)
+    return round(value, 6) if math.isfinite(value) else None
+
+
+__all__ = [
+    "DEFAULT_WIDTH_MM",
+    "MAX_PAGE_FRAMES",
+    "PAGE_FILES",
+    "page_measures",
+    "plan_page_job",
+    "run_page_job",
+    "submit_page",
+]
