@@ -79,6 +79,8 @@ SPECK_AREA_PEN2 = 2.5
 MIN_STROKE_AREA_PX = 8
 #: Dots of dotted paper: marks at most this many pen widths across,
 DOT_SIZE_PEN = 2.5
+#: ... or filled discs: at most this many times their thickness (2 area / boundary) across,
+DOT_DISC = 3.0
 #: ... at least this many of them, evenly spaced.
 MIN_DOTS = 8
 #: A component along the image's border for this share of that side is the
@@ -609,7 +611,7 @@ def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool):
         speck = keep & (area < max(SPECK_AREA_PEN2 * width**2, MIN_STROKE_AREA_PX))
         keep &= ~speck  # a page of specks alone holds no ink
         removed["specks"] = int(speck.sum())
-        dots = _dot_lattice(labels, area, keep, width)
+        dots = _dot_lattice(labels, area, boundary, keep, width)
         keep &= ~dots
         removed["dots"] = int(dots.sum())
         # thick and faint: a shadow's band (a thick pen is as dark as a thin one)
@@ -635,19 +637,22 @@ def _component_medians(labels: np.ndarray, dark: np.ndarray, n: int) -> np.ndarr
     return np.where(ends > starts, val[mid] if len(val) else 0.0, 0.0)
 
 
-def _dot_lattice(labels: np.ndarray, area: np.ndarray, keep: np.ndarray, width: float):
-    """Per label: the dots of dotted paper. Small marks (at most ``DOT_SIZE_PEN`` pen widths
+def _dot_lattice(labels, area, boundary, keep, width: float):
+    """Per label: the dots of dotted paper. Small marks (at most ``DOT_SIZE_PEN`` pen
+    widths across, or filled discs: at most ``DOT_DISC`` times their own thickness
     across) are dots when at least ``MIN_DOTS`` of them sit at an even spacing (their
     nearest neighbours' distances agree within 25 %): a pen's own dots are few and
     scattered, a printed pattern's many and regular."""
     from scipy.ndimage import find_objects
     from scipy.spatial import cKDTree
 
+    thick = 2.0 * area / np.maximum(boundary, 1)
     small = np.zeros(len(area), bool)
     for lab, sl in enumerate(find_objects(labels), start=1):
         if sl is not None and keep[lab]:
             size = max(sl[0].stop - sl[0].start, sl[1].stop - sl[1].start)
-            small[lab] = size <= DOT_SIZE_PEN * max(width, 1.0)
+            # a dot: about as wide as the pen, or a filled disc of any size
+            small[lab] = size <= DOT_SIZE_PEN * max(width, 1.0) or size <= DOT_DISC * thick[lab]
     idx = np.flatnonzero(small)
     if idx.size < MIN_DOTS:
         return np.zeros(len(area), bool)
