@@ -485,6 +485,24 @@ def _crossings(strokes: np.ndarray, rule: np.ndarray, reach: int) -> np.ndarray:
     return rule & above & below
 
 
+def _rule_pieces(rest: np.ndarray, rule: np.ndarray, reach: int) -> np.ndarray:
+    """The marks of ``rest`` that touch ``rule`` and continue it: at least three times as
+    long along the rows as across, and no thicker than the rules (where a slightly bent
+    rule left the one angle's straight band)."""
+    from scipy.ndimage import find_objects, label
+
+    labels, _ = label(rest, structure=np.ones((3, 3), bool))
+    touching = np.unique(labels[dilate3(rule) & (labels > 0)])
+    out = np.zeros(rest.shape, bool)
+    objects = find_objects(labels)
+    for lab in touching:
+        sl = objects[lab - 1]
+        h, w = sl[0].stop - sl[0].start, sl[1].stop - sl[1].start
+        if w >= 3 * h and h <= reach + 2:
+            out[sl] |= labels[sl] == lab
+    return out
+
+
 def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None
           ) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Pixels of ``mask`` on ruled or squared paper's lines (both directions), and the
@@ -506,6 +524,10 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None
         if reach:
             per_axis.append((axis, angles[name], r, reach))
             found |= r if axis == 0 else r.T
+    for axis, _, r, reach in per_axis:
+        grown = _rule_pieces((mask if axis == 0 else mask.T) & ~(found if axis == 0 else found.T),
+                             r, reach)  # fmt: skip
+        found |= grown if axis == 0 else grown.T
     strokes = mask & ~found
     keep = np.zeros(mask.shape, bool)
     for axis, angle, r, reach in per_axis:
@@ -663,7 +685,9 @@ def _dot_lattice(labels, area, boundary, keep, width: float):
                         np.bincount(lab, cols, len(area))[idx] / n], -1)  # fmt: skip
     nearest = cKDTree(centres).query(centres, k=2)[0][:, 1]
     med = float(np.median(nearest))
-    even = np.abs(nearest - med) <= 0.25 * med
+    # a lattice with holes: the nearest may be a diagonal or two spacings away
+    ratio = nearest / med
+    even = np.min(np.abs(ratio[:, None] - np.array([1.0, math.sqrt(2.0), 2.0])), axis=1) <= 0.2
     if np.count_nonzero(even) < MIN_DOTS:
         return np.zeros(len(area), bool)
     out = np.zeros(len(area), bool)
