@@ -50,7 +50,9 @@ def run_job(job_dir: str, hypothesis: int, video: bool, progress) -> None:
     ``{"status": "failed", "error": one line}``. ``progress`` is a shared double (0-1).
     """
     d = Path(job_dir)
-    log = os.open(d / "job.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    # The job's folder is new (made by submit); O_NOFOLLOW all the same: a log is never
+    # written through a link.
+    log = os.open(d / "job.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW, 0o644)
     os.dup2(log, 1)
     os.dup2(log, 2)
     try:

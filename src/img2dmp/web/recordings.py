@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from .._files import LOCK_NAME, atomic_write_text
+from .._files import atomic_write_text, open_lock_file
 from ..data.images import shown_size, upright
 from ..data.mnist import IMAGES_MAGIC, LABELS_MAGIC, MNIST_FILES, find_mnist_file, read_idx
 from ..data.recorded import parse_recorded
@@ -206,6 +206,7 @@ class Recordings:
         if self.data_dir.exists() and not self.data_dir.is_dir():
             raise NotADirectoryError(f"--data-dir {self.data_dir} is a file, not a directory")
         self.data_dir.mkdir(parents=True, exist_ok=True)
+        os.close(open_lock_file(self.data_dir, "--data-dir"))  # a planted link: refused now
         self.source = source
         self._lock = threading.Lock()
 
@@ -278,7 +279,10 @@ class Recordings:
         """This process's threads one at a time, and other processes through
         ``fcntl.flock`` on ``DATA_DIR/.lock`` (503 after ``LOCK_TIMEOUT_S``)."""
         with self._lock:
-            fd = os.open(self.data_dir / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o666)
+            try:
+                fd = open_lock_file(self.data_dir, "--data-dir")
+            except OSError as e:  # the folder changed under the server
+                raise WebError(503, f"the recordings cannot be locked: {e}") from None
             try:
                 deadline = time.monotonic() + LOCK_TIMEOUT_S
                 while True:
