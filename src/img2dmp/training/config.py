@@ -247,6 +247,14 @@ class CostConfig:
             )
 
 
+def machine_cores() -> int:
+    """The cores this process may run on (its CPU affinity), the most ``threads`` can be."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not Linux
+        return os.cpu_count() or 1
+
+
 @dataclass
 class TrainConfig:
     """Everything :func:`img2dmp.training.train` needs; read by :func:`load_config`.
@@ -277,6 +285,12 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.threads is not None and self.threads < 1:
             raise ConfigError(f"threads must be >= 1 or null, got {self.threads!r}")
+        if self.threads is not None and self.threads > machine_cores():
+            # torch starts one OpenMP thread per count: 100,000 of them crash the process
+            raise ConfigError(
+                f"threads must be at most this machine's {machine_cores()} cores, got "
+                f"{self.threads!r}"
+            )
         if self.eval_batch_size < 1:
             raise ConfigError(f"eval_batch_size must be >= 1, got {self.eval_batch_size!r}")
         if self.seed < 0:
@@ -309,4 +323,5 @@ __all__ = [
     "OptimConfig",
     "TrainConfig",
     "load_config",
+    "machine_cores",
 ]
