@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     from ..data.synthetic import generate_dataset
 
     config = synthetic_config(args)
-    _args.check_outputs([(args.out, None)], args.force)
+    _args.check_outputs([(args.out, None)], args.force, _args.config_inputs(args))
     data = generate_dataset(
         args.per_digit,
         config,

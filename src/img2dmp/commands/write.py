@@ -159,7 +159,9 @@ def check_files(args) -> None:
         for path in inputs:
             base = _joints_base(args, _name(path), len(inputs))
             outputs += [(f, path) for f in export_paths(base)]
-    _args.check_outputs(outputs, args.force)
+    read = [("--dmp file" if args.dmp else "image", path) for path in inputs]
+    read += [("image", args.image)] if args.image else []
+    _args.check_outputs(outputs, args.force, read + _args.model_inputs(args.model))
 
 
 def _mp4_available() -> bool:
