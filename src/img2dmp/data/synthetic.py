@@ -55,6 +55,7 @@ from dataclasses import asdict, dataclass, field, fields
 import numpy as np
 import torch
 
+from .._processes import children_ignore_interrupts
 from .._progress import bar as progress_bar
 from ..config import ConfigError, check_positive_fields, from_mapping
 from ..dmp import DMPConfig, fit_dmp
@@ -694,7 +695,8 @@ def generate_dataset(
         else:
             ctx = multiprocessing.get_context("spawn")
             pool = ProcessPoolExecutor(min(workers, n_chunks), ctx, _init_worker)
-            results = pool.map(_generate_chunk, jobs)
+            with children_ignore_interrupts():  # Ctrl-C is the parent's (it ends the pool)
+                results = pool.map(_generate_chunk, jobs)  # starts the processes
         try:
             for part in results:
                 parts.append(part)

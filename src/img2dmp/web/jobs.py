@@ -3,10 +3,13 @@
 Each job is a folder ``JOBS_DIR/<id>/`` holding the checked DMP document (``dmp.json``,
 written through :mod:`img2dmp.data.dmpfile`), then the outputs under fixed names
 (:data:`JOB_FILES`), the process's output (``job.log``) and its outcome
-(``result.json``). A job runs in a process of its own (multiprocessing, "spawn"), so
-that pybullet never holds up the server's predictions; at most ``max_jobs`` run at once
-and the others wait in order. The running process reports its progress (0-1) through a
-shared double; a failure is one line in ``error``.
+(``result.json``). A job runs in a process of its own (multiprocessing, "forkserver":
+a fresh Python started once, which forks each run), so that pybullet never holds up the
+server's predictions; at most ``max_jobs`` run at once and the others wait in order. The
+fork server is started with Ctrl-C ignored, and so are the runs it forks: Ctrl-C stops
+the server, which ends them, instead of printing each one's traceback. The running
+process reports its progress (0-1) through a shared double; a failure is one line in
+``error``.
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from __future__ import annotations
 import collections
 import json
 import multiprocessing
+import multiprocessing.forkserver
 import os
 import secrets
 import shutil
@@ -26,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .._files import atomic_write_text
+from .._processes import children_ignore_interrupts
 from ..data.dmpfile import FORMAT, VERSION, check_dmp_document, write_dmp_document
 from .errors import WebError, one_line, show
 
@@ -157,7 +162,11 @@ class JobManager:
         self.dir.mkdir(parents=True, exist_ok=True)
         self.max_jobs = int(max_jobs)
         self.target = target
-        self._ctx = multiprocessing.get_context("spawn")
+        self._ctx = multiprocessing.get_context("forkserver")
+        # Started here (serve's main thread) rather than with the first run (the jobs'
+        # thread, where signal handlers cannot be changed): its runs inherit SIGINT ignored.
+        with children_ignore_interrupts():
+            multiprocessing.forkserver.ensure_running()
         self._jobs: dict[str, Job] = {}
         self._waiting: collections.deque[Job] = collections.deque()
         self._lock = threading.Lock()
