@@ -55,6 +55,8 @@ SEVEN = [[[70.0, 60.0, 0.0], [150.0, 58.0, 40.0], [215.0, 62.0, 80.0],
 CANVAS = [280, 280]
 #: Labels of the tiny MNIST's images.
 LABELS = [7, 1, 4, 7, 0, 3, 9, 2, 5, 6, 8, 1]
+#: Where the test clients send their requests: a name the server answers to (its Host).
+LOCAL = "http://127.0.0.1:8000"
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +107,7 @@ def client(runs, mnist_dir, work):
     """One server of both networks and the tiny MNIST, for the tests that write nothing
     or only their own recordings."""
     app = create_app([runs[1], runs[2]], mnist=mnist_dir, data_dir=work / "recordings")
-    with TestClient(app) as c:
+    with TestClient(app, base_url=LOCAL) as c:
         yield c
 
 
@@ -117,7 +119,7 @@ def serve(tmp_path, runs):
     def make(**options):
         options.setdefault("data_dir", tmp_path / "recordings")
         options.setdefault("jobs_dir", tmp_path / "jobs")
-        c = TestClient(create_app(options.pop("models", [runs[1]]), **options))
+        c = TestClient(create_app(options.pop("models", [runs[1]]), **options), base_url=LOCAL)
         clients.append(c.__enter__())
         return c
 
@@ -155,7 +157,7 @@ def test_model_ids_are_the_run_names_and_unique(runs, tmp_path):
     assert model_id("runs/x/run/checkpoints/best.safetensors") == "x"
     assert model_id("nets/mine.safetensors") == "mine"
     app = create_app([runs[1], runs[1], runs[2]], data_dir=tmp_path / "r")
-    with TestClient(app) as c:
+    with TestClient(app, base_url=LOCAL) as c:
         answer = c.get("/api/models").json()
     assert answer["default"] == "net1"
     assert [m["id"] for m in answer["models"]] == ["net1", "net1-2", "net2"]
@@ -240,7 +242,7 @@ def test_strokes_are_drawn_with_a_round_pen_of_a_fourteenth_of_the_canvas():
 
 def test_no_model_means_409_for_predictions_but_the_rest_works(tmp_path, mnist_dir):
     app = create_app([], mnist=mnist_dir, data_dir=tmp_path / "r")
-    with TestClient(app) as c:
+    with TestClient(app, base_url=LOCAL) as c:
         assert c.get("/api/models").json() == {"default": None, "models": []}
         detail = _one_line_error(c.post("/api/predict", json={"strokes": SEVEN,
                                                               "canvas": CANVAS}), 409)  # fmt: skip
@@ -591,7 +593,7 @@ def test_two_servers_on_one_data_directory_write_an_image_once(tmp_path, mnist_d
             start.wait()
             answers.append(c.post("/api/recordings", json={"image": n, "strokes": _strokes_of(k)}))
 
-        with TestClient(apps[0]) as a, TestClient(apps[1]) as b:
+        with TestClient(apps[0], base_url=LOCAL) as a, TestClient(apps[1], base_url=LOCAL) as b:
             threads = [threading.Thread(target=post, args=(c, k)) for c, k in ((a, 1), (b, 2))]
             for t in threads:
                 t.start()

@@ -11,11 +11,13 @@ below. The endpoints that work are plain functions, run in FastAPI's thread pool
 
 from __future__ import annotations
 
+import asyncio
 import json
 import time
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Annotated
+from urllib.parse import urlsplit
 
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
@@ -45,6 +47,12 @@ from .strokes import (
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 #: Samples of each trajectory a prediction may ask for.
 N_POINTS_RANGE = (2, 1000)
+#: The names a browser may give this server in ``Host`` without --allowed-host.
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+#: Seconds a request body may take to arrive between two of its parts.
+BODY_TIMEOUT_S = 30.0
+#: Methods that change nothing; any other must come from the server's own pages.
+SAFE_METHODS = ("GET", "HEAD", "OPTIONS")
 
 
 # --- request bodies -------------------------------------------------------------------
@@ -119,11 +127,14 @@ class _StrictJSONRoute(APIRoute):
 
 class BodyLimit:
     """ASGI middleware: a body above ``max_bytes`` gets 413, refused from its
-    ``Content-Length`` before anything is read, or while it is read (chunked bodies)."""
+    ``Content-Length`` before anything is read, or while it is read (chunked bodies); a
+    body whose next part does not arrive within ``timeout_s`` gets 408 (a client that
+    stops half-way would otherwise hold a worker and a connection for ever)."""
 
-    def __init__(self, app, max_bytes: int):
+    def __init__(self, app, max_bytes: int, timeout_s: float = BODY_TIMEOUT_S):
         self.app = app
         self.max_bytes = int(max_bytes)
+        self.timeout_s = float(timeout_s)
 
     def _too_large(self, read: str) -> str:
         mb = self.max_bytes / (1 << 20)
@@ -146,7 +157,13 @@ class BodyLimit:
 
         async def limited():
             nonlocal total
-            message = await receive()
+            try:
+                message = await asyncio.wait_for(receive(), self.timeout_s)
+            except TimeoutError:
+                raise HTTPException(
+                    408,
+                    f"body: {total} bytes, then nothing for {self.timeout_s:g} s; send it whole",
+                ) from None
             if message["type"] == "http.request":
                 total += len(message.get("body", b""))
                 if total > self.max_bytes:
@@ -154,6 +171,65 @@ class BodyLimit:
             return message
 
         await self.app(scope, limited, send)
+
+
+def host_name(host: str) -> str:
+    """The name in a ``Host`` header or an address (``[::1]:8000`` -> ``::1``,
+    ``LocalHost.:80`` -> ``localhost``), as compared with the allowed hosts."""
+    host = host.strip().lower()
+    if host.startswith("["):
+        return host[1 : host.find("]")] if "]" in host else host
+    if host.count(":") == 1:  # name:port (an IPv6 address without brackets has several)
+        host = host.split(":", 1)[0]
+    return host[:-1] if host.endswith(".") else host
+
+
+def _origin(url: str) -> tuple[str, str, int | None] | None:
+    """(scheme, host, port) of an ``Origin`` or URL, ports spelled out; None if it is none."""
+    try:
+        parts = urlsplit(url.strip().lower())
+        port = parts.port or {"http": 80, "https": 443}.get(parts.scheme)
+    except ValueError:
+        return None
+    return (parts.scheme, host_name(parts.hostname or ""), port) if parts.hostname else None
+
+
+class HostGuard:
+    """ASGI middleware against DNS rebinding and cross-site requests, before any work.
+
+    A page of another site that makes its own name resolve to 127.0.0.1 (DNS rebinding)
+    reaches this server from the user's browser as a page of its own origin; only the
+    ``Host`` header shows the name it used. A request whose ``Host`` is none of
+    ``allowed`` (the loopback names, the address bound, ``--allowed-host``) gets 400. A
+    request that may change something (any method but GET, HEAD and OPTIONS) whose
+    ``Origin`` is not this server's own (the scheme and the ``Host`` it was sent to) gets
+    403; a request without ``Origin`` is not from a browser's page of another site.
+    """
+
+    def __init__(self, app, allowed: tuple[str, ...]):
+        self.app = app
+        self.allowed = tuple(dict.fromkeys(host_name(h) for h in allowed))
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        headers = dict(scope.get("headers") or ())
+        host = headers.get(b"host", b"").decode("latin-1")
+        refusal = None
+        if host_name(host) not in self.allowed:
+            names = ", ".join(self.allowed)
+            refusal = (400, f"Host: {show(host)} is not a name of this server (it answers to "
+                       f"{names}; img2dmp serve --allowed-host NAME adds one)")  # fmt: skip
+        elif scope.get("method", "GET") not in SAFE_METHODS and b"origin" in headers:
+            origin = headers[b"origin"].decode("latin-1")
+            own = _origin(f"{scope.get('scheme', 'http')}://{host}")
+            if _origin(origin) != own:
+                refusal = (403, f"Origin: {show(origin)} is not this server's own; what "
+                           "changes something is taken only from its own pages")  # fmt: skip
+        if refusal is not None:
+            answer = JSONResponse({"detail": refusal[1]}, refusal[0])
+            return await answer(scope, receive, send)
+        return await self.app(scope, receive, send)
 
 
 # --- errors ---------------------------------------------------------------------------
@@ -230,6 +306,8 @@ def create_app(
     max_upload_mb: float = 4.0,
     jobs_dir=None,
     static_dir=None,
+    allowed_hosts=(),
+    body_timeout_s: float = BODY_TIMEOUT_S,
 ) -> FastAPI:
     """The application of ``img2dmp serve`` (docs/WEB.md).
 
@@ -251,6 +329,12 @@ def create_app(
         Where robot runs write (default: a temporary folder).
     static_dir : path-like, optional
         The pages (default: the package's ``web/static``).
+    allowed_hosts : sequence of str
+        Names the server answers to besides :data:`LOOPBACK_HOSTS` (``Host`` header;
+        ``img2dmp serve`` gives its ``--host`` and ``--allowed-host``), see
+        :class:`HostGuard`.
+    body_timeout_s : float
+        Seconds a request body may pause before it is refused (408).
 
     Raises
     ------
@@ -263,6 +347,12 @@ def create_app(
         raise ValueError(f"--max-jobs must be an integer >= 1, got {max_jobs!r}")
     if not 0 < max_upload_mb < float("inf"):
         raise ValueError(f"--max-upload-mb must be a number > 0, got {max_upload_mb!r}")
+    if not 0 < body_timeout_s < float("inf"):
+        raise ValueError(f"body_timeout_s must be a number > 0, got {body_timeout_s!r}")
+    allowed = (*LOOPBACK_HOSTS, *allowed_hosts)
+    for name in allowed:
+        if not isinstance(name, str) or not host_name(name) or "/" in name:
+            raise ValueError(f"--allowed-host must be a host name or address, got {name!r}")
     source = MnistImages(mnist) if mnist is not None else None
     source = FolderImages(images) if images is not None else source
     state = ServerState(
@@ -281,7 +371,10 @@ def create_app(
                          "simulated KUKA iiwa, record demonstrations (docs/WEB.md).")  # fmt: skip
     app.router.route_class = _StrictJSONRoute
     app.state.img2dmp = state
-    app.add_middleware(BodyLimit, max_bytes=int(max_upload_mb * (1 << 20)))
+    app.add_middleware(
+        BodyLimit, max_bytes=int(max_upload_mb * (1 << 20)), timeout_s=body_timeout_s
+    )
+    app.add_middleware(HostGuard, allowed=allowed)  # added last: it runs first
     _install_error_handlers(app)
     _predict_routes(app, state)
     _image_routes(app, state)
@@ -388,4 +481,12 @@ def _static_routes(app: FastAPI, static: Path) -> None:
     app.mount("/static", StaticFiles(directory=static, check_dir=False), name="static")
 
 
-__all__ = ["BodyLimit", "PredictRequest", "RecordingRequest", "WriteRequest", "create_app"]
+__all__ = [
+    "BodyLimit",
+    "HostGuard",
+    "PredictRequest",
+    "RecordingRequest",
+    "WriteRequest",
+    "create_app",
+    "host_name",
+]

@@ -168,6 +168,11 @@ def _times(strokes: list) -> np.ndarray:
             f"strokes[{i}][{j}]: t_ms {t[k]:g} is before the point before it ({t[k - 1]:g}); "
             "times must not decrease",
         )
+    # The range first, in floating point: 1e17 ms in microseconds overflows an int64.
+    if t[-1] - t[0] > MAX_DURATION_MS:
+        raise WebError(
+            422, f"strokes: the recording lasts {(t[-1] - t[0]) / 1e3:.6g} s, more than 1 hour"
+        )
     us = np.round((t - t[0]) * 1000.0).astype(np.int64)
     steps = np.arange(len(us))
     us = np.maximum.accumulate(us - steps) + steps
