@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._files import check_readable
+
 # How a prepared image frames the ink: the ink's bounding box, padded to a square, fills
 # the image except for this share of the side on each border (see prepare_image). A model
 # stores the median framing of its training images (ink_margin); this is the fallback,
@@ -360,6 +362,8 @@ def _pil_grey(im, label: str) -> tuple[np.ndarray, float]:
     grey = np.asarray(im.convert("F"), dtype=np.float64)
     if grey.ndim != 2 or min(grey.shape) < 2:
         raise ValueError(f"{label} has unusable size {grey.shape}")
+    if not np.isfinite(grey).all():  # a floating-point ("F") image may hold NaN
+        raise ValueError(f"{label} holds NaN or infinite grey levels")
     return grey / full_scale(grey.max()), scale * factor
 
 
@@ -368,8 +372,7 @@ def _decode_framed(path: Path) -> tuple[np.ndarray, float, tuple[int, int]]:
     pixels per grey pixel) and the file's own size ``(H, W)``."""
     from PIL import Image, UnidentifiedImageError
 
-    if not path.is_file():
-        raise FileNotFoundError(f"image file {path} does not exist")
+    check_readable(path, "image file")  # missing, a directory, unreadable: said as such
     try:
         with warnings.catch_warnings():  # the size is checked below, with a clear error
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)

@@ -345,14 +345,7 @@ def create_app(
         raise ValueError("give --mnist DIR or --images DIR, not both")
     if not (isinstance(max_jobs, int) and max_jobs >= 1):
         raise ValueError(f"--max-jobs must be an integer >= 1, got {max_jobs!r}")
-    if not 0 < max_upload_mb < float("inf"):
-        raise ValueError(f"--max-upload-mb must be a number > 0, got {max_upload_mb!r}")
-    if not 0 < body_timeout_s < float("inf"):
-        raise ValueError(f"body_timeout_s must be a number > 0, got {body_timeout_s!r}")
-    allowed = (*LOOPBACK_HOSTS, *allowed_hosts)
-    for name in allowed:
-        if not isinstance(name, str) or not host_name(name) or "/" in name:
-            raise ValueError(f"--allowed-host must be a host name or address, got {name!r}")
+    allowed = _check_requests(max_upload_mb, body_timeout_s, allowed_hosts)
     source = MnistImages(mnist) if mnist is not None else None
     source = FolderImages(images) if images is not None else source
     state = ServerState(
@@ -381,6 +374,20 @@ def create_app(
     _job_routes(app, state)
     _static_routes(app, Path(static_dir) if static_dir is not None else STATIC_DIR)
     return app
+
+
+def _check_requests(max_upload_mb, body_timeout_s, allowed_hosts) -> tuple[str, ...]:
+    """The bounds of a request checked (``ValueError`` naming the option); the names the
+    server answers to."""
+    if not 0 < max_upload_mb < float("inf"):
+        raise ValueError(f"--max-upload-mb must be a number > 0, got {max_upload_mb!r}")
+    if not 0 < body_timeout_s < float("inf"):
+        raise ValueError(f"body_timeout_s must be a number > 0, got {body_timeout_s!r}")
+    allowed = (*LOOPBACK_HOSTS, *allowed_hosts)
+    for name in allowed:
+        if not isinstance(name, str) or not host_name(name) or "/" in name:
+            raise ValueError(f"--allowed-host must be a host name or address, got {show(name)}")
+    return allowed
 
 
 def _json(payload: dict, status: int = 200) -> Response:
