@@ -147,6 +147,18 @@ def parse_yaml(text: str):
     return yaml.load(text, Loader=_Loader)  # noqa: S506 - a SafeLoader subclass
 
 
+def _check_digits(text: str) -> None:
+    """``ConfigError`` for a run of more than :data:`MAX_DIGITS` digits in a text."""
+    for m in re.finditer(rf"[0-9][0-9_]{{{MAX_DIGITS},}}", text):
+        digits = sum(c.isdigit() for c in m.group())
+        if digits > MAX_DIGITS:
+            line = text.count("\n", 0, m.start()) + 1
+            raise ConfigError(
+                f"a whole number of {digits:,} digits is too long (line {line}; at most "
+                f"{MAX_DIGITS})"
+            )
+
+
 def check_depth(value, where: str) -> None:
     """``ConfigError`` if ``value`` (plain lists and dicts, as TOML gives them) nests more
     than :data:`MAX_DEPTH` levels or holds more than :data:`MAX_VALUES` values; walked
@@ -223,6 +235,7 @@ def read_config_file(path: str | os.PathLike) -> dict:
         )
     try:
         if p.suffix == ".toml":
+            _check_digits(text)  # tomllib has no hook for whole numbers
             d = tomllib.loads(text)
             check_depth(d, "the file")
         else:  # JSON is YAML 1.2; the loader reads it too.

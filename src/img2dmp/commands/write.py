@@ -211,8 +211,8 @@ def run(args) -> int:
     check_files(args)
     scene_cfg = SceneConfig(paper_center_m=tuple(args.center_m))
     ctl_cfg = ControllerConfig(force_set_n=args.force_n)
-    os.makedirs(args.out_dir, exist_ok=True)
     for name, params, config, size, image in _inputs(args):
+        os.makedirs(args.out_dir, exist_ok=True)  # once the first input is read and checked
         est_steps = int((float(params.tau) + 2.0) * args.rate_hz)
         with progress_bar(
             total=est_steps, unit="step", desc=f"writing {name}", enabled=not args.no_progress
