@@ -296,9 +296,9 @@ def test_an_error_never_prints_a_whole_value(inside, capsys):
     assert _tree(inside) == before
 
 
-def test_yaml_still_reads_anchors_merges_and_json(tmp_path):
-    """The bounds leave ordinary configurations alone: anchors, merge keys (whose keys are
-    given twice on purpose) and JSON."""
+def test_a_key_twice_is_refused_but_anchors_merges_and_json_still_read(tmp_path):
+    """The bounds and the duplicate-key check leave ordinary configurations alone:
+    anchors, merge keys (whose keys are given twice on purpose) and JSON."""
     (tmp_path / "a.yaml").write_text(
         "base: &base {lr: 0.01, batch_size: 8}\noptim:\n  <<: *base\n  lr: 0.02\nlayers: *base\n"
     )
@@ -306,6 +306,9 @@ def test_yaml_still_reads_anchors_merges_and_json(tmp_path):
     assert d["optim"] == {"lr": 0.02, "batch_size": 8} and d["layers"]["batch_size"] == 8
     (tmp_path / "b.json").write_text('{"optim": {"lr": 1e-3, "epochs": 12345678901234567890}}')
     assert read_config_file(tmp_path / "b.json")["optim"]["epochs"] == 12345678901234567890
+    (tmp_path / "c.yaml").write_text("a: 1\nb: 2\na: 3\n")
+    with pytest.raises(ConfigError, match=r"c\.yaml cannot be parsed: key 'a' is given twice"):
+        read_config_file(tmp_path / "c.yaml")
 
 
 @pytest.mark.parametrize(
