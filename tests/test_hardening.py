@@ -373,8 +373,16 @@ def test_the_one_json_reader_names_where(tmp_path):
         ("model.hypotheses=100000", "model.hypotheses"),
         ("model.encoder_layers=[" + ", ".join(["8"] * 1000) + "]", "model.encoder_layers"),
         ("model.conv_channels=[20000, 20000]", "model.conv_channels"),
+        ("data.samples_per_epoch=1000000000", "data.samples_per_epoch"),
     ],
-    ids=["wide encoder", "wide decoder", "hypotheses", "a thousand layers", "wide conv"],
+    ids=[
+        "wide encoder",
+        "wide decoder",
+        "hypotheses",
+        "a thousand layers",
+        "wide conv",
+        "generated samples",
+    ],
 )
 def test_sizes_that_decide_memory_are_bounded_by_field(inside, capsys, setting, field):
     before = _tree(inside)
@@ -463,10 +471,10 @@ def test_import_never_writes_into_its_source(tmp_path, capsys, out):
     line = _fails(
         capsys,
         ["import", source, "--out", tmp_path / out, "--force", "--no-progress"],
-        "import source",
+        "source",
         source,
     )
-    assert "inside" in line or "is the import source" in line
+    assert "lies inside the source" in line or "is the source itself" in line
     assert _tree(tmp_path) == before
 
 
@@ -475,7 +483,7 @@ def test_predict_never_replaces_an_input_with_an_output(tmp_path, capsys, model)
     first, second = _png(tmp_path / "x_overlay.png"), _png(tmp_path / "x.png", 1)
     before = _tree(tmp_path)
     argv = ["predict", "--model", model, first, second, "--overlay", "--out", tmp_path, "--force"]
-    _fails(capsys, argv, f"output {first} is the image {first}")
+    _fails(capsys, argv, f"output {first} is the image itself ({first})")
     assert _tree(tmp_path) == before
 
 
@@ -519,7 +527,7 @@ def test_write_never_replaces_its_image(tmp_path, capsys, data):
     image = _png(tmp_path / "x_paper.png")
     before = _tree(tmp_path)
     argv = ["write", "--dmp", dmp, "--image", image, "--out-dir", tmp_path, "--force"]
-    _fails(capsys, argv, f"output {image} is the image {image}")
+    _fails(capsys, argv, f"output {image} is the image itself ({image})")
     assert _tree(tmp_path) == before
 
 

@@ -2,9 +2,10 @@
 
 The one atomic writer of img2dmp (temporary file in the same directory, fsync,
 ``os.replace``), the cleaning of the temporaries a killed writer leaves, the check of an
-input file before it is read, the advisory lock of a directory, and the file hash stored
-with models. No dependencies on the rest of the package, so every layer (data sets,
-checkpoints, robot logs) can use it.
+input file before it is read, the advisory lock of a directory (its lock file opened
+without following a link), the one JSON reader of what users give img2dmp, and the file
+hash stored with models. No dependencies on the rest of the package but
+:mod:`img2dmp.errors`, so every layer (data sets, checkpoints, robot logs) can use it.
 
 A temporary is named ``.NAME.PID.XXXXXXXX.tmp`` beside ``NAME`` (PID: the writing process).
 A kill between its creation and the final ``os.replace`` leaves it behind, never ``NAME``
@@ -275,6 +276,9 @@ class DirectoryBusy(OSError):
 @contextmanager
 def lock_directory(directory: str | os.PathLike, what: str = "directory"):
     """Hold an advisory lock (``fcntl.flock`` on ``directory/.lock``) for the block.
+
+    The lock file is opened by :func:`open_lock_file`: a link or anything but a regular
+    file of its own at that name is refused, naming it.
 
     The directory is created if needed (and removed again if the block left nothing else
     in it). A second holder, in this process or another, gets :class:`DirectoryBusy` at

@@ -16,7 +16,10 @@ them the same way:
 
 :func:`check_positive` is the one "finite and > 0" check of the package.
 
-Nothing here imports the rest of img2dmp, so every layer can use it.
+Reading is bounded (:data:`MAX_DEPTH`, :data:`MAX_VALUES` with YAML aliases counted,
+:data:`MAX_CONFIG_BYTES`, :data:`MAX_DIGITS`) and strict (a key given twice is refused),
+and values in errors are cut (:func:`img2dmp.errors.show`). Nothing here imports the rest
+of img2dmp but :mod:`img2dmp.errors`, so every layer can use it.
 """
 
 from __future__ import annotations

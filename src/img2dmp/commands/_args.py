@@ -320,8 +320,8 @@ def _check_not_an_input(out: Path, inputs: list[tuple[str, Path]]) -> None:
         there = path.resolve()
         if real == there:
             raise ValueError(
-                f"output {out} is the {what} {path} this command reads; write it elsewhere "
-                "(--force replaces outputs, never inputs)"
+                f"output {out} is the {what} itself ({path}), which this command reads; "
+                "write the output elsewhere (--force replaces outputs, never inputs)"
             )
         if path.is_dir() and real.is_relative_to(there):
             raise ValueError(

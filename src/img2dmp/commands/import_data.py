@@ -200,7 +200,7 @@ def run(args: argparse.Namespace) -> int:
     if not source.exists():
         raise FileNotFoundError(f"import source {source} does not exist")
     options = import_options(args)
-    inputs = [("import source", source), ("images folder", args.images)]
+    inputs = [("source", source), ("images folder", args.images)]
     _args.check_outputs([(args.out, None)], args.force, inputs + _args.config_inputs(args))
     data = import_dataset(
         source,

@@ -17,6 +17,9 @@ from ..nn.model import ModelConfig
 
 #: Learning-rate schedules, see :class:`OptimConfig`.
 SCHEDULES = ("none", "cosine", "step", "plateau")
+#: Most samples the generator draws at once (an epoch's, the validation set): all are held
+#: in memory, 6.4 kB each at 40 x 40 pixels (50 times the paper's 20,000).
+MAX_GENERATED_SAMPLES = 1_000_000
 
 
 @dataclass
@@ -91,6 +94,12 @@ class DataConfig:
         ):
             if int(getattr(self, name)) < 1:
                 raise ConfigError(f"data.{name} must be >= 1, got {getattr(self, name)!r}")
+        for name in ("samples_per_epoch", "val_samples"):
+            if int(getattr(self, name)) > MAX_GENERATED_SAMPLES:
+                raise ConfigError(
+                    f"data.{name} must be at most {MAX_GENERATED_SAMPLES:,} (the generator "
+                    f"holds them all in memory), got {getattr(self, name)!r}"
+                )
         if int(self.refresh_epochs) < 0:
             raise ConfigError(f"data.refresh_epochs must be >= 0, got {self.refresh_epochs!r}")
         if not 0 <= self.val_fraction < 1:

@@ -3,10 +3,12 @@
 :func:`create_app` builds it: the models loaded once (:mod:`.models`), the Record page's
 images and recordings (:mod:`.recordings`), robot runs in their own processes
 (:mod:`.jobs`) and the static pages. Every refusal is a 4xx answer ``{"detail": one
-line}`` naming the field or value: request bodies larger than ``max_upload_mb`` (from
-``Content-Length`` and while reading, before parsing), JSON that is not strict JSON (no
-``NaN`` or ``Infinity``), FastAPI's validation errors, and the checks of the modules
-below. The endpoints that work are plain functions, run in FastAPI's thread pool.
+line}`` naming the field or value: a ``Host`` that is not one of the server's names or a
+state-changing request from another ``Origin`` (:class:`HostGuard`, before anything
+else), request bodies larger than ``max_upload_mb`` (from ``Content-Length`` and while
+reading, before parsing) or that stop half-way, JSON that is not strict JSON (no ``NaN``
+or ``Infinity``, no key twice), FastAPI's validation errors, and the checks of the
+modules below. The endpoints that work are plain functions, run in FastAPI's thread pool.
 """
 
 from __future__ import annotations
