@@ -413,6 +413,16 @@ def test_the_python_api_bounds_them_too():
         build_model(cfg)
 
 
+def test_generate_starts_at_most_a_worker_per_core(tmp_path, capsys):
+    """--workers 100000 started a process per chunk of the data, up to that many."""
+    from img2dmp._processes import machine_cores
+
+    argv = ["generate", "--out", tmp_path / "g.safetensors", "--per-digit", "2", "--workers",
+            "100000"]  # fmt: skip
+    line = _fails(capsys, argv, "--workers", f"from 1 to {machine_cores()}", "100000")
+    assert line.endswith("(see 'img2dmp generate --help')") and not any(tmp_path.iterdir())
+
+
 def test_a_hundred_thousand_threads_are_one_line(tmp_path, data):
     """torch.set_num_threads(100000) ended in a segmentation fault: a process of its own."""
     argv = _train_argv(data, tmp_path / "run", "--set", "threads=100000")

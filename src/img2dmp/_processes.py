@@ -1,4 +1,4 @@
-"""Worker processes that leave Ctrl-C to the process that started them.
+"""Worker processes: how many are worth starting, and leaving Ctrl-C to their parent.
 
 A terminal sends Ctrl-C (SIGINT) to every process of its foreground group. Workers that
 are still importing torch (``generate``'s pool, ``serve``'s robot runs) would each print a
@@ -9,9 +9,20 @@ Standard library only, like :mod:`img2dmp._files`.
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
 from contextlib import contextmanager
+
+
+def machine_cores() -> int:
+    """The cores this process may run on (its CPU affinity): the most threads or worker
+    processes worth starting (torch starts one thread per count asked for: 100,000 of
+    them crash the process)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # not Linux
+        return os.cpu_count() or 1
 
 
 @contextmanager
@@ -37,4 +48,4 @@ def children_ignore_interrupts():
         signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
 
 
-__all__ = ["children_ignore_interrupts"]
+__all__ = ["children_ignore_interrupts", "machine_cores"]

@@ -12,6 +12,7 @@ import os
 from dataclasses import dataclass, field
 
 from .. import config as _config
+from .._processes import machine_cores
 from ..config import ConfigError, check_positive
 from ..nn.model import ModelConfig
 
@@ -254,14 +255,6 @@ class CostConfig:
             raise ConfigError(
                 f"cost.parameter_units must be one of {UNITS}, got {self.parameter_units!r}"
             )
-
-
-def machine_cores() -> int:
-    """The cores this process may run on (its CPU affinity), the most ``threads`` can be."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):  # not Linux
-        return os.cpu_count() or 1
 
 
 @dataclass
