@@ -55,6 +55,8 @@ SEVEN = [[[70.0, 60.0, 0.0], [150.0, 58.0, 40.0], [215.0, 62.0, 80.0],
 CANVAS = [280, 280]
 #: Labels of the tiny MNIST's images.
 LABELS = [7, 1, 4, 7, 0, 3, 9, 2, 5, 6, 8, 1]
+#: Where the test clients send their requests: a name the server answers to (its Host).
+LOCAL = "http://127.0.0.1:8000"
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +107,7 @@ def client(runs, mnist_dir, work):
     """One server of both networks and the tiny MNIST, for the tests that write nothing
     or only their own recordings."""
     app = create_app([runs[1], runs[2]], mnist=mnist_dir, data_dir=work / "recordings")
-    with TestClient(app) as c:
+    with TestClient(app, base_url=LOCAL) as c:
         yield c
 
 
@@ -117,7 +119,7 @@ def serve(tmp_path, runs):
     def make(**options):
         options.setdefault("data_dir", tmp_path / "recordings")
         options.setdefault("jobs_dir", tmp_path / "jobs")
-        c = TestClient(create_app(options.pop("models", [runs[1]]), **options))
+        c = TestClient(create_app(options.pop("models", [runs[1]]), **options), base_url=LOCAL)
         clients.append(c.__enter__())
         return c
 
@@ -155,7 +157,7 @@ def test_model_ids_are_the_run_names_and_unique(runs, tmp_path):
     assert model_id("runs/x/run/checkpoints/best.safetensors") == "x"
     assert model_id("nets/mine.safetensors") == "mine"
     app = create_app([runs[1], runs[1], runs[2]], data_dir=tmp_path / "r")
-    with TestClient(app) as c:
+    with TestClient(app, base_url=LOCAL) as c:
         answer = c.get("/api/models").json()
     assert answer["default"] == "net1"
     assert [m["id"] for m in answer["models"]] == ["net1", "net1-2", "net2"]
@@ -240,7 +242,7 @@ def test_strokes_are_drawn_with_a_round_pen_of_a_fourteenth_of_the_canvas():
 
 def test_no_model_means_409_for_predictions_but_the_rest_works(tmp_path, mnist_dir):
     app = create_app([], mnist=mnist_dir, data_dir=tmp_path / "r")
-    with TestClient(app) as c:
+    with TestClient(app, base_url=LOCAL) as c:
         assert c.get("/api/models").json() == {"default": None, "models": []}
         detail = _one_line_error(c.post("/api/predict", json={"strokes": SEVEN,
                                                               "canvas": CANVAS}), 409)  # fmt: skip
@@ -591,7 +593,7 @@ def test_two_servers_on_one_data_directory_write_an_image_once(tmp_path, mnist_d
             start.wait()
             answers.append(c.post("/api/recordings", json={"image": n, "strokes": _strokes_of(k)}))
 
-        with TestClient(apps[0]) as a, TestClient(apps[1]) as b:
+        with TestClient(apps[0], base_url=LOCAL) as a, TestClient(apps[1], base_url=LOCAL) as b:
             threads = [threading.Thread(target=post, args=(c, k)) for c, k in ((a, 1), (b, 2))]
             for t in threads:
                 t.start()
@@ -761,3 +763,184 @@ def test_serve_prints_its_url_and_answers_quietly(runs, tmp_path):
     assert out.strip() == "img2dmp serve: stopped", out
     assert "GET /api/models" not in out + err  # no access log without --verbose
     assert (tmp_path / "r").is_dir()
+
+
+# --- issue 31: the server's names and origins, slow bodies, odd times, planted links -------
+
+#: A page of another site whose name was made to resolve to 127.0.0.1 (DNS rebinding).
+REBOUND = "rebind.example:8000"
+
+
+def test_requests_for_another_name_are_refused_before_any_work(serve, mnist_dir, tmp_path):
+    """DNS rebinding: the page read /api/models, ran predictions and replaced a recording
+    (201). Now every request whose Host is not one of the server's names gets 400."""
+    c = serve(mnist=mnist_dir)
+    first = {"image": 2, "strokes": _strokes_of(2)}
+    assert c.post("/api/recordings", json=first).status_code == 201
+    recorded = tmp_path / "recordings" / "image_2.json"
+    before = recorded.read_bytes()
+    again = {"image": 2, "strokes": _strokes_of(5), "replace": True}
+    for method, url, body in [("get", "/api/models", None), ("get", "/", None),
+                              ("post", "/api/predict", {"strokes": SEVEN, "canvas": CANVAS}),
+                              ("post", "/api/recordings", again),
+                              ("post", "/api/write", {"dmp": _seven_dmp()})]:  # fmt: skip
+        r = c.request(method, url, json=body, headers={"Host": REBOUND})
+        detail = _one_line_error(r, 400)
+        assert detail.startswith(f"Host: '{REBOUND}' is not a name of this server"), detail
+        assert "--allowed-host" in detail
+    assert recorded.read_bytes() == before and not any((tmp_path / "jobs").iterdir())
+    for host in ("127.0.0.1:8000", "localhost", "LocalHost.:8000", "[::1]:8000", "127.0.0.1"):
+        assert c.get("/api/models", headers={"Host": host}).status_code == 200, host
+    for host in ("", "127.0.0.1.example", "localhost.example:8000", "[::2]:8000"):
+        _one_line_error(c.get("/api/models", headers={"Host": host}), 400)
+
+
+def test_an_allowed_host_is_answered(serve, mnist_dir):
+    c = serve(mnist=mnist_dir, allowed_hosts=["lan.example"])
+    lan = {"Host": "lan.example:8000", "Origin": "http://lan.example:8000"}
+    assert c.get("/api/models", headers=lan).status_code == 200
+    r = c.post("/api/recordings", json={"image": 1, "strokes": _strokes_of(1)}, headers=lan)
+    assert r.status_code == 201, r.text
+    _one_line_error(c.get("/api/models", headers={"Host": "other.example"}), 400)
+    with pytest.raises(ValueError, match="--allowed-host must be a host name"):
+        create_app([], allowed_hosts=["http://lan.example/"])
+
+
+@pytest.mark.parametrize(
+    "origin", ["http://evil.example", "null", "http://127.0.0.1:9999", "https://127.0.0.1:8000",
+               "http://localhost:8000"],
+)  # fmt: skip
+def test_what_changes_something_comes_only_from_the_server_s_own_pages(
+    serve, mnist_dir, tmp_path, origin
+):
+    """A request that writes (a recording, a robot run) whose Origin is not the server's
+    own (its scheme and the Host it was sent to) gets 403; reading stays open (a browser
+    lets no other site read the answer without CORS, which the server never grants)."""
+    c = serve(mnist=mnist_dir)
+    body = {"image": 3, "strokes": _strokes_of(3)}
+    detail = _one_line_error(c.post("/api/recordings", json=body, headers={"Origin": origin}), 403)
+    assert detail.startswith(f"Origin: {origin!r} is not this server's own"), detail
+    _one_line_error(c.post("/api/write", json={"dmp": _seven_dmp()}, headers={"Origin": origin}),
+                    403)  # fmt: skip
+    assert not (tmp_path / "recordings" / "image_3.json").exists()
+    assert c.get("/api/models", headers={"Origin": origin}).status_code == 200
+    own = c.post("/api/recordings", json=body, headers={"Origin": "http://127.0.0.1:8000"})
+    assert own.status_code == 201, own.text
+    assert "access-control-allow-origin" not in own.headers
+
+
+def _read_answer(conn) -> str:
+    """One HTTP answer from a socket: its head, then the body its Content-Length says."""
+    data = b""
+    while b"\r\n\r\n" not in data:
+        data += conn.recv(65536) or b"\r\n\r\n"
+    head, body = data.split(b"\r\n\r\n", 1)
+    length = re.search(rb"(?i)content-length: *(\d+)", head)
+    while length and len(body) < int(length.group(1)):
+        chunk = conn.recv(65536)
+        if not chunk:
+            break
+        body += chunk
+    return (head + b"\r\n\r\n" + body).decode("latin-1")
+
+
+def test_a_body_that_stops_half_way_gets_408(runs, tmp_path):
+    """Before, the server held such a request open without a time-out. A real server
+    (uvicorn on a socket), since the test client sends whole bodies only."""
+    import socket
+
+    import uvicorn
+
+    app = create_app(
+        [runs[1]], data_dir=tmp_path / "r", jobs_dir=tmp_path / "j", body_timeout_s=0.5
+    )
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    sock.listen(8)
+    server = uvicorn.Server(uvicorn.Config(app, log_level="warning"))
+    thread = threading.Thread(target=server.run, kwargs={"sockets": [sock]}, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 30
+        while not server.started and time.monotonic() < deadline:
+            time.sleep(0.02)
+        with socket.create_connection(sock.getsockname(), timeout=10) as conn:
+            conn.sendall(b"POST /api/predict HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+                         b"Content-Type: application/json\r\nContent-Length: 100\r\n\r\n"
+                         b'{"strokes": ')  # fmt: skip
+            t0 = time.monotonic()
+            answer = _read_answer(conn)
+        assert answer.startswith("HTTP/1.1 408"), answer
+        assert time.monotonic() - t0 < 5
+        detail = json.loads(answer.split("\r\n\r\n", 1)[1])["detail"]
+        assert detail == "body: 12 bytes, then nothing for 0.5 s; send it whole"
+    finally:
+        server.should_exit = True
+        thread.join(10)
+        sock.close()
+
+
+@pytest.mark.parametrize("t_ms", [1e17, 1e300])
+def test_recording_times_beyond_the_range_are_one_line(serve, mnist_dir, tmp_path, t_ms):
+    """1e17 ms overflowed an int64 conversion before the range check: 500."""
+    c = serve(mnist=mnist_dir)
+    strokes = _strokes_of(4)
+    strokes[1][-1][2] = t_ms
+    detail = _one_line_error(c.post("/api/recordings", json={"image": 4, "strokes": strokes}), 422)
+    assert detail.startswith("strokes: the recording lasts") and "more than 1 hour" in detail
+    assert len(detail) < 120
+    assert not (tmp_path / "recordings" / "image_4.json").exists()
+
+
+def test_a_body_with_a_key_twice_is_refused(client):
+    body = b'{"strokes": [[[1, 1, 0]]], "canvas": [280, 280], "canvas": [10, 10]}'
+    r = client.post("/api/predict", content=body, headers={"content-type": "application/json"})
+    assert (
+        _one_line_error(r, 400)
+        == "body: key 'canvas' appears twice in one object; give each key once"
+    )
+
+
+def test_a_lock_link_planted_in_the_data_directory_is_not_followed(serve, mnist_dir, tmp_path):
+    """A dangling ``.lock`` link in the recordings folder created a file outside it."""
+    c = serve(mnist=mnist_dir)
+    outside = tmp_path / "outside.txt"
+    (tmp_path / "recordings" / ".lock").unlink()
+    (tmp_path / "recordings" / ".lock").symlink_to(outside)
+    r = c.post("/api/recordings", json={"image": 5, "strokes": _strokes_of(5)})
+    detail = _one_line_error(r, 503)
+    assert "symbolic link" in detail and ".lock" in detail
+    assert not outside.exists() and not (tmp_path / "recordings" / "image_5.json").exists()
+
+
+def test_a_dmp_whose_movement_overflows_is_refused_by_the_api(client):
+    if not available():
+        pytest.skip("the robot extra is not installed: /api/write answers 503 first")
+    doc = _seven_dmp()
+    doc["params"]["w"][0][0] = 1e308
+    detail = _one_line_error(client.post("/api/write", json={"dmp": doc}), 422)
+    assert detail.startswith("dmp: field 'params.w' is invalid: w[0, 0] is 1e+308"), detail
+
+
+def test_ctrl_c_while_a_robot_run_starts_is_quiet(runs, tmp_path):
+    """The runs, still importing torch, printed their KeyboardInterrupt tracebacks."""
+    if not available():
+        pytest.skip("the robot extra is not installed")
+    cmd = [sys.executable, "-m", "img2dmp", "serve", "--model", str(runs[1]), "--port", "0",
+           "--data-dir", str(tmp_path / "r"), "--jobs-dir", str(tmp_path / "j")]  # fmt: skip
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)  # fmt: skip
+    try:
+        url = proc.stdout.readline().split("listening on ")[1].split()[0]
+        body = json.dumps({"dmp": _seven_dmp(), "video": False}).encode()
+        req = urllib.request.Request(url + "api/write", body, {"content-type": "application/json"})
+        with urllib.request.urlopen(req, timeout=60) as r:
+            assert r.status == 202
+        time.sleep(0.4)  # the run's process is starting: importing torch and pybullet
+        os.killpg(proc.pid, signal.SIGINT)  # the terminal's Ctrl-C: the whole group
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 0, out
+    assert out.strip() == "img2dmp serve: stopped", out

@@ -12,7 +12,10 @@
   a new tab), its totals and its table; a width at which it does not fit shows the
   server's line; reading a photo again clears the arm's result;
 - Record: two strokes traced over an MNIST image are saved as ``image_<n>.json`` in the
-  shared recordings' format, with the two strokes.
+  shared recordings' format, with the two strokes;
+- the server's names and origins with real requests: a page whose name was made to
+  resolve to 127.0.0.1 (DNS rebinding) gets 400 for itself and for its own requests, a
+  page of another origin cannot write, a name given with --allowed-host works.
 
 Everything runs against a server started here on two tiny networks (one epoch each) and a
 tiny MNIST folder. Without ``/usr/bin/chromium`` or the ``playwright`` package the tests
@@ -51,6 +54,8 @@ CHROMIUM_ARGS = [
     "--disable-background-networking",
     "--disable-component-update",
     "--disable-sync",
+    # Two names resolved to this machine, as an attacker's DNS (rebinding) or a LAN's would.
+    "--host-resolver-rules=MAP rebind.test 127.0.0.1, MAP lan.test 127.0.0.1",
 ]
 REQUIRE = os.environ.get("IMG2DMP_REQUIRE_BROWSER") == "1"
 #: MNIST labels of the tiny image folder.
@@ -144,7 +149,7 @@ def server(work, runs, mnist):
     data_dir = work / "recordings"
     cmd = [exe, "serve", "--model", str(runs[2]), "--model", str(runs[1]),
            "--mnist", str(mnist), "--data-dir", str(data_dir), "--jobs-dir", str(work / "jobs"),
-           "--host", "127.0.0.1", "--port", str(port)]  # fmt: skip
+           "--host", "127.0.0.1", "--port", str(port), "--allowed-host", "lan.test"]  # fmt: skip
     log = open(work / "server.log", "wb")
     proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
@@ -161,7 +166,7 @@ def server(work, runs, mnist):
             if time.monotonic() > deadline:
                 pytest.fail(f"img2dmp serve did not answer within 60 s:\n{_tail(work)}")
             time.sleep(0.2)
-        yield {"url": url, "data_dir": data_dir}
+        yield {"url": url, "data_dir": data_dir, "port": port}
     finally:
         proc.terminate()
         try:
@@ -561,3 +566,61 @@ def test_the_api_reference_page_renders_offline(page, server, shots):
     outside = [u for u in requested if not u.startswith(server["url"]) and u.startswith("http")]
     assert not outside, outside
     page.screenshot(path=str(shots / "api-docs.png"), full_page=False)
+
+
+# -- the server's names and origins (issue 31) ---------------------------------------------
+
+
+def _recordings(server) -> dict:
+    return {p.name: p.read_bytes() for p in sorted(server["data_dir"].glob("*.json"))}
+
+
+_REPLACE = """async (url) => {
+  const body = JSON.stringify({image: 0, strokes: [[[3, 3, 0], [20, 20, 40]]], replace: true});
+  const r = await fetch(url, {method: 'POST', headers: {'Content-Type': 'application/json'}, body});
+  return [r.status, (await r.json()).detail];
+}"""
+
+
+def test_a_rebound_name_gets_400_for_the_page_and_its_requests(page, server):
+    """DNS rebinding for real: Chromium resolves rebind.test to 127.0.0.1, as the
+    attacker's DNS would once the page is loaded. The page is then of its own origin to
+    the browser, so its script may call the API and read the answers; only the Host
+    header shows which name it used."""
+    before = _recordings(server)
+    other = f"http://rebind.test:{server['port']}"
+    response = page.goto(other + "/record")
+    assert response.status == 400
+    assert "is not a name of this server" in page.inner_text("body")
+    models = page.evaluate("async () => (await fetch('/api/models')).status")
+    status, detail = page.evaluate(_REPLACE, other + "/api/recordings")
+    assert (models, status) == (400, 400)
+    assert detail.startswith(f"Host: 'rebind.test:{server['port']}' is not a name"), detail
+    assert _recordings(server) == before
+
+
+def test_a_page_of_another_origin_cannot_write(page, server):
+    """A page of another origin on this machine (http://localhost:PORT is a name the
+    server answers to, but another origin than http://127.0.0.1:PORT) posts a recording
+    the way a cross-site form would: no-cors, text/plain, so no preflight stops it. The
+    server refuses it (403) by its Origin; the browser shows the page nothing."""
+    page.goto(f"http://localhost:{server['port']}/record")
+    before = _recordings(server)
+    target = server["url"] + "/api/recordings"
+    with page.expect_response(lambda r: r.url == target) as answer:
+        page.evaluate(
+            """(url) => fetch(url, {method: 'POST', mode: 'no-cors',
+                 headers: {'Content-Type': 'text/plain'},
+                 body: JSON.stringify({image: 0, strokes: [[[3, 3, 0], [20, 20, 40]]],
+                                       replace: true})}).catch(() => null)""",
+            target,
+        )
+    assert answer.value.status == 403
+    assert _recordings(server) == before
+
+
+def test_a_name_given_with_allowed_host_draws_and_predicts(page, server):
+    page.goto(f"http://lan.test:{server['port']}/")
+    _strokes_on(page, "#drawing", SEVEN)
+    _predicted(page, 2)  # its POST carries Origin http://lan.test:PORT: the page's own
+    assert page.locator("#draw-error").is_hidden()

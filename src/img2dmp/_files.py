@@ -2,9 +2,10 @@
 
 The one atomic writer of img2dmp (temporary file in the same directory, fsync,
 ``os.replace``), the cleaning of the temporaries a killed writer leaves, the check of an
-input file before it is read, the advisory lock of a directory, and the file hash stored
-with models. No dependencies on the rest of the package, so every layer (data sets,
-checkpoints, robot logs) can use it.
+input file before it is read, the advisory lock of a directory (its lock file opened
+without following a link), the one JSON reader of what users give img2dmp, and the file
+hash stored with models. No dependencies on the rest of the package but
+:mod:`img2dmp.errors`, so every layer (data sets, checkpoints, robot logs) can use it.
 
 A temporary is named ``.NAME.PID.XXXXXXXX.tmp`` beside ``NAME`` (PID: the writing process).
 A kill between its creation and the final ``os.replace`` leaves it behind, never ``NAME``
@@ -24,6 +25,8 @@ import tempfile
 import time
 from contextlib import contextmanager
 from pathlib import Path
+
+from .errors import show
 
 #: A temporary untouched this long (seconds) is abandoned, whoever wrote it.
 STALE_TEMPORARY_S = 3600.0
@@ -225,6 +228,47 @@ def check_readable(path: str | os.PathLike, what: str = "file") -> Path:
 # --- locking --------------------------------------------------------------------------
 
 
+def open_lock_file(directory: str | os.PathLike, what: str = "directory") -> int:
+    """A descriptor (read and write) of ``directory/.lock``, created if missing.
+
+    The one way img2dmp opens a lock file. It is written to (its holder's pid), so it
+    must be the directory's own file: a symbolic link there (even a dangling one, which
+    ``O_CREAT`` would follow to create a file elsewhere) is refused, and so is anything
+    that is not a regular file or that has another name too (a hard link: truncating it
+    would truncate the other file). ``OSError`` naming the lock file otherwise.
+    """
+    lock = Path(directory) / LOCK_NAME
+    flags = os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    # O_NONBLOCK: a FIFO planted at the name must not hang the open.
+    flags |= getattr(os, "O_NONBLOCK", 0)
+    try:
+        dir_fd = os.open(directory, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    except OSError as e:
+        raise _about(e, Path(directory)) from e
+    try:
+        fd = os.open(LOCK_NAME, flags, 0o666, dir_fd=dir_fd)
+    except OSError as e:
+        if e.errno == errno.ELOOP or os.path.islink(lock):
+            raise OSError(
+                errno.ELOOP,
+                f"lock file {lock} of {what} {directory} is a symbolic link; img2dmp never "
+                "follows one there (remove it)",
+            ) from None
+        raise _about(e, lock) from e
+    finally:
+        os.close(dir_fd)
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode) or st.st_nlink != 1:
+        os.close(fd)
+        kind = "not a regular file" if not stat.S_ISREG(st.st_mode) else "a hard link"
+        raise OSError(
+            errno.EPERM,
+            f"lock file {lock} of {what} {directory} is {kind}; img2dmp writes only its "
+            "own lock file (remove it)",
+        )
+    return fd
+
+
 class DirectoryBusy(OSError):
     """Another process holds the lock of a directory (:func:`lock_directory`)."""
 
@@ -232,6 +276,9 @@ class DirectoryBusy(OSError):
 @contextmanager
 def lock_directory(directory: str | os.PathLike, what: str = "directory"):
     """Hold an advisory lock (``fcntl.flock`` on ``directory/.lock``) for the block.
+
+    The lock file is opened by :func:`open_lock_file`: a link or anything but a regular
+    file of its own at that name is refused, naming it.
 
     The directory is created if needed (and removed again if the block left nothing else
     in it). A second holder, in this process or another, gets :class:`DirectoryBusy` at
@@ -251,7 +298,7 @@ def lock_directory(directory: str | os.PathLike, what: str = "directory"):
     created = not d.exists()
     d.mkdir(parents=True, exist_ok=True)
     lock = d / LOCK_NAME
-    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+    fd = open_lock_file(d, what)
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -293,18 +340,45 @@ __all__ = [
     "clean_stale_temporaries",
     "file_digest",
     "lock_directory",
+    "open_lock_file",
+    "parse_json",
     "save_figure",
 ]
+
+
+#: The most digits of a whole number in a JSON text (Python refuses more than 4,300 when
+#: converting; no number img2dmp reads needs more than a few dozen).
+MAX_JSON_DIGITS = 100
+
+
+def _refuse_duplicates(pairs: list) -> dict:
+    out = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"key {show(key)} appears twice in one object; give each key once")
+        out[key] = value
+    return out
+
+
+def _bounded_int(text: str) -> int:
+    digits = len(text.lstrip("-"))
+    if digits > MAX_JSON_DIGITS:
+        raise ValueError(
+            f"a whole number of {digits:,} digits is too long (at most {MAX_JSON_DIGITS})"
+        )
+    return int(text)
 
 
 def parse_json(data: bytes | str, where: str, *, allow_nan: bool = True):
     """The JSON value in ``data`` (bytes are read as UTF-8, with or without a BOM).
 
     The package's one JSON reader for what users give it (DMP files, data-set metadata,
-    recordings, imported paths, web requests): every failure is a ``ValueError`` of one
-    line starting with ``where`` (a file, a field, a request part). ``allow_nan=False``
-    also refuses the ``NaN`` and ``Infinity`` literals that Python's ``json`` accepts
-    but JSON does not.
+    recordings, imported paths, web requests, checkpoint records): every failure is a
+    ``ValueError`` of one line starting with ``where`` (a file, a field, a request part).
+    A key given twice in one object is refused (Python's ``json`` would keep the last
+    silently), and so is a whole number of more than :data:`MAX_JSON_DIGITS` digits.
+    ``allow_nan=False`` also refuses the ``NaN`` and ``Infinity`` literals that Python's
+    ``json`` accepts but JSON does not.
     """
     if isinstance(data, bytes):
         try:
@@ -313,11 +387,16 @@ def parse_json(data: bytes | str, where: str, *, allow_nan: bool = True):
             raise ValueError(f"{where}: not a UTF-8 text file (byte {e.start})") from None
 
     def refuse(name: str):
-        raise ValueError(f"{where}: {name} is not a JSON number; give a finite number")
+        raise ValueError(f"{name} is not a JSON number; give a finite number")
 
+    hooks = {"object_pairs_hook": _refuse_duplicates, "parse_int": _bounded_int}
+    if not allow_nan:
+        hooks["parse_constant"] = refuse
     try:
-        return json.loads(data, **({} if allow_nan else {"parse_constant": refuse}))
+        return json.loads(data, **hooks)
     except json.JSONDecodeError as e:
         raise ValueError(f"{where}: not valid JSON ({e})") from None
     except RecursionError:
         raise ValueError(f"{where}: JSON nested too deeply") from None
+    except ValueError as e:  # the hooks' refusals
+        raise ValueError(f"{where}: {e}") from None

@@ -51,6 +51,7 @@ from ._files import (  # noqa: F401 (file_digest re-exported)
     atomic_write_text,
     check_readable,
     file_digest,
+    parse_json,
 )
 
 FORMAT = "img2dmp-checkpoint"
@@ -208,11 +209,9 @@ def _parse_meta(p: Path, raw) -> dict:
             f"{p} is a safetensors file but not an img2dmp checkpoint (no 'img2dmp' metadata)"
         )
     try:
-        meta = json.loads(raw)
-    except json.JSONDecodeError as e:
-        raise CheckpointError(f"checkpoint {p}: metadata is not valid JSON ({e})") from e
-    except RecursionError:
-        raise CheckpointError(f"checkpoint {p}: metadata is JSON nested too deeply") from None
+        meta = parse_json(raw, f"checkpoint {p}: metadata")
+    except ValueError as e:  # not JSON, nested too deeply, a key twice, a huge number
+        raise CheckpointError(str(e)) from None
     if not isinstance(meta, dict):
         raise CheckpointError(
             f"checkpoint {p}: metadata is a JSON {type(meta).__name__}, expected an object"

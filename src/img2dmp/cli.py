@@ -39,6 +39,8 @@ from .errors import Img2dmpError
 #: ``OSError`` covers missing, existing and unreadable files, a full disk and a run
 #: directory in use; PIL's decompression-bomb error (an ``Exception``) is one too.
 ANTICIPATED = (ValueError, OSError, Img2dmpError)
+#: The longest error line printed.
+MAX_LINE_CHARS = 2000
 
 
 def anticipated(e: BaseException) -> bool:
@@ -106,7 +108,10 @@ def describe(e: BaseException) -> str:
     else:
         msg = str(e)
     lines = [line.strip() for line in msg.splitlines() if line.strip()]
-    return " ".join(lines) or type(e).__name__
+    line = " ".join(lines) or type(e).__name__
+    if len(line) > MAX_LINE_CHARS:  # a message that holds a whole value is cut, its size said
+        line = f"{line[: MAX_LINE_CHARS - 40]}... (a message of {len(line):,} characters)"
+    return line
 
 
 def main(argv: list[str] | None = None) -> int:

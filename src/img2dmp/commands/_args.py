@@ -275,14 +275,20 @@ def check_output_dir(path, what: str = "output directory") -> None:
         raise NotADirectoryError(f"{what} {p} cannot be made: {there} is a file")
 
 
-def check_outputs(outputs: Iterable, force: bool) -> None:
+def check_outputs(outputs: Iterable, force: bool, inputs: Iterable = ()) -> None:
     """The overwrite rule, checked before any work starts.
 
     ``outputs``: pairs (a file to write, the input it is made from or None). Two
     outputs of one name (``A/x.png`` and ``C/x.png`` both giving ``x_dmp.json``) are
     refused, naming both inputs; so is a directory where a file belongs or a file where
     its directory belongs; and an existing output is refused unless ``force``.
+
+    ``inputs``: pairs (what, path) of everything the command reads (:func:`model_inputs`
+    for a ``--model``). No output may be one of them, nor lie inside an input that is a
+    folder, ``--force`` or not: ``preview --data X --out X`` would turn the data set
+    into a picture, ``import DIR --out DIR/L/000.png`` replace one of its own images.
     """
+    read = [(what, Path(path)) for what, path in inputs if path is not None]
     seen: dict[Path, object] = {}
     for out, source in outputs:
         p = Path(out)
@@ -296,6 +302,7 @@ def check_outputs(outputs: Iterable, force: bool) -> None:
                 "different names, or run them with different output directories"
             )
         seen[key] = source
+        _check_not_an_input(p, read)
         if p.is_dir():
             raise IsADirectoryError(f"output {p} is a directory, not a file")
         there = _first_existing(p.parent)
@@ -303,6 +310,45 @@ def check_outputs(outputs: Iterable, force: bool) -> None:
             raise NotADirectoryError(f"output {p} cannot be written: {there} is a file")
         if p.exists() and not force:
             raise FileExistsError(f"{p} exists; pass --force to replace it")
+
+
+def _check_not_an_input(out: Path, inputs: list[tuple[str, Path]]) -> None:
+    """``ValueError`` if ``out`` is one of ``inputs`` or inside one that is a folder
+    (links resolved: ``out`` through a link to an input is that input)."""
+    real = out.resolve()
+    for what, path in inputs:
+        there = path.resolve()
+        if real == there:
+            raise ValueError(
+                f"output {out} is the {what} itself ({path}), which this command reads; "
+                "write the output elsewhere (--force replaces outputs, never inputs)"
+            )
+        if path.is_dir() and real.is_relative_to(there):
+            raise ValueError(
+                f"output {out} lies inside the {what} {path}, a folder this command reads; "
+                "write it elsewhere"
+            )
+
+
+def config_inputs(args) -> list[tuple[str, Path]]:
+    """``--config FILE`` as :func:`check_outputs` ``inputs`` (a shipped one by its name
+    is no file of the user's)."""
+    config = getattr(args, "config", None)
+    return [("config file", Path(config))] if config and Path(config).exists() else []
+
+
+def model_inputs(path, what: str = "model") -> list[tuple[str, Path]]:
+    """What ``--model RUN`` reads, as :func:`check_outputs` ``inputs``: a checkpoint file
+    and its ``.json`` record, or a run directory's ``checkpoints`` folder and the
+    checkpoint files it may hold itself (not the whole run directory: ``evaluate`` writes
+    into ``RUN/evaluation`` by default)."""
+    if path is None:
+        return []
+    p = Path(path)
+    if p.is_dir():
+        return [(what, p / "checkpoints"), (what, p / "best.safetensors"), (what, p / "best.json")]
+    stem = p.name[: -len(p.suffix)] if p.suffix in (".safetensors", ".json") else p.name
+    return [(what, p.with_name(stem + ".safetensors")), (what, p.with_name(stem + ".json"))]
 
 
 # --- numbers --------------------------------------------------------------------------
@@ -345,6 +391,8 @@ __all__ = [
     "check_inputs",
     "check_output_dir",
     "check_outputs",
+    "config_inputs",
+    "model_inputs",
     "add_data",
     "add_digits",
     "add_model",

@@ -98,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
         _args.check_inputs([data], "data set")
     _args.check_output_dir(out, "--out")
     names = ["evaluation.json", "evaluation.txt"] + (["examples.png"] if args.figures else [])
-    _args.check_outputs([(Path(out) / n, None) for n in names], args.force)
+    inputs = [("data set", data), *_args.model_inputs(model)]
+    _args.check_outputs([(Path(out) / n, None) for n in names], args.force, inputs)
     _args.check_device(args.device)
     res = evaluate(
         model,

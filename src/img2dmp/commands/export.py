@@ -63,7 +63,8 @@ def outputs(args: argparse.Namespace) -> list[Path]:
 
 def run(args: argparse.Namespace) -> int:
     files = outputs(args)
-    _args.check_outputs([(f, None) for f in files], args.force)
+    inputs = [("data set", args.data), *_args.model_inputs(args.model)]
+    _args.check_outputs([(f, None) for f in files], args.force, inputs)
     if args.data is not None:
         _args.check_inputs([args.data], "data set")
     from ..export import export_onnx, require_export_packages

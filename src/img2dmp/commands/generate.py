@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 
+from .._processes import machine_cores
 from . import _args
 
 HELP = "generate a synthetic handwritten-digit data set (images + paths + fitted DMPs)"
@@ -70,9 +70,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--workers",
         metavar="N",
-        type=_args.int_at_least(1),
-        default=min(2, os.cpu_count() or 1),
-        help="parallel processes (the data do not depend on it)",
+        type=_args.int_at_least(1, machine_cores()),
+        default=min(2, machine_cores()),
+        help="parallel processes, at most the machine's cores (the data do not depend on it)",
     )
     _args.add_force(p, "an existing --out file")
     _args.add_no_progress(p)
@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
     from ..data.synthetic import generate_dataset
 
     config = synthetic_config(args)
-    _args.check_outputs([(args.out, None)], args.force)
+    _args.check_outputs([(args.out, None)], args.force, _args.config_inputs(args))
     data = generate_dataset(
         args.per_digit,
         config,

@@ -199,10 +199,9 @@ def run(args: argparse.Namespace) -> int:
     source = Path(args.source)
     if not source.exists():
         raise FileNotFoundError(f"import source {source} does not exist")
-    if _args.same_path(source, args.out):
-        raise ValueError(f"--out {args.out} is the source itself; name another file")
     options = import_options(args)
-    _args.check_outputs([(args.out, None)], args.force)
+    inputs = [("source", source), ("images folder", args.images)]
+    _args.check_outputs([(args.out, None)], args.force, inputs + _args.config_inputs(args))
     data = import_dataset(
         source,
         options,

@@ -180,7 +180,8 @@ def run(args: argparse.Namespace) -> int:
     _args.check_inputs(args.images, "image")
     if args.out:
         _args.check_output_dir(args.out, "--out")
-    _args.check_outputs(output_files(args), args.force)
+    inputs = [("image", path) for path in args.images] + _args.model_inputs(args.model)
+    _args.check_outputs(output_files(args), args.force, inputs)
     _args.check_images(args.images)
     predictor = Predictor.load(args.model, device=_args.check_device(args.device))
     if args.refine:

@@ -236,7 +236,9 @@ def run(args: argparse.Namespace) -> int:
     if not args.out:
         raise ValueError("--out is required (the data-set file to write)")
     options = prepare_options(args)
-    _args.check_outputs([(args.out, None)], args.force)
+    inputs = [("--data folder", args.data), ("--mnist folder", args.mnist)]
+    inputs += [("--recorded paths", args.recorded), ("--strokes folder", args.strokes)]
+    _args.check_outputs([(args.out, None)], args.force, inputs + _args.config_inputs(args))
     data = prepare_dataset(
         options,
         data_dir=args.data,

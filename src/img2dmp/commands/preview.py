@@ -107,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..data.plotting import save_grid
 
-    _args.check_outputs([(args.out, None)], args.force)
+    _args.check_outputs([(args.out, None)], args.force, [("data set", args.data)])
     if args.data:
         _args.check_inputs([args.data], "data set")
     rng = np.random.default_rng(args.seed)

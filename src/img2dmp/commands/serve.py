@@ -10,6 +10,12 @@ atomically and under a lock on DATA_DIR, so `img2dmp prepare --recorded DATA_DIR
 DIR` reads them; an existing recording is replaced only when the page asks to. Nothing is
 written outside --data-dir and --jobs-dir.
 
+The server answers only to the names it is bound to (127.0.0.1, localhost, [::1], --host)
+and those given with --allowed-host: a request for any other Host is refused (400), so a
+web page that makes its own name point at 127.0.0.1 (DNS rebinding) cannot use it; a
+request that changes something (a recording, a robot run) must come from the server's own
+pages (its Origin), else 403.
+
 Needs the optional extra: pip install 'img2dmp[web]' (and img2dmp[robot] for the arm).
 
   img2dmp serve --model out/demo/run
@@ -54,6 +60,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--data-dir", default="recordings", metavar="DIR",
                    help="where recordings are written (created if missing)")  # fmt: skip
     p.add_argument("--host", default="127.0.0.1", help="bind address (loopback only by default)")
+    p.add_argument(
+        "--allowed-host",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="a name browsers may use for this server besides 127.0.0.1, localhost, [::1] and "
+        "--host (the Host header; others are refused, against DNS rebinding); repeat for "
+        "several, e.g. the machine's LAN name or address with --host 0.0.0.0",
+    )
     p.add_argument("--port", type=_args.int_at_least(0, 65535), default=8000,
                    help="port (0: any free one, printed)")  # fmt: skip
     p.add_argument("--max-jobs", metavar="N", type=_args.int_at_least(1), default=1,
@@ -131,6 +146,7 @@ def run(args: argparse.Namespace) -> int:
         max_page_mb=args.max_page_mb,
         jobs_dir=args.jobs_dir,
         refine=args.refine,
+        allowed_hosts=[args.host, *args.allowed_host],
     )
     from ..web.models import warm_up
 
@@ -142,7 +158,9 @@ def run(args: argparse.Namespace) -> int:
     host, port = sock.getsockname()[:2]
     shown = f"[{host}]" if ":" in host else host
     if not _loopback(host):
-        print(f"img2dmp serve: note: listening on {host}: other machines can reach this server")
+        names = ", ".join(args.allowed_host) or "none: give --allowed-host NAME"
+        print(f"img2dmp serve: note: listening on {host}: other machines can reach this server "
+              f"by the names it answers to ({host}, {names})")  # fmt: skip
     print(f"img2dmp serve: listening on http://{shown}:{port}/ (Ctrl+C stops)", flush=True)
     try:
         uvicorn.Server(config).run(sockets=[sock])

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from . import _args
 
@@ -120,6 +121,23 @@ def check_resume(args: argparse.Namespace) -> None:
         )
 
 
+#: What a run writes into --run-dir (the checkpoints' names as img2dmp.checkpoint has them).
+RUN_OUTPUTS = ("config.yaml", "metrics.csv", "training_curve.png") + tuple(
+    f"checkpoints/{name}{suffix}"
+    for name in ("best", "last")
+    for suffix in (".safetensors", ".json")
+)
+
+
+def check_run_outputs(args: argparse.Namespace) -> None:
+    """No file a run writes may be one it reads (--data, --init-from, --config), whether
+    the run directory holds a run or not: ``--init-from R --run-dir R --force`` would
+    train over the network it starts from. (Existing runs: the training's own rule.)"""
+    inputs = [("data set", args.data), *_args.model_inputs(args.init_from, "--init-from model")]
+    outputs = [(Path(args.run_dir) / name, None) for name in RUN_OUTPUTS]
+    _args.check_outputs(outputs, True, inputs + _args.config_inputs(args))
+
+
 def run(args: argparse.Namespace) -> int:
     check_resume(args)
     _args.check_device(args.device)
@@ -128,6 +146,7 @@ def run(args: argparse.Namespace) -> int:
     _args.check_output_dir(args.run_dir, "--run-dir")
     if args.data is not None:
         _args.check_inputs([args.data], "data set")
+    check_run_outputs(args)
     cfg = load_config(args.config, overrides(args))
     force = args.force or args.overwrite
     res = train(

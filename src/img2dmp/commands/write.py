@@ -214,7 +214,9 @@ def check_files(args) -> None:
         for path in inputs:
             base = _joints_base(args, _name(path), len(inputs))
             outputs += [(f, path) for f in export_paths(base)]
-    _args.check_outputs(outputs, args.force)
+    read = [("--dmp file" if args.dmp else "image", path) for path in inputs]
+    read += [("image", args.image)] if args.image else []
+    _args.check_outputs(outputs, args.force, read + _args.model_inputs(args.model))
 
 
 def _output_suffixes(args, page: bool) -> list[str]:
@@ -304,8 +306,8 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
 
     height_mm = args.writing_height_mm
     height_mm = DEFAULT_WRITING_HEIGHT_MM if height_mm is None else height_mm
-    os.makedirs(args.out_dir, exist_ok=True)
     for name, params, config, size, image in _inputs(args):
+        os.makedirs(args.out_dir, exist_ok=True)  # once the first input is read and checked
         est_steps = int((float(params.tau) + 2.0) * args.rate_hz)
         with progress_bar(
             total=est_steps, unit="step", desc=f"writing {name}", enabled=not args.no_progress

@@ -68,6 +68,7 @@ import os
 from dataclasses import dataclass, field
 
 import numpy as np
+import torch
 
 from .._files import atomic_write_text, check_readable, parse_json
 from ..dmp import DMPConfig, DMPParams, rollout
@@ -79,6 +80,13 @@ from .images import ImageFrame
 FORMAT = "img2dmp-dmp"
 VERSION = 2
 MAX_FILE_BYTES = 16 << 20
+#: Largest magnitude of a weight or a position (pixels) in a DMP file, and longest tau
+#: (seconds, 11.6 days): far beyond any image's DMP, well inside float64's range.
+MAX_MAGNITUDE = 1e9
+MAX_TAU_S = 1e6
+#: Samples over [0, tau] at which a DMP read from a file is rolled out to check it is
+#: finite.
+ROLLOUT_CHECK_SAMPLES = 101
 #: Decimals kept of trajectory samples (seconds, pixels); DMP parameters are kept exact.
 TRAJECTORY_DECIMALS = 6
 #: The top-level fields this version defines; any other top-level key is a note.
@@ -222,9 +230,33 @@ def _check_size_of(path: str, where: str, n_kernels: int, n_dims: int) -> None:
 
 def _read_params(path: str, where: str, raw, config: DMPConfig) -> DMPParams:
     try:
-        return DMPParams.from_dict(raw, config=config, batch_shape=())
+        params = DMPParams.from_dict(raw, config=config, batch_shape=())
     except ValueError as e:
         raise _bad(path, where, f"is invalid: {e}") from e
+    _check_magnitudes(path, where, params, config)
+    return params
+
+
+def _check_magnitudes(path: str, where: str, params: DMPParams, config: DMPConfig) -> None:
+    """Refuse numbers no DMP of an image has (beyond :data:`MAX_MAGNITUDE`, a ``tau``
+    beyond :data:`MAX_TAU_S`) and a DMP whose movement is not finite: a weight of 1e308
+    is a JSON number, but its rollout overflows, and the arm would try to follow it."""
+    limits = {"w": MAX_MAGNITUDE, "tau": MAX_TAU_S, "g": MAX_MAGNITUDE, "y0": MAX_MAGNITUDE}
+    for name, limit in limits.items():
+        a = np.abs(np.asarray(getattr(params, name), dtype=np.float64))
+        if a.size and a.max() > limit:
+            at = [int(i) for i in np.unravel_index(int(a.argmax()), a.shape)] if a.ndim else ""
+            value = float(np.asarray(getattr(params, name), dtype=np.float64).ravel()[a.argmax()])
+            raise _bad(
+                path,
+                f"{where}.{name}",
+                f"is invalid: {name}{at} is {value:.6g}, beyond the {limit:g} a DMP may hold",
+            )
+    tau = float(params.tau)
+    t = torch.linspace(0.0, tau, ROLLOUT_CHECK_SAMPLES, dtype=torch.float64)
+    y = rollout(params.to_torch(torch.float64), t, config)
+    if not bool(torch.isfinite(y).all()):
+        raise _bad(path, where, "is invalid: its movement (the rollout) is not finite")
 
 
 def _read_size(path: str, where: str, size) -> tuple[int, int]:

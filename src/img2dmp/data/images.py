@@ -34,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._files import check_readable
+
 # How a prepared image frames the ink: the ink's bounding box, padded to a square, fills
 # the image except for this share of the side on each border (see prepare_image). A model
 # stores the median framing of its training images (ink_margin); this is the fallback,
@@ -367,6 +369,8 @@ def _pil_levels(im, label: str, max_pixels: int = MAX_WORK_PIXELS) -> tuple[np.n
         levels /= np.float32(full_scale(float(levels.max()) if levels.size else 0.0))
     if min(levels.shape[:2]) < 2:
         raise ValueError(f"{label} has unusable size {levels.shape[:2]}")
+    if not np.isfinite(levels).all():  # a floating-point ("F") image may hold NaN
+        raise ValueError(f"{label} holds NaN or infinite grey levels")
     return levels, scale * factor
 
 
@@ -377,8 +381,7 @@ def _decode_framed(
     pixels per level pixel) and the file's own size ``(H, W)``."""
     from PIL import Image, UnidentifiedImageError
 
-    if not path.is_file():
-        raise FileNotFoundError(f"image file {path} does not exist")
+    check_readable(path, "image file")  # missing, a directory, unreadable: said as such
     try:
         with warnings.catch_warnings():  # the size is checked below, with a clear error
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._files import atomic_write_bytes
+
 IMAGES_MAGIC = 2051
 LABELS_MAGIC = 2049
 _GZIP_MAGIC = b"\x1f\x8b"
@@ -193,6 +195,4 @@ def write_idx(path: str | os.PathLike, array: np.ndarray, compress: bool | None 
     payload = header + a.tobytes()
     if compress if compress is not None else path.suffix == ".gz":
         payload = gzip.compress(payload)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(payload)
-    os.replace(tmp, path)
+    atomic_write_bytes(path, payload)

@@ -45,6 +45,7 @@ import numpy as np
 
 from .._files import parse_json
 from .._progress import bar
+from ..errors import show
 
 #: Added to the recorded x and y to reach the centre convention of docs/CONTRACTS.md.
 FRAME_OFFSET_PX = -0.5
@@ -139,15 +140,15 @@ def parse_path_string(text: str, name: str = "<string>") -> np.ndarray:
         raise ValueError(f'{name}: "Path" must be a string, got {type(text).__name__}')
     try:
         triples = json.loads("[" + text + "]")
-    except json.JSONDecodeError as e:
-        raise ValueError(f'{name}: "Path" is not a list of [x, y, t] triples ({e})') from e
+    except (ValueError, RecursionError) as e:  # not JSON, or past Python's number limit
+        raise ValueError(f'{name}: "Path" is not a list of [x, y, t] triples ({e})') from None
     for k, p in enumerate(triples):
         if (
             not isinstance(p, list)
             or len(p) != 3
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in p)
         ):
-            raise ValueError(f'{name}: "Path" point {k} is {p!r}, expected [x, y, t] numbers')
+            raise ValueError(f'{name}: "Path" point {k} is {show(p)}, expected [x, y, t] numbers')
     arr = np.asarray(triples, dtype=np.float64).reshape(-1, 3)  # [T, 3]
     if not np.isfinite(arr).all():
         k = int(np.flatnonzero(~np.isfinite(arr).all(axis=1))[0])

@@ -73,6 +73,9 @@ _REQUIRED_META = ("format", "version", "dmp_config", "source", "seed", "image_si
 #: The metadata key of the class names, and its bounds.
 CLASS_NAMES_KEY = "class_names"
 MAX_CLASSES = 10_000
+#: Smallest side of a data set's images: what generate, import and prepare make at the
+#: least. A 1 x 1 "image" holds no shape to learn a movement from.
+MIN_IMAGE_SIDE = 8
 MAX_CLASS_NAME_CHARS = 100
 #: The names of the labels of a data set without ``class_names``.
 DIGIT_NAMES = tuple(str(d) for d in range(10))
@@ -301,6 +304,12 @@ class DigitData:
                 raise DatasetError(
                     f"{where}: field {name!r} has shape {a.shape}, expected {rank} dimensions"
                 )
+        h, w = self.images.shape[1:]
+        if min(h, w) < MIN_IMAGE_SIDE:
+            raise DatasetError(
+                f"{where}: field 'images' holds images of {h} x {w} pixels; a data set's "
+                f"images have at least {MIN_IMAGE_SIDE} x {MIN_IMAGE_SIDE}"
+            )
         m = self.labels.shape[0]
         for name, a in arrays.items():
             if a.shape[0] != m:

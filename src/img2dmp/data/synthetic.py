@@ -55,6 +55,7 @@ from dataclasses import asdict, dataclass, field, fields
 import numpy as np
 import torch
 
+from .._processes import children_ignore_interrupts
 from .._progress import bar as progress_bar
 from ..config import ConfigError, check_positive_fields, from_mapping
 from ..dmp import DMPConfig, fit_dmp
@@ -686,27 +687,48 @@ def generate_dataset(
         (labels[i * CHUNK : (i + 1) * CHUNK], config, chunk_seqs[i], dmp_config)
         for i in range(n_chunks)
     ]
-    parts = []
     with progress_bar(total=labels.size, desc="generate", unit="sample", enabled=progress) as bar:
-        if workers <= 1 or n_chunks < 2 * workers:  # starting processes costs seconds
-            results = map(_generate_chunk, jobs)
-            pool = None
-        else:
-            ctx = multiprocessing.get_context("spawn")
-            pool = ProcessPoolExecutor(min(workers, n_chunks), ctx, _init_worker)
-            results = pool.map(_generate_chunk, jobs)
-        try:
-            for part in results:
-                parts.append(part)
-                bar.update(len(part))
-        finally:
-            if pool is not None:
-                pool.shutdown(cancel_futures=True)
+        parts = _generate_chunks(jobs, workers, bar)
     arrays = {k: np.concatenate([p.arrays()[k] for p in parts]) for k in parts[0].arrays()}
     arrays["split"] = split
     meta = dict(parts[0].meta, seed=int(seed))
     meta["source"] = dict(meta["source"], samples_per_digit=per, splits=list(splits))
     return DigitData(**arrays, meta=meta)
+
+
+def _generate_chunks(jobs: list, workers: int, bar) -> list[DigitData]:
+    """Each job's chunk, in order: here, or in ``workers`` processes when there are enough
+    chunks to pay for starting them (seconds)."""
+    if workers <= 1 or len(jobs) < 2 * workers:
+        pool, results = None, map(_generate_chunk, jobs)
+    else:
+        ctx = multiprocessing.get_context("spawn")
+        pool = ProcessPoolExecutor(min(workers, len(jobs)), ctx, _init_worker)
+        with children_ignore_interrupts():  # Ctrl-C is the parent's (it ends the pool)
+            results = pool.map(_generate_chunk, jobs)  # starts the processes
+    parts = []
+    try:
+        for part in results:
+            parts.append(part)
+            bar.update(len(part))
+    except KeyboardInterrupt:
+        if pool is not None:  # they ignore Ctrl-C; the interrupt need not wait for them
+            _end_workers(pool)
+        raise
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    return parts
+
+
+def _end_workers(pool: ProcessPoolExecutor) -> None:
+    """End a pool's processes at once (SIGTERM: no traceback), not after their chunks."""
+    stop = getattr(pool, "terminate_workers", None)  # Python 3.14
+    if stop is not None:
+        stop()
+        return
+    for process in list((getattr(pool, "_processes", None) or {}).values()):
+        process.terminate()
 
 
 def _init_worker() -> None:

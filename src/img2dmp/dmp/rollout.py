@@ -41,6 +41,7 @@ import functools
 import hashlib
 import math
 import os
+import tempfile
 import time
 
 import numpy as np
@@ -157,17 +158,20 @@ def _save_table(path: str | None, table: np.ndarray) -> None:
     """Write atomically (a temporary file renamed), so that readers never see half of it."""
     if path is None:
         return
-    tmp = f"{path}.{os.getpid()}.tmp"
+    folder, name = os.path.split(path)
+    tmp = None
     try:
-        with open(tmp, "wb") as f:
+        # mkstemp creates a new file (O_EXCL): a link planted at a predictable temporary
+        # name in a shared cache folder is never followed.
+        fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=folder or ".")
+        with os.fdopen(fd, "wb") as f:
             np.save(f, table, allow_pickle=False)
         os.replace(tmp, path)
     except OSError:  # a read-only or full disk: solve again next time
-        with contextlib.suppress(OSError):
+        with contextlib.suppress(OSError, TypeError):
             os.remove(tmp)
         return
     # Tables of these constants made by an earlier version of the code are stale.
-    folder, name = os.path.split(path)
     stale, sep, _ = name.rpartition("_")  # "dmp_responses_<constants>" "_" "<code>.npy"
     for other in os.listdir(folder) if sep else ():
         if other.startswith(stale + sep) and other.endswith(".npy") and other != name:

@@ -20,6 +20,8 @@ from dataclasses import asdict, dataclass, field
 import torch
 from torch import nn
 
+from ..errors import show
+
 ACTIVATIONS = {
     "relu": nn.ReLU,
     "tanh": nn.Tanh,
@@ -35,6 +37,13 @@ INITS = ("torch", "he")
 INPUT_FILTERS = ("none", "impulse")
 #: The paper's input size (1600 inputs), used when a model is built without data.
 PAPER_IMAGE_SIZE = (40, 40)
+#: Most weights (parameters) of a network: the paper's has 6.5 million; 50 million take
+#: 0.2 GB, and training holds four copies (weights, gradients, Adam's two moments).
+MAX_WEIGHTS = 50_000_000
+#: Most hypotheses K: each is a DMP rolled out and scored for every image of a batch.
+MAX_HYPOTHESES = 64
+#: Most entries of each list of layer widths or channels.
+MAX_LAYERS = 64
 
 
 def _activation(name: str) -> nn.Module:
@@ -135,8 +144,10 @@ class ModelConfig:
                 raise ValueError(f"model.image_size must be [H, W] >= 4, got {self.image_size!r}")
         for name in ("encoder_layers", "conv_channels", "decoder_layers"):
             vals = [int(v) for v in getattr(self, name)]
-            if any(v < 1 for v in vals):
-                raise ValueError(f"model.{name} must hold positive widths, got {vals!r}")
+            if any(v < 1 for v in vals) or len(vals) > MAX_LAYERS:
+                raise ValueError(
+                    f"model.{name} must hold at most {MAX_LAYERS} positive widths, got {show(vals)}"
+                )
             setattr(self, name, vals)
         if not self.encoder_layers:
             raise ValueError("model.encoder_layers must name at least the latent size")
@@ -162,8 +173,11 @@ class ModelConfig:
         if int(self.n_outputs) < 1:
             raise ValueError(f"model.n_outputs must be >= 1, got {self.n_outputs!r}")
         self.n_outputs = int(self.n_outputs)
-        if isinstance(self.hypotheses, bool) or int(self.hypotheses) < 1:
-            raise ValueError(f"model.hypotheses must be an integer >= 1, got {self.hypotheses!r}")
+        if isinstance(self.hypotheses, bool) or not 1 <= int(self.hypotheses) <= MAX_HYPOTHESES:
+            raise ValueError(
+                f"model.hypotheses must be an integer from 1 to {MAX_HYPOTHESES}, got "
+                f"{self.hypotheses!r}"
+            )
         self.hypotheses = int(self.hypotheses)
         number = isinstance(self.dropout, (int, float)) and not isinstance(self.dropout, bool)
         if not number or not 0 <= self.dropout < 1:
@@ -177,6 +191,7 @@ class ModelConfig:
             )
         if self.init not in INITS:
             raise ValueError(f"model.init must be one of {INITS}, got {self.init!r}")
+        check_weights(self)
 
     @property
     def output_size(self) -> int:
@@ -329,37 +344,70 @@ class EncoderDecoder(nn.Module):
         return self.decoder(self.encoder(self.input_filter(images)))
 
 
+def check_weights(config: ModelConfig) -> int:
+    """The number of weights of ``build_model(config)`` (at ``config.image_size``, else
+    the paper's 40 x 40), counted on PyTorch's meta device, where nothing is allocated;
+    ``ValueError`` naming the fields that decide it when it is above :data:`MAX_WEIGHTS`
+    (a network of 100 million units per layer would otherwise end in an allocation
+    failure, or the machine's memory)."""
+    with torch.device("meta"):
+        model = _build(config)
+    encoder = sum(p.numel() for p in model.encoder.parameters())
+    decoder = sum(p.numel() for p in model.decoder.parameters())
+    if encoder + decoder <= MAX_WEIGHTS:
+        return encoder + decoder
+    h, w = model.image_size
+    if encoder >= decoder:
+        field = "model.conv_channels" if config.encoder == "conv" else "model.encoder_layers"
+        value = config.conv_channels if config.encoder == "conv" else config.encoder_layers
+        part = f"the encoder ({h} x {w} pixels in)"
+    else:
+        field, value, part = "model.decoder_layers", config.decoder_layers, "the decoder"
+        if config.hypotheses > 1:
+            field += f" and model.hypotheses ({config.hypotheses})"
+    raise ValueError(
+        f"{field} {show(value)} give {part} {max(encoder, decoder):,} weights; a network "
+        f"may have at most {MAX_WEIGHTS:,} in all ({encoder + decoder:,} here)"
+    )
+
+
 def build_model(config: ModelConfig, seed: int | None = None) -> EncoderDecoder:
     """Make the network described by ``config`` (weights initialised as ``config.init``).
 
     ``seed`` makes the initial weights reproducible without touching the global RNG.
+    ``ValueError`` (:func:`check_weights`) for a network of more than ``MAX_WEIGHTS``
+    weights, before any is allocated.
     """
-    size = config.image_size if config.image_size is not None else list(PAPER_IMAGE_SIZE)
+    check_weights(config)
     fork = torch.random.fork_rng(enabled=seed is not None)
     with fork:
         if seed is not None:
             torch.manual_seed(seed)
-        if config.encoder == "fc":
-            enc = FullyConnectedEncoder(
-                size, config.encoder_layers, config.activation, config.dropout
-            )
-        else:
-            enc = ConvEncoder(
-                size,
-                config.conv_channels,
-                config.encoder_layers[-1],
-                config.activation,
-                config.conv_strides,
-                config.conv_norm,
-            )
-        filt = ImpulseFilter() if config.input_filter == "impulse" else None
-        model = EncoderDecoder(
-            enc, config.decoder_layers, config.n_outputs, config.activation, filt,
-            hypotheses=config.hypotheses,
-        )  # fmt: skip
+        model = _build(config)
         if config.init == "he":
             he_initialise(model)
     return model
+
+
+def _build(config: ModelConfig) -> EncoderDecoder:
+    """The network of ``config`` on the current default device, weights as torch makes them."""
+    size = config.image_size if config.image_size is not None else list(PAPER_IMAGE_SIZE)
+    if config.encoder == "fc":
+        enc = FullyConnectedEncoder(size, config.encoder_layers, config.activation, config.dropout)
+    else:
+        enc = ConvEncoder(
+            size,
+            config.conv_channels,
+            config.encoder_layers[-1],
+            config.activation,
+            config.conv_strides,
+            config.conv_norm,
+        )
+    filt = ImpulseFilter() if config.input_filter == "impulse" else None
+    return EncoderDecoder(
+        enc, config.decoder_layers, config.n_outputs, config.activation, filt,
+        hypotheses=config.hypotheses,
+    )  # fmt: skip
 
 
 # The gain of He et al.'s initialisation for each activation (torch.nn.init.calculate_gain).

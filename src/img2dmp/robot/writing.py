@@ -474,15 +474,18 @@ def plan_path(
     params = checked_dmp(params, config)
     dt_s = check_positive("dt_s", dt_s)
     tau = float(params.tau)
-    n = max(1, round(tau / dt_s))
-    if n > MAX_WRITING_STEPS:
+    steps = tau / dt_s  # a float: tau = 1e300 s must not become a 300-digit integer
+    if steps >= MAX_WRITING_STEPS + 0.5:  # round(steps) > MAX_WRITING_STEPS
         raise ValueError(
-            f"params.tau is {tau:g} s: {n} control steps at {1 / dt_s:g} Hz, more than the "
-            f"{MAX_WRITING_STEPS} the arm writes (at most {MAX_WRITING_STEPS * dt_s:g} s at "
-            "this rate)"
+            f"params.tau is {tau:g} s: {steps:.3g} control steps at {1 / dt_s:g} Hz, more "
+            f"than the {MAX_WRITING_STEPS} the arm writes (at most {MAX_WRITING_STEPS * dt_s:g} "
+            "s at this rate)"
         )
+    n = max(1, round(steps))
     t = np.arange(n + 1) * dt_s
     y = rollout(params.to_torch(torch.float64), torch.from_numpy(t), config).numpy()  # [T, d]
+    if not np.isfinite(y).all():  # finite parameters can still overflow (w of 1e308)
+        raise ValueError("params: the DMP's movement (its rollout) is not finite")
     return PlannedPath(
         time_s=t,
         xy_px=y[:, :2],

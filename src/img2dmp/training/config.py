@@ -12,11 +12,15 @@ import os
 from dataclasses import dataclass, field
 
 from .. import config as _config
+from .._processes import machine_cores
 from ..config import ConfigError, check_positive
 from ..nn.model import ModelConfig
 
 #: Learning-rate schedules, see :class:`OptimConfig`.
 SCHEDULES = ("none", "cosine", "step", "plateau")
+#: Most samples the generator draws at once (an epoch's, the validation set): all are held
+#: in memory, 6.4 kB each at 40 x 40 pixels (50 times the paper's 20,000).
+MAX_GENERATED_SAMPLES = 1_000_000
 
 
 @dataclass
@@ -91,6 +95,12 @@ class DataConfig:
         ):
             if int(getattr(self, name)) < 1:
                 raise ConfigError(f"data.{name} must be >= 1, got {getattr(self, name)!r}")
+        for name in ("samples_per_epoch", "val_samples"):
+            if int(getattr(self, name)) > MAX_GENERATED_SAMPLES:
+                raise ConfigError(
+                    f"data.{name} must be at most {MAX_GENERATED_SAMPLES:,} (the generator "
+                    f"holds them all in memory), got {getattr(self, name)!r}"
+                )
         if int(self.refresh_epochs) < 0:
             raise ConfigError(f"data.refresh_epochs must be >= 0, got {self.refresh_epochs!r}")
         if not 0 <= self.val_fraction < 1:
@@ -277,6 +287,12 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.threads is not None and self.threads < 1:
             raise ConfigError(f"threads must be >= 1 or null, got {self.threads!r}")
+        if self.threads is not None and self.threads > machine_cores():
+            # torch starts one OpenMP thread per count: 100,000 of them crash the process
+            raise ConfigError(
+                f"threads must be at most this machine's {machine_cores()} cores, got "
+                f"{self.threads!r}"
+            )
         if self.eval_batch_size < 1:
             raise ConfigError(f"eval_batch_size must be >= 1, got {self.eval_batch_size!r}")
         if self.seed < 0:
@@ -309,4 +325,5 @@ __all__ = [
     "OptimConfig",
     "TrainConfig",
     "load_config",
+    "machine_cores",
 ]

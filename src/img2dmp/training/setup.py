@@ -9,6 +9,7 @@ optimiser, the schedule and the cost, and writes ``config.yaml``. What it return
 from __future__ import annotations
 
 import copy
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,7 +21,7 @@ from ..checkpoint import CHECKPOINT_DIR, Checkpoint, load_checkpoint, load_weigh
 from ..nn import Cost, ParamNormaliser, build_model
 from ..nn.costs import ParameterWeighting
 from ..nn.device import place_model
-from .config import OptimConfig, TrainConfig
+from .config import OptimConfig, TrainConfig, machine_cores
 from .data import Augmenter, TrainingData
 from .records import write_metrics_csv
 from .state import RunState
@@ -102,7 +103,7 @@ def _configuration(config, run_dir, resume, overwrite, epochs):
     if not last_path.is_file():
         raise FileNotFoundError(f"cannot resume: {last_path} does not exist")
     last = load_checkpoint(last_path)
-    cfg = TrainConfig.from_dict(last.meta["train_config"])
+    cfg = TrainConfig.from_dict(_on_this_machine(last.meta["train_config"]))
     cfg.progress = config.progress
     done = last.meta["epoch"] + 1
     if epochs is not None:
@@ -112,6 +113,20 @@ def _configuration(config, run_dir, resume, overwrite, epochs):
             )
         cfg.optim = _with_epochs(cfg.optim, epochs)
     return cfg, last
+
+
+def _on_this_machine(stored: dict) -> dict:
+    """A stored configuration with its ``threads`` lowered to this machine's cores: a run
+    started on a larger machine resumes here (threads set the speed, not the run)."""
+    threads, cores = stored.get("threads"), machine_cores()
+    if isinstance(threads, int) and not isinstance(threads, bool) and threads > cores:
+        print(
+            f"note: the run was set to {threads} threads; this machine has {cores} cores, "
+            f"so it resumes on {cores}",
+            file=sys.stderr,
+        )
+        return dict(stored, threads=cores)
+    return stored
 
 
 def _with_epochs(optim: OptimConfig, epochs: int) -> OptimConfig:

@@ -3,20 +3,24 @@
 :func:`create_app` builds it: the models loaded once (:mod:`.models`), the Record page's
 images and recordings (:mod:`.recordings`), the pages read from photos (:mod:`.pages`),
 robot runs in their own processes (:mod:`.jobs`) and the static pages. Every refusal is a
-4xx answer ``{"detail": one line}`` naming the field or value: request bodies larger than
-``max_upload_mb`` (``max_page_mb`` for a page's photo; from ``Content-Length`` and while
-reading, before parsing), JSON that is not strict JSON (no ``NaN`` or ``Infinity``),
-FastAPI's validation errors, and the checks of the modules below. The endpoints that work
-are plain functions, run in FastAPI's thread pool.
+4xx answer ``{"detail": one line}`` naming the field or value: a ``Host`` that is not one
+of the server's names or a state-changing request from another ``Origin``
+(:class:`HostGuard`, before anything else), request bodies larger than ``max_upload_mb``
+(``max_page_mb`` for a page's photo; from ``Content-Length`` and while reading, before
+parsing) or that stop half-way, JSON that is not strict JSON (no ``NaN`` or ``Infinity``,
+no key twice), FastAPI's validation errors, and the checks of the modules below. The
+endpoints that work are plain functions, run in FastAPI's thread pool.
 """
 
 from __future__ import annotations
 
+import asyncio
 import json
 import time
 from contextlib import asynccontextmanager
 from pathlib import Path
 from typing import Annotated
+from urllib.parse import urlsplit
 
 from fastapi import FastAPI, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
@@ -50,6 +54,12 @@ from .strokes import (
 STATIC_DIR = Path(__file__).resolve().parent / "static"
 #: Samples of each trajectory a prediction may ask for.
 N_POINTS_RANGE = (2, 1000)
+#: The names a browser may give this server in ``Host`` without --allowed-host.
+LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1")
+#: Seconds a request body may take to arrive between two of its parts.
+BODY_TIMEOUT_S = 30.0
+#: Methods that change nothing; any other must come from the server's own pages.
+SAFE_METHODS = ("GET", "HEAD", "OPTIONS")
 
 
 # --- request bodies -------------------------------------------------------------------
@@ -132,12 +142,16 @@ class _StrictJSONRoute(APIRoute):
 
 class BodyLimit:
     """ASGI middleware: a body above ``max_bytes`` gets 413, refused from its
-    ``Content-Length`` before anything is read, or while it is read (chunked bodies).
-    ``paths`` gives some paths a limit of their own: ``{path: (max_bytes, option)}``."""
+    ``Content-Length`` before anything is read, or while it is read (chunked bodies); a
+    body whose next part does not arrive within ``timeout_s`` gets 408 (a client that
+    stops half-way would otherwise hold a worker and a connection for ever). ``paths``
+    gives some paths a limit of their own: ``{path: (max_bytes, option)}``."""
 
-    def __init__(self, app, max_bytes: int, paths: dict | None = None):
+    def __init__(self, app, max_bytes: int, timeout_s: float = BODY_TIMEOUT_S,
+                 paths: dict | None = None):  # fmt: skip
         self.app = app
         self.max_bytes = int(max_bytes)
+        self.timeout_s = float(timeout_s)
         self.paths = {k: (int(n), option) for k, (n, option) in (paths or {}).items()}
 
     def _limit(self, path: str) -> tuple[int, str]:
@@ -165,7 +179,13 @@ class BodyLimit:
 
         async def limited():
             nonlocal total
-            message = await receive()
+            try:
+                message = await asyncio.wait_for(receive(), self.timeout_s)
+            except TimeoutError:
+                raise HTTPException(
+                    408,
+                    f"body: {total} bytes, then nothing for {self.timeout_s:g} s; send it whole",
+                ) from None
             if message["type"] == "http.request":
                 total += len(message.get("body", b""))
                 if total > max_bytes:
@@ -173,6 +193,65 @@ class BodyLimit:
             return message
 
         await self.app(scope, limited, send)
+
+
+def host_name(host: str) -> str:
+    """The name in a ``Host`` header or an address (``[::1]:8000`` -> ``::1``,
+    ``LocalHost.:80`` -> ``localhost``), as compared with the allowed hosts."""
+    host = host.strip().lower()
+    if host.startswith("["):
+        return host[1 : host.find("]")] if "]" in host else host
+    if host.count(":") == 1:  # name:port (an IPv6 address without brackets has several)
+        host = host.split(":", 1)[0]
+    return host[:-1] if host.endswith(".") else host
+
+
+def _origin(url: str) -> tuple[str, str, int | None] | None:
+    """(scheme, host, port) of an ``Origin`` or URL, ports spelled out; None if it is none."""
+    try:
+        parts = urlsplit(url.strip().lower())
+        port = parts.port or {"http": 80, "https": 443}.get(parts.scheme)
+    except ValueError:
+        return None
+    return (parts.scheme, host_name(parts.hostname or ""), port) if parts.hostname else None
+
+
+class HostGuard:
+    """ASGI middleware against DNS rebinding and cross-site requests, before any work.
+
+    A page of another site that makes its own name resolve to 127.0.0.1 (DNS rebinding)
+    reaches this server from the user's browser as a page of its own origin; only the
+    ``Host`` header shows the name it used. A request whose ``Host`` is none of
+    ``allowed`` (the loopback names, the address bound, ``--allowed-host``) gets 400. A
+    request that may change something (any method but GET, HEAD and OPTIONS) whose
+    ``Origin`` is not this server's own (the scheme and the ``Host`` it was sent to) gets
+    403; a request without ``Origin`` is not from a browser's page of another site.
+    """
+
+    def __init__(self, app, allowed: tuple[str, ...]):
+        self.app = app
+        self.allowed = tuple(dict.fromkeys(host_name(h) for h in allowed))
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http":
+            return await self.app(scope, receive, send)
+        headers = dict(scope.get("headers") or ())
+        host = headers.get(b"host", b"").decode("latin-1")
+        refusal = None
+        if host_name(host) not in self.allowed:
+            names = ", ".join(self.allowed)
+            refusal = (400, f"Host: {show(host)} is not a name of this server (it answers to "
+                       f"{names}; img2dmp serve --allowed-host NAME adds one)")  # fmt: skip
+        elif scope.get("method", "GET") not in SAFE_METHODS and b"origin" in headers:
+            origin = headers[b"origin"].decode("latin-1")
+            own = _origin(f"{scope.get('scheme', 'http')}://{host}")
+            if _origin(origin) != own:
+                refusal = (403, f"Origin: {show(origin)} is not this server's own; what "
+                           "changes something is taken only from its own pages")  # fmt: skip
+        if refusal is not None:
+            answer = JSONResponse({"detail": refusal[1]}, refusal[0])
+            return await answer(scope, receive, send)
+        return await self.app(scope, receive, send)
 
 
 # --- errors ---------------------------------------------------------------------------
@@ -254,6 +333,8 @@ def create_app(
     static_dir=None,
     max_page_mb: float = PAGE_UPLOAD_MB,
     refine: int = 0,
+    allowed_hosts=(),
+    body_timeout_s: float = BODY_TIMEOUT_S,
 ) -> FastAPI:
     """The application of ``img2dmp serve`` (docs/WEB.md).
 
@@ -280,6 +361,12 @@ def create_app(
     refine : int
         Gradient steps every prediction of a model loaded from a path is refined with on
         its ink (``img2dmp serve --refine``; 0: the network's output).
+    allowed_hosts : sequence of str
+        Names the server answers to besides :data:`LOOPBACK_HOSTS` (``Host`` header;
+        ``img2dmp serve`` gives its ``--host`` and ``--allowed-host``), see
+        :class:`HostGuard`.
+    body_timeout_s : float
+        Seconds a request body may pause before it is refused (408).
 
     Raises
     ------
@@ -290,8 +377,7 @@ def create_app(
         raise ValueError("give --mnist DIR or --images DIR, not both")
     if not (isinstance(max_jobs, int) and max_jobs >= 1):
         raise ValueError(f"--max-jobs must be an integer >= 1, got {max_jobs!r}")
-    if not 0 < max_upload_mb < float("inf"):
-        raise ValueError(f"--max-upload-mb must be a number > 0, got {max_upload_mb!r}")
+    allowed = _check_requests(max_upload_mb, body_timeout_s, allowed_hosts)
     if not 0 < max_page_mb < float("inf"):
         raise ValueError(f"--max-page-mb must be a number > 0, got {max_page_mb!r}")
     source = MnistImages(mnist) if mnist is not None else None
@@ -314,7 +400,9 @@ def create_app(
     app.state.img2dmp = state
     page_limit = (int(max_page_mb * (1 << 20)), "--max-page-mb")
     app.add_middleware(BodyLimit, max_bytes=int(max_upload_mb * (1 << 20)),
+                       timeout_s=body_timeout_s,
                        paths={"/api/predict_page": page_limit})  # fmt: skip
+    app.add_middleware(HostGuard, allowed=allowed)  # added last: it runs first
     _install_error_handlers(app)
     _predict_routes(app, state)
     _page_routes(app, state, max_page_mb)
@@ -322,6 +410,20 @@ def create_app(
     _job_routes(app, state)
     _static_routes(app, Path(static_dir) if static_dir is not None else STATIC_DIR)
     return app
+
+
+def _check_requests(max_upload_mb, body_timeout_s, allowed_hosts) -> tuple[str, ...]:
+    """The bounds of a request checked (``ValueError`` naming the option); the names the
+    server answers to."""
+    if not 0 < max_upload_mb < float("inf"):
+        raise ValueError(f"--max-upload-mb must be a number > 0, got {max_upload_mb!r}")
+    if not 0 < body_timeout_s < float("inf"):
+        raise ValueError(f"body_timeout_s must be a number > 0, got {body_timeout_s!r}")
+    allowed = (*LOOPBACK_HOSTS, *allowed_hosts)
+    for name in allowed:
+        if not isinstance(name, str) or not host_name(name) or "/" in name:
+            raise ValueError(f"--allowed-host must be a host name or address, got {show(name)}")
+    return allowed
 
 
 def _json(payload: dict, status: int = 200) -> Response:
@@ -487,4 +589,12 @@ def _static_routes(app: FastAPI, static: Path) -> None:
     app.mount("/static", StaticFiles(directory=static, check_dir=False), name="static")
 
 
-__all__ = ["BodyLimit", "PredictRequest", "RecordingRequest", "WriteRequest", "create_app"]
+__all__ = [
+    "BodyLimit",
+    "HostGuard",
+    "PredictRequest",
+    "RecordingRequest",
+    "WriteRequest",
+    "create_app",
+    "host_name",
+]

@@ -4,6 +4,8 @@ below the app (and the robot's job processes) can raise it."""
 
 from __future__ import annotations
 
+from ..errors import show
+
 
 class WebError(Exception):
     """A request refused with ``status`` (4xx, or 503) and a one-line ``detail``."""
@@ -18,12 +20,6 @@ def one_line(text: str, limit: int = 500) -> str:
     """``text`` as one line of at most ``limit`` characters."""
     line = " ".join(part.strip() for part in str(text).splitlines() if part.strip())
     return line if len(line) <= limit else line[: limit - 3] + "..."
-
-
-def show(value, limit: int = 60) -> str:
-    """A short ``repr`` of a value for a message."""
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 __all__ = ["WebError", "one_line", "show"]

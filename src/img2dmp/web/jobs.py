@@ -4,11 +4,13 @@ Each job is a folder ``JOBS_DIR/<id>/`` holding what it writes (here the checked
 document, ``dmp.json``, written through :mod:`img2dmp.data.dmpfile`; a page's job, in
 :mod:`.page_jobs`, its page document), then the outputs under fixed names (:data:`JOB_FILES`
 for a DMP), the process's output (``job.log``) and its outcome (``result.json``). A job
-runs in a process of its own (multiprocessing, "spawn"), so that pybullet never holds up
-the server's predictions; at most ``max_jobs`` run at once and the others wait in order,
-whatever they write. The running process reports through a shared array of doubles
-(:data:`SHARE`: the progress, 0-1; :data:`BEGUN`: the characters of a page begun); a
-failure is one line in ``error``.
+runs in a process of its own (multiprocessing, "forkserver": a fresh Python started once,
+which forks each run), so that pybullet never holds up the server's predictions; at most
+``max_jobs`` run at once and the others wait in order, whatever they write. The fork
+server is started with Ctrl-C ignored, and so are the runs it forks: Ctrl-C stops the
+server, which ends them, instead of printing each one's traceback. The running process
+reports through a shared array of doubles (:data:`SHARE`: the progress, 0-1;
+:data:`BEGUN`: the characters of a page begun); a failure is one line in ``error``.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from __future__ import annotations
 import collections
 import json
 import multiprocessing
+import multiprocessing.forkserver
 import os
 import secrets
 import shutil
@@ -28,6 +31,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .._files import atomic_write_text
+from .._processes import children_ignore_interrupts
 from ..data.dmpfile import FORMAT, VERSION, check_dmp_document, write_dmp_document
 from .errors import WebError, one_line, show
 
@@ -62,7 +66,9 @@ def run_in_job_dir(job_dir: str, work) -> None:
     and write its outcome, ``result.json``: ``{"status": "done", **work's dict}`` or
     ``{"status": "failed", "error": one line}``."""
     d = Path(job_dir)
-    log = os.open(d / "job.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    # The job's folder is new (made by submit); O_NOFOLLOW all the same: a log is never
+    # written through a link.
+    log = os.open(d / "job.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW, 0o644)
     os.dup2(log, 1)
     os.dup2(log, 2)
     try:
@@ -177,7 +183,11 @@ class JobManager:
         self.dir.mkdir(parents=True, exist_ok=True)
         self.max_jobs = int(max_jobs)
         self.target = target
-        self._ctx = multiprocessing.get_context("spawn")
+        self._ctx = multiprocessing.get_context("forkserver")
+        # Started here (serve's main thread) rather than with the first run (the jobs'
+        # thread, where signal handlers cannot be changed): its runs inherit SIGINT ignored.
+        with children_ignore_interrupts():
+            multiprocessing.forkserver.ensure_running()
         self._jobs: dict[str, Job] = {}
         self._waiting: collections.deque[Job] = collections.deque()
         self._lock = threading.Lock()

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from .._files import LOCK_NAME, atomic_write_text
+from .._files import atomic_write_text, open_lock_file
 from ..data.images import shown_size, upright
 from ..data.mnist import IMAGES_MAGIC, LABELS_MAGIC, MNIST_FILES, find_mnist_file, read_idx
 from ..data.recorded import parse_recorded
@@ -168,6 +168,11 @@ def _times(strokes: list) -> np.ndarray:
             f"strokes[{i}][{j}]: t_ms {t[k]:g} is before the point before it ({t[k - 1]:g}); "
             "times must not decrease",
         )
+    # The range first, in floating point: 1e17 ms in microseconds overflows an int64.
+    if t[-1] - t[0] > MAX_DURATION_MS:
+        raise WebError(
+            422, f"strokes: the recording lasts {(t[-1] - t[0]) / 1e3:.6g} s, more than 1 hour"
+        )
     us = np.round((t - t[0]) * 1000.0).astype(np.int64)
     steps = np.arange(len(us))
     us = np.maximum.accumulate(us - steps) + steps
@@ -206,6 +211,7 @@ class Recordings:
         if self.data_dir.exists() and not self.data_dir.is_dir():
             raise NotADirectoryError(f"--data-dir {self.data_dir} is a file, not a directory")
         self.data_dir.mkdir(parents=True, exist_ok=True)
+        os.close(open_lock_file(self.data_dir, "--data-dir"))  # a planted link: refused now
         self.source = source
         self._lock = threading.Lock()
 
@@ -278,7 +284,10 @@ class Recordings:
         """This process's threads one at a time, and other processes through
         ``fcntl.flock`` on ``DATA_DIR/.lock`` (503 after ``LOCK_TIMEOUT_S``)."""
         with self._lock:
-            fd = os.open(self.data_dir / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o666)
+            try:
+                fd = open_lock_file(self.data_dir, "--data-dir")
+            except OSError as e:  # the folder changed under the server
+                raise WebError(503, f"the recordings cannot be locked: {e}") from None
             try:
                 deadline = time.monotonic() + LOCK_TIMEOUT_S
                 while True:
