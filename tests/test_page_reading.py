@@ -136,3 +136,19 @@ def test_the_robot_writes_a_three_character_page_read_from_a_photo(tmp_path, run
     for r in rows:  # each character inked along what was commanded, and only there
         assert r["written"] == "1" and float(r["ink_share"]) > 0.95, r
         assert float(r["ink_on_path_share"]) > 0.95, r
+
+
+def test_a_24_megapixel_photo_is_read_at_most_2_megapixels(tmp_path, run):
+    from img2dmp.page import PAGE_WORK_PIXELS
+
+    ink, boxes = page(LINES, size=(300, 520))
+    big = np.asarray(Image.fromarray((255 * (1 - 0.9 * ink)).astype(np.uint8)).resize((6000, 4000)))
+    Image.fromarray(big).save(tmp_path / "big.jpg", quality=85)
+    result = load_model(run).predict_page(tmp_path / "big.jpg")
+    assert result.image_size == (4000, 6000)
+    h, w = result.layout.shape
+    assert h * w <= PAGE_WORK_PIXELS and result.reduction >= 3
+    assert len(result.characters) == len(boxes)
+    scale = 6000 / 520
+    for c, box in zip(result.characters, boxes, strict=True):  # boxes in the photo's pixels
+        assert _close(c.box_image, [v * scale for v in box], tol=5 * scale)

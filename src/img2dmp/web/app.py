@@ -377,9 +377,7 @@ def create_app(
         raise ValueError("give --mnist DIR or --images DIR, not both")
     if not (isinstance(max_jobs, int) and max_jobs >= 1):
         raise ValueError(f"--max-jobs must be an integer >= 1, got {max_jobs!r}")
-    allowed = _check_requests(max_upload_mb, body_timeout_s, allowed_hosts)
-    if not 0 < max_page_mb < float("inf"):
-        raise ValueError(f"--max-page-mb must be a number > 0, got {max_page_mb!r}")
+    allowed = _check_requests(max_upload_mb, body_timeout_s, allowed_hosts, max_page_mb)
     source = MnistImages(mnist) if mnist is not None else None
     source = FolderImages(images) if images is not None else source
     state = ServerState(
@@ -398,11 +396,7 @@ def create_app(
                          "simulated KUKA iiwa, record demonstrations (docs/WEB.md).")  # fmt: skip
     app.router.route_class = _StrictJSONRoute
     app.state.img2dmp = state
-    page_limit = (int(max_page_mb * (1 << 20)), "--max-page-mb")
-    app.add_middleware(BodyLimit, max_bytes=int(max_upload_mb * (1 << 20)),
-                       timeout_s=body_timeout_s,
-                       paths={"/api/predict_page": page_limit})  # fmt: skip
-    app.add_middleware(HostGuard, allowed=allowed)  # added last: it runs first
+    _install_guards(app, max_upload_mb, max_page_mb, body_timeout_s, allowed)
     _install_error_handlers(app)
     _predict_routes(app, state)
     _page_routes(app, state, max_page_mb)
@@ -412,11 +406,25 @@ def create_app(
     return app
 
 
-def _check_requests(max_upload_mb, body_timeout_s, allowed_hosts) -> tuple[str, ...]:
+def _install_guards(app, max_upload_mb, max_page_mb, body_timeout_s, allowed) -> None:
+    """The middleware that refuses before any work: bodies too large or too slow
+    (:class:`BodyLimit`, a page's photo its own limit) and foreign hosts and origins
+    (:class:`HostGuard`, added last so that it runs first)."""
+    page_limit = (int(max_page_mb * (1 << 20)), "--max-page-mb")
+    app.add_middleware(BodyLimit, max_bytes=int(max_upload_mb * (1 << 20)),
+                       timeout_s=body_timeout_s,
+                       paths={"/api/predict_page": page_limit})  # fmt: skip
+    app.add_middleware(HostGuard, allowed=allowed)
+
+
+def _check_requests(max_upload_mb, body_timeout_s, allowed_hosts,
+                    max_page_mb: float = PAGE_UPLOAD_MB) -> tuple[str, ...]:  # fmt: skip
     """The bounds of a request checked (``ValueError`` naming the option); the names the
     server answers to."""
     if not 0 < max_upload_mb < float("inf"):
         raise ValueError(f"--max-upload-mb must be a number > 0, got {max_upload_mb!r}")
+    if not 0 < max_page_mb < float("inf"):
+        raise ValueError(f"--max-page-mb must be a number > 0, got {max_page_mb!r}")
     if not 0 < body_timeout_s < float("inf"):
         raise ValueError(f"body_timeout_s must be a number > 0, got {body_timeout_s!r}")
     allowed = (*LOOPBACK_HOSTS, *allowed_hosts)

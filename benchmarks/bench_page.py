@@ -1,0 +1,159 @@
+"""Reading a page as a user meets it: ``img2dmp predict PHOTO --page --out DIR``, end to end.
+
+A 12-megapixel photo (4000 x 3000, JPEG) of a page with 60 handwritten digits on ruled
+paper (:func:`img2dmp.data.clutter.generate_page`, synthetic digits, so no data is
+needed) is read by the command as a whole process, several runs (min / median / max),
+beside the floor every command pays, ``python -c "import img2dmp.predict"`` (Python,
+torch and the package imported), in alternation; the ratio of the two medians says how
+much of the time is the page's own work. Target: the page in at most 3 s end to end.
+
+``--stages`` also times the stages of one reading in this process (after a warm-up):
+reading and reducing the photo, separating the ink from the paper, finding the
+characters, framing them, the network and refinement, the page document and picture.
+
+The model: ``--model RUN`` (the recommended one: ``make model-real``, ``--refine 30``),
+else a tiny one trained here in a temporary folder (as ``bench_latency.py`` does), whose
+timings have the same shape except for the network's size. Python's bytecode cache is on
+(as for an installed package) unless ``--as-environment``.
+
+Run: ``.venv/bin/python benchmarks/bench_page.py --model runs/real/run --refine 30``
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import _machine
+from bench_latency import bytecode_env, img2dmp_command, make_model, run
+
+TARGET_S = 3.0
+SIZE_HW = (3000, 4000)
+N_CHARACTERS = 60
+
+
+def make_photo(work: Path, seed: int = 0) -> Path:
+    """The 12-MP page photo (JPEG) with ``N_CHARACTERS`` digits on ruled paper."""
+    import numpy as np
+    from PIL import Image
+
+    from img2dmp.data.clutter import PageOptions, generate_page, page_sources_from_synthetic
+
+    rng = np.random.default_rng(seed)
+    chars = page_sources_from_synthetic(rng, N_CHARACTERS)
+    options = PageOptions(n_lines=(5, 5), char_height_px=(110.0, 130.0))
+    page = generate_page(rng, chars, kind="ruled", size_hw=SIZE_HW, options=options)
+    path = work / "page.jpg"
+    Image.fromarray(page.image).save(path, quality=90)
+    return path
+
+
+def stages(model_dir: str, refine: int, photo: Path) -> list[tuple[str, float]]:
+    """Seconds of each stage of one reading, in this process (warmed up once)."""
+    from img2dmp import page as P
+    from img2dmp.data import images
+    from img2dmp.data.pages import find_characters
+    from img2dmp.data.paper import paper_ink
+    from img2dmp.predict import load_model
+
+    model = load_model(model_dir, refine=refine)
+    model.predict_page(photo)  # warm-up
+    out, t = [], time.perf_counter()
+
+    def lap(name):
+        nonlocal t
+        now = time.perf_counter()
+        out.append((name, now - t))
+        t = now
+
+    levels, reduction, size, label = images._levels_framed(photo, None, P.PAGE_WORK_PIXELS)
+    lap("read and reduce the photo")
+    found = paper_ink(levels)
+    lap("separate the ink from the paper")
+    layout = find_characters(found.mask, core=found.core, grow=P._grow(found.pen_width_px))
+    lap(f"find the characters ({len(layout.characters)})")
+    inputs, _ = P._frame_characters(model, found, layout, reduction, size, label, True)
+    lap("frame them")
+    import numpy as np
+
+    params, _ = model.predict_hypotheses(np.stack(inputs))
+    model.trajectories(params, n_points=100)
+    lap(f"network{' and refinement' if refine else ''}, rollouts")
+    result = model.predict_page(photo)
+    t = time.perf_counter()
+    result.save(photo.parent / "stages", "page")
+    lap("write the page document and picture")
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", help="run directory (default: a tiny model trained here)")
+    ap.add_argument("--refine", type=int, default=0, help="refinement steps (30 for real)")
+    ap.add_argument("--runs", type=int, default=5, help="timed runs of each command")
+    ap.add_argument("--stages", action="store_true", help="also time the stages in-process")
+    ap.add_argument(
+        "--as-environment",
+        action="store_true",
+        help="time with the environment as it is (bytecode cache maybe off)",
+    )
+    args = ap.parse_args()
+    cli = img2dmp_command()
+    work = Path(tempfile.mkdtemp(prefix="img2dmp-page-"))
+    try:
+        print(_machine.describe())
+        model = args.model or str(make_model(work, cli)[0])
+        photo = make_photo(work)
+        print(
+            f"photo: {SIZE_HW[1]} x {SIZE_HW[0]} JPEG, {N_CHARACTERS} digits on ruled paper, "
+            f"{photo.stat().st_size / 1e6:.1f} MB; model {model}, refine {args.refine}"
+        )
+        env, cache = bytecode_env(work, args.as_environment)
+        print(cache)
+        page = cli + [
+            "predict",
+            "--model",
+            model,
+            str(photo),
+            "--page",
+            "--out",
+            str(work / "out"),
+            "--force",
+            "--refine",
+            str(args.refine),
+        ]
+        floor = [sys.executable, "-c", "import img2dmp.predict"]
+        commands = {"predict --page (12 MP, 60 digits)": page, "import img2dmp.predict": floor}
+        for cmd in commands.values():
+            run(cmd, work, env=env)  # warm-up: caches, bytecode
+        times = {name: [] for name in commands}
+        for _ in range(args.runs):
+            for name, cmd in commands.items():
+                times[name].append(run(cmd, work, env=env))
+        print(f"\n{args.runs} runs each, as whole processes, in alternation")
+        print(f"{'command':36s} {'min (s)':>8s} {'median':>8s} {'max':>8s}")
+        for name, ts in times.items():
+            print(f"{name:36s} {min(ts):8.2f} {statistics.median(ts):8.2f} {max(ts):8.2f}")
+        med = {k: statistics.median(v) for k, v in times.items()}
+        page_s, floor_s = med[next(iter(med))], med["import img2dmp.predict"]
+        verdict = "ok" if page_s <= TARGET_S else "SLOWER"
+        print(
+            f"page / import floor: {page_s / floor_s:.2f}x; the page's own work "
+            f"{page_s - floor_s:.2f} s; target {TARGET_S:.1f} s end to end: {verdict}"
+        )
+        if args.stages:
+            print("\nstages of one reading, in-process:")
+            for name, s in stages(model, args.refine, photo):
+                print(f"  {s:6.3f} s  {name}")
+        print(f"load average at the end {_machine.load_average()} (1/5/15 min)")
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
