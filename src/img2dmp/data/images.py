@@ -366,11 +366,11 @@ def _pil_levels(im, label: str, max_pixels: int = MAX_WORK_PIXELS) -> tuple[np.n
         levels = np.asarray(im, dtype=np.float32) / np.float32(255.0)
     else:
         levels = np.array(im.convert("F"), dtype=np.float32)  # a copy: divided in place
+        if not np.isfinite(levels).all():  # a floating-point ("F") image may hold NaN
+            raise ValueError(f"{label} holds NaN or infinite grey levels")
         levels /= np.float32(full_scale(float(levels.max()) if levels.size else 0.0))
     if min(levels.shape[:2]) < 2:
         raise ValueError(f"{label} has unusable size {levels.shape[:2]}")
-    if not np.isfinite(levels).all():  # a floating-point ("F") image may hold NaN
-        raise ValueError(f"{label} holds NaN or infinite grey levels")
     return levels, scale * factor
 
 

@@ -384,6 +384,20 @@ def create_app(
         load_models(models, refine), Recordings(data_dir, source), JobManager(jobs_dir, max_jobs)
     )
 
+    app = _new_app(state)
+    _install_guards(app, max_upload_mb, max_page_mb, body_timeout_s, allowed)
+    _install_error_handlers(app)
+    _predict_routes(app, state)
+    _page_routes(app, state, max_page_mb)
+    _image_routes(app, state)
+    _job_routes(app, state)
+    _static_routes(app, Path(static_dir) if static_dir is not None else STATIC_DIR)
+    return app
+
+
+def _new_app(state: ServerState) -> FastAPI:
+    """The application holding ``state``, whose robot runs end with it."""
+
     @asynccontextmanager
     async def lifespan(app):
         yield
@@ -396,13 +410,6 @@ def create_app(
                          "simulated KUKA iiwa, record demonstrations (docs/WEB.md).")  # fmt: skip
     app.router.route_class = _StrictJSONRoute
     app.state.img2dmp = state
-    _install_guards(app, max_upload_mb, max_page_mb, body_timeout_s, allowed)
-    _install_error_handlers(app)
-    _predict_routes(app, state)
-    _page_routes(app, state, max_page_mb)
-    _image_routes(app, state)
-    _job_routes(app, state)
-    _static_routes(app, Path(static_dir) if static_dir is not None else STATIC_DIR)
     return app
 
 
