@@ -14,9 +14,10 @@ is read by ``predict_page`` and its characters matched one to one with the true 
   plain, and their ratio;
 - **on the pen's line**: the share of the predicted path on the true ink (> 0.5).
 
-``--crops`` also measures the characters cropped by hand (the true box grown by 30 %),
-each predicted alone with the paper-aware preparation and with the plain one: what
-preparation does without segmentation (the issue's "cropped by hand" row).
+``--crops`` also measures the characters cropped by hand (the true box grown by 30 %,
+where no neighbour reaches into it), each predicted alone with the paper-aware
+preparation and with the plain one: what preparation does without segmentation (the
+issue's "cropped by hand" row).
 
 Real photos (``--photos DIR``: a folder with ``photos.json`` as in ``../shared/data/photos``):
 the characters found per line against the digits written out (miscounted: the sum over
@@ -106,6 +107,9 @@ def _crop_scores(model, page, image, t: int) -> dict:
     w, h = box[2] - box[0], box[3] - box[1]
     x0, y0 = max(0, int(box[0] - 0.3 * w)), max(0, int(box[1] - 0.3 * h))
     x1, y1 = int(box[2] + 0.3 * w), int(box[3] + 0.3 * h)
+    others = [b for k, b in enumerate(page.boxes) if k != t]
+    if any(_iou((x0, y0, x1, y1), b) > 0 for b in others):
+        return {}  # a neighbour in the crop: not a character cropped by hand
     crop = image[y0:y1, x0:x1]
     out = {}
     for name, clean in (("crop_paper", True), ("crop_plain", False)):
