@@ -234,6 +234,23 @@ def _written(mask, paths, radius) -> float:
     return float((distance_transform_edt(~drawn)[mask] <= radius).mean())
 
 
+def fit_score_percentiles(model, data_path: str, limit: int = 600) -> dict:
+    """Percentiles (1, 2, 5, 10, 50) of ``path_on_ink`` and ``ink_written``
+    (:func:`img2dmp.predict.fit_score`) of the model's top hypothesis on the first
+    ``limit`` validation images of a data set: where the flags' thresholds stand."""
+    from img2dmp.data.store import load_dataset
+    from img2dmp.predict import fit_score
+
+    d = load_dataset(data_path)
+    idx = np.flatnonzero(d.split == 1)[:limit]
+    params, _ = model.predict_hypotheses(d.images[idx])
+    _, paths = model.trajectories(params[:, 0], n_points=100)
+    fits = [fit_score(x, y, model.stroke_width) for x, y in zip(d.images[idx], paths, strict=True)]
+    q = [1, 2, 5, 10, 50]
+    return {key: dict(zip(map(str, q), np.percentile([f[key] for f in fits], q).round(3).tolist(),
+                          strict=True)) for key in ("path_on_ink", "ink_written")}  # fmt: skip
+
+
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -245,6 +262,11 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--crops", action="store_true", help="also hand-cropped characters")
     p.add_argument("--photos", help="a folder of photos with photos.json")
+    p.add_argument(
+        "--fit-scores",
+        metavar="DATA",
+        help="also the fit scores' percentiles on this data set's validation images",
+    )
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--out", required=True)
     args = p.parse_args(argv)
@@ -260,6 +282,8 @@ def main(argv=None) -> int:
         report["generated"] = summarise_generated(generated(model, args))
     if args.photos:
         report["photos"] = photos(model, Path(args.photos))
+    if args.fit_scores:
+        report["fit_scores"] = fit_score_percentiles(model, args.fit_scores)
     report["wall_s"] = round(time.perf_counter() - start, 1)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

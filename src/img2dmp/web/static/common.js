@@ -224,6 +224,31 @@ export function initHeader(page, errorBox, { switcher = true } = {}) {
 }
 
 /** Save a text as a file download. */
+/* A robot job's state on its card: the progress bar and the status line for "queued",
+   "running" (`runningText(job, share)` says what runs), "done" and "failed" (its reason in
+   `errorBox`); the caller shows what a finished job made. */
+export function showJobState(job, { card, progress, status, errorBox, runningText }) {
+  card.hidden = false;
+  card.dataset.status = job.status;
+  const p = Number(job.progress) || 0;
+  if (job.status === "queued") {
+    progress.removeAttribute("value");
+    const pos = job.position ? ` (position ${job.position})` : "";
+    status.textContent = `Waiting for the robot${pos}\u2026`;
+  } else if (job.status === "running") {
+    if (p > 0) progress.value = p;
+    else progress.removeAttribute("value");
+    status.textContent = runningText(job, p);
+  } else if (job.status === "done") {
+    progress.value = 1;
+    status.textContent = "Done.";
+  } else {
+    progress.value = 0;
+    status.textContent = "Failed.";
+    showMessage(errorBox, "error", job.error || "The robot run failed (no reason given).");
+  }
+}
+
 export function downloadText(text, filename, type = "application/json") {
   const url = URL.createObjectURL(new Blob([text], { type }));
   const a = el("a", { href: url, download: filename });

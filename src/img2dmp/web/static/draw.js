@@ -1,7 +1,8 @@
 // The Draw page: draw (or drop) a digit, predict its DMP, watch it written, download it,
 // have the simulated robot write it.
 import {
-  api, ApiError, capture, downloadText, el, fitCanvas, flagText, initHeader, showError, showMessage,
+  api, ApiError, capture, downloadText, el, fitCanvas, flagText, initHeader, showError,
+  showJobState, showMessage,
 } from "./common.js";
 
 // Strokes are kept in a fixed logical frame (LOGICAL x LOGICAL), whatever the CSS size.
@@ -458,29 +459,13 @@ function endJob() {
 }
 
 function showJob(job) {
-  ui.job.hidden = false;
-  ui.job.dataset.status = job.status;
-  const p = Number(job.progress) || 0;
-  if (job.status === "queued") {
-    ui.jobProgress.removeAttribute("value");
-    const pos = job.position ? ` (position ${job.position})` : "";
-    ui.jobStatus.textContent = `Waiting for the robot${pos}\u2026`;
-  } else if (job.status === "running") {
-    if (p > 0) ui.jobProgress.value = p;
-    else ui.jobProgress.removeAttribute("value");
-    ui.jobStatus.textContent = p > 0
+  showJobState(job, {
+    card: ui.job, progress: ui.jobProgress, status: ui.jobStatus, errorBox: ui.robotError,
+    runningText: (_, p) => (p > 0
       ? `The arm is writing\u2026 ${Math.round(100 * p)}\u00a0%`
-      : "Starting the simulation\u2026";
-  } else if (job.status === "done") {
-    ui.jobProgress.value = 1;
-    ui.jobStatus.textContent = "Done.";
-    showJobFiles(job);
-  } else {
-    ui.jobProgress.value = 0;
-    ui.jobStatus.textContent = "Failed.";
-    showMessage(ui.robotError, "error", job.error || "The robot run failed (no reason given).");
-    showJobFiles(job);
-  }
+      : "Starting the simulation\u2026"),
+  });
+  if (job.status === "done" || job.status === "failed") showJobFiles(job);
 }
 
 function showJobFiles(job) {

@@ -1,7 +1,7 @@
 // The Page view's robot card: the simulated arm writes the page being shown (a robot job
 // of the server, POST /api/pages/{id}/write), its progress by character, then the
 // page's figure, its totals, the video, the table of the characters and the downloads.
-import { ApiError, api, el, showError, showMessage } from "./common.js";
+import { ApiError, api, el, showError, showJobState, showMessage } from "./common.js";
 
 const POLL_MS = 500;
 const WIDTH_MM = { min: 10, max: 1000 };
@@ -114,27 +114,12 @@ export function armCard(markArm) {
   }
 
   function showJob(job) {
-    ui.job.hidden = false;
-    ui.job.dataset.status = job.status;
-    const p = Number(job.progress) || 0;
-    if (job.status === "queued") {
-      ui.progress.removeAttribute("value");
-      const pos = job.position ? ` (position ${job.position})` : "";
-      ui.status.textContent = `Waiting for the robot${pos}\u2026`;
-    } else if (job.status === "running") {
-      if (p > 0) ui.progress.value = p;
-      else ui.progress.removeAttribute("value");
-      ui.status.textContent = runningText(job.character, p);
-      markArm(job.character ? job.character.index : null);
-    } else if (job.status === "done") {
-      ui.progress.value = 1;
-      ui.status.textContent = "Done.";
-      showResult(job);
-    } else {
-      ui.progress.value = 0;
-      ui.status.textContent = "Failed.";
-      showMessage(ui.error, "error", job.error || "The robot run failed (no reason given).");
-    }
+    showJobState(job, {
+      card: ui.job, progress: ui.progress, status: ui.status, errorBox: ui.error,
+      runningText: (j, p) => runningText(j.character, p),
+    });
+    if (job.status === "running") markArm(job.character ? job.character.index : null);
+    if (job.status === "done") showResult(job);
   }
 
   function runningText(character, p) {
