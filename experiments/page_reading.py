@@ -12,7 +12,9 @@ is read by ``predict_page`` and its characters matched one to one with the true 
 - **Chamfer**: the order-free distance between the predicted path (top hypothesis) and
   the person's, in photo pixels per 20 px of character height (the box's), cluttered and
   plain, and their ratio;
-- **on the pen's line**: the share of the predicted path on the true ink (> 0.5).
+- **on the pen's line**: the share of the predicted path within one pixel of MNIST's
+  28-px frame (1/28 of the character's height, at least a pixel) of the true ink (> 0.5),
+  as the MNIST evaluation's "on ink" is taken in that frame.
 
 ``--crops`` also measures the characters cropped by hand (the true box grown by 30 %,
 where no neighbour reaches into it), each predicted alone with the paper-aware
@@ -73,15 +75,23 @@ def _down(path: np.ndarray) -> np.ndarray:
 
 
 def _scores(pred_path, true_path, ink, box) -> tuple[float, float]:
-    """(Chamfer per 20 px of character height, share of the predicted path on the ink)."""
-    from img2dmp.metrics import chamfer_px, on_ink_share
+    """(Chamfer per 20 px of character height, share of the predicted path on the pen's
+    line: within one pixel of MNIST's 28-px frame, 1/28 of the character's height but at
+    least a pixel, of the true ink above 0.5)."""
+    from scipy.ndimage import distance_transform_edt
+
+    from img2dmp.metrics import chamfer_px, resample_by_arc_length
 
     height = max(1.0, box[3] - box[1])
     c = float(chamfer_px(pred_path[None, :, :2], _down(true_path)[None])[0]) * 20.0 / height
-    x0, y0 = max(0, box[0] - 40), max(0, box[1] - 40)
-    crop = ink[y0 : box[3] + 40, x0 : box[2] + 40]
-    on = float(on_ink_share(crop[None], (pred_path[:, :2] - [x0, y0])[None])[0])
-    return c, on
+    pad = int(height)
+    x0, y0 = max(0, box[0] - pad), max(0, box[1] - pad)
+    crop = ink[y0 : box[3] + pad, x0 : box[2] + pad] > 0.5
+    away = distance_transform_edt(~crop)
+    pts = resample_by_arc_length(pred_path[None, :, :2], 128)[0] - [x0, y0]
+    r = np.clip(np.round(pts[:, 1]).astype(int), 0, crop.shape[0] - 1)
+    col = np.clip(np.round(pts[:, 0]).astype(int), 0, crop.shape[1] - 1)
+    return c, float((away[r, col] <= max(1.0, height / 28.0)).mean())
 
 
 def _read_generated(model, page, image, crops: bool):

@@ -442,6 +442,31 @@ def test_a_page_photo_is_boxed_counted_written_and_its_flagged_character_marked(
     assert all(c["dmp"]["format"] == "img2dmp-dmp" for c in doc["characters"])
 
 
+def test_a_page_photo_dropped_on_the_page_view_is_read(page, server, tmp_path, handwritten_page):
+    import io
+
+    from PIL import Image
+
+    image, boxes = handwritten_page
+    buf = io.BytesIO()
+    Image.fromarray(image).save(buf, format="PNG")
+    page.goto(server["url"] + "/page")
+    page.locator("#page-card").wait_for()
+    page.evaluate(
+        """(b64) => {
+          const bytes = Uint8Array.from(atob(b64), (c) => c.charCodeAt(0));
+          const dt = new DataTransfer();
+          dt.items.add(new File([bytes], 'dropped.png', { type: 'image/png' }));
+          const card = document.getElementById('page-card');
+          card.dispatchEvent(new DragEvent('dragover', { dataTransfer: dt, bubbles: true }));
+          card.dispatchEvent(new DragEvent('drop', { dataTransfer: dt, bubbles: true }));
+        }""",
+        base64.b64encode(buf.getvalue()).decode(),
+    )
+    page.locator(f'#page-card[data-characters="{len(boxes)}"]').wait_for()
+    assert page.locator("#boxes .box").count() == len(boxes)
+
+
 def test_the_arm_writes_the_page_shown_and_a_new_reading_clears_it(
     page, server, shots, tmp_path, handwritten_page
 ):

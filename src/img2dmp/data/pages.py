@@ -8,9 +8,9 @@ into text lines and ordered for reading:
    character height ``height_px`` (the median component height, weighted by ink);
 2. **joined parts**: components that stack over one another (a 5's bar over its body,
    the two strokes of a 4) are one character when one lies within the other's columns
-   (``JOIN_OVERLAP``), they are at most ``JOIN_GAP`` character heights apart and
-   together no taller than ``JOIN_HEIGHT`` heights; a small fragment joins the
-   character it nearly touches;
+   (``JOIN_OVERLAP``), or is low (``SMALL_PART``) and overlaps them, they are at most
+   ``JOIN_GAP`` character heights apart and together no taller than ``JOIN_HEIGHT``
+   heights; a small fragment joins the character it nearly touches;
 3. **lines**: the page's writing direction (the angle along which the ink lines up,
    :func:`img2dmp.data.paper.dominant_angle`), and the characters sorted across it: a
    new line begins where the next character's middle row is more than ``LINE_GAP``
@@ -20,7 +20,8 @@ into text lines and ordered for reading:
    characters a wide mark holds; it is cut near equal divisions at the columns that
    cross the fewest strokes, at least ``MIN_CUT_PITCH`` divisions apart;
 5. **reading order**: lines top to bottom, characters left to right; words where the
-   gap is wider than ``WORD_GAP`` heights and twice the line's usual gap.
+   gap is wider than ``WORD_GAP`` heights and twice the line's usual gap; marks smaller
+   than ``MIN_CHARACTER`` heights on their longer side are left out.
 
 Positions are the ink map's pixels: boxes ``[x0, y0, x1, y1]`` are half-open (columns
 ``x0 <= j < x1``), x = column, y = row (docs/CONTRACTS.md).
@@ -43,6 +44,10 @@ JOIN_HEIGHT = 1.7
 #: A fragment (at most this share of a character height on its longer side) joins the
 #: nearest character within this share of a height.
 FRAGMENT_SIZE = 0.3
+#: A mark at most this share of a character height tall that overlaps another's columns
+#: and lies over or under it (sharing at most 30 % of its rows, within ``JOIN_GAP``) is
+#: part of it (a 5's bar, a 7's bar).
+SMALL_PART = 0.4
 #: A new line starts this many character heights below the current one's middle.
 LINE_GAP = 0.55
 #: A mark holds one more character for every character width it spans beyond this many
@@ -50,6 +55,9 @@ LINE_GAP = 0.55
 SPLIT_WIDTHS = 1.7
 #: Cuts through touching characters are at least this share of the pitch apart.
 MIN_CUT_PITCH = 0.45
+#: A mark smaller than this share of a character height on its longer side is not a
+#: character (what the paper left: a rule's crossing, a speck at the page's scale).
+MIN_CHARACTER = 0.3
 #: A gap wider than this many character heights (and twice the line's usual) is a space.
 WORD_GAP = 0.6
 #: The most characters a page may hold.
@@ -176,6 +184,10 @@ def _stack(a: _Mark, b: _Mark, height: float) -> bool:
         min(max(a.width, a.height), max(b.width, b.height)) <= FRAGMENT_SIZE * height
     ):
         return max(gap_x, gap_y) <= FRAGMENT_SIZE * height  # a fragment near its character
+    low = min(a.height, b.height)
+    stacked = -0.3 * low <= gap_y <= JOIN_GAP * height  # over or under, rows hardly shared
+    if low <= SMALL_PART * height and gap_x < 0 and stacked:
+        return True  # a low mark over or under a character's columns: a bar, a hook
     return union_w <= JOIN_OVERLAP * max(a.width, b.width) and gap_y <= JOIN_GAP * height
 
 
@@ -311,11 +323,53 @@ def _own_ink(layout: PageLayout, mask: np.ndarray, grow: int) -> None:
     for _ in range(grow):  # one ring of pixels at a time: the nearest character's
         grown = maximum_filter(owner, size=3)
         owner = np.where((owner == 0) & mask, grown, owner)
+    _absorb_small(layout, mask, owner)
     for c, sl in zip(layout.characters, _objects(owner, len(layout.characters)), strict=True):
         if sl is None:
             continue
         c.mask = owner[sl] == c.index + 1
         c.box = (sl[1].start, sl[0].start, sl[1].stop, sl[0].stop)
+    kept = [c for c in layout.characters if (owner == c.index + 1).any()]
+    _renumber(layout, kept)
+
+
+def _absorb_small(layout: PageLayout, mask: np.ndarray, owner: np.ndarray) -> None:
+    """A small character (at most ``SMALL_PART`` heights on either side) whose ink is
+    joined to exactly one other character's in ``mask`` is part of it (a 5's bar whose
+    junction is fainter than the core): ``owner`` gives it that character's label."""
+    from scipy.ndimage import label
+
+    full, n = label(mask, structure=np.ones((3, 3), bool))
+    k = len(layout.characters) + 1
+    pairs = np.unique(owner[mask].astype(np.int64) * (n + 1) + full[mask])
+    who, comp = pairs // (n + 1), pairs % (n + 1)
+    limit = SMALL_PART * layout.height_px
+    for c in layout.characters:
+        x0, y0, x1, y1 = c.box
+        if max(x1 - x0, y1 - y0) > limit:
+            continue
+        mine = comp[who == c.index + 1]
+        partners = np.unique(who[np.isin(comp, mine) & (who != c.index + 1) & (who > 0)])
+        if len(partners) == 1 and partners[0] < k:
+            owner[owner == c.index + 1] = partners[0]
+            who[who == c.index + 1] = partners[0]
+
+
+def _renumber(layout: PageLayout, kept: list[PageCharacter]) -> None:
+    """``layout`` with only the characters ``kept``, in their lines' order, renumbered."""
+    keep = {id(c) for c in kept}
+    chars, lines = [], []
+    for idx in layout.lines:
+        line = [layout.characters[i] for i in idx if id(layout.characters[i]) in keep]
+        if not line:
+            continue
+        for pos, c in enumerate(line):
+            c.position, c.line = pos, len(lines)
+        lines.append(list(range(len(chars), len(chars) + len(line))))
+        chars += line
+    for i, c in enumerate(chars):
+        c.index = i
+    layout.characters, layout.lines = chars, lines
 
 
 def _objects(labels: np.ndarray, n: int):
@@ -344,15 +398,25 @@ def find_characters(mask, *, angle_deg: float | None = None, core=None,
     PageLayout
         Empty (no characters) for a mask without ink.
     """
-    from .paper import dominant_angle
-
     mask = np.asarray(mask, dtype=bool)
     if mask.ndim != 2:
         raise ValueError(f"mask must be a 2-D array [H, W], got shape {mask.shape}")
     if core is not None:
-        layout = find_characters(np.asarray(core, bool) & mask, angle_deg=angle_deg)
-        _own_ink(layout, mask, grow)
-        return layout
+        layout = _find(np.asarray(core, bool) & mask, angle_deg)
+        _own_ink(layout, mask, grow)  # small parts joined to their characters first
+    else:
+        layout = _find(mask, angle_deg)
+    small = MIN_CHARACTER * layout.height_px
+    _renumber(layout, [c for c in layout.characters
+                       if max(c.box[2] - c.box[0], c.box[3] - c.box[1]) >= small])  # fmt: skip
+    return layout
+
+
+def _find(mask: np.ndarray, angle_deg: float | None) -> PageLayout:
+    """:func:`find_characters` on one mask, before the marks too small to be characters
+    are left out."""
+    from .paper import dominant_angle
+
     labels, marks = _marks(mask)
     if not marks:
         return PageLayout(shape=mask.shape)

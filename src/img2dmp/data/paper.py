@@ -6,8 +6,9 @@ sheet's edge with the table beyond it. :func:`paper_ink` keeps the pen's strokes
 drops the rest, in named steps (each kept for a picture with ``keep_steps``;
 :func:`img2dmp.data.plotting.paper_steps_figure` draws them):
 
-1. **polarity**: dark ink on light paper, or light on dark (then inverted), from the
-   border as :mod:`img2dmp.data.images` has always read it;
+1. **polarity**: dark ink on light paper, or light on dark (then inverted): which way
+   the grey levels' tail reaches from their local median (ink is the minority), else
+   from the border as :mod:`img2dmp.data.images` has always read it;
 2. **background**: the paper's own colour at every pixel, per channel: for a small
    image (a character's crop, under ``SURFACE_MAX_SIDE``) a quadratic surface fitted to
    the pixels that are not darker than it, times the soft shadows its even cells show;
@@ -154,9 +155,24 @@ def _ring(a: np.ndarray) -> np.ndarray:
 
 
 def dark_on_light(planes: np.ndarray) -> bool:
-    """Whether the ink is dark on light paper: the border (where paper is) is brighter than
-    the whole image's median, or than mid grey (the rule images have always been read by)."""
+    """Whether the ink is dark on light paper. Ink is the minority of an image: the
+    grey levels reach further below the local median (of cells as the background's) than
+    above it for dark ink (from the 1st and 99th percentiles), further above for light
+    ink. For a small image, or when the two reaches are within 10 % of each other, the
+    border decides as it always has: brighter than the whole image's median, or than mid
+    grey, is dark ink on light paper."""
     lum = _luma(planes)
+    if min(lum.shape) >= LOCAL_BACKGROUND_MIN_SIDE:
+        # against the local median (paper, whichever its polarity), so that a lighting
+        # gradient's spread is not taken for ink
+        cell = max(2, min(lum.shape) // BACKGROUND_CELLS)
+        grid, cell = _cell_percentile(lum[None], cell, 50)
+        rest = lum - _upsample(grid, cell, lum.shape)[0]
+        sample = rest.ravel()[:: max(1, rest.size // 200_000)]
+        p1, p99 = np.percentile(sample, [1, 99])
+        below, above = -p1, p99
+        if max(below, above) > 0.05 and abs(below - above) > 0.1 * max(below, above):
+            return bool(below > above)
     border = float(np.median(_ring(lum)))
     return border > float(np.median(lum)) or border > 0.5
 
@@ -540,7 +556,9 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None
         level = float(np.median(dark[found]))
         ink_level = float(np.percentile(dark[strokes], 90))
         if ink_level - level > 0.15:  # rules clearly lighter than the pen
-            keep |= found & (dark > level + 0.5 * (ink_level - level))
+            # where two rules cross they absorb as two (1 - (1 - l)^2), and are no stroke
+            crossing = 1.0 - (1.0 - level) ** 2 + 0.05
+            keep |= found & (dark > max(level + 0.5 * (ink_level - level), crossing))
     return found & ~keep, angles
 
 
@@ -666,7 +684,6 @@ def _dot_lattice(labels, area, boundary, keep, width: float):
     nearest neighbours' distances agree within 25 %): a pen's own dots are few and
     scattered, a printed pattern's many and regular."""
     from scipy.ndimage import find_objects
-    from scipy.spatial import cKDTree
 
     thick = 2.0 * area / np.maximum(boundary, 1)
     small = np.zeros(len(area), bool)
@@ -683,16 +700,43 @@ def _dot_lattice(labels, area, boundary, keep, width: float):
     n = np.bincount(lab, minlength=len(area))[idx]
     centres = np.stack([np.bincount(lab, rows, len(area))[idx] / n,
                         np.bincount(lab, cols, len(area))[idx] / n], -1)  # fmt: skip
-    nearest = cKDTree(centres).query(centres, k=2)[0][:, 1]
-    med = float(np.median(nearest))
-    # a lattice with holes: the nearest may be a diagonal or two spacings away
-    ratio = nearest / med
-    even = np.min(np.abs(ratio[:, None] - np.array([1.0, math.sqrt(2.0), 2.0])), axis=1) <= 0.2
+    even = on_lattice(centres)
     if np.count_nonzero(even) < MIN_DOTS:
         return np.zeros(len(area), bool)
     out = np.zeros(len(area), bool)
     out[idx[even]] = True
     return out
+
+
+def on_lattice(centres: np.ndarray) -> np.ndarray:
+    """Which of the points ``[n, 2]`` sit on one square lattice (dotted paper's): its
+    spacing is the usual distance to the nearest point, its axes the median direction
+    of those nearest steps (folded into 90 degrees); a point is on it when most of its
+    neighbours within four spacings (two at least) lie a whole number of spacings away
+    along both axes (within 0.2), as a printed pattern's dots do, holes and all, and a
+    pen's dots near them do not. The spacing is the lower quartile of the nearest
+    distances, for the holes of a lattice whose faint dots were dropped."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(centres)
+    dist, near = tree.query(centres, k=2)
+    spacing = float(np.percentile(dist[:, 1], 25))  # holes lengthen the others' steps
+    if spacing <= 0:
+        return np.zeros(len(centres), bool)
+    step = centres[near[:, 1]] - centres
+    close = np.abs(dist[:, 1] - spacing) <= 0.25 * spacing
+    angles = np.arctan2(step[close, 0], step[close, 1])  # of (row, col) steps
+    theta = float(np.median((angles + np.pi / 4) % (np.pi / 2) - np.pi / 4)) if close.any() else 0.0
+    c, s_ = math.cos(theta), math.sin(theta)
+    turned = centres @ np.array([[c, s_], [-s_, c]]) / spacing  # lattice units, axes aligned
+    pairs = tree.query_pairs(4.2 * spacing, output_type="ndarray")
+    if len(pairs) == 0:
+        return np.zeros(len(centres), bool)
+    off = turned[pairs[:, 1]] - turned[pairs[:, 0]]
+    whole = np.all(np.abs(off - np.round(off)) <= 0.2, axis=1)
+    total = np.bincount(pairs.ravel(), minlength=len(centres))
+    good = np.bincount(pairs[whole].ravel(), minlength=len(centres))
+    return (good >= 2) & (good >= 0.5 * total)
 
 
 def _along_border(labels: np.ndarray, n: int) -> np.ndarray:
