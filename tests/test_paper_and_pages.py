@@ -127,3 +127,38 @@ def test_an_empty_mask_has_no_characters_and_a_bad_one_is_refused():
     assert find_characters(np.zeros((50, 60), bool)).characters == []
     with pytest.raises(ValueError, match="2-D"):
         find_characters(np.zeros((2, 3, 4), bool))
+
+
+def _dotted(size, spacing: float, radius: float, holes: float = 0.0, seed: int = 0):
+    """Paper [H, W, 3] with a square lattice of grey dots, a share ``holes`` missing."""
+    rng = np.random.default_rng(seed)
+    h, w = size
+    rows, cols = np.mgrid[:h, :w].astype(np.float32)
+    dots = np.zeros(size, np.float32)
+    for cy in np.arange(spacing / 2, h, spacing):
+        for cx in np.arange(spacing / 2, w, spacing):
+            if rng.random() >= holes:
+                d = np.hypot(rows - cy, cols - cx)
+                dots = np.maximum(dots, np.clip(radius + 0.5 - d, 0.0, 1.0))
+    paper = np.full((h, w, 3), 0.95, np.float32)
+    return paper * (1.0 - 0.6 * dots[..., None])
+
+
+@pytest.mark.parametrize("radius, holes", [(1.5, 0.0), (3.5, 0.3)])
+def test_dotted_paper_s_dots_go_even_with_holes_and_the_strokes_stay(radius, holes):
+    truth = _ink(SIZE, DIGIT)
+    found = paper_ink(_on_paper(truth, _dotted(SIZE, 20.0, radius, holes)))
+    assert _kept(found, truth) > 0.95
+    far = _ink(SIZE, DIGIT, width=14.0) < 0.01
+    assert (found.ink[far] > 0.2).mean() < 0.002, "dots left as ink"
+
+
+def test_a_tinted_page_in_deep_shadow_is_dark_ink_on_light_paper():
+    from img2dmp.data.paper import _planes, dark_on_light
+
+    truth = _ink(SIZE, DIGIT)
+    light = np.linspace(0.95, 0.35, SIZE[1], dtype=np.float32)[None, :, None]  # a shadow
+    page = _on_paper(truth, np.full((*SIZE, 3), [0.7, 0.8, 0.75], np.float32) * light)
+    assert dark_on_light(_planes(page))
+    assert not dark_on_light(_planes(1.0 - page))  # chalk on a blackboard
+    assert _kept(paper_ink(page), truth) > 0.95
