@@ -536,14 +536,9 @@ class PageRun(WritingRun):
         ctl_cfg = self.options.controller_config
         runs, step_character = self._character_runs(log)
         metrics = page_metrics(log, runs, ctl_cfg.force_set_n)
+        metrics.update(self.run_figures(wall_s, float(sum(self.approach_times_s))))
         metrics.update(
             {
-                "simulated_s": float(self.time_s),
-                "wall_s": float(wall_s),
-                "real_time_factor": float(self.time_s / wall_s) if wall_s > 0 else float("inf"),
-                "control_rate_hz": 1.0 / self.dt_s,
-                "force_set_n": ctl_cfg.force_set_n,
-                "approach_s": float(sum(self.approach_times_s)),
                 "width_mm": self.mapping.area_size_mm[0],
                 "height_mm": self.mapping.area_size_mm[1],
                 "mm_per_px": self.mapping.metres_per_px * 1e3,

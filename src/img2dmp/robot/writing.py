@@ -928,22 +928,25 @@ class WritingRun:
             dwell=np.array(c["dwell"], dtype=bool),
         )
 
+    def run_figures(self, wall_s: float, approach_s: float) -> dict:
+        """The run's own figures beside its writing metrics: simulated and wall time, the
+        real-time factor, the control rate, the force set point, the approach time."""
+        return {
+            "simulated_s": float(self.time_s),
+            "wall_s": float(wall_s),
+            "real_time_factor": float(self.time_s / wall_s) if wall_s > 0 else float("inf"),
+            "control_rate_hz": 1.0 / self.dt_s,
+            "force_set_n": self.options.controller_config.force_set_n,
+            "approach_s": approach_s,
+        }
+
     def result(self, wall_s: float) -> WritingResult:
         """Log, metrics (the loop took ``wall_s``), the remaining ink and the final render."""
         log = self.log()
         ctl_cfg = self.options.controller_config
         metrics = writing_metrics(log, ctl_cfg.force_set_n)
-        metrics.update(
-            {
-                "simulated_s": float(self.time_s),
-                "wall_s": float(wall_s),
-                "real_time_factor": float(self.time_s / wall_s) if wall_s > 0 else float("inf"),
-                "control_rate_hz": 1.0 / self.dt_s,
-                "force_set_n": ctl_cfg.force_set_n,
-                "approach_s": float(self.approach_s),
-                **stroke_report(self.plan, log, ctl_cfg.force_set_n),
-            }
-        )
+        metrics.update(self.run_figures(wall_s, float(self.approach_s)))
+        metrics.update(stroke_report(self.plan, log, ctl_cfg.force_set_n))
         self.flush_ink()
         return WritingResult(
             log=log,
