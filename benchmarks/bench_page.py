@@ -37,17 +37,18 @@ SIZE_HW = (3000, 4000)
 N_CHARACTERS = 60
 
 
-def make_photo(work: Path, seed: int = 0) -> Path:
-    """The 12-MP page photo (JPEG) with ``N_CHARACTERS`` digits on ruled paper."""
+def make_photo(work: Path, seed: int = 0, size_hw=SIZE_HW, n: int = N_CHARACTERS,
+               char_height_px=(110.0, 130.0), n_lines: int = 5) -> Path:  # fmt: skip
+    """The page photo (JPEG): ``n`` digits in ``n_lines`` lines on ruled paper."""
     import numpy as np
     from PIL import Image
 
     from img2dmp.data.clutter import PageOptions, generate_page, page_sources_from_synthetic
 
     rng = np.random.default_rng(seed)
-    chars = page_sources_from_synthetic(rng, N_CHARACTERS)
-    options = PageOptions(n_lines=(5, 5), char_height_px=(110.0, 130.0))
-    page = generate_page(rng, chars, kind="ruled", size_hw=SIZE_HW, options=options)
+    chars = page_sources_from_synthetic(rng, n)
+    options = PageOptions(n_lines=(n_lines, n_lines), char_height_px=char_height_px)
+    page = generate_page(rng, chars, kind="ruled", size_hw=size_hw, options=options)
     path = work / "page.jpg"
     Image.fromarray(page.image).save(path, quality=90)
     return path

@@ -120,3 +120,15 @@ def test_web_benchmark_serves_times_and_counts_errors(bench, capsys):
                  "3 clients at once, 7 requests in all", "errors: 0"):  # fmt: skip
         assert part in out, part
     assert bw.quantiles([1.0, 2.0, 3.0, 4.0]) == (2.5, pytest.approx(3.85), 4.0)
+
+
+def test_page_benchmark_makes_its_photo_and_times_the_stages(bench, tmp_path):
+    from PIL import Image
+
+    bp = bench("bench_page")
+    photo = bp.make_photo(tmp_path, size_hw=(600, 800), n=6, char_height_px=(40.0, 50.0),
+                          n_lines=2)  # fmt: skip
+    assert Image.open(photo).size == (800, 600)
+    run = bp.make_model(tmp_path, bp.img2dmp_command())[0]
+    names = [name for name, _ in bp.stages(str(run), 0, photo)]
+    assert len(names) == 6 and names[2].startswith("find the characters (")
