@@ -365,6 +365,12 @@ def test_the_robot_writes_the_prediction(page, server, shots):
     assert page.locator("#summary").inner_text().strip()
     page.locator("#paper").scroll_into_view_if_needed()
     page.screenshot(path=str(shots / "draw-robot.png"), full_page=True)
+    # a new drawing's prediction clears the run that wrote the previous one
+    answers = int(page.locator("#result").get_attribute("data-answers"))
+    page.locator("#clear").click()
+    _strokes_on(page, "#drawing", SEVEN)
+    page.locator(f'#result[data-answers="{answers + 1}"]').wait_for()
+    assert page.locator("#job").is_hidden()
 
 
 # -- Page ----------------------------------------------------------------------------------

@@ -241,6 +241,10 @@ function showAnswer(answer) {
     `movement ${top.tau_s.toFixed(2)}\u00a0s \u00b7 ` +
     `answered in ${Math.round(answer.elapsed_ms)}\u00a0ms`;
   showFlags(answer);
+  if (state.job === null) {  // the last run wrote the previous drawing: not this one
+    resetJobView();
+    ui.job.hidden = true;
+  }
   renderHypotheses();
   for (const b of [ui.replay, ui.dlDmp, ui.dlCsv, ui.write]) b.disabled = false;
   ui.write.disabled = state.job !== null;
