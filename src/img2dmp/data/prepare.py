@@ -546,6 +546,12 @@ def _on_paper(rng, originals, images, paths, options: PrepareOptions, progress: 
     got = paper_copies(rng, images[pick], paths[pick], margin=margin,
                        stroke_width_px=width or None, workers=os.cpu_count() or 1,
                        progress=progress)  # fmt: skip
+    if progress:
+        import sys
+
+        print(f"on paper: {pick.size - got.failed} of {pick.size} copies photographed on "
+              f"paper; {got.failed} stay plain affine copies (the clutter won)",
+              file=sys.stderr)  # fmt: skip
     images, paths = images.copy(), np.array(paths, copy=True)
     images[pick], paths[pick] = got.images, got.paths.astype(paths.dtype)
     return images, paths
