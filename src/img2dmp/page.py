@@ -30,7 +30,7 @@ import numpy as np
 from ._files import atomic_write_bytes, atomic_write_text
 from .data import images as _images
 from .data.pages import PageCharacter, PageLayout, find_characters
-from .data.paper import dark_on_light, paper_ink
+from .data.paper import paper_ink
 
 #: The page document's format name and version.
 PAGE_FORMAT = "img2dmp-page"
@@ -130,6 +130,8 @@ class PagePrediction:
         ``"mostly_unreadable"`` when more than half of its characters are flagged.
     removed : dict
         What the preparation dropped (:attr:`img2dmp.data.paper.PaperInk.removed`).
+    preview : uint8 [h, w, 3] or None
+        The page as read, at most ``PICTURE_SIDE_PX`` on a side, for its picture.
     """
 
     def __init__(self, characters, layout, image_size, reduction, source, flags, removed,
@@ -138,6 +140,7 @@ class PagePrediction:
         self.layout, self.image_size, self.reduction = layout, tuple(image_size), reduction
         self.source, self._flags, self.removed = source, list(flags), dict(removed)
         self.user_image, self.refine_steps = user_image, int(refine_steps)
+        self.preview = None
 
     @property
     def lines(self) -> list[list[int]]:
@@ -288,7 +291,7 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
     page = PagePrediction([], PageLayout(shape=levels.shape[:2]), size, reduction, source,
                           ["no_ink"] if found is None else [],
                           {} if found is None else found.removed, refine_steps=steps)  # fmt: skip
-    page.preview, page.dark_on_light = _preview(levels), dark_on_light(_to_planes(levels))
+    page.preview = _preview(levels)
     if found is None:
         return page
     page.layout = find_characters(found.mask, core=found.core, grow=_grow(found.pen_width_px))
@@ -312,10 +315,6 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
 def _grow(pen_width_px: float) -> int:
     """Pixels from a stroke's core to its edge: half the pen, at least two."""
     return max(2, math.ceil(0.5 * pen_width_px))
-
-
-def _to_planes(levels: np.ndarray) -> np.ndarray:
-    return levels[None] if levels.ndim == 2 else np.moveaxis(levels, 2, 0)
 
 
 #: Box colours of successive lines in the page picture; flagged characters are red.
