@@ -45,14 +45,15 @@ browser:
 	  sudo apt-get update && sudo DEBIAN_FRONTEND=noninteractive apt-get install -y --no-install-recommends chromium; \
 	else echo "note: no /usr/bin/chromium and no root to install it: the browser tests will skip"; fi
 
-# Prepare MNIST with the recorded pen paths (durations normalised to 1 s), train the
+# Prepare MNIST with the recorded pen paths (durations normalised to 1 s; half of the ten
+# affine copies photographed on generated paper and read back as photos are), train the
 # recommended network (the shipped configuration real: src/img2dmp/configs/real.yaml),
 # evaluate it on the test part with refinement.
 # Each step is skipped when its result exists; an interrupted training resumes.
 model-real: $(REAL)/evaluation/evaluation.json
 
 $(REAL)/data.safetensors: | setup
-	$(BIN)/img2dmp prepare --data $(DATA) --augment 10 --scaling none --duration 1 --out $@
+	$(BIN)/img2dmp prepare --data $(DATA) --augment 10 --paper 0.5 --scaling none --duration 1 --out $@
 
 $(REAL)/run/checkpoints/best.safetensors: $(REAL)/data.safetensors src/img2dmp/configs/real.yaml | setup
 	if [ -f $(REAL)/run/checkpoints/last.safetensors ]; then \
