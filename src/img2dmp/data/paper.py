@@ -26,9 +26,10 @@ drops the rest, in named steps (each kept for a picture with ``keep_steps``;
    (``RULE_SHARE``; ``PERIODIC_RULE_SHARE`` when at least three run in parallel at an
    even spacing, as ruled and squared paper's do) are removed, except where a stroke
    crosses them (ink just above and just below a rule pixel keeps it);
-6. **strokes**: hysteresis: a connected set of dark pixels is ink when it holds pixels
-   of at least ``strong`` darkness (a share of the page's ink level), so faint marks
-   (text from the back, dotted lines, shadows' edges) go unless a stroke passes through;
+6. **strokes**: hysteresis: a connected set of dark pixels is ink when ``STRONG_SHARE``
+   of its pixels are of at least ``strong`` darkness (a share of the page's ink level),
+   so faint marks (text from the back, dotted lines, shadows' edges) go unless a stroke
+   passes through;
 7. **shapes**: components smaller than a few pen widths squared (specks), small marks
    at an even spacing (the dots of dotted paper), marks along the image's border (the
    sheet's edge) and components much thicker than the pen (``THICK_FACTOR``: a
@@ -64,14 +65,19 @@ BACKGROUND_PERCENTILE = 80
 #: A cell whose background is darker than this share of the paper's is off the sheet
 #: (when it connects to the image's border).
 TABLE_LEVEL = 0.45
+#: A component is ink when at least this share of its pixels (and two) are strong: a
+#: pen's stroke mostly is, a smudge of shade or a crease's edge hardly.
+STRONG_SHARE = 0.25
 #: A stroke's core is inked at least this much (of the typical ink).
 CORE_LEVEL = 0.45
 #: Rules are searched within this angle of the rows and columns, degrees.
 MAX_RULE_ANGLE_DEG = 6.0
 #: A straight run of dark pixels this share of the sheet's width (height) long is a rule.
 RULE_SHARE = 0.9
-#: ... and this share when at least three such runs are parallel and evenly spaced.
+#: ... and this share when at least three such runs are parallel and evenly spaced;
 PERIODIC_RULE_SHARE = 0.4
+#: ... and in an image this many pen widths across, a lone one whatever the other ink does.
+PAGE_LINE_PENS = 40
 #: Components thicker than this many pen widths are not pen strokes.
 THICK_FACTOR = 3.5
 #: Components smaller than this many pen widths squared are specks,
@@ -218,7 +224,7 @@ def _upsample(grid: np.ndarray, cell: int, shape: tuple[int, int]) -> np.ndarray
     return out
 
 
-def background(planes: np.ndarray) -> tuple[np.ndarray, int]:
+def background(planes: np.ndarray, pen_width_px: float | None = None) -> tuple[np.ndarray, int]:
     """The paper's level at every pixel of channel planes ``[C, H, W]`` (dark-on-light
     levels), per channel, and the cell side used (0 for no cells: one level per channel,
     the border's median, for a tiny image, then ``[C, 1, 1]``; or the smooth surface of
@@ -227,12 +233,12 @@ def background(planes: np.ndarray) -> tuple[np.ndarray, int]:
 
     if min(planes.shape[1:]) < LOCAL_BACKGROUND_MIN_SIDE:
         return np.median(_ring(planes), axis=-1).astype(np.float32)[:, None, None], 0
+    width = rough_pen_width(planes) if pen_width_px is None else pen_width_px
     if min(planes.shape[1:]) < SURFACE_MAX_SIDE:
         surface = smooth_background(planes)
-        return surface * shadow_factor(planes, surface), 0
+        return surface * shadow_factor(planes, surface, width), 0
     # A cell must hold paper beside a stroke: at least a few pen widths (a thick pen in a
     # small crop), and the closing over 3 x 3 cells then covers a cell full of ink.
-    width = rough_pen_width(planes)
     cell = max(2, min(planes.shape[1:]) // BACKGROUND_CELLS, math.ceil(CELL_PEN_WIDTHS * width))
     grid, cell = _cell_percentile(planes, cell, BACKGROUND_PERCENTILE)
     grid = grey_closing(grid, size=(1, 3, 3))
@@ -272,7 +278,7 @@ def smooth_background(planes: np.ndarray) -> np.ndarray:
     return np.clip(out, 1e-3, None).astype(np.float32)
 
 
-def shadow_factor(planes: np.ndarray, surface: np.ndarray) -> np.ndarray:
+def shadow_factor(planes: np.ndarray, surface: np.ndarray, pen_width_px: float) -> np.ndarray:
     """How much darker than the smooth ``surface`` the paper is locally (a soft shadow on
     a crop), ``float32 [H, W]``: in cells of at least ``CELL_PEN_WIDTHS`` pen widths, the
     80th percentile of the brightness against the surface where the cell is even (its
@@ -282,7 +288,7 @@ def shadow_factor(planes: np.ndarray, surface: np.ndarray) -> np.ndarray:
     from scipy.ndimage import gaussian_filter
 
     ratio = _luma(planes) / np.maximum(_luma(surface), 1e-3)
-    cell = max(8, min(ratio.shape) // 12, math.ceil(CELL_PEN_WIDTHS * rough_pen_width(planes)))
+    cell = max(8, min(ratio.shape) // 12, math.ceil(CELL_PEN_WIDTHS * pen_width_px))
     lo, _ = _cell_percentile(ratio[None], cell, 20)
     hi, cell = _cell_percentile(ratio[None], cell, 80)
     even = ((hi - lo) < EVEN_CELL)[0].astype(np.float32)
@@ -458,11 +464,14 @@ def _spans_short_of_ends(mask: np.ndarray, extent: tuple[int, int]) -> bool:
     return bool(first >= extent[0] + margin and last < extent[1] - margin)
 
 
-def _row_rules(mask: np.ndarray, extent: tuple[int, int], angle_deg: float, others=None):
+def _row_rules(mask: np.ndarray, extent: tuple[int, int], angle_deg: float, others=None,
+               pen_width_px: float = 0.0):  # fmt: skip
     """Pixels of ``mask`` on rules along the rows at ``angle_deg`` (see the module
     docstring, step 5; ``bool [H, W]``), crossings not yet restored, and the rules'
     thickness (rows of the widest band, with two rows of slack either side). ``others``:
-    rules already found across these (not ink that could reach the ends)."""
+    rules already found across these (not ink that could reach the ends). A lone rule of
+    an image at least ``PAGE_LINE_PENS`` pen widths across is a rule whatever the other
+    ink does: no character's stroke is that long."""
     off = _shear_rows(mask.shape, angle_deg)
     s = _sheared(mask, off)
     d = s.copy()  # two rows either side: a slightly wavy rule stays one run
@@ -482,7 +491,8 @@ def _row_rules(mask: np.ndarray, extent: tuple[int, int], angle_deg: float, othe
             chosen[a:b] = True
     rule = s & runs & chosen[:, None]
     rest = s & ~rule if others is None else s & ~rule & ~_sheared(others, off)
-    if not periodic and not _spans_short_of_ends(rest, extent):
+    page = pen_width_px > 0 and width >= PAGE_LINE_PENS * pen_width_px  # no tight crop
+    if not periodic and not page and not _spans_short_of_ends(rest, extent):
         return np.zeros(mask.shape, bool), 0  # a tight crop's own stroke, not a rule
     return _unsheared(rule, off, mask.shape[0]), max(b - a for a, b in bands)
 
@@ -519,8 +529,8 @@ def _rule_pieces(rest: np.ndarray, rule: np.ndarray, reach: int) -> np.ndarray:
     return out
 
 
-def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None
-          ) -> tuple[np.ndarray, dict]:  # fmt: skip
+def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
+          pen_width_px: float = 0.0) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Pixels of ``mask`` on ruled or squared paper's lines (both directions), and the
     angles found (``{"rows_deg", "columns_deg"}``).
 
@@ -536,7 +546,7 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None
             continue
         angles[name] = dominant_angle(m)
         r, reach = _row_rules(m, (int(cols[0]), int(cols[-1]) + 1), angles[name],
-                              found if axis == 0 else found.T)  # fmt: skip
+                              found if axis == 0 else found.T, pen_width_px)  # fmt: skip
         if reach:
             per_axis.append((axis, angles[name], r, reach))
             found |= r if axis == 0 else r.T
@@ -637,7 +647,7 @@ def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool):
     ``shape_filters`` also not the sheet's edge, specks nor blobs), the pen width and
     what was dropped."""
     labels, area, boundary, strong_px = _components(mask, dark, lv.strong)
-    keep = strong_px >= 2
+    keep = (strong_px >= 2) & (strong_px >= STRONG_SHARE * area)  # a stroke, not a smudge
     keep[0] = False
     removed = {"faint_components": int(np.count_nonzero(~keep[1:]))}
     if shape_filters:
@@ -771,7 +781,8 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
     polarity = dark_on_light(a)
     if not polarity:
         a = 1.0 - a
-    bg, cell = background(a)
+    pen = rough_pen_width(a)
+    bg, cell = background(a, pen)
     dark = darkness(a, bg)
     sheet = sheet_mask(bg, cell)
     dark = np.where(sheet, dark, 0.0).astype(np.float32)
@@ -781,7 +792,7 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
     if lv is None:
         return None
     weak = dark >= lv.weak
-    ruled, _ = rules(weak, sheet, dark)
+    ruled, _ = rules(weak, sheet, dark, pen)
     if ruled.any():  # the pen's own level, which many rules would pull down
         lv = thresholds(dark, _noise(a, bg) if local else 0.0, exclude=ruled)
         if lv is None:
