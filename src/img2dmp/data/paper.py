@@ -56,6 +56,8 @@ LOCAL_BACKGROUND_MIN_SIDE = 64
 SURFACE_MAX_SIDE = 400
 #: ... the shadow measured in cells whose brightness spreads less than this (paper).
 EVEN_CELL = 0.08
+#: Cells of the polarity's local median: this many along the shorter side.
+POLARITY_CELLS = 8
 #: Cells of the background estimate: about this many along the shorter side.
 BACKGROUND_CELLS = 24
 #: ... and at least this many pen widths (:func:`rough_pen_width`) on a side.
@@ -171,7 +173,7 @@ def dark_on_light(planes: np.ndarray) -> bool:
     if min(lum.shape) >= LOCAL_BACKGROUND_MIN_SIDE:
         # against the local median (paper, whichever its polarity), so that a lighting
         # gradient's spread is not taken for ink
-        cell = max(2, min(lum.shape) // BACKGROUND_CELLS)
+        cell = max(2, min(lum.shape) // POLARITY_CELLS)  # wide beside strokes, not shading
         grid, cell = _cell_percentile(lum[None], cell, 50)
         rest = lum - _upsample(grid, cell, lum.shape)[0]
         sample = rest.ravel()[:: max(1, rest.size // 200_000)]
