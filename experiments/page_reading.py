@@ -22,8 +22,9 @@ preparation and with the plain one: what preparation does without segmentation (
 issue's "cropped by hand" row).
 
 Real photos (``--photos DIR``: a folder with ``photos.json`` as in ``../shared/data/photos``):
-the characters found per line against the digits written out (miscounted: the sum over
-lines of |found - true| over the characters), and the path on ink / ink written, both
+the characters found per line against the digits written out (miscounted: characters
+too many or too few, the lines found aligned with the true ones, over the characters;
+:func:`miscounted`), and the path on ink / ink written, both
 against the photo's own ink (:func:`img2dmp.data.paper.paper_ink` at the page's
 resolution; on ink: within one pixel of it; written: ink pixels within half the pen width
 and 1.5 px of a predicted path).
@@ -205,8 +206,6 @@ def photos(model, folder: Path) -> list[dict]:
         result = model.predict_page(path)
         true = [len(line.replace(" ", "")) for line in photo["lines"]]
         found = [len(x) for x in result.lines]
-        n = max(len(true), len(found))
-        tt, ff = true + [0] * (n - len(true)), found + [0] * (n - len(found))
         levels, reduction, _, _ = _levels_framed(path, None, PAGE_WORK_PIXELS)
         ink = paper_ink(levels)
         near = dilate3(ink.mask)
@@ -215,10 +214,28 @@ def photos(model, folder: Path) -> list[dict]:
         on = _on_mask(near, paths)
         written = _written(ink.mask, paths, 0.5 * ink.pen_width_px + 1.5)
         rows.append({"photo": photo["file"], "true_per_line": true, "found_per_line": found,
-                     "miscounted": sum(abs(a - b) for a, b in zip(tt, ff, strict=True)) / sum(true),
+                     "miscounted": miscounted(true, found) / sum(true),
                      "path_on_ink": on, "ink_written": written,
                      "flagged": len(result.flagged)})  # fmt: skip
     return rows
+
+
+def miscounted(true: list[int], found: list[int]) -> int:
+    """Characters too many or too few, the lines found aligned in order with the true
+    ones (each found line matched to one true line or left over, its characters all
+    extra; a true line left over, its characters all missing), the alignment that
+    miscounts fewest."""
+    n, m = len(true), len(found)
+    cost = np.zeros((n + 1, m + 1))
+    cost[1:, 0] = np.cumsum(true)
+    cost[0, 1:] = np.cumsum(found)
+    for i in range(1, n + 1):
+        for j in range(1, m + 1):
+            matched = cost[i - 1, j - 1] + abs(true[i - 1] - found[j - 1])
+            missing = cost[i - 1, j] + true[i - 1]
+            extra = cost[i, j - 1] + found[j - 1]
+            cost[i, j] = min(matched, missing, extra)
+    return int(cost[n, m])
 
 
 def _on_mask(mask, paths) -> float:

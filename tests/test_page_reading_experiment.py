@@ -31,3 +31,13 @@ def test_on_ink_and_written_shares_of_paths_on_a_mask(experiment_script):
     assert abs(pr._written(mask, half, 1.5) - 16 / 30) < 0.05
     off = [np.stack([np.linspace(5, 34, 30), np.full(30, 2.0)], -1)]
     assert pr._on_mask(mask, off) == 0.0
+
+
+def test_a_line_found_too_many_costs_its_characters_not_the_lines_after_it(experiment_script):
+    pr = experiment_script("page_reading")
+    assert pr.miscounted([21, 21, 22], [21, 21, 22]) == 0
+    assert pr.miscounted([21, 21, 22], [2, 21, 21, 22]) == 2  # an extra line of two marks
+    assert pr.miscounted([7, 7], [7, 8]) == 1
+    # two lines read as one: one line's characters missing, as many extra on the other
+    assert pr.miscounted([7, 7], [14]) == 14
+    assert pr.miscounted([5], []) == 5
