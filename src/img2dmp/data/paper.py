@@ -92,8 +92,9 @@ DOT_SIZE_PEN = 2.5
 DOT_DISC = 3.0
 #: ... at least this many of them, evenly spaced.
 MIN_DOTS = 8
-#: A component along the image's border for this share of that side is the
-#: sheet's edge (a character cut by the border touches it over its own width only).
+#: A component that touches the image's border along this share of that side is the
+#: sheet's edge (counted where it touches: a character cut by the border touches it
+#: where its strokes cross it, a few pen widths, however tall it is).
 EDGE_SHARE = 0.15
 #: ... within this share of the shorter side from the border.
 EDGE_BAND = 0.015
@@ -752,8 +753,8 @@ def on_lattice(centres: np.ndarray) -> np.ndarray:
 
 
 def _along_border(labels: np.ndarray, n: int) -> np.ndarray:
-    """Per label (index 0 unused): whether the component runs along one of the image's
-    borders for at least ``EDGE_SHARE`` of that side (the sheet's edge, the table)."""
+    """Per label (index 0 unused): whether the component touches one of the image's
+    borders along at least ``EDGE_SHARE`` of that side (the sheet's edge, the table)."""
     out = np.zeros(n + 1, bool)
     h, w = labels.shape
     m = max(2, round(EDGE_BAND * min(h, w)))  # the edge may stop short of the border
@@ -761,8 +762,7 @@ def _along_border(labels: np.ndarray, n: int) -> np.ndarray:
     bands += ((labels[:, :m].max(1), h), (labels[:, -m:].max(1), h))
     for line, side in bands:
         for lab in np.unique(line[line > 0]):
-            cols = np.flatnonzero(line == lab)
-            out[lab] |= bool(cols[-1] - cols[0] + 1 >= EDGE_SHARE * side)
+            out[lab] |= bool(np.count_nonzero(line == lab) >= EDGE_SHARE * side)
     return out
 
 
