@@ -7,26 +7,25 @@ from the rollout's closed form (:mod:`img2dmp.dmp.rollout`): with ``s = t / tau`
     y(t) = g + (y0 - g) a(s) + S P(s),       P(s) = sum_k w_k R_k(s)
 
 where ``a`` (the free response to a unit offset; with the default critical damping
-``a(s) = (1 + w s) exp(-w s)``, ``w = alpha_z / 2``) and the kernel responses ``R_k``
+``a(s) = (1 + omega s) exp(-omega s)``, ``omega = alpha_z / 2``) and the kernel responses ``R_k``
 depend only on the constants, and ``S = diag(g - y0)`` (``scaling="goal-start"``) or
-``I`` (``scaling="none"``). Hence, for a movement ``y(t)`` and ``d = g - y0``:
+``I`` (``scaling="none"``). Hence, for a movement ``y(t)`` and ``d = g - y0``
+(derivations and a figure: docs/DMP.md, "Bending a DMP"):
 
-=======================  ====================================  ====================================
-change                   ``scaling="none"``                    ``scaling="goal-start"``
-=======================  ====================================  ====================================
-tempo k: ``tau' = k tau``  exact: ``y'(t) = y(t / k)``           exact: ``y'(t) = y(t / k)``
-shift c (g, y0 move)     exact: ``y' = y + c``                 exact: ``y' = y + c``
-scale s about the start  exact, ``w' = s w``                   exact, ``w`` unchanged
-rotation R about start   exact, ``w' = R w``                   exact, ``w' = L w`` with
-                                                               ``L = diag(R d)^-1 R diag(d)``;
-                                                               refused where ``(R d)_i = 0``
-new goal g'              shape changes: ``y' = y + (g' - g)    shape changes: ``y' = y0 +
-                         (1 - a(s))`` (the path bends toward   diag((g' - y0) / d) (y - y0)``
-                         the goal; the forcing's shape stays)  (stretched per axis about the start)
-new start y0'            shape changes: ``y' = y + (y0' - y0)  shape changes: ``y' = g +
-                         a(s)`` (the offset dies away)         diag((g - y0') / d) (y - g)``
-                                                               (stretched per axis about the goal)
-=======================  ====================================  ====================================
+- tempo k (``tau' = k tau``): exact in both, ``y'(t) = y(t / k)``;
+- shift c (``g`` and ``y0`` move by c): exact in both, ``y' = y + c``;
+- scale s about the start: exact in both; ``"none"`` with ``w' = s w``, ``"goal-start"``
+  with ``w`` unchanged;
+- rotation R about the start: exact in both; ``"none"`` with ``w' = R w``,
+  ``"goal-start"`` only with ``w' = L w``, ``L = diag(R d)^-1 R diag(d)`` (refused where
+  ``(R d)_i = 0``);
+- a new goal g' (weights kept) changes the shape: ``"none"``: ``y' = y + (g' - g)(1 -
+  a(s))``, the path bends toward the goal, the forcing's shape unchanged;
+  ``"goal-start"``: ``y' = y0 + diag((g' - y0) / d) (y - y0)``, stretched per axis about
+  the start;
+- a new start y0' (weights and goal kept) changes the shape: ``"none"``: ``y' = y +
+  (y0' - y0) a(s)``, the offset dies away; ``"goal-start"``: ``y' = g + diag((g - y0') /
+  d) (y - g)``, stretched per axis about the goal.
 
 "Exact" means the rolled-out path is the transformed path to rounding (the affine rows
 are :func:`img2dmp.dmp.affine.affine_dmp`'s). Under ``"goal-start"`` a coordinate with
