@@ -184,7 +184,7 @@ def _add_bend_arguments(parser: argparse.ArgumentParser) -> None:
         "--tempo",
         type=_args.positive_float,
         metavar="K",
-        help="the same path K times as fast, the duration divided by K (K = 0.5: half as fast; exact)",
+        help="the same path K times as fast (K = 0.5: half as fast; exact)",
     )
 
 
