@@ -57,9 +57,13 @@ SURFACE_MAX_SIDE = 400
 #: ... the shadow measured in cells whose brightness spreads less than this (paper).
 EVEN_CELL = 0.08
 #: Cells of the polarity's local median: this many along the shorter side.
-POLARITY_CELLS = 8
+POLARITY_CELLS = 16
 #: ... of which those whose median grey is within this of the typical cell's.
 POLARITY_EVEN = 0.25
+#: ... the pixels beyond this many times the paper's spread counted either way ...
+POLARITY_SPREADS = 4.0
+#: ... when they are at least this share of the image.
+POLARITY_MIN_SHARE = 0.0005
 #: Cells of the background estimate: about this many along the shorter side.
 BACKGROUND_CELLS = 24
 #: ... and at least this many pen widths (:func:`rough_pen_width`) on a side.
@@ -70,7 +74,7 @@ BACKGROUND_PERCENTILE = 80
 #: (when it connects to the image's border).
 TABLE_LEVEL = 0.45
 #: ... and the cells joined to those that are darker than this share of it.
-TABLE_GROW_LEVEL = 0.65
+TABLE_GROW_LEVEL = 0.5
 #: A component is ink when at least this share of its pixels (and two) are strong: a
 #: pen's stroke mostly is, a smudge of shade or a crease's edge hardly.
 STRONG_SHARE = 0.25
@@ -173,30 +177,40 @@ def _ring(a: np.ndarray) -> np.ndarray:
 
 
 def dark_on_light(planes: np.ndarray) -> bool:
-    """Whether the ink is dark on light paper. Ink is the minority of an image: the
-    grey levels reach further below the local median (of cells as the background's) than
-    above it for dark ink (from the 1st and 99th percentiles), further above for light
-    ink. For a small image, or when the two reaches are within 10 % of each other, the
-    border decides as it always has: brighter than the whole image's median, or than mid
-    grey, is dark ink on light paper."""
+    """Whether the ink is dark on light paper. Ink is the minority of an image: more
+    pixels lie far below the local median (of cells of ``1 / POLARITY_CELLS`` of the
+    shorter side; not the cells of a table beside the sheet) than far above it for dark
+    ink, far above for light ink; far: ``POLARITY_SPREADS`` times the paper's own robust
+    spread (shading and grain reach as far either way). For a small image, or when
+    neither side has half as many again as the other, the border decides as it always
+    has: brighter than the whole image's median, or than mid grey, is dark ink on light
+    paper."""
     lum = _luma(planes)
     if min(lum.shape) >= LOCAL_BACKGROUND_MIN_SIDE:
         # against the local median (paper, whichever its polarity), so that a lighting
         # gradient's spread is not taken for ink
-        cell = max(2, min(lum.shape) // POLARITY_CELLS)  # wide beside strokes, not shading
+        cell = max(2, min(lum.shape) // POLARITY_CELLS)  # wide beside strokes
         grid, cell = _cell_percentile(lum[None], cell, 50)
         rest = lum - _upsample(grid, cell, lum.shape)[0]
         # not the cells of what lies beside the sheet (a dark table's cells have light
         # paper in them as the paper's cells have ink): the cells whose median is far
         # from the typical cell's
+        from scipy.ndimage import binary_erosion
+
         usual = float(np.median(grid))
-        even = _upsample((np.abs(grid - usual) < POLARITY_EVEN).astype(np.float32), cell,
-                         lum.shape)[0] > 0.5  # fmt: skip
+        even = np.abs(grid[0] - usual) < POLARITY_EVEN
+        # ... nor the cells beside those (the median interpolated across the edge)
+        even = binary_erosion(even, np.ones((3, 3), bool), border_value=1)
+        even = _upsample(even[None].astype(np.float32), cell, lum.shape)[0] > 0.99
         rest = rest[even] if even.mean() > 0.25 else rest
         sample = rest.ravel()[:: max(1, rest.size // 200_000)]
-        p1, p99 = np.percentile(sample, [1, 99])
-        below, above = -p1, p99
-        if max(below, above) > 0.05 and abs(below - above) > 0.1 * max(below, above):
+        # the tails beyond a few times the paper's own spread: shading within a cell and
+        # the paper's grain reach as far either way, ink only its own way
+        spread = 1.4826 * float(np.median(np.abs(sample - np.median(sample))))
+        far = max(POLARITY_SPREADS * spread, 0.03)
+        below = np.count_nonzero(sample < -far) / sample.size
+        above = np.count_nonzero(sample > far) / sample.size
+        if max(below, above) > POLARITY_MIN_SHARE and max(below, above) > 1.5 * min(below, above):
             return bool(below > above)
     border = float(np.median(_ring(lum)))
     return border > float(np.median(lum)) or border > 0.5
