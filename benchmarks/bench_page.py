@@ -2,10 +2,11 @@
 
 A 12-megapixel photo (4000 x 3000, JPEG) of a page with 60 handwritten digits on ruled
 paper (:func:`img2dmp.data.clutter.generate_page`, synthetic digits, so no data is
-needed; ordinary gaps between them) is read by the command as a whole process, several runs (min / median / max),
-beside the floor every command pays, ``python -c "import img2dmp.predict"`` (Python,
-torch and the package imported), in alternation; the ratio of the two medians says how
-much of the time is the page's own work. Target: the page in at most 3 s end to end.
+needed; ordinary gaps between them) is read by the command as a whole process, several
+runs (min / median / max), beside the floor every command pays, ``python -c "import
+img2dmp.predict"`` (Python, torch and the package imported), in alternation; the ratio
+of the two medians says how much of the time is the page's own work. Target: the page
+in at most 3 s end to end.
 
 ``--stages`` also times the stages of one reading in this process (after a warm-up):
 reading and reducing the photo, separating the ink from the paper, finding the

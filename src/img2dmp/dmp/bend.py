@@ -88,8 +88,7 @@ def bend_dmp(
         in image pixels, whose y axis points down, a positive angle turns clockwise as
         seen).
     tempo : float or array [*batch], optional
-        Speed factor ``k > 0``, the duration divided by it: ``y'(t) = y(k t)`` exactly
-        (2: twice as fast, 0.5: half as fast).
+        Speed ``k > 0``, the duration divided by it: ``y'(t) = y(k t)`` (2: twice as fast).
 
     Returns
     -------
