@@ -53,6 +53,19 @@ def test_each_shipped_file_has_its_recorded_digest_and_size():
         )
 
 
+def test_the_wheel_takes_every_shipped_file():
+    import fnmatch
+    import tomllib
+
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    globs = pyproject["tool"]["setuptools"]["package-data"]["img2dmp"]
+    package = ROOT / "src" / "img2dmp"
+    for m in models.shipped_models():
+        for f in m.folder.iterdir():
+            rel = f.relative_to(package).as_posix()
+            assert any(fnmatch.fnmatch(rel, g) for g in globs), rel
+
+
 def test_exactly_one_default_and_the_help_names_it():
     default = models.default_model()
     assert [m.name for m in models.shipped_models() if m.default] == [default.name]
