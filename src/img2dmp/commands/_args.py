@@ -150,6 +150,16 @@ def model_or_default(model):
     return default_model().name
 
 
+def one_thread() -> None:
+    """Run torch on one thread, as ``serve`` does: a few images make tensors so small
+    (refinement: [4, 100, 2] paths) that a second thread costs more in synchronisation
+    than it computes; on the 2-core development machine refining one image took 0.29 s
+    on one thread and 4-8 s on two while other jobs ran (docs/CLI.md)."""
+    import torch
+
+    torch.set_num_threads(1)
+
+
 def refine_steps(args, model, command: str) -> int:
     """``--refine`` as given, or else the steps a shipped model's card recommends (0 for a
     run directory), said in one note on standard error when they are not 0."""
@@ -442,6 +452,7 @@ __all__ = [
     "add_digits",
     "add_model",
     "model_or_default",
+    "one_thread",
     "refine_steps",
     "add_no_progress",
     "add_set",

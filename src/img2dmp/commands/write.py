@@ -175,6 +175,7 @@ def _predictor(args):
     card recommends)."""
     from img2dmp.predict import Predictor
 
+    _args.one_thread()
     predictor = Predictor.load(args.model)
     refine = _args.refine_steps(args, args.model, "write")
     if refine:
