@@ -153,3 +153,44 @@ def test_a_24_megapixel_photo_is_read_at_most_2_megapixels(tmp_path, run):
     for c, box in zip(result.characters, boxes, strict=True):  # boxes in the photo's pixels
         true = [box[0] * sx, box[1] * sy, box[2] * sx, box[3] * sy]
         assert _close(c.box_image, true, tol=5 * sy)
+
+
+def test_a_sheet_of_2000_specks_is_read_as_no_writing_in_bounded_time(tmp_path, run):
+    import time
+
+    rng = np.random.default_rng(3)
+    sheet = np.full((1500, 2000, 3), 235, np.uint8)
+    ys, xs = rng.integers(0, 1499, 2000), rng.integers(0, 1999, 2000)
+    for dy in (0, 1):  # specks of 1-4 pixels
+        for dx in (0, 1):
+            keep = rng.random(2000) < 0.6
+            sheet[ys[keep] + dy, xs[keep] + dx] = 40
+    Image.fromarray(sheet).save(tmp_path / "specks.png")
+    model = load_model(run)
+    start = time.perf_counter()
+    result = model.predict_page(tmp_path / "specks.png")
+    assert time.perf_counter() - start < 60  # bounded, not a timing target
+    assert result.characters == [] and result.flags == ["no_ink"]
+
+
+def test_a_character_cut_by_the_border_is_flagged(tmp_path, run):
+    ink, _ = page([[("7", 40), ("0", 150)]], size=(200, 240))
+    cut = ink[:, 50:]  # the 7 (x 40-64) cut through: its left part outside the photo
+    rgb = on_paper(cut, np.full(cut.shape + (3,), 0.92, np.float32))
+    Image.fromarray((np.clip(rgb, 0, 1) * 255).astype(np.uint8)).save(tmp_path / "cut.png")
+    result = load_model(run).predict_page(tmp_path / "cut.png")
+    assert len(result.characters) == 2
+    first, second = result.characters
+    assert "cut_by_border" in first.flags and "cut_by_border" not in second.flags
+    assert first in result.flagged
+
+
+def test_a_photo_of_something_that_is_not_writing_is_flagged_not_read(tmp_path, run):
+    """A smooth blotchy picture (no pen strokes): no character, or every one flagged."""
+    rng = np.random.default_rng(5)
+    small = rng.random((6, 8, 3))
+    im = Image.fromarray((small * 255).astype(np.uint8)).resize((800, 600), Image.BICUBIC)
+    im.save(tmp_path / "photo.jpg")
+    result = load_model(run).predict_page(tmp_path / "photo.jpg")
+    assert result.flags in (["no_ink"], ["mostly_unreadable"]), result.flags
+    assert json.loads(result.to_json())["flags"] == result.flags

@@ -4,7 +4,10 @@
   input, the ranked hypotheses listed, the DMP downloaded and read back; a pen draws too;
   an API error (a text file as the image) shows its detail in the page; the model
   switcher switches; the simulated robot writes the prediction and shows the paper; a
-  flagged prediction gets its one-line note, an unflagged one none;
+  flagged prediction gets its one-line note, an unflagged one none; the goal dragged
+  moves the path's end, the speed slider halves its duration (the same path), and the
+  robot writes the bent DMP and shows its figure near its own size; a model of one
+  hypothesis says in one line that its probability means nothing;
 - Page: a photo of a page chosen on the Page view shows every character's box over its
   ink, the count of characters and lines, writes them one after the other, marks and
   lists the flagged one, and downloads the page document; the arm writes a page of three
@@ -371,6 +374,90 @@ def test_the_robot_writes_the_prediction(page, server, shots):
     _strokes_on(page, "#drawing", SEVEN)
     page.locator(f'#result[data-answers="{answers + 1}"]').wait_for()
     assert page.locator("#job").is_hidden()
+
+
+def _xy(text: str) -> np.ndarray:
+    return np.array([float(v) for v in text.split(",")])
+
+
+def test_the_goal_dragged_bends_the_path_the_speed_retimes_it_and_the_robot_writes_it(
+    page, server, shots, tmp_path
+):
+    page.goto(server["url"] + "/")
+    _strokes_on(page, "#drawing", SEVEN)
+    _predicted(page, 2)
+    _wait_played(page)
+    result, overlay = page.locator("#result"), page.locator("#seen-overlay")
+    assert result.get_attribute("data-bent") == "0"
+    end0, tau0 = _xy(result.get_attribute("data-end")), float(result.get_attribute("data-tau"))
+    goal = _xy(overlay.get_attribute("data-goal-page"))
+    box = overlay.bounding_box()
+    centre = np.array([box["x"] + box["width"] / 2, box["y"] + box["height"] / 2])
+    drag = 70.0 * (centre - goal) / np.linalg.norm(centre - goal)  # toward the middle
+    page.mouse.move(*goal)
+    page.mouse.down()
+    page.mouse.move(*(goal + drag), steps=8)
+    page.mouse.up()
+    page.locator('#result[data-bent="1"][data-state="done"]').wait_for()
+    # the marker followed the pointer, and the path's end moved along with it
+    np.testing.assert_allclose(_xy(overlay.get_attribute("data-goal-page")), goal + drag, atol=1.5)
+    end1 = _xy(result.get_attribute("data-end"))
+    drag_px = drag * 40 / box["width"]  # the model's input is 40 x 40, the overlay square
+    along = float(np.dot(end1 - end0, drag_px / np.linalg.norm(drag_px)))
+    assert along > 0.5 * np.linalg.norm(drag_px), (end0, end1, drag_px)
+    assert page.locator("#bend-meta").inner_text().startswith("Bent: goal (")
+    # twice the speed: half the duration, the same path (tempo is exact)
+    page.locator("#speed").evaluate(
+        "s => { s.value = '1'; s.dispatchEvent(new Event('input'));"
+        " s.dispatchEvent(new Event('change')); }"
+    )
+    page.wait_for_function(
+        "(t) => Number(document.getElementById('result').dataset.tau) < 0.6 * t", arg=tau0
+    )
+    assert float(result.get_attribute("data-tau")) == pytest.approx(tau0 / 2, rel=1e-6)
+    np.testing.assert_allclose(_xy(result.get_attribute("data-end")), end1, atol=2e-3)
+    assert "speed 2\u00d7" in page.locator("#bend-meta").inner_text()
+    page.screenshot(path=str(shots / "draw-bent.png"), full_page=True)
+    with page.expect_download() as dl:
+        page.locator("#download-dmp").click()
+    assert dl.value.suggested_filename == "drawing-bent.dmp.json"
+    dl.value.save_as(tmp_path / "bent.dmp.json")
+    f = read_dmp_file(tmp_path / "bent.dmp.json")
+    bent = json.loads((tmp_path / "bent.dmp.json").read_text())["bent"]
+    assert bent["hypothesis"] == 1 and bent["tempo"] == 0.5
+    np.testing.assert_allclose(f.params.g[:2], bent["goal"])
+    assert float(f.params.tau) == pytest.approx(tau0 / 2, rel=1e-5)
+
+    pytest.importorskip("pybullet", reason="the robot extra is not installed")
+    with page.expect_request("**/api/write") as request:
+        page.locator("#write").click()
+    sent = request.value.post_data_json
+    assert sent["hypothesis"] == 1 and sent["dmp"]["bent"] == bent  # the bent DMP
+    page.locator('#job[data-status="done"], #job[data-status="failed"]').wait_for(timeout=90_000)
+    assert page.locator("#job").get_attribute("data-status") == "done", page.locator(
+        "#robot-error"
+    ).inner_text()
+    page.wait_for_function("() => document.getElementById('paper').naturalWidth > 0")
+    # the four-panel figure across the card, near its own size: its text is readable
+    shown_w, natural_w = page.locator("#paper").evaluate("i => [i.width, i.naturalWidth]")
+    assert shown_w >= 0.85 * natural_w, (shown_w, natural_w)
+    page.locator("#paper").scroll_into_view_if_needed()
+    page.screenshot(path=str(shots / "draw-bent-robot.png"), full_page=True)
+
+
+def test_a_model_of_one_hypothesis_says_its_probability_means_nothing(page, server):
+    page.goto(server["url"] + "/")
+    _strokes_on(page, "#drawing", SEVEN)
+    _predicted(page, 2)
+    note = page.locator("#confidence-note")
+    assert note.is_hidden()  # two hypotheses: their probabilities are shown, and mean something
+    page.locator("#model-select").select_option("hyp1")
+    _predicted(page, 1)
+    note.wait_for()
+    text = note.inner_text()
+    assert text.startswith("This model proposes one movement per image")
+    assert "says nothing about how sure it is" in text and "on ink " in text
+    assert len(text.splitlines()) == 1
 
 
 # -- Page ----------------------------------------------------------------------------------

@@ -21,7 +21,8 @@ Exported here (each loaded on first use, so that ``import img2dmp`` and
 - :class:`ImageFrame` - the affine map between the user's image and the model's input;
   :func:`prepare_image` - an image as the model's input
 - :class:`DMPConfig`, :class:`DMPParams`, :func:`fit_dmp`, :func:`rollout` - the DMP of
-  the paper (:mod:`img2dmp.dmp`); :func:`affine_dmp` - the same DMP in another frame
+  the paper (:mod:`img2dmp.dmp`); :func:`affine_dmp` - the same DMP in another frame;
+  :func:`bend_dmp` - a new goal or start, scaled, rotated, another tempo
 - :func:`load_dmp_json`, :func:`save_dmp_json`, :func:`read_dmp_file` - the one DMP file
 
 Everything else is imported from its module (``img2dmp.training``, ``img2dmp.robot``,
@@ -47,6 +48,7 @@ _LAZY = {
     "fit_dmp": "img2dmp.dmp",
     "rollout": "img2dmp.dmp",
     "affine_dmp": "img2dmp.dmp.affine",
+    "bend_dmp": "img2dmp.dmp.bend",
     "load_dmp_json": "img2dmp.data.dmpfile",
     "save_dmp_json": "img2dmp.data.dmpfile",
     "read_dmp_file": "img2dmp.data.dmpfile",

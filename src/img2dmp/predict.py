@@ -582,19 +582,8 @@ class Prediction:
 
     def trajectory_csv(self) -> str:
         """``rank,probability,t_s,x_model_px,y_model_px,x_image_px,y_image_px[,pen]``:
-        one block of rows per hypothesis, ranked."""
-        d = self.path_model.shape[-1]
-        extra = ["pen"] if d == 3 else [f"channel_{k}" for k in range(2, d)]
-        cols = ["rank", "probability", "t_s", "x_model_px", "y_model_px", "x_image_px",
-                "y_image_px", *extra]  # fmt: skip
-        lines = [",".join(cols)]
-        for k in range(self.n_hypotheses):
-            head = [str(k + 1), f"{self.probabilities[k]:.6g}"]
-            m, u = self.path_model[k], self.path_image[k]
-            for i, t in enumerate(self.times[k]):
-                row = [t, m[i, 0], m[i, 1], u[i, 0], u[i, 1], *m[i, 2:]]
-                lines.append(",".join(head + [f"{v:.6g}" for v in row]))
-        return "\n".join(lines) + "\n"
+        one block of rows per hypothesis, ranked (:func:`trajectory_csv`)."""
+        return trajectory_csv(self.probabilities, self.times, self.path_model, self.path_image)
 
     def __repr__(self) -> str:
         top = self.dmp
@@ -603,6 +592,25 @@ class Prediction:
             f"top p = {self.probabilities[0]:.3f}, tau = {float(top.tau):.3f} s, "
             f"source {self.source or 'in memory'}, {self.frame!r})"
         )
+
+
+def trajectory_csv(probabilities, times, path_model, path_image) -> str:
+    """The trajectory CSV of ``img2dmp predict``:
+    ``rank,probability,t_s,x_model_px,y_model_px,x_image_px,y_image_px[,pen]``, one
+    block of rows per hypothesis (``probabilities [K]``, ``times [K, T]``, paths
+    ``[K, T, d]`` in the model and the image frame; d = 3: the pen)."""
+    d = path_model.shape[-1]
+    extra = ["pen"] if d == 3 else [f"channel_{k}" for k in range(2, d)]
+    cols = ["rank", "probability", "t_s", "x_model_px", "y_model_px", "x_image_px",
+            "y_image_px", *extra]  # fmt: skip
+    lines = [",".join(cols)]
+    for k in range(len(probabilities)):
+        head = [str(k + 1), f"{probabilities[k]:.6g}"]
+        m, u = path_model[k], path_image[k]
+        for i, t in enumerate(times[k]):
+            row = [t, m[i, 0], m[i, 1], u[i, 0], u[i, 1], *m[i, 2:]]
+            lines.append(",".join(head + [f"{v:.6g}" for v in row]))
+    return "\n".join(lines) + "\n"
 
 
 def load_model(
@@ -710,6 +718,7 @@ __all__ = [
     "prepare_image",
     "prepare_image_framed",
     "stroke_width",
+    "trajectory_csv",
     "typical_stroke_width",
     "write_prediction",
 ]

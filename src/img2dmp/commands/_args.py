@@ -14,6 +14,7 @@ must not import torch, NumPy or matplotlib.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 from collections.abc import Iterable
@@ -437,7 +438,32 @@ def positive_float(text: str) -> float:
     return v
 
 
+def finite_float(text: str) -> float:
+    """An argparse ``type``: a finite number (any sign)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
+    return v
+
+
+def point(text: str) -> tuple[float, float]:
+    """An argparse ``type``: two finite numbers written ``X,Y`` (a negative first number
+    as ``--flag=-5,3``, or argparse reads it as an option)."""
+    parts = text.split(",")
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"must be two numbers X,Y, got {text!r}")
+    try:
+        return finite_float(parts[0]), finite_float(parts[1])
+    except argparse.ArgumentTypeError as e:
+        raise argparse.ArgumentTypeError(f"{e} in {text!r}") from None
+
+
 __all__ = [
+    "finite_float",
+    "point",
     "add_config",
     "add_device",
     "check_device",

@@ -27,6 +27,11 @@ lifted and travelling between characters; ``--skip-flagged`` leaves out the char
 with flags. The outputs are those of one DMP for the whole page (one log, one joint
 trajectory, one video) plus ``NAME_characters.csv``, one row of measures per character
 and the page's totals; NAME is the page document's or the photo's name.
+``--goal X,Y``, ``--start X,Y``, ``--shift DX,DY``, ``--scale S``, ``--rotate DEG`` and
+``--tempo K`` bend the DMP before the arm writes it (:func:`img2dmp.dmp.bend_dmp`; which
+changes are exact and which change the shape: docs/DMP.md, "Bending a DMP"). Positions are
+pixels of the frame the DMP is written in (that of its ``image_size``; for ``IMAGE
+--model`` the model's input), as the left panel of ``NAME_paper.png`` shows them.
 Needs the optional extra: ``pip install img2dmp[robot]``.
 """
 
@@ -86,6 +91,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--page, which --width-mm scales)",
     )
     _add_page_arguments(parser)
+    _add_bend_arguments(parser)
     parser.add_argument("--force-n", type=float, default=5.0, help="contact force set point")
     parser.add_argument("--rate-hz", type=float, default=240.0, help="controller and physics rate")
     parser.add_argument(
@@ -137,6 +143,80 @@ def _add_page_arguments(parser: argparse.ArgumentParser) -> None:
         help="with --page: do not write the characters that have flags (e.g. no_ink); "
         "the others keep their places",
     )
+
+
+#: The options that bend the DMP, by the keyword of :func:`img2dmp.dmp.bend_dmp`.
+BEND_OPTIONS = {"goal": "--goal", "start": "--start", "shift": "--shift", "scale": "--scale",
+                "rotate_deg": "--rotate", "tempo": "--tempo"}  # fmt: skip
+
+
+def _add_bend_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--goal``, ``--start``, ``--shift``, ``--scale``, ``--rotate``, ``--tempo``."""
+    group = parser.add_argument_group(
+        "bending the DMP (docs/DMP.md, 'Bending a DMP'; positions in pixels of the DMP's "
+        "frame, x = column, y = row; a negative first number as --shift=-5,3)"
+    )
+    point = _args.point
+    group.add_argument(
+        "--goal",
+        type=point,
+        metavar="X,Y",
+        help="a new goal (the weights kept: with the paper's diag(g - y0) "
+        "scaling the path stretches per axis, without scaling it bends)",
+    )
+    group.add_argument(
+        "--start", type=point, metavar="X,Y", help="a new start (the weights and the goal kept)"
+    )
+    group.add_argument(
+        "--shift", type=point, metavar="DX,DY", help="move the whole movement (exact)"
+    )
+    group.add_argument(
+        "--scale",
+        type=_args.positive_float,
+        metavar="S",
+        help="scale the movement about its start (exact)",
+    )
+    group.add_argument(
+        "--rotate",
+        dest="rotate_deg",
+        type=_args.finite_float,
+        metavar="DEG",
+        help="turn the movement about its start, degrees from the x axis "
+        "toward the y axis: clockwise as seen in an image (exact)",
+    )
+    group.add_argument(
+        "--tempo",
+        type=_args.positive_float,
+        metavar="K",
+        help="the duration times K: the same path K times slower (K = 0.5: twice as fast; exact)",
+    )
+
+
+def bend_options(args) -> dict:
+    """The bending asked for, as keywords of :func:`img2dmp.dmp.bend_dmp` (empty: none)."""
+    return {k: getattr(args, k) for k in BEND_OPTIONS if getattr(args, k, None) is not None}
+
+
+def _bent(args, name: str, params, config):
+    """``params`` bent as the options say, and the line saying so (None: not bent)."""
+    options = bend_options(args)
+    if not options:
+        return params, None
+    from img2dmp.dmp import bend_dmp
+
+    bent = bend_dmp(params, config, **options)
+    asked = " ".join(f"{BEND_OPTIONS[k]} {_written(v)}" for k, v in options.items())
+    g, y0 = bent.g, bent.y0
+    line = (
+        f"  {name}: bent ({asked}): start ({y0[0]:.2f}, {y0[1]:.2f}) px, goal "
+        f"({g[0]:.2f}, {g[1]:.2f}) px, tau {float(params.tau):.3f} -> {float(bent.tau):.3f} s"
+    )
+    return bent, line
+
+
+def _written(v) -> str:
+    """An option's value as it would be written: ``12,30`` or ``1.5``."""
+    return ",".join(f"{x:g}" for x in v) if isinstance(v, tuple) else f"{v:g}"
 
 
 def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
@@ -252,7 +332,9 @@ def _check_page_files(args) -> None:
     DMP refused; the outputs checked."""
     if len(args.images) != 1 or args.dmp:
         raise ValueError("--page writes one page: give PAGE.json, or PHOTO --model RUN")
+    bent = [BEND_OPTIONS[k] for k in bend_options(args)]
     refused = (
+        (bent, f"{', '.join(bent)} bend one DMP, not a page (--page)"),
         (args.image, "--image is for --dmp (the page's photo is the document's image)"),
         (args.image_size, "--image-size is for --dmp files, not for --page"),
         (args.hypothesis != 1, "--hypothesis is not for --page: it writes each character's "
@@ -329,6 +411,9 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
     height_mm = args.writing_height_mm
     height_mm = DEFAULT_WRITING_HEIGHT_MM if height_mm is None else height_mm
     for name, params, config, size, image in _inputs(args):
+        params, bent_line = _bent(args, name, params, config)
+        if bent_line:
+            print(bent_line)
         os.makedirs(args.out_dir, exist_ok=True)  # once the first input is read and checked
         est_steps = int((float(params.tau) + 2.0) * args.rate_hz)
         with progress_bar(

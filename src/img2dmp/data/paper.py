@@ -58,6 +58,8 @@ SURFACE_MAX_SIDE = 400
 EVEN_CELL = 0.08
 #: Cells of the polarity's local median: this many along the shorter side.
 POLARITY_CELLS = 8
+#: ... of which those whose median grey is within this of the typical cell's.
+POLARITY_EVEN = 0.25
 #: Cells of the background estimate: about this many along the shorter side.
 BACKGROUND_CELLS = 24
 #: ... and at least this many pen widths (:func:`rough_pen_width`) on a side.
@@ -67,6 +69,8 @@ BACKGROUND_PERCENTILE = 80
 #: A cell whose background is darker than this share of the paper's is off the sheet
 #: (when it connects to the image's border).
 TABLE_LEVEL = 0.45
+#: ... and the cells joined to those that are darker than this share of it.
+TABLE_GROW_LEVEL = 0.65
 #: A component is ink when at least this share of its pixels (and two) are strong: a
 #: pen's stroke mostly is, a smudge of shade or a crease's edge hardly.
 STRONG_SHARE = 0.25
@@ -80,6 +84,11 @@ RULE_SHARE = 0.9
 PERIODIC_RULE_SHARE = 0.4
 #: ... and in an image this many pen widths across, a lone one whatever the other ink does.
 PAGE_LINE_PENS = 40
+#: A lone line at an angle of its own may break up (a faint margin line): gaps of up to
+#: this share of the extent bridged, ...
+LONE_GAP = 0.012
+#: ... and this share of the extent inked.
+LONE_INKED = 0.6
 #: Components thicker than this many pen widths are not pen strokes.
 THICK_FACTOR = 3.5
 #: Components smaller than this many pen widths squared are specks,
@@ -92,8 +101,9 @@ DOT_SIZE_PEN = 2.5
 DOT_DISC = 3.0
 #: ... at least this many of them, evenly spaced.
 MIN_DOTS = 8
-#: A component along the image's border for this share of that side is the
-#: sheet's edge (a character cut by the border touches it over its own width only).
+#: A component that touches the image's border along this share of that side is the
+#: sheet's edge (counted where it touches: a character cut by the border touches it
+#: where its strokes cross it, a few pen widths, however tall it is).
 EDGE_SHARE = 0.15
 #: ... within this share of the shorter side from the border.
 EDGE_BAND = 0.015
@@ -176,6 +186,13 @@ def dark_on_light(planes: np.ndarray) -> bool:
         cell = max(2, min(lum.shape) // POLARITY_CELLS)  # wide beside strokes, not shading
         grid, cell = _cell_percentile(lum[None], cell, 50)
         rest = lum - _upsample(grid, cell, lum.shape)[0]
+        # not the cells of what lies beside the sheet (a dark table's cells have light
+        # paper in them as the paper's cells have ink): the cells whose median is far
+        # from the typical cell's
+        usual = float(np.median(grid))
+        even = _upsample((np.abs(grid - usual) < POLARITY_EVEN).astype(np.float32), cell,
+                         lum.shape)[0] > 0.5  # fmt: skip
+        rest = rest[even] if even.mean() > 0.25 else rest
         sample = rest.ravel()[:: max(1, rest.size // 200_000)]
         p1, p99 = np.percentile(sample, [1, 99])
         below, above = -p1, p99
@@ -304,8 +321,8 @@ def shadow_factor(planes: np.ndarray, surface: np.ndarray, pen_width_px: float) 
 def rough_pen_width(planes: np.ndarray) -> float:
     """A first estimate of the pen's width (pixels) before the paper is known: the
     strokes darker than half the darkest ink against the image's brightest tenth,
-    measured as :func:`pen_width` measures them; on every s-th pixel of a large image
-    (about a million)."""
+    measured as :func:`pen_width` measures them (not those that reach the border, the
+    table's, while others do); on every s-th pixel of a large image (about a million)."""
     from scipy.ndimage import label
 
     step = max(1, round(math.sqrt(planes[0].size / 1_000_000)))
@@ -320,7 +337,9 @@ def rough_pen_width(planes: np.ndarray) -> float:
     boundary = np.bincount(labels[mask & ~_erode3(mask)], minlength=n + 1)
     keep = area >= 4
     keep[0] = False
-    return pen_width(area, boundary, keep) * step
+    inside = keep.copy()  # the table or the sheet's edge beyond the border is no stroke
+    inside[_ring_labels(labels)] = False
+    return pen_width(area, boundary, inside if inside.any() else keep) * step
 
 
 def darkness(planes: np.ndarray, bg: np.ndarray) -> np.ndarray:
@@ -354,10 +373,16 @@ def sheet_mask(bg: np.ndarray, cell: int) -> np.ndarray:
     if cell == 0:
         return np.ones((h, w), bool)
     lum = _luma(bg[:, cell // 2 :: cell, cell // 2 :: cell])  # one sample per cell
-    dark = lum < TABLE_LEVEL * np.percentile(lum, 95)
+    paper = np.percentile(lum, 95)
+    dark = lum < TABLE_LEVEL * paper
     labels, _ = label(dark)
     edge = np.unique(np.concatenate([_ring_labels(labels)]))
     table = np.isin(labels, edge[edge > 0])
+    # ... grown over the cells beside it that are still far darker than the paper (the
+    # table's lighter grain)
+    labels, _ = label(lum < TABLE_GROW_LEVEL * paper)
+    grown = np.unique(labels[table])
+    table |= np.isin(labels, grown[grown > 0])
     if not table.any():
         return np.ones((h, w), bool)
     table = binary_dilation(table, np.ones((3, 3), bool))
@@ -467,13 +492,14 @@ def _spans_short_of_ends(mask: np.ndarray, extent: tuple[int, int]) -> bool:
 
 
 def _row_rules(mask: np.ndarray, extent: tuple[int, int], angle_deg: float, others=None,
-               pen_width_px: float = 0.0):  # fmt: skip
+               pen_width_px: float = 0.0, lone: bool = False):  # fmt: skip
     """Pixels of ``mask`` on rules along the rows at ``angle_deg`` (see the module
     docstring, step 5; ``bool [H, W]``), crossings not yet restored, and the rules'
     thickness (rows of the widest band, with two rows of slack either side). ``others``:
     rules already found across these (not ink that could reach the ends). A lone rule of
     an image at least ``PAGE_LINE_PENS`` pen widths across is a rule whatever the other
-    ink does: no character's stroke is that long."""
+    ink does: no character's stroke is that long. ``lone``: only rules across
+    ``RULE_SHARE`` of the extent (a second angle's single line, not a periodic set)."""
     off = _shear_rows(mask.shape, angle_deg)
     s = _sheared(mask, off)
     d = s.copy()  # two rows either side: a slightly wavy rule stays one run
@@ -481,6 +507,13 @@ def _row_rules(mask: np.ndarray, extent: tuple[int, int], angle_deg: float, othe
         d[k:] |= s[:-k]
         d[:-k] |= s[k:]
     width = extent[1] - extent[0]
+    if lone:
+        fresh = s & ~_sheared(others, off) if others is not None else s
+        rule, reach = _lone_rule(s, d, fresh, width)
+        page = pen_width_px > 0 and width >= PAGE_LINE_PENS * pen_width_px
+        if not reach or not (page or _spans_short_of_ends(s & ~rule, extent)):
+            return np.zeros(mask.shape, bool), 0
+        return _unsheared(rule, off, mask.shape[0]), reach
     runs = _long_runs(d, max(8, math.ceil(PERIODIC_RULE_SHARE * width)), gap=3)
     full = _long_runs(d, max(8, math.ceil(RULE_SHARE * width)), gap=3)
     bands = _bands(runs.any(axis=1))
@@ -497,6 +530,29 @@ def _row_rules(mask: np.ndarray, extent: tuple[int, int], angle_deg: float, othe
     if not periodic and not page and not _spans_short_of_ends(rest, extent):
         return np.zeros(mask.shape, bool), 0  # a tight crop's own stroke, not a rule
     return _unsheared(rule, off, mask.shape[0]), max(b - a for a, b in bands)
+
+
+def _lone_rule(s: np.ndarray, d: np.ndarray, fresh: np.ndarray, width: int):
+    """The pixels of ``s`` (sheared frame) on single lines across ``RULE_SHARE`` of the
+    extent that may break up (gaps up to ``LONE_GAP`` of it bridged, ``LONE_INKED`` of it
+    inked, ``LONE_INKED`` / 2 of it ``fresh``: on no rule found before), ``d``: ``s``
+    grown two rows either way; and the lines' thickness (0: none)."""
+    runs = _long_runs(
+        d, max(8, math.ceil(RULE_SHARE * width)), gap=max(3, math.ceil(LONE_GAP * width))
+    )
+    rule, reach = np.zeros(s.shape, bool), 0
+    for a, b in _bands(runs.any(axis=1)):
+        span = runs[a:b].any(axis=0)
+        if np.count_nonzero(d[a:b].any(axis=0) & span) < LONE_INKED * width:
+            continue
+        lo, hi = max(0, a - 2), b + 2
+        if np.count_nonzero(fresh[lo:hi].any(axis=0) & span) < 0.5 * LONE_INKED * width:
+            continue  # a rule found before, at an angle a little off
+        cols = np.flatnonzero(span)
+        c0, c1 = cols[0], cols[-1] + 1  # two rows either way: the line wavers
+        rule[lo:hi, c0:c1] |= s[lo:hi, c0:c1]
+        reach = max(reach, hi - lo)
+    return rule, reach
 
 
 def _crossings(strokes: np.ndarray, rule: np.ndarray, reach: int) -> np.ndarray:
@@ -546,11 +602,22 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
         cols = np.flatnonzero(sh.any(axis=0))
         if cols.size < 8:
             continue
+        extent = (int(cols[0]), int(cols[-1]) + 1)
         angles[name] = dominant_angle(m)
-        r, reach = _row_rules(m, (int(cols[0]), int(cols[-1]) + 1), angles[name],
-                              found if axis == 0 else found.T, pen_width_px)  # fmt: skip
+        r, reach = _row_rules(m, extent, angles[name], found if axis == 0 else found.T,
+                              pen_width_px)  # fmt: skip
         if reach:
             per_axis.append((axis, angles[name], r, reach))
+            found |= r if axis == 0 else r.T
+        # A lone line across the whole extent that the rules' pass left: broken up (a
+        # faint margin line), or at an angle of its own (the page's perspective).
+        rest = m & ~(found if axis == 0 else found.T)
+        second = dominant_angle(rest)
+        r, reach = _row_rules(m, extent, second, found if axis == 0 else found.T,
+                              pen_width_px, lone=True)  # fmt: skip
+        r &= rest
+        if reach and r.any():
+            per_axis.append((axis, second, r, reach))
             found |= r if axis == 0 else r.T
     for axis, _, r, reach in per_axis:
         grown = _rule_pieces((mask if axis == 0 else mask.T) & ~(found if axis == 0 else found.T),
@@ -565,12 +632,21 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
         cross = _unsheared(cross, off, st.shape[0])
         keep |= cross if axis == 0 else cross.T
     if dark is not None and found.any() and strokes.any():
-        level = float(np.median(dark[found]))
         ink_level = float(np.percentile(dark[strokes], 90))
-        if ink_level - level > 0.15:  # rules clearly lighter than the pen
-            # where two rules cross they absorb as two (1 - (1 - l)^2), and are no stroke
-            crossing = 1.0 - (1.0 - level) ** 2 + 0.05
-            keep |= found & (dark > max(level + 0.5 * (ink_level - level), crossing))
+        passes = [r if axis == 0 else r.T for axis, _, r, _ in per_axis]
+        pieces = found.copy()  # grown pieces: against all the rules' level
+        for r in passes:
+            pieces &= ~r
+        for pixels, level_of in [(p, p) for p in passes] + [(pieces, found)]:
+            # each set of lines against its own level (a dark red margin line is not
+            # where a stroke crosses the pale blue rules)
+            if not pixels.any():
+                continue
+            level = float(np.median(dark[level_of]))
+            if ink_level - level > 0.15:  # rules clearly lighter than the pen
+                # where two rules cross they absorb as two (1 - (1 - l)^2): no stroke
+                crossing = 1.0 - (1.0 - level) ** 2 + 0.05
+                keep |= pixels & (dark > max(level + 0.5 * (ink_level - level), crossing))
     return found & ~keep, angles
 
 
@@ -752,8 +828,8 @@ def on_lattice(centres: np.ndarray) -> np.ndarray:
 
 
 def _along_border(labels: np.ndarray, n: int) -> np.ndarray:
-    """Per label (index 0 unused): whether the component runs along one of the image's
-    borders for at least ``EDGE_SHARE`` of that side (the sheet's edge, the table)."""
+    """Per label (index 0 unused): whether the component touches one of the image's
+    borders along at least ``EDGE_SHARE`` of that side (the sheet's edge, the table)."""
     out = np.zeros(n + 1, bool)
     h, w = labels.shape
     m = max(2, round(EDGE_BAND * min(h, w)))  # the edge may stop short of the border
@@ -761,8 +837,7 @@ def _along_border(labels: np.ndarray, n: int) -> np.ndarray:
     bands += ((labels[:, :m].max(1), h), (labels[:, -m:].max(1), h))
     for line, side in bands:
         for lab in np.unique(line[line > 0]):
-            cols = np.flatnonzero(line == lab)
-            out[lab] |= bool(cols[-1] - cols[0] + 1 >= EDGE_SHARE * side)
+            out[lab] |= bool(np.count_nonzero(line == lab) >= EDGE_SHARE * side)
     return out
 
 

@@ -7,12 +7,16 @@ No I/O and no plotting here. The public surface:
 - :func:`phase`, :func:`kernel_centres`, :func:`kernel_widths`, :func:`basis_functions`,
   :func:`forcing_term` - eqs. (5)-(7)
 - :func:`fit_dmp` - parameters from demonstrations
+- :func:`affine_dmp` - the DMP of an affinely mapped movement, exactly
+- :func:`bend_dmp` - a new goal or start, tempo, scale, rotation (which are exact: its module)
 - :func:`rollout` - fast batched differentiable y(t) (cost 10)
 - :func:`rollout_sensitivity`, :func:`sensitivity_rollout` - the paper's gradient, eqs. (11)-(27)
 - :class:`DMPIntegrator`, :func:`integrate` - step-by-step reference integrator
 """
 
+from .affine import affine_dmp
 from .basis import basis_functions, forcing_term, kernel_centres, kernel_widths, phase
+from .bend import bend_dmp
 from .config import DMPConfig
 from .fit import FitResult, fit_dmp
 from .integrate import DMPIntegrator, integrate
@@ -25,7 +29,9 @@ __all__ = [
     "DMPIntegrator",
     "DMPParams",
     "FitResult",
+    "affine_dmp",
     "basis_functions",
+    "bend_dmp",
     "fit_dmp",
     "forcing_term",
     "integrate",

@@ -31,15 +31,30 @@ from .config import DMPConfig
 from .params import DMPParams
 
 
-def _full_map(matrix, d: int) -> tuple[np.ndarray, np.ndarray]:
-    """``M [d, d]`` and ``c [d]`` of a ``[2, 3]`` map of x, y (other channels unchanged)."""
+def _full_map(matrix, d: int, batch: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """``M [*b, d, d]`` and ``c [*b, d]`` of ``[*b, 2, 3]`` maps of x, y (other channels
+    unchanged); ``b`` is ``[]`` (one map for every DMP) or broadcasts to ``batch``."""
     m = np.asarray(matrix, dtype=np.float64)
-    if m.shape != (2, 3) or not np.isfinite(m).all():
+    if m.ndim < 2 or m.shape[-2:] != (2, 3) or not np.isfinite(m).all():
         raise ValueError(f"matrix must be a finite 2 x 3 affine map, got shape {m.shape}")
-    if abs(np.linalg.det(m[:, :2])) <= 1e-12 * max(1.0, float(np.abs(m[:, :2]).max()) ** 2):
-        raise ValueError("matrix is not invertible: its 2 x 2 part has determinant 0")
-    full, shift = np.eye(d), np.zeros(d)
-    full[:2, :2], shift[:2] = m[:, :2], m[:, 2]
+    where = m.shape[:-2]
+    try:
+        fits = np.broadcast_shapes(where, batch) == batch
+    except ValueError:
+        fits = False
+    if not fits:
+        raise ValueError(
+            f"matrix has batch shape {where}, which does not broadcast to the DMPs' {batch}"
+        )
+    a = m[..., :2]  # [*b, 2, 2]
+    size = np.maximum(1.0, np.abs(a).max(axis=(-2, -1))) ** 2
+    singular = np.abs(np.linalg.det(a)) <= 1e-12 * size
+    if singular.any():
+        at = f" (batch index {[int(i) for i in np.argwhere(singular)[0]]})" if where else ""
+        raise ValueError(f"matrix is not invertible: its 2 x 2 part has determinant 0{at}")
+    full = np.broadcast_to(np.eye(d), (*where, d, d)).copy()
+    shift = np.zeros((*where, d))
+    full[..., :2, :2], shift[..., :2] = a, m[..., 2]
     return full, shift
 
 
@@ -52,8 +67,9 @@ def affine_dmp(params: DMPParams, config: DMPConfig, matrix) -> DMPParams:
         Batch shape ``[*batch]``, ``d >= 2`` (x, y first), NumPy or torch.
     config : DMPConfig
         Its constants (the result shares them).
-    matrix : array [2, 3]
-        ``[x', y'] = A @ [x, y] + b`` (the convention of :mod:`img2dmp.data.affine`).
+    matrix : array [2, 3] or [*batch, 2, 3]
+        ``[x', y'] = A @ [x, y] + b`` (the convention of :mod:`img2dmp.data.affine`): one
+        map for every DMP, or one per DMP (any batch shape that broadcasts to ``[*batch]``).
 
     Returns
     -------
@@ -75,13 +91,13 @@ def affine_dmp(params: DMPParams, config: DMPConfig, matrix) -> DMPParams:
     p.validate(config)
     if p.n_dims < 2:
         raise ValueError(f"an affine map of x, y needs d >= 2 dimensions, got d = {p.n_dims}")
-    m, c = _full_map(matrix, p.n_dims)
-    g, y0 = p.g @ m.T + c, p.y0 @ m.T + c
+    m, c = _full_map(matrix, p.n_dims, p.batch_shape)  # [*b, D, D], [*b, D]
+    g, y0 = _apply(m, p.g) + c, _apply(m, p.y0) + c  # [*batch, D]
     if config.scaling == "none":
-        lin = np.broadcast_to(m, (*p.batch_shape, *m.shape))
+        lin = np.broadcast_to(m, (*p.batch_shape, p.n_dims, p.n_dims))
     else:
         d = p.g - p.y0  # [*batch, D]
-        d_new = d @ m.T  # M d (not g' - y0', which rounds differently)
+        d_new = _apply(m, d)  # M d (not g' - y0', which rounds differently)
         mixed = m * d[..., None, :]  # M diag(d)
         size = np.abs(mixed).sum(axis=-1)  # [*batch, D]
         forced = size > 0  # rows of M diag(d) that are not zero
@@ -102,6 +118,11 @@ def affine_dmp(params: DMPParams, config: DMPConfig, matrix) -> DMPParams:
         lin = np.where(forced[..., None], lin, np.eye(p.n_dims))
     w = p.w @ np.swapaxes(lin, -1, -2)  # w'_k = L w_k for every kernel (rows of w)
     return DMPParams(w, p.tau.copy(), g, y0)
+
+
+def _apply(m: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``M v`` for ``m [*b, D, D]`` and ``v [*batch, D]`` (``b`` broadcasting)."""
+    return (m @ v[..., None])[..., 0]
 
 
 __all__ = ["affine_dmp"]

@@ -34,6 +34,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from .. import __version__
 from .._files import parse_json
+from .bending import BEND_FIELDS, bend_answer
 from .errors import WebError, one_line, show
 from .jobs import JobManager, check_write
 from .models import LoadedModel, load_models, predict_with, prediction_answer
@@ -95,6 +96,25 @@ class WriteRequest(_Body):
     dmp: dict
     hypothesis: int = Field(1, ge=1)
     video: bool = True
+
+
+XY = Annotated[list[float], Field(min_length=2, max_length=2, description="[x, y], pixels")]
+
+
+class BendRequest(_Body):
+    """``POST /api/bend``: one hypothesis of a DMP document bent (img2dmp.dmp.bend_dmp);
+    positions in pixels of the document's ``params`` frame (a prediction's: the model's
+    input)."""
+
+    dmp: dict
+    hypothesis: int = Field(1, ge=1)
+    goal: XY | None = Field(None, description="a new goal (the weights kept)")
+    start: XY | None = Field(None, description="a new start (the weights and goal kept)")
+    shift: XY | None = Field(None, description="moves the whole movement")
+    scale: float | None = Field(None, description="> 0, about the start")
+    rotate_deg: float | None = Field(None, description="about the start, x toward y")
+    tempo: float | None = Field(None, description="> 0: the duration times tempo")
+    n_points: int = Field(100, ge=N_POINTS_RANGE[0], le=N_POINTS_RANGE[1])
 
 
 class PageWriteRequest(_Body):
@@ -474,6 +494,14 @@ def _predict_routes(app: FastAPI, state: ServerState) -> None:
         elapsed_ms = 1e3 * (time.perf_counter() - t0)
         return Response(prediction_answer(model, pred, elapsed_ms), media_type="application/json")
 
+    @app.post("/api/bend")
+    def bend(body: BendRequest) -> Response:
+        """One hypothesis of a DMP document bent: a new goal or start, shifted, scaled or
+        rotated about its start, another tempo; the bent DMP as a document of its own."""
+        options = {k: getattr(body, k) for k in BEND_FIELDS if getattr(body, k) is not None}
+        answer = bend_answer(body.dmp, body.hypothesis, options, body.n_points)
+        return Response(answer, media_type="application/json")
+
 
 PAGE_NAME = "the photo's file name, for the page document's image and file name"
 
@@ -606,6 +634,7 @@ def _static_routes(app: FastAPI, static: Path) -> None:
 
 
 __all__ = [
+    "BendRequest",
     "BodyLimit",
     "HostGuard",
     "PredictRequest",

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from .._files import atomic_write_text
 from .._processes import children_ignore_interrupts
-from ..data.dmpfile import FORMAT, VERSION, check_dmp_document, write_dmp_document
+from ..data.dmpfile import FORMAT, VERSION, DMPFile, check_dmp_document, write_dmp_document
 from .errors import WebError, one_line, show
 
 #: The outputs of a job, by the key of ``files`` in ``GET /api/jobs/{id}``.
@@ -125,15 +125,21 @@ def check_write(doc, hypothesis) -> dict:
     """The document of ``POST /api/write``, checked as ``img2dmp write --dmp`` checks a
     file (a version-1 document, without ``format`` and ``version``, is converted), with
     the hypothesis of rank ``hypothesis``; 422 naming the field otherwise."""
+    return read_document(doc, hypothesis).document
+
+
+def read_document(doc, hypothesis) -> DMPFile:
+    """:func:`check_write`'s check; the document read (its ``document``: version 2)."""
     if not isinstance(doc, dict):
         raise WebError(422, f"dmp: must be a DMP document (a JSON object), got {show(doc)}")
     if "format" not in doc and "version" not in doc:
         doc = {"format": FORMAT, "version": VERSION, **doc}
     try:
-        check_dmp_document(doc, "dmp").hypothesis(hypothesis)
+        f = check_dmp_document(doc, "dmp")
+        f.hypothesis(hypothesis)
     except ValueError as e:
         raise WebError(422, str(e)) from None
-    return doc
+    return f
 
 
 @dataclass
@@ -362,6 +368,7 @@ __all__ = [
     "Job",
     "JobManager",
     "check_write",
+    "read_document",
     "run_in_job_dir",
     "run_job",
 ]

@@ -95,18 +95,32 @@ def png_data_url(ink: np.ndarray) -> str:
     return "data:image/png;base64," + base64.b64encode(grey_png(grey)).decode("ascii")
 
 
+def hypothesis_entry(rank: int, probability: float, tau_s: float, times, path_model,
+                     path_image) -> dict:  # fmt: skip
+    """One entry of ``"hypotheses"`` in ``POST /api/predict``'s answer: ``times [T]``,
+    paths ``[T, d]`` in the model and the image frame (``path_image`` None: null)."""
+    d = path_model.shape[-1]
+    return {
+        "rank": int(rank),
+        "probability": float(probability),
+        "tau_s": float(tau_s),
+        "t": _rounded(times),
+        "model": _rounded(path_model[:, :2]),
+        "image": None if path_image is None else _rounded(path_image[:, :2]),
+        "pen": _rounded(path_model[:, 2]) if d == 3 else None,
+    }
+
+
 def _hypotheses(pred: Prediction) -> list[dict]:
-    d = pred.path_model.shape[-1]
     return [
-        {
-            "rank": k + 1,
-            "probability": float(pred.probabilities[k]),
-            "tau_s": float(pred.params[k].tau),
-            "t": _rounded(pred.times[k]),
-            "model": _rounded(pred.path_model[k, :, :2]),
-            "image": _rounded(pred.path_image[k, :, :2]),
-            "pen": _rounded(pred.path_model[k, :, 2]) if d == 3 else None,
-        }
+        hypothesis_entry(
+            k + 1,
+            pred.probabilities[k],
+            pred.params[k].tau,
+            pred.times[k],
+            pred.path_model[k],
+            pred.path_image[k],
+        )  # fmt: skip
         for k in range(pred.n_hypotheses)
     ]
 
@@ -150,6 +164,7 @@ def prediction_answer(model: LoadedModel, pred: Prediction, elapsed_ms: float) -
 
 __all__ = [
     "LoadedModel",
+    "hypothesis_entry",
     "load_models",
     "model_id",
     "png_data_url",

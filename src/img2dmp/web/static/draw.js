@@ -10,7 +10,12 @@ const LOGICAL = 320;
 const INK_WIDTH = LOGICAL / 14; // as the server renders the strokes
 const AUTO_PREDICT_MS = 400;
 const POLL_MS = 500;
-const COLORS = { ink: "#1d2330", traj: "#e4572e", start: "#1c9a5a", other: "rgba(47,91,211,0.5)" };
+const COLORS = {
+  ink: "#1d2330", traj: "#e4572e", start: "#1c9a5a", other: "rgba(47,91,211,0.5)",
+  unbent: "rgba(93,102,119,0.55)",
+};
+// Dragging the goal starts within this many CSS pixels of its marker.
+const GOAL_GRAB_PX = 22;
 
 const $ = (id) => document.getElementById(id);
 const ui = {
@@ -18,7 +23,9 @@ const ui = {
   placeholder: $("draw-placeholder"), dropLabel: $("drop-label"), file: $("file"),
   drawError: $("draw-error"), result: $("result"), inputImage: $("input-image"),
   seenOverlay: $("seen-overlay"), seenEmpty: $("seen-empty"), meta: $("result-meta"),
-  fitNote: $("fit-note"),
+  fitNote: $("fit-note"), confNote: $("confidence-note"), bend: $("bend"), speed: $("speed"),
+  speedValue: $("speed-value"), bendReset: $("bend-reset"), bendMeta: $("bend-meta"),
+  bendError: $("bend-error"),
   hyps: $("hypotheses"), replay: $("replay"), dlDmp: $("download-dmp"),
   dlCsv: $("download-csv"), write: $("write"), job: $("job"), jobProgress: $("job-progress"),
   jobStatus: $("job-status"), robotError: $("robot-error"), jobResult: $("job-result"),
@@ -39,6 +46,11 @@ const state = {
   abort: null,
   raf: null,
   job: null,
+  goal: null, // [x, y] the goal dragged to (model frame), or null: the hypothesis' own
+  bent: null, // the last /api/bend answer for the shown hypothesis, or null: not bent
+  bendBusy: false, // a /api/bend request is on its way
+  bendPending: null, // what to do once it is back: "draw" (again), "play" or null
+  drag: null, // the pointer dragging the goal
 };
 
 const models = initHeader("draw", ui.drawError);
@@ -228,6 +240,7 @@ async function predict() {
 function showAnswer(answer) {
   state.answer = answer;
   state.selected = 0;
+  resetBend();
   const n = answer.hypotheses.length;
   ui.result.dataset.hypotheses = String(n);
   ui.result.dataset.answers = String(Number(ui.result.dataset.answers || 0) + 1);
@@ -241,6 +254,7 @@ function showAnswer(answer) {
     `movement ${top.tau_s.toFixed(2)}\u00a0s \u00b7 ` +
     `answered in ${Math.round(answer.elapsed_ms)}\u00a0ms`;
   showFlags(answer);
+  showConfidence(answer);
   if (state.job === null) {  // the last run wrote the previous drawing: not this one
     resetJobView();
     ui.job.hidden = true;
@@ -248,7 +262,23 @@ function showAnswer(answer) {
   renderHypotheses();
   for (const b of [ui.replay, ui.dlDmp, ui.dlCsv, ui.write]) b.disabled = false;
   ui.write.disabled = state.job !== null;
+  ui.bend.hidden = false;
+  ui.seenOverlay.classList.add("bendable");
   animate();
+}
+
+/** One line when the model has one hypothesis: its probability (always 1) means nothing. */
+function showConfidence(answer) {
+  const one = answer.hypotheses.length === 1;
+  ui.confNote.hidden = !one;
+  if (!one) return;
+  const fit = answer.fit || {};
+  const pct = (v) => `${Math.round(100 * v)} %`;
+  const how = Number.isFinite(fit.path_on_ink) && Number.isFinite(fit.ink_written)
+    ? `: on ink ${pct(fit.path_on_ink)}, ink written ${pct(fit.ink_written)}` : "";
+  ui.confNote.textContent =
+    "This model proposes one movement per image, so its probability is always 100 % " +
+    `and says nothing about how sure it is; how well the path covers the ink does${how}.`;
 }
 
 /** One line under the result when the prediction is flagged; nothing when it is not. */
@@ -284,7 +314,9 @@ function renderHypotheses() {
       for (const b of ui.hyps.querySelectorAll("button")) {
         b.setAttribute("aria-pressed", String(b === button));
       }
-      animate();
+      state.goal = null; // a goal belongs to the hypothesis it was dragged from
+      state.bent = null;
+      bend({ play: true });
     });
     ui.hyps.append(el("li", { class: i === 0 ? "top" : "" }, button));
   });
@@ -370,19 +402,27 @@ function drawArrow(ctx, pts, style) {
 function drawFrame(k) {
   const answer = state.answer;
   const hyps = answer.hypotheses;
-  const sel = hyps[state.selected];
+  const sel = shown();
   const seen = fitCanvas(ui.seenOverlay);
   seen.ctx.clearRect(0, 0, seen.width, seen.height);
-  const [mh, mw] = answer.model_size;
-  const mm = fitFrame(seen.width, seen.height, mh, mw);
+  const mm = modelMap(seen);
   hyps.forEach((h, i) => {
     if (i === state.selected) return;
     const style = { color: COLORS.other, width: i === 0 ? 3.5 : 2, markers: false };
     drawPath(seen.ctx, mapPoints(h.model, mm), h.pen, h.model.length, style);
   });
+  if (state.bent) { // the hypothesis as the model wrote it, thin, under the bent one
+    const h = hyps[state.selected];
+    drawPath(seen.ctx, mapPoints(h.model, mm), h.pen, h.model.length,
+      { color: COLORS.unbent, width: 1.5, markers: false });
+  }
   const bold = state.selected === 0 ? 4 : 2.5;
   drawPath(seen.ctx, mapPoints(sel.model, mm), sel.pen, k,
     { color: COLORS.traj, width: bold, markers: true });
+  drawGoal(seen.ctx, mapPoints([goal()], mm)[0]);
+  const end = sel.model[sel.model.length - 1];
+  ui.result.dataset.end = `${end[0].toFixed(3)},${end[1].toFixed(3)}`;
+  ui.result.dataset.tau = String(sel.tau_s);
   const drawn = fitCanvas(ui.drawOverlay);
   drawn.ctx.clearRect(0, 0, drawn.width, drawn.height);
   const [ih, iw] = answer.image_size;
@@ -391,15 +431,41 @@ function drawFrame(k) {
     { color: COLORS.traj, width: bold - 1, markers: true });
 }
 
-/** Play the selected hypothesis in real time (its `t`, seconds). */
+/** The goal's marker: a ring where the movement is drawn to (the DMP's g). */
+function drawGoal(ctx, [x, y]) {
+  ctx.setLineDash([]);
+  ctx.lineWidth = 2.5;
+  ctx.strokeStyle = "#fff";
+  ctx.beginPath();
+  ctx.arc(x, y, 9, 0, 2 * Math.PI);
+  ctx.stroke();
+  ctx.strokeStyle = COLORS.traj;
+  ctx.lineWidth = 2;
+  for (const r of [8, 3]) {
+    ctx.beginPath();
+    ctx.arc(x, y, r, 0, 2 * Math.PI);
+    ctx.stroke();
+  }
+  const rect = ui.seenOverlay.getBoundingClientRect();
+  ui.seenOverlay.dataset.goal = `${x.toFixed(1)},${y.toFixed(1)}`; // CSS px in the overlay
+  ui.seenOverlay.dataset.goalPage = `${(rect.left + x).toFixed(1)},${(rect.top + y).toFixed(1)}`;
+}
+
+/** The map of the model frame into the seen overlay ({ctx, width, height} of fitCanvas). */
+function modelMap(seen) {
+  const [mh, mw] = state.answer.model_size;
+  return fitFrame(seen.width, seen.height, mh, mw);
+}
+
+/** Play the shown hypothesis (bent, if it is) in real time (its `t`, seconds). */
 function animate() {
   if (!state.answer) return;
   cancelAnimationFrame(state.raf);
-  const h = state.answer.hypotheses[state.selected];
+  const h = shown();
   const t = h.t;
   const start = performance.now();
   ui.result.dataset.state = "animating";
-  ui.result.dataset.selected = String(h.rank);
+  ui.result.dataset.selected = String(state.answer.hypotheses[state.selected].rank);
   const step = (now) => {
     const elapsed = (now - start) / 1000 + (t[0] || 0);
     let k = 0;
@@ -409,6 +475,158 @@ function animate() {
     else ui.result.dataset.state = "done";
   };
   state.raf = requestAnimationFrame(step);
+}
+
+// ---------------------------------------------------------------- bending --------
+
+/** The hypothesis shown: the bent one (POST /api/bend's) or the selected prediction. */
+function shown() {
+  return state.bent ? state.bent.hypothesis : state.answer.hypotheses[state.selected];
+}
+
+/** The DMP document the robot writes and the buttons download, and its rank in it. */
+function shownDocument() {
+  if (state.bent) return { dmp: state.bent.dmp, rank: 1 };
+  return { dmp: state.answer.dmp, rank: state.answer.hypotheses[state.selected].rank };
+}
+
+/** The goal (model frame): where it was dragged, else the selected hypothesis' own g. */
+function goal() {
+  if (state.goal) return state.goal;
+  const doc = state.answer.dmp;
+  const params = doc.hypotheses ? doc.hypotheses[state.selected].params : doc.params;
+  return params.g.slice(0, 2);
+}
+
+/** The factor on the movement's duration the speed slider asks for (speed 2^v: 2^-v). */
+function tempo() {
+  return 2 ** -Number(ui.speed.value);
+}
+
+function speedText() {
+  return `${Number((2 ** Number(ui.speed.value)).toPrecision(2))}×`;
+}
+
+function resetBend() {
+  state.goal = null;
+  state.bent = null;
+  state.bendPending = null;
+  ui.speed.value = "0";
+  ui.speedValue.textContent = speedText();
+  showMessage(ui.bendError, "", "");
+  showBent();
+}
+
+/**
+ * Bend the selected hypothesis as the goal and the speed say (POST /api/bend, the
+ * library's bend_dmp); then draw it whole (`play: false`, while dragging) or play it.
+ * One request at a time: what is asked meanwhile is sent when it is back.
+ */
+async function bend({ play }) {
+  if (!state.answer) return;
+  if (state.goal === null && ui.speed.value === "0") {
+    state.bent = null;
+    showBent();
+    if (play) animate();
+    else drawFrame(Infinity);
+    return;
+  }
+  if (state.bendBusy) {
+    state.bendPending = play ? "play" : state.bendPending || "draw";
+    return;
+  }
+  state.bendBusy = true;
+  const key = `${state.seq}:${state.selected}`; // what it bends: this prediction, this rank
+  const h = state.answer.hypotheses[state.selected];
+  const body = { dmp: state.answer.dmp, hypothesis: h.rank, n_points: h.t.length };
+  if (state.goal) body.goal = state.goal;
+  if (ui.speed.value !== "0") body.tempo = tempo();
+  let ok = false;
+  try {
+    const answer = await api("/api/bend", { method: "POST", body });
+    if (key === `${state.seq}:${state.selected}`) {
+      state.bent = answer;
+      ok = true;
+      showMessage(ui.bendError, "", "");
+    }
+  } catch (e) {
+    showError(ui.bendError, e, "Could not bend the movement");
+  } finally {
+    state.bendBusy = false;
+  }
+  const pending = state.bendPending;
+  state.bendPending = null;
+  if (pending) {
+    bend({ play: play || pending === "play" });
+    return;
+  }
+  if (!ok) return;
+  showBent();
+  if (play) animate();
+  else drawFrame(Infinity);
+}
+
+/** The line saying how the shown movement is bent; the Undo button. */
+function showBent() {
+  ui.result.dataset.bent = state.bent ? "1" : "0";
+  ui.bendReset.disabled = state.goal === null && ui.speed.value === "0";
+  if (!state.bent) {
+    ui.bendMeta.textContent = "";
+    return;
+  }
+  const was = state.answer.hypotheses[state.selected].tau_s;
+  const parts = [];
+  if (state.goal) {
+    parts.push(`goal (${state.goal[0].toFixed(1)}, ${state.goal[1].toFixed(1)}) px`);
+  }
+  if (ui.speed.value !== "0") parts.push(`speed ${speedText()}`);
+  ui.bendMeta.textContent = `Bent: ${parts.join(", ")} · movement ` +
+    `${state.bent.hypothesis.tau_s.toFixed(2)} s (the model's: ${was.toFixed(2)} s)`;
+}
+
+/** Pointer position in the model frame, kept inside it. */
+function modelPoint(e) {
+  const r = ui.seenOverlay.getBoundingClientRect();
+  const m = modelMap({ width: r.width, height: r.height });
+  const [mh, mw] = state.answer.model_size;
+  const clamp = (v, hi) => Math.min(hi - 0.5, Math.max(-0.5, v));
+  const x = (e.clientX - r.left - m.ox) / m.s - 0.5;
+  const y = (e.clientY - r.top - m.oy) / m.s - 0.5;
+  return [Math.round(clamp(x, mw) * 100) / 100, Math.round(clamp(y, mh) * 100) / 100];
+}
+
+function nearGoal(e) {
+  const r = ui.seenOverlay.getBoundingClientRect();
+  const [gx, gy] = mapPoints([goal()], modelMap({ width: r.width, height: r.height }))[0];
+  return Math.hypot(e.clientX - r.left - gx, e.clientY - r.top - gy) <= GOAL_GRAB_PX;
+}
+
+function onGoalDown(e) {
+  if (!state.answer || (e.pointerType === "mouse" && e.button !== 0) || !nearGoal(e)) return;
+  e.preventDefault();
+  capture(ui.seenOverlay, e);
+  cancelAnimationFrame(state.raf);
+  state.drag = e.pointerId;
+  ui.seenOverlay.style.cursor = "grabbing";
+}
+
+function onGoalMove(e) {
+  if (!state.answer) return;
+  if (state.drag !== e.pointerId) {
+    ui.seenOverlay.style.cursor = nearGoal(e) ? "grab" : "";
+    return;
+  }
+  state.goal = modelPoint(e);
+  drawFrame(Infinity);
+  bend({ play: false });
+}
+
+function onGoalUp(e) {
+  if (state.drag !== e.pointerId) return;
+  state.drag = null;
+  state.goal = modelPoint(e);
+  ui.seenOverlay.style.cursor = "grab";
+  bend({ play: true });
 }
 
 // ---------------------------------------------------------------- the robot ------
@@ -427,10 +645,10 @@ async function writeWithRobot() {
   if (!state.answer || state.job) return;
   resetJobView();
   ui.write.disabled = true;
-  const rank = state.answer.hypotheses[state.selected].rank;
+  const { dmp, rank } = shownDocument();
   try {
     const job = await api("/api/write", {
-      method: "POST", body: { dmp: state.answer.dmp, hypothesis: rank, video: true },
+      method: "POST", body: { dmp, hypothesis: rank, video: true },
     });
     state.job = job.id;
     showJob(job);
@@ -501,10 +719,11 @@ function showJobFiles(job) {
 
 function download(kind) {
   if (!state.answer) return;
+  const name = state.bent ? `${state.name}-bent` : state.name;
   if (kind === "dmp") {
-    downloadText(`${JSON.stringify(state.answer.dmp, null, 1)}\n`, `${state.name}.dmp.json`);
+    downloadText(`${JSON.stringify(shownDocument().dmp, null, 1)}\n`, `${name}.dmp.json`);
   } else {
-    downloadText(state.answer.csv, `${state.name}.csv`, "text/csv");
+    downloadText((state.bent || state.answer).csv, `${name}.csv`, "text/csv");
   }
 }
 
@@ -519,6 +738,18 @@ function init() {
   ui.dlDmp.addEventListener("click", () => download("dmp"));
   ui.dlCsv.addEventListener("click", () => download("csv"));
   ui.write.addEventListener("click", writeWithRobot);
+  ui.seenOverlay.addEventListener("pointerdown", onGoalDown);
+  ui.seenOverlay.addEventListener("pointermove", onGoalMove);
+  ui.seenOverlay.addEventListener("pointerup", onGoalUp);
+  ui.seenOverlay.addEventListener("pointercancel", onGoalUp);
+  ui.speed.addEventListener("input", () => {
+    ui.speedValue.textContent = speedText();
+  });
+  ui.speed.addEventListener("change", () => bend({ play: true }));
+  ui.bendReset.addEventListener("click", () => {
+    resetBend();
+    animate();
+  });
   setupDrop();
   models.onChange(() => {
     if (state.upload || state.strokes.length) predict();
