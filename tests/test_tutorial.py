@@ -50,7 +50,7 @@ def test_every_cell_of_the_tutorial_runs(monkeypatch):
     )
     assert "digits-real" in text and "refinement steps: 30" in text
     assert "flags: []" in text  # the sample photo is read as one digit
-    assert "start and goal moved: off a translation by" in text
+    assert "shifted: off a translation by" in text
     figures = sum(
         "image/png" in o.get("data", {})
         for c in nb.cells
