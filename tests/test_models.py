@@ -184,6 +184,19 @@ def test_predict_without_a_model_writes_the_sample_digit(tmp_path, capsys):
     assert json.loads((out / "digit_3_dmp.json").read_text())["refinement"] == {"steps": 0}
 
 
+def test_write_without_a_model_has_the_arm_write_the_sample(tmp_path, capsys):
+    from img2dmp.robot import available
+
+    if not available():
+        pytest.skip("pybullet is not installed (the robot extra)")
+    out = tmp_path / "robot"
+    assert cli.main(["write", str(SAMPLE), "--out-dir", str(out), "--no-progress"]) == 0
+    captured = capsys.readouterr()
+    assert "model digits-real with --refine 30" in captured.err
+    assert re.search(r"1: [\d.]+ mm, ink (9\d|100)\.\d %", captured.out), captured.out
+    assert (out / "digit_3_paper.png").is_file() and (out / "digit_3_log.csv").is_file()
+
+
 def test_write_serve_and_train_take_the_default_or_a_name():
     from img2dmp.commands import serve as serve_command
     from img2dmp.commands import write as write_command

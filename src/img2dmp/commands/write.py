@@ -1,7 +1,8 @@
 """Write a digit with a simulated KUKA LBR iiwa (pybullet): joint-torque control, IK in the
 plane and an admittance loop holding the pen's contact force.
 
-Input is either images and a trained model (``IMAGE ... --model CKPT``) or one DMP file
+Input is either images and a trained model (``IMAGE ... [--model RUN|NAME]``; without
+``--model`` the shipped model digits-real, refined as its card recommends) or one DMP file
 (``--dmp params.json``: the one DMP file of img2dmp, e.g. ``NAME_dmp.json`` of
 ``img2dmp predict --out``; format in docs/ROBOT.md). The robot writes the top hypothesis,
 or the one of rank ``--hypothesis K``, in the frame of the file's ``image_size`` (for a
