@@ -92,11 +92,11 @@ def main() -> None:
         ax.tick_params(labelsize=7)
     ax = axes[1, 2]  # tempo: the same path in another time
     for k, style in ((1.0, ORIGINAL), (2.0, NONE), (0.5, dict(color="tab:purple", lw=1.6))):
-        tk = k * t
+        tk = t / k
         yk = path(bend_dmp(p, cfg, tempo=k), cfg, tk)
-        label = "the movement" if k == 1 else f"tempo {k:g}: tau x {k:g}"
+        label = "the movement" if k == 1 else f"tempo {k:g}: tau / {k:g}"
         ax.plot(tk, yk[:, 1], **{**style, "label": label})
-    ax.set_title("tempo: y(t) = y_orig(t / k), exact", fontsize=10)
+    ax.set_title("tempo k: y(t) = y_orig(k t), exact", fontsize=10)
     ax.set_xlabel("t (s)", fontsize=8)
     ax.set_ylabel("y (px)", fontsize=8)
     ax.invert_yaxis()

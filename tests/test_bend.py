@@ -44,14 +44,14 @@ def _roll(params: DMPParams, t, config: DMPConfig) -> np.ndarray:
 
 @pytest.mark.parametrize("scaling", SCALINGS)
 @pytest.mark.parametrize("k", [0.5, 2.0, 3.7])
-def test_tempo_k_replays_the_same_path_k_times_as_long(scaling, k):
+def test_tempo_k_replays_the_same_path_k_times_as_fast(scaling, k):
     config = DMPConfig(scaling=scaling)
     p = _movement(config)
     t = np.linspace(0.0, 1.3 * float(p.tau), 97)
     bent = bend_dmp(p, config, tempo=k)
-    np.testing.assert_allclose(bent.tau, k * p.tau)
-    # y_new(t) = y(t / k): the bent DMP sampled at k t is the original at t
-    np.testing.assert_allclose(_roll(bent, k * t, config), _roll(p, t, config), atol=1e-9)
+    np.testing.assert_allclose(bent.tau, p.tau / k)
+    # y_new(t) = y(k t): the bent DMP sampled at t / k is the original at t
+    np.testing.assert_allclose(_roll(bent, t / k, config), _roll(p, t, config), atol=1e-9)
     # and it is not the original at the same times (the test can fail)
     assert np.abs(_roll(bent, t, config) - _roll(p, t, config)).max() > 0.1
 
@@ -157,7 +157,7 @@ def test_the_given_start_and_goal_are_those_of_the_bent_dmp_whatever_else_change
     np.testing.assert_array_equal(bent.g[:2], [3.0, 4.0])
     np.testing.assert_array_equal(bent.y0[:2], [1.0, 2.0])
     assert bent.g[2] == p.g[2] and bent.y0[2] == p.y0[2]  # the pen channel is not a position
-    np.testing.assert_allclose(bent.tau, 1.5 * p.tau)
+    np.testing.assert_allclose(bent.tau, p.tau / 1.5)
     same = bend_dmp(p, config)
     np.testing.assert_array_equal(same.to_vector(), p.to_vector())
 
@@ -174,7 +174,7 @@ def test_a_batch_is_bent_item_by_item(scaling):
         np.testing.assert_allclose(bent[i].to_vector(), alone.to_vector(), rtol=1e-12, atol=1e-12)
     shared = bend_dmp(p, config, goal=[7.0, 8.0], tempo=2.0)  # one value for every DMP
     np.testing.assert_array_equal(shared.g, np.tile([7.0, 8.0], (3, 1)))
-    np.testing.assert_allclose(shared.tau, 2.0 * p.tau)
+    np.testing.assert_allclose(shared.tau, p.tau / 2.0)
 
 
 def test_affine_dmp_takes_one_map_per_dmp():
@@ -339,6 +339,7 @@ def test_a_bend_the_dmp_cannot_take_is_one_line_exit_2(tmp_path, capsys, monkeyp
 
 
 def test_the_arm_writes_a_bent_dmp_slower_to_its_new_goal(tmp_path):
+    """``--tempo 0.5``: half as fast, twice the duration."""
     pytest.importorskip("pybullet", reason="the robot extra is not installed")
     import csv
 
@@ -348,14 +349,14 @@ def test_the_arm_writes_a_bent_dmp_slower_to_its_new_goal(tmp_path):
     path, params, config = _dmp_file(tmp_path)
     out = tmp_path / "o"
     argv = ["write", "--dmp", str(path), "--out-dir", str(out), "--no-progress",
-            "--tempo", "2", "--goal", "8,20"]  # fmt: skip
+            "--tempo", "0.5", "--goal", "8,20"]  # fmt: skip
     assert main(argv) == 0
     with open(out / "curl_log.csv", newline="") as f:
         rows = [r for r in csv.DictReader(f) if r["phase"] == "write"]
     assert float(rows[-1]["dmp_time_s"]) == pytest.approx(2 * float(params.tau), abs=0.01)
     # where the commanded path ends on the paper is the bent DMP's end, not the file's
     t_end = float(rows[-1]["dmp_time_s"])
-    bent = bend_dmp(params, config, tempo=2.0, goal=(8.0, 20.0))
+    bent = bend_dmp(params, config, tempo=0.5, goal=(8.0, 20.0))
     mapping = PaperMapping((28, 28), 40.0, (0.55, 0.0))
     got_px = mapping.to_pixels(np.array([float(rows[-1]["cmd_x_m"]), float(rows[-1]["cmd_y_m"])]))
     np.testing.assert_allclose(got_px, _roll(bent, [t_end], config)[0], atol=0.01)

@@ -424,7 +424,7 @@ def test_the_goal_dragged_bends_the_path_the_speed_retimes_it_and_the_robot_writ
     dl.value.save_as(tmp_path / "bent.dmp.json")
     f = read_dmp_file(tmp_path / "bent.dmp.json")
     bent = json.loads((tmp_path / "bent.dmp.json").read_text())["bent"]
-    assert bent["hypothesis"] == 1 and bent["tempo"] == 0.5
+    assert bent["hypothesis"] == 1 and bent["tempo"] == 2.0
     np.testing.assert_allclose(f.params.g[:2], bent["goal"])
     assert float(f.params.tau) == pytest.approx(tau0 / 2, rel=1e-5)
 

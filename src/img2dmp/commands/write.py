@@ -189,7 +189,7 @@ def _add_bend_arguments(parser: argparse.ArgumentParser) -> None:
         "--tempo",
         type=_args.positive_float,
         metavar="K",
-        help="the duration times K: the same path K times slower (K = 0.5: twice as fast; exact)",
+        help="the same path K times as fast (K = 0.5: half as fast; exact)",
     )
 
 

@@ -12,7 +12,7 @@ depend only on the constants, and ``S = diag(g - y0)`` (``scaling="goal-start"``
 ``I`` (``scaling="none"``). Hence, for a movement ``y(t)`` and ``d = g - y0``
 (derivations and a figure: docs/DMP.md, "Bending a DMP"):
 
-- tempo k (``tau' = k tau``): exact in both, ``y'(t) = y(t / k)``;
+- tempo k (``tau' = tau / k``: k times as fast): exact in both, ``y'(t) = y(k t)``;
 - shift c (``g`` and ``y0`` move by c): exact in both, ``y' = y + c``;
 - scale s about the start: exact in both; ``"none"`` with ``w' = s w``, ``"goal-start"``
   with ``w`` unchanged;
@@ -67,7 +67,7 @@ def bend_dmp(
        ``R = [[cos q, -sin q], [sin q, cos q]]``;
     2. ``start`` and ``goal`` replace ``y0`` and ``g`` (weights kept), so the bent DMP
        starts and ends where they say;
-    3. ``tempo``: ``tau' = tempo * tau``, the same path in ``tempo`` times the time.
+    3. ``tempo``: ``tau' = tau / tempo``, the same path ``tempo`` times as fast.
 
     Parameters
     ----------
@@ -88,7 +88,8 @@ def bend_dmp(
         in image pixels, whose y axis points down, a positive angle turns clockwise as
         seen).
     tempo : float or array [*batch], optional
-        Factor ``k > 0`` on the duration: ``y'(t) = y(t / k)`` exactly (2: half as fast).
+        Speed factor ``k > 0``, the duration divided by it: ``y'(t) = y(k t)`` exactly
+        (2: twice as fast, 0.5: half as fast).
 
     Returns
     -------
@@ -124,7 +125,7 @@ def bend_dmp(
     if "goal" in points:
         g[..., :2] = points["goal"]
     if k is not None:
-        tau = tau * k
+        tau = tau / k
     return DMPParams(p.w.copy(), tau, g, y0)
 
 

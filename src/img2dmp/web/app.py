@@ -113,7 +113,7 @@ class BendRequest(_Body):
     shift: XY | None = Field(None, description="moves the whole movement")
     scale: float | None = Field(None, description="> 0, about the start")
     rotate_deg: float | None = Field(None, description="about the start, x toward y")
-    tempo: float | None = Field(None, description="> 0: the duration times tempo")
+    tempo: float | None = Field(None, description="> 0: the movement tempo times as fast")
     n_points: int = Field(100, ge=N_POINTS_RANGE[0], le=N_POINTS_RANGE[1])
 
 

@@ -498,9 +498,9 @@ function goal() {
   return params.g.slice(0, 2);
 }
 
-/** The factor on the movement's duration the speed slider asks for (speed 2^v: 2^-v). */
+/** The tempo the speed slider asks for: 2^v times as fast. */
 function tempo() {
-  return 2 ** -Number(ui.speed.value);
+  return 2 ** Number(ui.speed.value);
 }
 
 function speedText() {
