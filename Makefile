@@ -12,7 +12,7 @@ REAL   ?= runs/real
 # The torch build the set-up installs (the CPU build).
 TORCH  ?= 2.13.0
 
-.PHONY: setup browser demo test lint bench clean model-real
+.PHONY: setup browser demo test lint bench clean model-real ship-real
 
 setup: $(STAMP)
 
@@ -63,6 +63,13 @@ $(REAL)/run/checkpoints/best.safetensors: $(REAL)/data.safetensors src/img2dmp/c
 $(REAL)/evaluation/evaluation.json: $(REAL)/run/checkpoints/best.safetensors
 	$(BIN)/img2dmp evaluate --model $(REAL)/run --data $(REAL)/data.safetensors --split test \
 	  --refine 30 --out $(REAL)/evaluation --force
+
+# Put the model-real run into the package as the shipped model digits-real
+# (src/img2dmp/models/digits-real: the checkpoint, model.json with its SHA-256 and test
+# figures); its CARD.md is then brought up to date by hand (tests/test_models.py checks
+# it against model.json).
+ship-real: $(REAL)/evaluation/evaluation.json
+	$(BIN)/python experiments/ship_model.py --run $(REAL)/run --evaluation $< --name digits-real
 
 lint: setup
 	$(BIN)/ruff check src tests benchmarks experiments examples

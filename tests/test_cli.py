@@ -193,11 +193,11 @@ def test_evaluate_passes_the_digits_to_the_library(monkeypatch, tmp_path, capsys
     monkeypatch.setattr(library, "format_table", lambda res, title: title)
     out = str(tmp_path / "e")
     for argv in (
-        ["--model", "run", "--data", "d.st", "--digits", "2,3"],
-        ["run", "d.st", "--digits", "2", "3"],
+        ["--model", "runs/r", "--data", "d.st", "--digits", "2,3"],
+        ["runs/r", "d.st", "--digits", "2", "3"],
     ):
         assert cli.main(["evaluate", *argv, "--out", out, "--split", "test"]) == 0
-    assert [c[:2] for c in calls] == [("run", "d.st")] * 2
+    assert [c[:2] for c in calls] == [("runs/r", "d.st")] * 2
     for _, _, kwargs in calls:
         assert kwargs == {
             "split": "test",

@@ -1,8 +1,8 @@
-"""ONNX export (img2dmp export) and the README's NumPy rollout of a DMP file.
+"""ONNX export (img2dmp export) and docs/EXPORT.md's NumPy rollout of a DMP file.
 
 The exported graph is run by onnxruntime and compared with torch's own prediction
 (Predictor.predict_hypotheses: network, output normalisation, ranking) on images the
-export's check did not use; the README's lines are taken from README.md and run as they
+export's check did not use; docs/EXPORT.md's lines are taken from it and run as they
 are, against img2dmp.dmp.rollout.
 """
 
@@ -41,9 +41,9 @@ from img2dmp.export import (  # noqa: E402 (after the extra's check)
 ROOT = Path(__file__).resolve().parents[1]
 #: Largest difference onnxruntime vs torch the export must keep (float32 network).
 EXPORT_TOLERANCE = 1e-5
-#: The README's Runge-Kutta lines vs the exact rollout, in pixels: RK4 at 1000 steps per
+#: docs/EXPORT.md's Runge-Kutta lines vs the exact rollout, in pixels: RK4 at 1000 steps per
 #: movement is ~1e-6 px off, the rollout's cubic Hermite table ~2e-6 px.
-README_TOLERANCE_PX = 1e-4
+NUMPY_TOLERANCE_PX = 1e-4
 
 MODELS = {
     # The paper's kind: fully connected, one DMP, weights as outputs.
@@ -224,14 +224,14 @@ def test_without_the_extra_one_line_says_how_to_install_it(
     assert not out.exists()
 
 
-# --- the README's NumPy lines ----------------------------------------------------------
+# --- docs/EXPORT.md's NumPy lines -----------------------------------------------------
 
 
 def readme_numpy_lines() -> str:
-    """The code block after the ``numpy-rollout`` marker in README.md, as it stands."""
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    """The code block after the ``numpy-rollout`` marker in docs/EXPORT.md, as it stands."""
+    text = (ROOT / "docs" / "EXPORT.md").read_text(encoding="utf-8")
     found = re.search(r"<!-- numpy-rollout[^>]*-->\s*```python\n(.*?)```", text, re.S)
-    assert found, "README.md has no code block after the numpy-rollout marker"
+    assert found, "docs/EXPORT.md has no code block after the numpy-rollout marker"
     return found.group(1)
 
 
@@ -257,12 +257,12 @@ def test_readme_numpy_lines_integrate_the_dmp_file_as_the_rollout_does(tmp_path,
     (tmp_path / "pred").mkdir()
     worst = 0.0
     for params, cfg in _dmps():
-        save_dmp_json("pred/my_digit_dmp.json", params, cfg, (40, 40))
+        save_dmp_json("pred/digit_3_dmp.json", params, cfg, (40, 40))
         ns: dict = {}
-        exec(compile(code, "README.md", "exec"), ns)
+        exec(compile(code, "docs/EXPORT.md", "exec"), ns)
         t, path = ns["t"], ns["path"]
         assert t[0] == 0 and t[-1] == pytest.approx(float(params.tau))
         y = rollout(params.to_torch(), torch.as_tensor(t), cfg).numpy()
         assert path.shape == y.shape
         worst = max(worst, float(np.abs(path - y).max()))
-    assert worst <= README_TOLERANCE_PX, worst
+    assert worst <= NUMPY_TOLERANCE_PX, worst

@@ -174,6 +174,29 @@ def test_refinement_pulls_a_dmp_onto_the_ink_and_the_prior_holds_it_back():
     assert torch.equal(refine(z0, img, times, norm, cfg, RefineOptions(steps=0)), z0.double())
 
 
+def test_refinements_adam_is_torchs_adam_bit_for_bit():
+    # refine's own Adam (written out: torch.optim imports torch._dynamo, seconds of a
+    # one-image predict) against torch.optim.Adam on a non-convex function.
+    from img2dmp.nn.refine import _Adam
+
+    def cost(z):
+        weights = torch.arange(z.numel(), dtype=z.dtype).reshape(z.shape)
+        return ((z**3).sin() * weights).sum() + (z**2).sum()
+
+    z0 = torch.randn(6, 55, dtype=torch.float64, generator=torch.Generator().manual_seed(0))
+    ours, theirs = z0.clone().requires_grad_(), z0.clone().requires_grad_()
+    adam, opt = _Adam(ours, 0.02), torch.optim.Adam([theirs], lr=0.02)
+    for _ in range(30):
+        ours.grad = None
+        cost(ours).backward()
+        adam.step()
+        opt.zero_grad(set_to_none=True)
+        cost(theirs).backward()
+        opt.step()
+    assert not torch.equal(ours.detach(), z0)
+    assert torch.equal(ours.detach(), theirs.detach())
+
+
 @pytest.fixture(scope="module")
 def three_hypothesis_run(tmp_path_factory):
     from img2dmp.data.store import save_dataset

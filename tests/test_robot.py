@@ -461,7 +461,11 @@ def test_write_command_with_dmp_file(tmp_path, capsys):
     assert (paper.mean(axis=2) < 60).sum() > 200
 
 
-def test_write_command_rejects_image_without_model(tmp_path, capsys):
+def test_write_command_checks_an_image_without_model_before_the_shipped_model_reads_it(
+    tmp_path, capsys
+):
+    # Without --model the shipped model reads the image (tests/test_models.py); a file that
+    # is no image is still one line naming it, before any model is loaded.
     from img2dmp.cli import main
 
     image = tmp_path / "x.png"
@@ -469,7 +473,7 @@ def test_write_command_rejects_image_without_model(tmp_path, capsys):
     code = main(["write", str(image), "--out-dir", str(tmp_path), "--no-progress"])
     assert code == 2
     err = capsys.readouterr().err
-    assert "--model" in err or "pybullet" in err
+    assert f"{image} cannot be read as an image" in err or "pybullet" in err
 
 
 def test_missing_pybullet_gives_install_hint(monkeypatch):

@@ -46,6 +46,7 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save
 
 from . import __version__
+from . import models as _shipped
 from ._files import (  # noqa: F401 (file_digest re-exported)
     atomic_write_bytes,
     atomic_write_text,
@@ -174,7 +175,13 @@ def save_checkpoint(
 
 def resolve_checkpoint(path: str | os.PathLike, name: str = DEFAULT_NAME) -> Path:
     """Find the weights file a user means: a ``.safetensors`` file, its ``.json`` sidecar,
-    a run directory (its ``checkpoints/<name>.safetensors``) or a checkpoints directory."""
+    a run directory (its ``checkpoints/<name>.safetensors``), a checkpoints directory, or
+    the name of a model shipped with img2dmp (``digits-real``: its weights, their SHA-256
+    checked, :func:`img2dmp.models.resolve`; an unknown name is refused listing the
+    shipped ones)."""
+    shipped = _shipped.resolve(path)
+    if shipped is not None:
+        return _shipped.verified_weights(shipped)
     p = Path(path)
     if p.is_dir():
         for cand in (p / CHECKPOINT_DIR / f"{name}{SUFFIX}", p / f"{name}{SUFFIX}"):

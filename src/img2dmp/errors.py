@@ -22,6 +22,19 @@ class TrainingDiverged(Img2dmpError, FloatingPointError):
     """
 
 
+class UnknownModelError(Img2dmpError, FileNotFoundError):
+    """A model given by name (``--model NAME``) that is neither a file nor a directory
+    nor one of the models shipped with img2dmp; the message lists the shipped ones.
+
+    A ``FileNotFoundError`` too, as a missing run directory is.
+    """
+
+
+class ShippedModelError(Img2dmpError, ValueError):
+    """A model shipped with img2dmp is missing, unreadable or does not match the SHA-256
+    recorded beside it (a damaged installation), or its record is malformed."""
+
+
 def _bounded_repr(limit: int) -> reprlib.Repr:
     r = reprlib.Repr()
     r.maxlevel, r.maxlist, r.maxtuple, r.maxdict, r.maxset = 3, 8, 8, 8, 8
@@ -53,4 +66,4 @@ def show(value, limit: int = 60) -> str:
     return (text if len(text) <= limit else text[: limit - 3] + "...") + size
 
 
-__all__ = ["Img2dmpError", "TrainingDiverged", "show"]
+__all__ = ["Img2dmpError", "ShippedModelError", "TrainingDiverged", "UnknownModelError", "show"]

@@ -1,7 +1,9 @@
 """From images to DMPs with a trained network (the inference side of Pahič et al.).
 
-- :func:`load_model` - a trained network from a run directory or checkpoint, ready to
-  predict: ``load_model("runs/paper").predict("my_digit.png")``.
+- :func:`load_model` - a trained network, ready to predict: the shipped default model
+  (``load_model().predict("digit.png")``), a shipped one by name
+  (``load_model("digits-real")``, :mod:`img2dmp.models`), a run directory or checkpoint
+  (``load_model("runs/paper")``).
 - :class:`Predictor` - a loaded model: :meth:`Predictor.load` (run directory or
   checkpoint), :meth:`~Predictor.predict` (one image: path, PIL image or array of any
   size and polarity, to a :class:`Prediction`), :meth:`~Predictor.predict_images`
@@ -65,6 +67,8 @@ from .data.images import (  # noqa: F401  (re-exported: their home was this modu
 )
 from .dmp import DMPConfig, DMPParams, rollout
 from .dmp.affine import affine_dmp
+from .models import ShippedModel, default_model
+from .models import resolve as resolve_shipped
 from .nn import ModelConfig, ParamNormaliser, build_model
 from .nn.device import place_model
 from .nn.inference import dmp_trajectories, network_outputs, rollout_outputs
@@ -150,6 +154,9 @@ class Predictor:
         If set, every prediction is refined on its image (:func:`img2dmp.nn.refine.refine`:
         a few gradient steps that pull the DMP onto the ink near the network's output);
         None (default): the network's output as it is.
+    shipped : ShippedModel or None
+        The model shipped with img2dmp this is (:mod:`img2dmp.models`: its name, card
+        and recommended settings), None for a run directory or checkpoint.
     """
 
     def __init__(
@@ -159,6 +166,7 @@ class Predictor:
         dmp_config: DMPConfig,
         meta: dict,
         refine_options: RefineOptions | None = None,
+        shipped: ShippedModel | None = None,
     ):
         self.model = model.eval()
         self.normaliser = normaliser
@@ -166,6 +174,7 @@ class Predictor:
         self.meta = meta
         self.image_size = tuple(int(s) for s in model.image_size)
         self.refine_options = refine_options
+        self.shipped = shipped
 
     def _refined(self, z: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         """``z [N, P]`` refined on images ``x [N, H, W]`` (unchanged without refinement),
@@ -180,7 +189,10 @@ class Predictor:
 
     @classmethod
     def load(cls, path: str | os.PathLike, name: str = "best", device: str = "cpu") -> Predictor:
-        """Load from a run directory (its ``checkpoints/<name>``) or a checkpoint file.
+        """Load from a run directory (its ``checkpoints/<name>``), a checkpoint file or
+        the name of a shipped model (``"digits-real"``, :mod:`img2dmp.models`; its file's
+        SHA-256 checked). No refinement is set (:func:`load_model` applies a shipped
+        model's recommended settings).
 
         ``device``: where the network runs (``"cpu"``, ``"cuda"``; inputs and outputs stay
         on the CPU, :func:`img2dmp.nn.device.place_model`).
@@ -202,7 +214,8 @@ class Predictor:
             )
         model = build_model(mcfg)
         load_weights_into(model, ckpt)
-        return cls(place_model(model, device), normaliser, dmp_config, ckpt.meta)
+        shipped = resolve_shipped(path)
+        return cls(place_model(model, device), normaliser, dmp_config, ckpt.meta, shipped=shipped)
 
     @property
     def margin(self) -> float:
@@ -601,26 +614,43 @@ def trajectory_csv(probabilities, times, path_model, path_image) -> str:
 
 
 def load_model(
-    path: str | os.PathLike, *, refine: int = 0, checkpoint: str = "best", device: str = "cpu"
+    path: str | os.PathLike | None = None,
+    *,
+    refine: int | None = None,
+    checkpoint: str = "best",
+    device: str = "cpu",
 ) -> Predictor:
-    """A trained network, ready to predict: ``load_model(run).predict(image)``.
+    """A trained network, ready to predict: ``load_model().predict(image)``.
 
     Parameters
     ----------
-    path : run directory (its ``checkpoints/<checkpoint>``) or checkpoint file
-    refine : int
-        Gradient steps that pull every predicted DMP onto the ink of its image (0: the
-        network's output as it is; ``img2dmp predict --refine``).
+    path : str, path-like or None
+        The name of a model shipped with img2dmp (``"digits-real"``; ``img2dmp models``
+        lists them), a run directory (its ``checkpoints/<checkpoint>``) or a checkpoint
+        file. None: the default shipped model (:func:`img2dmp.models.default_model`).
+    refine : int or None
+        Gradient steps that pull every predicted DMP onto the ink of its image
+        (``img2dmp predict --refine``; 0: the network's output as it is). None: what a
+        shipped model's card recommends (30 for ``digits-real``), 0 for a run directory
+        or checkpoint.
     checkpoint : str
         Which checkpoint of a run directory ("best" or "last").
     device : str
         Where the network runs ("cpu", "cuda"; :meth:`Predictor.load`).
 
-    Raises ``FileNotFoundError`` if nothing is there, :class:`CheckpointError` (a
-    ``ValueError``) for a corrupt or foreign file and ``ValueError`` for a bad ``refine``.
+    Raises ``FileNotFoundError`` if nothing is there (an
+    :class:`~img2dmp.errors.UnknownModelError`, listing the shipped models, for an
+    unknown name), :class:`CheckpointError` (a ``ValueError``) for a corrupt or foreign
+    file, :class:`~img2dmp.errors.ShippedModelError` for a shipped file that does not
+    match its recorded SHA-256, and ``ValueError`` for a bad ``refine``.
     """
-    steps = check_count("refine", refine, 0, MAX_REFINE_STEPS)
-    predictor = Predictor.load(path, checkpoint, device)
+    if refine is not None:  # before the model is read
+        check_count("refine", refine, 0, MAX_REFINE_STEPS)
+    source = default_model().name if path is None else path
+    predictor = Predictor.load(source, checkpoint, device)
+    if refine is None:
+        refine = predictor.shipped.refine if predictor.shipped is not None else 0
+    steps = int(refine)
     if steps:
         predictor.refine_options = RefineOptions(steps=steps)
     return predictor

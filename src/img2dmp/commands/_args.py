@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 from collections.abc import Iterable
 from contextlib import contextmanager
 from importlib import resources
@@ -24,6 +25,10 @@ from pathlib import Path
 from .._files import check_readable
 
 DIGITS_EXAMPLES = '2, 2,3, "1 4 7", 0-9 or 0-3,8'
+#: The default shipped model and the refinement its card recommends, as the help words
+#: them (img2dmp.models.default_model(); a test keeps them equal).
+DEFAULT_MODEL_NAME = "digits-real"
+DEFAULT_REFINE = 30
 
 
 # --- digits ---------------------------------------------------------------------------
@@ -115,16 +120,61 @@ def add_digits_or_classes(p: argparse.ArgumentParser, digits_help: str, classes_
 
 
 def add_model(
-    p: argparse.ArgumentParser, *, required: bool = False, help: str = "", dest: str = "model"
+    p: argparse.ArgumentParser,
+    *,
+    required: bool = False,
+    help: str = "",
+    dest: str = "model",
+    default_shipped: bool = False,
 ) -> None:
-    """``--model RUN``: a trained network, its run directory or checkpoint file."""
+    """``--model RUN|NAME``: a trained network, its run directory or checkpoint file, or
+    the name of a model shipped with img2dmp (:mod:`img2dmp.models`); with
+    ``default_shipped`` the help says that none given means the default shipped model."""
+    default = f" (default: the shipped model {DEFAULT_MODEL_NAME})" if default_shipped else ""
     p.add_argument(
         "--model",
         dest=dest,
         required=required,
-        metavar="RUN",
-        help=help or "trained network: run directory or checkpoint (.safetensors)",
+        metavar="RUN|NAME",
+        help=help
+        or "trained network: run directory, checkpoint (.safetensors) or the name of a "
+        f"model shipped with img2dmp (img2dmp models lists them){default}",
     )
+
+
+def model_or_default(model):
+    """``--model`` as given, or the name of the default shipped model when none is."""
+    if model is not None:
+        return model
+    from ..models import default_model
+
+    return default_model().name
+
+
+def one_thread() -> None:
+    """Run torch on one thread, as ``serve`` does: a few images make tensors so small
+    (refinement: [4, 100, 2] paths) that a second thread costs more in synchronisation
+    than it computes; on the 2-core development machine refining one image took 0.29 s
+    on one thread and 4-8 s on two while other jobs ran (docs/CLI.md)."""
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def refine_steps(args, model, command: str) -> int:
+    """``--refine`` as given, or else the steps a shipped model's card recommends (0 for a
+    run directory), said in one note on standard error when they are not 0."""
+    if args.refine is not None:
+        return args.refine
+    from ..models import resolve
+
+    shipped = resolve(model)
+    steps = shipped.refine if shipped is not None else 0
+    if steps:
+        print(f"img2dmp {command}: note: model {shipped.name} with --refine {steps}, as its "
+              "card recommends (--refine 0: the network's output as it is)",
+              file=sys.stderr)  # fmt: skip
+    return steps
 
 
 def add_data(p: argparse.ArgumentParser, *, help: str = "", dest: str = "data") -> None:
@@ -345,6 +395,11 @@ def model_inputs(path, what: str = "model") -> list[tuple[str, Path]]:
     into ``RUN/evaluation`` by default)."""
     if path is None:
         return []
+    from ..models import RECORD_FILE, resolve
+
+    shipped = resolve(path)
+    if shipped is not None:  # the package's own files
+        return [(what, shipped.weights), (what, shipped.folder / RECORD_FILE)]
     p = Path(path)
     if p.is_dir():
         return [(what, p / "checkpoints"), (what, p / "best.safetensors"), (what, p / "best.json")]
@@ -422,6 +477,9 @@ __all__ = [
     "add_data",
     "add_digits",
     "add_model",
+    "model_or_default",
+    "one_thread",
+    "refine_steps",
     "add_no_progress",
     "add_set",
     "int_at_least",
@@ -434,14 +492,18 @@ __all__ = [
 
 def add_refine(p: argparse.ArgumentParser) -> None:
     """``--refine STEPS``: gradient steps that pull each predicted DMP onto the ink of its
-    image near the network's output (:mod:`img2dmp.nn.refine`); 0 = the network's output."""
+    image near the network's output (:mod:`img2dmp.nn.refine`); 0 = the network's output;
+    not given (None): the model's recommendation, :func:`refine_steps`."""
     p.add_argument(
         "--refine",
         metavar="STEPS",
         type=int_at_least(0),
-        default=0,
+        default=None,
         help="refine each predicted DMP on its image with this many gradient steps that "
-        "pull it onto the ink near the network's output (0 = the network's output as it is)",
+        "pull it onto the ink near the network's output (0 = the network's output as it "
+        f"is); default: what a shipped model's card recommends ({DEFAULT_REFINE} for "
+        f"{DEFAULT_MODEL_NAME}), 0 for "
+        "a run directory or checkpoint",
     )
 
 

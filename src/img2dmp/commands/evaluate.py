@@ -13,10 +13,13 @@ Fig. 4 of the paper) to --out; those files, if already there, are replaced only 
 --force (checked before the evaluation starts).
 
   img2dmp evaluate --model runs/paper --data digits.safetensors --digits 2,3
+  img2dmp evaluate --model digits-real --data runs/real/data.safetensors --split test
   img2dmp evaluate runs/paper digits.safetensors --digits 2 3     (the older form)
 
 The model and the data are given with --model and --data, as in the other commands, or
-as the two positional arguments MODEL DATA; if both forms are used they must agree.
+as the two positional arguments MODEL DATA; if both forms are used they must agree. MODEL
+is a run directory, a checkpoint or a shipped model's name (img2dmp models), which is
+evaluated with the refinement its card recommends unless --refine says otherwise.
 """
 
 from __future__ import annotations
@@ -101,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
     inputs = [("data set", data), *_args.model_inputs(model)]
     _args.check_outputs([(Path(out) / n, None) for n in names], args.force, inputs)
     _args.check_device(args.device)
+    refine = _args.refine_steps(args, model, "evaluate")
     res = evaluate(
         model,
         data,
@@ -109,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
         n_figures=args.figures,
         digits=list(args.digits) if args.digits is not None else None,
         classes=list(args.classes) if args.classes is not None else None,
-        refine=args.refine,
+        refine=refine,
         device=args.device,
     )
     # Table I's table, then (in the same text) the path measures' table.

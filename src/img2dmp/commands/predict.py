@@ -1,5 +1,9 @@
 """Predict the DMP that writes the digit in each image (PNG/JPEG of any size).
 
+--model is a shipped model's name (img2dmp models lists them), a run directory or a
+checkpoint; without it the default shipped model digits-real reads the images, refined
+with the 30 steps its card recommends (--refine 0 for the network's output as it is).
+
 Each image is brought to the model's input as the training images were made (polarity
 from the border, crop to the ink, pad to square, strokes thickened or thinned to the
 training images' pen width, resize, ink = 1). Without --out the DMP files are printed;
@@ -24,7 +28,8 @@ already in --out are replaced only with --force, also checked before anything is
 
 A network with several hypotheses (model.hypotheses) gives all of them, ranked; the
 overlays draw the top one bold. --refine N pulls each DMP onto the ink of its image with N
-gradient steps near the network's output (img2dmp.nn.refine).
+gradient steps near the network's output (img2dmp.nn.refine); not given, a shipped model
+uses its card's recommendation and a run directory 0.
 
 Every prediction carries a fit score ("fit": the share of its path on the ink and of the
 ink its path writes) and "flags" for what looks wrong ("off_ink", "unexplained_ink",
@@ -35,9 +40,10 @@ each predicted where it stands) and writes NAME_page.json (format "img2dmp-page"
 docs/PAGE.md) and NAME_page.png (the page with every box and path). --explain also writes
 NAME_explain.png: each step that separates the ink from the paper.
 
+  img2dmp predict examples/samples/digit_3.png --out pred --overlay
+  img2dmp write --dmp pred/digit_3_dmp.json
   img2dmp predict --model runs/paper my_digit.jpg --out pred --overlay
-  img2dmp write --dmp pred/my_digit_dmp.json
-  img2dmp predict --model runs/real/run --refine 30 page.jpg --page --out pages
+  img2dmp predict examples/samples/page.jpg --page --out pages
 """
 
 from __future__ import annotations
@@ -55,7 +61,7 @@ MAX_POINTS = 100_000
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("images", nargs="+", metavar="IMAGE", help="PNG or JPEG files")
-    _args.add_model(p, required=True)
+    _args.add_model(p, default_shipped=True)
     p.add_argument(
         "--out", metavar="DIR", help="write JSON/CSV (and PNG) files here instead of printing"
     )
@@ -180,12 +186,15 @@ def run(args: argparse.Namespace) -> int:
     _args.check_inputs(args.images, "image")
     if args.out:
         _args.check_output_dir(args.out, "--out")
-    inputs = [("image", path) for path in args.images] + _args.model_inputs(args.model)
+    model = _args.model_or_default(args.model)
+    _args.one_thread()
+    inputs = [("image", path) for path in args.images] + _args.model_inputs(model)
     _args.check_outputs(output_files(args), args.force, inputs)
     _args.check_images(args.images)
-    predictor = Predictor.load(args.model, device=_args.check_device(args.device))
-    if args.refine:
-        predictor.refine_options = RefineOptions(steps=args.refine)
+    predictor = Predictor.load(model, device=_args.check_device(args.device))
+    refine = _args.refine_steps(args, model, "predict")
+    if refine:
+        predictor.refine_options = RefineOptions(steps=refine)
     if args.page:
         return _run_pages(args, predictor)
     predictions = []

@@ -18,8 +18,11 @@ pages (its Origin), else 403.
 
 Needs the optional extra: pip install 'img2dmp[web]' (and img2dmp[robot] for the arm).
 
-  img2dmp serve --model out/demo/run
-  img2dmp serve --model runs/real/run --model out/demo/run --mnist ../shared/data/mnist \\
+Without --model the default shipped model (digits-real, img2dmp models) answers, refined
+as its card recommends (--refine 30) unless --refine says otherwise.
+
+  img2dmp serve
+  img2dmp serve --model digits-real --model out/demo/run --mnist ../shared/data/mnist \\
       --data-dir recordings/
 """
 
@@ -34,8 +37,6 @@ import sys
 from . import _args
 
 HELP = "the browser front end: draw, predict, write with the robot, record"
-#: The model served when no --model is given, if it exists (what `make demo` trains).
-DEFAULT_MODEL = os.path.join("out", "demo", "run")
 #: Largest photo of a page, MB (img2dmp.web.pages.PAGE_UPLOAD_MB; a literal: this module
 #: must not import torch).
 PAGE_UPLOAD_MB = 64.0
@@ -46,9 +47,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--model",
         action="append",
         default=[],
-        metavar="RUN",
-        help=f"run directory (or checkpoint) to serve; repeat for several, the first is the "
-        f"default (none given: {DEFAULT_MODEL} if it exists)",
+        metavar="RUN|NAME",
+        help="run directory, checkpoint or shipped model's name to serve; repeat for "
+        "several, the first is the default (none given: the shipped model "
+        f"{_args.DEFAULT_MODEL_NAME})",
     )
     source = p.add_mutually_exclusive_group()
     source.add_argument(
@@ -86,16 +88,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _models(args) -> list[str]:
-    if args.model:
-        return list(args.model)
-    if os.path.isdir(DEFAULT_MODEL):
-        return [DEFAULT_MODEL]
-    print(
-        f"img2dmp serve: note: no --model given and no {DEFAULT_MODEL}; the Draw page cannot "
-        "predict (train one with `img2dmp demo --out out/demo`)",
-        file=sys.stderr,
-    )
-    return []
+    """``--model`` as given, or the default shipped model."""
+    return list(args.model) if args.model else [_args.model_or_default(None)]
 
 
 def _socket(host: str, port: int):

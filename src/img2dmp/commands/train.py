@@ -76,9 +76,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true", help="the older name of --force")
     p.add_argument(
         "--init-from",
-        metavar="RUN",
-        help="start from the weights (and output normalisation) of this run directory or "
-        "checkpoint instead of random weights: fine-tuning (= init_from)",
+        metavar="RUN|NAME",
+        help="start from the weights (and output normalisation) of this run directory, "
+        "checkpoint or shipped model (e.g. digits-real) instead of random weights: "
+        "fine-tuning (= init_from)",
     )
     _args.add_device(p, "the network's training (its weights, forward and backward passes)")
     _args.add_no_progress(p)

@@ -1,7 +1,8 @@
 """Write a digit with a simulated KUKA LBR iiwa (pybullet): joint-torque control, IK in the
 plane and an admittance loop holding the pen's contact force.
 
-Input is either images and a trained model (``IMAGE ... --model CKPT``) or one DMP file
+Input is either images and a trained model (``IMAGE ... [--model RUN|NAME]``; without
+``--model`` the shipped model digits-real, refined as its card recommends) or one DMP file
 (``--dmp params.json``: the one DMP file of img2dmp, e.g. ``NAME_dmp.json`` of
 ``img2dmp predict --out``; format in docs/ROBOT.md). The robot writes the top hypothesis,
 or the one of rank ``--hypothesis K``, in the frame of the file's ``image_size`` (for a
@@ -56,7 +57,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="image(s) of a digit; with --page one page document (PAGE.json) or, with "
         "--model, one photo of a page",
     )
-    parser.add_argument("--model", help="trained model: run directory or checkpoint (with IMAGE)")
+    _args.add_model(
+        parser,
+        help="trained network that reads IMAGE: run directory, checkpoint or the name of a "
+        f"model shipped with img2dmp (default: the shipped model {_args.DEFAULT_MODEL_NAME})",
+    )
     parser.add_argument("--dmp", metavar="JSON", help="one DMP to write (instead of IMAGE)")
     parser.add_argument(
         "--image", metavar="PNG", help="with --dmp: an image to show next to the result"
@@ -226,13 +231,7 @@ def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
         params, config, size = load_dmp_json(args.dmp, hypothesis=args.hypothesis, image_size=size)
         image = _read_image(args.image) if args.image else None
         return [(_name(args.dmp), params, config, size, image)]
-    from img2dmp.predict import Predictor
-
-    predictor = Predictor.load(args.model)
-    if args.refine:
-        from img2dmp.nn.refine import RefineOptions
-
-        predictor.refine_options = RefineOptions(steps=args.refine)
+    predictor = _predictor(args)
     k, n = args.hypothesis, predictor.n_hypotheses
     if k > n:
         raise ValueError(
@@ -252,6 +251,31 @@ def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
     return out
 
 
+def _predictor(args):
+    """The network of ``--model``, refined as ``--refine`` says (or as a shipped model's
+    card recommends)."""
+    from img2dmp.predict import Predictor
+
+    _args.one_thread()
+    predictor = Predictor.load(args.model)
+    refine = _args.refine_steps(args, args.model, "write")
+    if refine:
+        from img2dmp.nn.refine import RefineOptions
+
+        predictor.refine_options = RefineOptions(steps=refine)
+    return predictor
+
+
+def _default_model(args) -> None:
+    """Images without ``--model`` are read by the default shipped model (a page document,
+    ``PAGE.json --page``, and ``--dmp`` need no model)."""
+    if args.model or args.dmp or not args.images:
+        return
+    if args.page and args.images[0].lower().endswith(".json"):
+        return
+    args.model = _args.model_or_default(None)
+
+
 def _name(path) -> str:
     return os.path.splitext(os.path.basename(path))[0]
 
@@ -259,6 +283,7 @@ def _name(path) -> str:
 def check_files(args) -> None:
     """The inputs (there, readable, images that open) and the outputs (the overwrite rule,
     one name per input), before anything is loaded or simulated."""
+    _default_model(args)
     if args.page:
         _check_page_files(args)
         return
@@ -271,9 +296,7 @@ def check_files(args) -> None:
     if args.dmp and args.images:
         raise ValueError("give either IMAGE ... --model or --dmp, not both")
     if not args.dmp and not args.images:
-        raise ValueError("nothing to write: give IMAGE ... --model CKPT, or --dmp params.json")
-    if args.images and not args.model:
-        raise ValueError("IMAGE input needs --model CKPT (a trained network)")
+        raise ValueError("nothing to write: give IMAGE ... [--model RUN], or --dmp params.json")
     if args.image_size and not args.dmp:
         raise ValueError("--image-size is for --dmp files (old img2dmp predict records)")
     inputs = [args.dmp] if args.dmp else list(args.images)
@@ -450,13 +473,7 @@ def _page_input(args):
     if not args.model:
         page = read_page(source)
         return _name(source), page, _page_photo(page, os.path.dirname(source))
-    from img2dmp.predict import Predictor
-
-    predictor = Predictor.load(args.model)
-    if args.refine:
-        from img2dmp.nn.refine import RefineOptions
-
-        predictor.refine_options = RefineOptions(steps=args.refine)
+    predictor = _predictor(args)
     with _args.reading_image(source):
         document = predictor.predict_page(source).to_document()
     try:  # checked as the file `img2dmp predict --page` would write would be read

@@ -89,7 +89,7 @@ def refine(
     t = times.detach().to(torch.float64)
     dist = ink_distance_map(imgs)
     z = z0.clone().requires_grad_()
-    opt = torch.optim.Adam([z], lr=o.lr)
+    adam = _Adam(z, o.lr)
     with torch.enable_grad():
         for _ in range(int(o.steps)):
             y = dmp_trajectory(z, t, normaliser, config)  # [B, T, d]
@@ -100,10 +100,34 @@ def refine(
                 j = j + o.coverage_weight * ink_coverage(
                     y, imgs, tolerance_px=o.coverage_tolerance_px
                 )
-            opt.zero_grad(set_to_none=True)
+            z.grad = None
             j.sum().backward()  # samples are independent: the sum's gradient is each one's
-            opt.step()
+            adam.step()
     return z.detach()
+
+
+class _Adam:
+    """Adam (Kingma and Ba 2015) on one tensor, the same arithmetic as
+    ``torch.optim.Adam(lr=lr)`` with its defaults on the CPU (betas 0.9 and 0.999, eps
+    1e-8; ``tests/test_ink_and_hypotheses.py`` compares them bit for bit). Written out
+    because creating a ``torch.optim`` optimiser imports ``torch._dynamo``, about 1.6 s
+    of a one-image ``img2dmp predict``."""
+
+    def __init__(self, param: torch.Tensor, lr: float, betas=(0.9, 0.999), eps: float = 1e-8):
+        self.param, self.lr, self.betas, self.eps = param, float(lr), betas, eps
+        self.m = torch.zeros_like(param)  # first moment
+        self.v = torch.zeros_like(param)  # second moment
+        self.n = 0
+
+    @torch.no_grad()
+    def step(self) -> None:
+        (b1, b2), g = self.betas, self.param.grad
+        self.n += 1
+        self.m.lerp_(g, 1 - b1)
+        self.v.mul_(b2).addcmul_(g, g, value=1 - b2)
+        bias1, bias2 = 1 - b1**self.n, 1 - b2**self.n
+        denom = (self.v.sqrt() / bias2**0.5).add_(self.eps)
+        self.param.addcdiv_(self.m, denom, value=-self.lr / bias1)
 
 
 __all__ = ["RefineOptions", "refine"]

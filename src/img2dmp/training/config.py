@@ -265,13 +265,14 @@ class TrainConfig:
     intra-op threads (None: torch's default). ``eval_batch_size``: images per validation
     batch. ``progress``: bars on a terminal, a line per epoch otherwise.
 
-    ``init_from`` (CLI ``--init-from``): a run directory or checkpoint file whose weights
-    start this run instead of random ones (fine-tuning a pre-trained network). The
-    architecture, the image size and the DMP configuration (N, d, scaling) must match. The
-    checkpoint's output normalisation is **kept**, not refitted on the new data: the
-    network's last layer speaks in those units, so keeping them makes the first
-    fine-tuning step start from exactly the pre-trained network's predictions. Only the
-    weights are taken; the optimiser, schedule and epoch count start afresh.
+    ``init_from`` (CLI ``--init-from``): a run directory, checkpoint file or shipped model's
+    name (``digits-real``, :mod:`img2dmp.models`) whose weights start this run instead of
+    random ones (fine-tuning a pre-trained network). The architecture, the image size and
+    the DMP configuration (N, d, scaling) must match. The checkpoint's output normalisation
+    is **kept**, not refitted on the new data: the network's last layer speaks in those
+    units, so keeping them makes the first fine-tuning step start from exactly the
+    pre-trained network's predictions. Only the weights are taken; the optimiser, schedule and
+    epoch count start afresh.
     """
 
     model: ModelConfig = field(default_factory=ModelConfig)

@@ -352,7 +352,7 @@ def create_app(
     jobs_dir=None,
     static_dir=None,
     max_page_mb: float = PAGE_UPLOAD_MB,
-    refine: int = 0,
+    refine: int | None = None,
     allowed_hosts=(),
     body_timeout_s: float = BODY_TIMEOUT_S,
 ) -> FastAPI:
@@ -361,8 +361,8 @@ def create_app(
     Parameters
     ----------
     models : sequence
-        Run directories or checkpoints (or ``(id, Predictor)`` pairs); the first is the
-        default. None loaded: predictions answer 409.
+        Names of shipped models, run directories or checkpoints (or ``(id, Predictor)``
+        pairs); the first is the default. None loaded: predictions answer 409.
     mnist, images : path-like, optional
         The Record page's images: MNIST's training IDX files, or a folder of PNG/JPEG
         files (not both).
@@ -378,9 +378,10 @@ def create_app(
         The pages (default: the package's ``web/static``).
     max_page_mb : float
         Largest photo of a page (``POST /api/predict_page``), MB.
-    refine : int
+    refine : int or None
         Gradient steps every prediction of a model loaded from a path is refined with on
-        its ink (``img2dmp serve --refine``; 0: the network's output).
+        its ink (``img2dmp serve --refine``; 0: the network's output); None: each model's
+        recommendation (a shipped model's card's, 0 for a run directory).
     allowed_hosts : sequence of str
         Names the server answers to besides :data:`LOOPBACK_HOSTS` (``Host`` header;
         ``img2dmp serve`` gives its ``--host`` and ``--allowed-host``), see

@@ -60,10 +60,11 @@ def model_id(path: str | os.PathLike) -> str:
     return p.parent.name if p.name == "run" and p.parent.name else p.name
 
 
-def load_models(sources, refine: int = 0) -> dict[str, LoadedModel]:
-    """Every model of ``sources`` (paths, or ``(id, Predictor)`` pairs), in order, by id;
-    those loaded from paths refine their predictions with ``refine`` steps
-    (``img2dmp serve --refine``).
+def load_models(sources, refine: int | None = None) -> dict[str, LoadedModel]:
+    """Every model of ``sources`` (shipped models' names, paths, or ``(id, Predictor)``
+    pairs), in order, by id; those loaded by name or path refine their predictions with
+    ``refine`` steps (``img2dmp serve --refine``; None: as a shipped model's card
+    recommends, 0 for a run directory, :func:`img2dmp.predict.load_model`).
 
     Raises ``FileNotFoundError`` or ``ValueError`` (from :func:`img2dmp.predict.load_model`)
     naming a path that holds no model.

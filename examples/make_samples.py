@@ -1,0 +1,94 @@
+"""The sample images in ``examples/samples/``, drawn by img2dmp itself (no MNIST, no
+recorded paths): what the README's commands and the tutorial read.
+
+- ``digit_3.png``: a 3 from the synthetic generator's template (its random variation and
+  minimum-jerk timing), rendered with our own pen (``img2dmp.data.render.render_paths``)
+  as dark ink on white, 160 x 160 pixels.
+- ``digit_5_photo.jpg``: a 5 of the same kind written in blue on a generated photo of
+  tinted ruled paper, unevenly lit, blurred, noisy, saved as JPEG
+  (``img2dmp.data.clutter``: ``random_paper``, ``put_ink``, ``photo_finish``).
+- ``page.jpg``: a generated photo of a page with two lines of synthetic digits on
+  squared paper (``img2dmp.data.clutter.generate_page``), for ``predict --page``.
+
+Every draw comes from one seeded generator, so the same versions of img2dmp and its
+packages give the same images. Run from the repository's root:
+
+    python examples/make_samples.py               # writes examples/samples/
+    python examples/make_samples.py --out DIR     # elsewhere
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from img2dmp.data.clutter import (
+    PageOptions,
+    PaperOptions,
+    generate_page,
+    page_sources_from_synthetic,
+    photo_finish,
+    put_ink,
+    random_paper,
+)
+from img2dmp.data.render import render_paths
+from img2dmp.data.synthetic import SyntheticConfig, sample_unit_paths
+
+HERE = Path(__file__).resolve().parent
+SEED = 2026
+
+
+def drawn_digit(rng, digit: int, size: int, pen_px: float, margin: float = 0.15) -> np.ndarray:
+    """Ink ``float32 [size, size]`` (ink = 1) of one synthetic ``digit`` filling the
+    image but for ``margin`` on each side."""
+    path = sample_unit_paths(digit, 1, SyntheticConfig(), rng)[0]  # [T, 2], y down
+    lo, hi = path.min(0), path.max(0)
+    scale = (1 - 2 * margin) * size / float(max(hi - lo))
+    xy = (path - (lo + hi) / 2) * scale + (size - 1) / 2
+    return render_paths(xy[None], (size, size), pen_width_px=pen_px)[0].numpy()
+
+
+def digit_on_white(rng) -> Image.Image:
+    ink = drawn_digit(rng, 3, 160, pen_px=9.0)
+    return Image.fromarray(np.round(255 * (1 - ink)).astype(np.uint8))
+
+
+def digit_photo(rng) -> Image.Image:
+    size = (200, 200)
+    options = PaperOptions(tints=("cream",), spacing_px=(34.0, 34.0), margin_probability=0.0)
+    paper = random_paper(rng, size, "ruled", options=options)
+    ink = drawn_digit(rng, 5, size[0], pen_px=7.0, margin=0.22)
+    scene = put_ink(paper.rgb, ink, (0.1, 0.15, 0.55), opacity=0.95)
+    return Image.fromarray(photo_finish(rng, scene, jpeg_quality=85, blur_px=0.6, noise=0.01))
+
+
+def page_photo(rng) -> Image.Image:
+    digits = page_sources_from_synthetic(rng, 8)
+    options = PageOptions(n_lines=(2, 2), char_height_px=(60.0, 60.0), word_length=(4, 4))
+    page = generate_page(rng, digits, kind="squared", options=options, pen_width_px=4.0)
+    return Image.fromarray(page.image)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", type=Path, default=HERE / "samples", help="output folder")
+    args = p.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(SEED)
+    images = {
+        "digit_3.png": digit_on_white(rng),
+        "digit_5_photo.jpg": digit_photo(rng),
+        "page.jpg": page_photo(rng),
+    }
+    for name, image in images.items():
+        path = args.out / name
+        image.save(path, quality=90) if path.suffix == ".jpg" else image.save(path)
+        print(f"{path}: {image.width} x {image.height}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,114 @@
+"""Put a trained run into the package as a shipped model (``src/img2dmp/models/NAME/``).
+
+Copies the run's best checkpoint byte for byte to ``model.safetensors`` and writes
+``model.json`` (format ``img2dmp-shipped-model``): the file's size and SHA-256, the
+figures of an ``img2dmp evaluate`` of that checkpoint (its ``evaluation.json``: the test
+part, the refinement it ran with), the settings the card recommends and where the model
+came from. ``CARD.md`` beside them is written by hand from these (``tests/test_models.py``
+checks that its figures are ``model.json``'s). Each shipped file must stay under 3 MB.
+
+Run from the repository's root, after ``make model-real``::
+
+    python experiments/ship_model.py --run runs/real/run \\
+        --evaluation runs/real/evaluation/evaluation.json --name digits-real --default \\
+        --summary "handwritten digits 0-9 ..." --provenance train_revision=0d7c727 ...
+
+A field of an existing ``model.json`` that is not given again (summary, provenance,
+recommended settings, default) is kept.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+from pathlib import Path
+
+from _provenance import run_record
+from img2dmp._files import atomic_write_text, file_digest
+from img2dmp.checkpoint import read_checkpoint_meta, resolve_checkpoint
+from img2dmp.models import FORMAT, RECORD_FILE, VERSION, WEIGHTS_FILE, is_model_name
+
+ROOT = Path(__file__).resolve().parents[1]
+MODELS = ROOT / "src" / "img2dmp" / "models"
+MAX_BYTES = 3 * 1024 * 1024
+
+
+def figures(evaluation: dict, command: str) -> dict:
+    """The card's figures from an ``evaluation.json`` (means over its samples)."""
+    best = evaluation["best_of_k"]
+    return {
+        "data": evaluation["dataset"],
+        "dataset_sha256": evaluation["dataset_sha256"],
+        "split": evaluation["split"],
+        "n": evaluation["overall"]["n"],
+        "refine": evaluation["refine_steps"],
+        "chamfer_px": round(evaluation["chamfer"]["overall"]["mean"], 4),
+        "path_on_ink": round(evaluation["on_ink"]["overall"]["mean"], 4),
+        "path_error_px": round(evaluation["path_error"]["overall"]["mean"], 4),
+        "table1_error_px": round(evaluation["overall"]["mean"], 4),
+        "best_of_k_path_error_px": round(best["path_error"]["overall"]["mean"], 4),
+        "human_on_ink": round(evaluation["on_ink_human"]["overall"]["mean"], 4),
+        "command": command,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--run", required=True, help="run directory or checkpoint")
+    p.add_argument("--evaluation", required=True, help="its evaluation.json")
+    p.add_argument("--name", required=True)
+    p.add_argument("--summary")
+    p.add_argument("--default", action="store_true", help="the model used when none is given")
+    p.add_argument("--refine", type=int, help="recommended refinement steps")
+    p.add_argument("--provenance", nargs="*", default=[], metavar="KEY=VALUE")
+    args = p.parse_args(argv)
+    if not is_model_name(args.name):
+        p.error(f"--name {args.name!r} is not a model name (letters, digits, - and _)")
+    source = resolve_checkpoint(args.run)
+    meta = read_checkpoint_meta(source)  # verified: a damaged checkpoint is not shipped
+    if source.stat().st_size > MAX_BYTES:
+        p.error(f"{source} has {source.stat().st_size:,} bytes, more than {MAX_BYTES:,}")
+    evaluation = json.loads(Path(args.evaluation).read_text(encoding="utf-8"))
+    folder = MODELS / args.name
+    old_path = folder / RECORD_FILE
+    old = json.loads(old_path.read_text(encoding="utf-8")) if old_path.is_file() else {}
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(source, folder / WEIGHTS_FILE)
+    command = (
+        f"img2dmp evaluate --model {evaluation['model']} --data {evaluation['dataset']} "
+        f"--split {evaluation['split']} --refine {evaluation['refine_steps']}"
+    )
+    provenance = dict(old.get("provenance", {}))
+    provenance.update(kv.split("=", 1) for kv in args.provenance)
+    record = {
+        "format": FORMAT,
+        "version": VERSION,
+        "name": args.name,
+        "default": bool(args.default or old.get("default", False)),
+        "summary": args.summary or old.get("summary", ""),
+        "weights": {
+            "file": WEIGHTS_FILE,
+            "bytes": (folder / WEIGHTS_FILE).stat().st_size,
+            "sha256": file_digest(folder / WEIGHTS_FILE),
+            "record_sha256": meta["record_sha256"],
+        },
+        "recommended": {"refine": args.refine}
+        if args.refine is not None
+        else old.get("recommended", {}),
+        "figures": figures(evaluation, command),
+        "provenance": provenance,
+        "shipped_by": run_record("ship_model.py", sys.argv[1:] if argv is None else argv),
+        "card": "CARD.md",
+    }
+    atomic_write_text(old_path, json.dumps(record, indent=1) + "\n")
+    print(
+        f"{folder}: {WEIGHTS_FILE} ({record['weights']['bytes']:,} bytes, sha256 "
+        f"{record['weights']['sha256'][:12]}...), {RECORD_FILE}; write CARD.md from it"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

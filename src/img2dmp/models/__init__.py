@@ -1,0 +1,256 @@
+"""Trained networks shipped inside the package, named like ``--model digits-real``.
+
+A shipped model is a folder ``img2dmp/models/NAME/`` of three files:
+
+``model.safetensors``
+    A checkpoint exactly as :mod:`img2dmp.checkpoint` writes it (safetensors weights,
+    the JSON record in its header with its own digests), byte for byte the trained run's
+    best checkpoint.
+``model.json``
+    The shipping record (format ``img2dmp-shipped-model``, version 1): the name, whether
+    it is the default, a one-line summary, the weights file's size and SHA-256, the
+    settings its card recommends (``{"refine": 30}``), the test-part figures it was
+    measured at and where it came from (commands, revisions).
+``CARD.md``
+    The model card for people: data, commands, revisions, figures, recommended settings
+    and what the model is not for.
+
+A name is a word of letters, digits, ``-`` and ``_`` (:func:`is_model_name`). Wherever a
+run directory or checkpoint is taken, such a word that is not an existing file or folder
+is looked up here (:func:`resolve`): a shipped name gives its weights file, after its
+SHA-256 is checked against ``model.json`` (:func:`verified_weights`: a damaged file is
+refused with one :class:`~img2dmp.errors.ShippedModelError` naming it); another word gives
+one :class:`~img2dmp.errors.UnknownModelError` listing the shipped names. A path is always
+a path: a folder ``digits-real`` in the working directory wins over the shipped model.
+
+Standard library only: ``img2dmp models`` lists them without loading torch, and every
+layer (the checkpoint reader among them) may use this module.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+from .._files import file_digest
+from ..errors import ShippedModelError, UnknownModelError, show
+
+FORMAT = "img2dmp-shipped-model"
+VERSION = 1
+WEIGHTS_FILE = "model.safetensors"
+RECORD_FILE = "model.json"
+CARD_FILE = "CARD.md"
+#: What a model's name looks like (and a ``--model`` word looked up here).
+NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
+#: Settings a card may recommend, with their types (``refine``: refinement steps).
+RECOMMENDED_KEYS = {"refine": int}
+
+
+@dataclass(frozen=True)
+class ShippedModel:
+    """One model shipped with img2dmp (its ``model.json``, read and checked).
+
+    Attributes
+    ----------
+    name : str
+    folder : Path
+        ``img2dmp/models/NAME``.
+    summary : str
+        One line: what it reads and how it was trained.
+    sha256 : str
+        SHA-256 of ``model.safetensors`` as shipped.
+    size_bytes : int
+    default : bool
+        The model used when none is given (exactly one shipped model is).
+    recommended : dict
+        Settings its card recommends, e.g. ``{"refine": 30}``.
+    figures : dict
+        Its measured test-part figures (``model.json``'s ``"figures"``).
+    record : dict
+        The whole ``model.json``.
+    """
+
+    name: str
+    folder: Path
+    summary: str
+    sha256: str
+    size_bytes: int
+    default: bool
+    recommended: dict = field(default_factory=dict)
+    figures: dict = field(default_factory=dict)
+    record: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def weights(self) -> Path:
+        """The checkpoint file (not yet verified: :func:`verified_weights`)."""
+        return self.folder / WEIGHTS_FILE
+
+    @property
+    def card(self) -> Path:
+        return self.folder / CARD_FILE
+
+    @property
+    def refine(self) -> int:
+        """The refinement steps its card recommends (0 if it recommends none)."""
+        return int(self.recommended.get("refine", 0))
+
+
+def models_root() -> Path:
+    """The folder that holds the shipped models (``img2dmp/models``)."""
+    return Path(str(resources.files(__name__)))
+
+
+def is_model_name(text) -> bool:
+    """Whether ``text`` is written like a model's name (a word: letters, digits, ``-``,
+    ``_``; no path separator, no suffix) rather than like a path."""
+    return isinstance(text, str) and NAME_PATTERN.fullmatch(text) is not None
+
+
+def _field(record: dict, key: str, kind, where: Path):
+    value = record.get(key)
+    if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
+        raise ShippedModelError(
+            f"shipped model record {where}: {key!r} must be a {kind.__name__}, got {show(value)}"
+        )
+    return value
+
+
+def _read(folder: Path) -> ShippedModel:
+    """The model of one folder, its ``model.json`` checked (not the weights' digest)."""
+    where = folder / RECORD_FILE
+    try:
+        record = json.loads(where.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        raise ShippedModelError(f"shipped model record {where} cannot be read: {e}") from None
+    if not isinstance(record, dict) or record.get("format") != FORMAT:
+        raise ShippedModelError(f"{where} is not a shipped model record (format {FORMAT!r})")
+    if record.get("version") != VERSION:
+        raise ShippedModelError(
+            f"{where}: shipped model record version {show(record.get('version'))} is not "
+            f"supported (this img2dmp reads version {VERSION})"
+        )
+    name = _field(record, "name", str, where)
+    if name != folder.name or not is_model_name(name):
+        raise ShippedModelError(f"{where}: name {show(name)} is not its folder's {folder.name!r}")
+    weights = _field(record, "weights", dict, where)
+    sha256 = _field(weights, "sha256", str, where)
+    size = _field(weights, "bytes", int, where)
+    recommended = _field(record, "recommended", dict, where)
+    for key, value in recommended.items():
+        kind = RECOMMENDED_KEYS.get(key)
+        if kind is None or not isinstance(value, kind) or isinstance(value, bool):
+            raise ShippedModelError(f"{where}: recommended setting {key!r} = {show(value)}")
+    return ShippedModel(
+        name=name,
+        folder=folder,
+        summary=_field(record, "summary", str, where),
+        sha256=sha256,
+        size_bytes=size,
+        default=_field(record, "default", bool, where),
+        recommended=dict(recommended),
+        figures=dict(record.get("figures") or {}),
+        record=record,
+    )
+
+
+def shipped_models(root: str | os.PathLike | None = None) -> list[ShippedModel]:
+    """Every shipped model, by name (``root``: another folder of models, for tests)."""
+    base = Path(root) if root is not None else models_root()
+    folders = sorted(p for p in base.iterdir() if (p / RECORD_FILE).is_file())
+    return [_read(p) for p in folders]
+
+
+def shipped_model_names(root: str | os.PathLike | None = None) -> list[str]:
+    """The names of the shipped models (``img2dmp models`` lists them)."""
+    return [m.name for m in shipped_models(root)]
+
+
+def find_shipped(name: str, root: str | os.PathLike | None = None) -> ShippedModel:
+    """The shipped model ``name``; :class:`~img2dmp.errors.UnknownModelError` naming the
+    shipped ones if there is none of that name."""
+    models = shipped_models(root)
+    for m in models:
+        if m.name == name:
+            return m
+    names = ", ".join(m.name for m in models) or "none"
+    raise UnknownModelError(
+        f"no run directory, checkpoint or shipped model named {show(name)}; the models "
+        f"shipped with img2dmp are: {names} (img2dmp models lists them)"
+    )
+
+
+def default_model(root: str | os.PathLike | None = None) -> ShippedModel:
+    """The model used when none is given: the one shipped model marked default."""
+    defaults = [m for m in shipped_models(root) if m.default]
+    if len(defaults) != 1:
+        names = ", ".join(m.name for m in defaults) or "none"
+        raise ShippedModelError(
+            f"img2dmp ships {len(defaults)} default models ({names}); exactly one must be: "
+            "the installation is damaged"
+        )
+    return defaults[0]
+
+
+def resolve(source, root: str | os.PathLike | None = None) -> ShippedModel | None:
+    """The shipped model ``source`` names, or None when ``source`` is a path.
+
+    ``source`` is a path if it is not a string written like a name
+    (:func:`is_model_name`), or if a file or folder of that name exists here; otherwise
+    it must name a shipped model (:func:`find_shipped`: unknown words are refused,
+    listing the shipped names).
+    """
+    if isinstance(source, ShippedModel):
+        return source
+    if not is_model_name(source) or os.path.lexists(source):
+        return None
+    return find_shipped(source, root)
+
+
+def verified_weights(model: ShippedModel) -> Path:
+    """``model``'s weights file once its size and SHA-256 match ``model.json``; else one
+    :class:`~img2dmp.errors.ShippedModelError` naming the file (reinstall img2dmp)."""
+    path = model.weights
+    try:
+        size = path.stat().st_size
+        digest = file_digest(path)
+    except OSError as e:
+        raise ShippedModelError(
+            f"shipped model {model.name}: {path} cannot be read ({e.strerror or e}); "
+            "reinstall img2dmp"
+        ) from None
+    if size != model.size_bytes or digest != model.sha256:
+        raise ShippedModelError(
+            f"shipped model {model.name}: {path} is damaged: its SHA-256 {digest[:12]}... "
+            f"({size:,} bytes) is not the recorded {model.sha256[:12]}... "
+            f"({model.size_bytes:,} bytes); reinstall img2dmp"
+        )
+    return path
+
+
+def recommended_refine(source) -> int:
+    """The refinement steps recommended for the model ``source`` (a shipped model's
+    card's; 0 for a run directory or checkpoint, whose training says nothing about it)."""
+    shipped = resolve(source) if source is not None else default_model()
+    return shipped.refine if shipped is not None else 0
+
+
+__all__ = [
+    "CARD_FILE",
+    "FORMAT",
+    "RECORD_FILE",
+    "ShippedModel",
+    "WEIGHTS_FILE",
+    "default_model",
+    "find_shipped",
+    "is_model_name",
+    "models_root",
+    "recommended_refine",
+    "resolve",
+    "shipped_model_names",
+    "shipped_models",
+    "verified_weights",
+]

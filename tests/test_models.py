@@ -1,0 +1,282 @@
+"""The models shipped inside the package (img2dmp.models, ``img2dmp models``, ``--model
+NAME``): their digests, their cards' figures, and the default model with its settings."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+import img2dmp
+from img2dmp import cli, models
+from img2dmp.checkpoint import read_checkpoint_meta
+from img2dmp.commands import _args
+from img2dmp.errors import ShippedModelError, UnknownModelError
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT / ".." / "shared" / "data"
+SAMPLE = ROOT / "examples" / "samples" / "digit_3.png"
+MAX_BYTES = 3 * 1024 * 1024
+
+
+def _one_error_line(err: str, command: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith(f"img2dmp {command}: error: "), err
+    return lines[0]
+
+
+# --- what is shipped ------------------------------------------------------------------
+
+
+def test_each_shipped_file_has_its_recorded_digest_and_size():
+    shipped = models.shipped_models()
+    assert shipped, "no model ships with img2dmp"
+    for m in shipped:
+        data = m.weights.read_bytes()
+        assert len(data) == m.size_bytes <= MAX_BYTES, m.name
+        assert models.file_digest(m.weights) == m.sha256, m.name
+        assert models.verified_weights(m) == m.weights
+        for f in m.folder.iterdir():  # nothing else in the folder grows the wheel
+            assert f.name in (models.WEIGHTS_FILE, models.RECORD_FILE, models.CARD_FILE), f
+            assert f.stat().st_size <= MAX_BYTES, f
+        # the checkpoint inside is the one recorded (its own record digest verified)
+        assert (
+            read_checkpoint_meta(m.weights)["record_sha256"] == m.record["weights"]["record_sha256"]
+        )
+
+
+def test_the_wheel_takes_every_shipped_file():
+    import fnmatch
+    import tomllib
+
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    globs = pyproject["tool"]["setuptools"]["package-data"]["img2dmp"]
+    package = ROOT / "src" / "img2dmp"
+    for m in models.shipped_models():
+        for f in m.folder.iterdir():
+            rel = f.relative_to(package).as_posix()
+            assert any(fnmatch.fnmatch(rel, g) for g in globs), rel
+
+
+def test_exactly_one_default_and_the_help_names_it():
+    default = models.default_model()
+    assert [m.name for m in models.shipped_models() if m.default] == [default.name]
+    assert _args.DEFAULT_MODEL_NAME == default.name
+    assert _args.DEFAULT_REFINE == default.refine
+
+
+def test_each_card_states_its_records_figures_commands_and_limits():
+    for m in models.shipped_models():
+        card = m.card.read_text(encoding="utf-8")
+        f = m.figures
+        for value in (f"{f['chamfer_px']:.4f}", f"{100 * f['path_on_ink']:.1f} %",
+                      f"{f['path_error_px']:.3f}", m.sha256, f"{m.size_bytes:,}"):  # fmt: skip
+            assert value in card, (m.name, value)
+        assert f"--refine {f['refine']}" in card and f"--refine {m.refine}" in card
+        for key in ("prepare_command", "train_command"):
+            assert m.record["provenance"][key] in " ".join(card.split()).replace("\\ ", ""), key
+        for revision in (m.record["provenance"]["prepare_revision"],
+                         m.record["provenance"]["train_revision"]):  # fmt: skip
+            assert revision in card
+        assert "## What it is not for" in card
+
+
+# --- names, damage, defaults ----------------------------------------------------------
+
+
+def _copy_of_the_models(tmp_path, monkeypatch) -> Path:
+    root = tmp_path / "shipped"
+    shutil.copytree(models.models_root(), root, ignore=shutil.ignore_patterns("*.py", "__py*"))
+    monkeypatch.setattr(models, "models_root", lambda: root)
+    return root
+
+
+def test_a_damaged_shipped_file_is_refused_naming_it(tmp_path, monkeypatch, capsys):
+    root = _copy_of_the_models(tmp_path, monkeypatch)
+    name = models.default_model().name
+    weights = root / name / models.WEIGHTS_FILE
+    data = bytearray(weights.read_bytes())
+    data[len(data) // 2] ^= 0x01  # one bit in the weights
+    weights.write_bytes(bytes(data))
+    with pytest.raises(ShippedModelError, match=rf"shipped model {name}: .*{weights.name} is "
+                       r"damaged: its SHA-256 .* is not the recorded"):  # fmt: skip
+        img2dmp.load_model(name)
+    with pytest.raises(ShippedModelError, match="damaged"):
+        img2dmp.load_model()  # the default too
+    assert cli.main(["predict", str(SAMPLE)]) == 2
+    line = _one_error_line(capsys.readouterr().err, "predict")
+    assert str(weights) in line and "reinstall img2dmp" in line
+    weights.write_bytes(bytes(data[:1000]))  # truncated
+    assert cli.main(["predict", "--model", name, str(SAMPLE)]) == 2
+    assert "damaged" in _one_error_line(capsys.readouterr().err, "predict")
+    assert cli.main(["models"]) == 0
+    assert "DAMAGED" in capsys.readouterr().out
+
+
+def test_an_unknown_name_lists_the_shipped_models(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    names = models.shipped_model_names()
+    with pytest.raises(UnknownModelError, match="no run directory, checkpoint or shipped model "
+                       r"named 'digits-rea'; the models shipped with img2dmp are: "
+                       + re.escape(", ".join(names))):  # fmt: skip
+        img2dmp.load_model("digits-rea")
+    assert isinstance(UnknownModelError("x"), FileNotFoundError)
+    for argv in (["predict", "--model", "nope", str(SAMPLE)],
+                 ["evaluate", "--model", "nope", "--data", str(SAMPLE)],
+                 ["export", "--model", "nope", "--onnx", "x.onnx"],
+                 ["models", "nope"]):  # fmt: skip
+        assert cli.main(argv) == 2, argv
+        line = _one_error_line(capsys.readouterr().err, argv[0])
+        assert "'nope'" in line and names[0] in line, line
+    # a path stays a path: a missing one is named as a file, not looked up
+    with pytest.raises(FileNotFoundError, match="checkpoint runs/nope does not exist"):
+        img2dmp.load_model("runs/nope")
+
+
+def test_a_folder_of_the_same_name_wins_over_the_shipped_model(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    name = models.default_model().name
+    (tmp_path / name).mkdir()
+    assert models.resolve(name) is None
+    with pytest.raises(FileNotFoundError, match="holds no checkpoint"):
+        img2dmp.load_model(name)
+
+
+def test_the_default_model_comes_with_its_cards_settings_unless_told_otherwise():
+    default = models.default_model()
+    assert default.refine == 30
+    m = img2dmp.load_model()
+    assert m.shipped.name == default.name and m.refine_options.steps == default.refine
+    assert img2dmp.load_model(default.name).refine_options.steps == default.refine
+    assert img2dmp.load_model(refine=0).refine_options is None  # an explicit 0 wins
+    assert img2dmp.load_model(refine=5).refine_options.steps == 5
+    with pytest.raises(ValueError, match="refine must be a whole number"):
+        img2dmp.load_model(refine=-1)
+    assert m.n_hypotheses == 4 and m.image_size == (28, 28)
+
+
+def test_a_run_directory_keeps_no_refinement(train_tiny_runs, tmp_path):
+    run = train_tiny_runs(tmp_path, lambda k: tmp_path / f"run{k}")[1]
+    assert img2dmp.load_model(run).refine_options is None
+    assert img2dmp.load_model(str(run)).shipped is None
+
+
+def test_predict_without_a_model_writes_the_sample_digit(tmp_path, capsys):
+    out = tmp_path / "pred"
+    assert cli.main(["predict", str(SAMPLE), "--out", str(out), "--overlay"]) == 0
+    captured = capsys.readouterr()
+    assert "model digits-real with --refine 30, as its card recommends" in captured.err
+    doc = json.loads((out / "digit_3_dmp.json").read_text())
+    assert doc["refinement"] == {"steps": 30} and doc["flags"] == []
+    assert doc["fit"]["path_on_ink"] > 0.95 and doc["fit"]["ink_written"] > 0.9, doc["fit"]
+    assert (out / "digit_3_overlay_image.png").is_file()
+    assert cli.main(["predict", str(SAMPLE), "--out", str(out), "--force", "--refine", "0"]) == 0
+    assert "note" not in capsys.readouterr().err  # told otherwise: nothing to say
+    assert json.loads((out / "digit_3_dmp.json").read_text())["refinement"] == {"steps": 0}
+
+
+def test_write_without_a_model_has_the_arm_write_the_sample(tmp_path, capsys):
+    from img2dmp.robot import available
+
+    if not available():
+        pytest.skip("pybullet is not installed (the robot extra)")
+    out = tmp_path / "robot"
+    assert cli.main(["write", str(SAMPLE), "--out-dir", str(out), "--no-progress"]) == 0
+    captured = capsys.readouterr()
+    assert "model digits-real with --refine 30" in captured.err
+    assert re.search(r"1: [\d.]+ mm, ink (9\d|100)\.\d %", captured.out), captured.out
+    assert (out / "digit_3_paper.png").is_file() and (out / "digit_3_log.csv").is_file()
+
+
+def test_write_serve_and_train_take_the_default_or_a_name():
+    from img2dmp.commands import serve as serve_command
+    from img2dmp.commands import write as write_command
+
+    def parsed(module, argv):
+        parser = argparse.ArgumentParser()
+        module.add_arguments(parser)
+        return parser.parse_args(argv)
+
+    name = models.default_model().name
+    args = parsed(write_command, ["photo.png"])
+    write_command._default_model(args)
+    assert args.model == name
+    args = parsed(write_command, ["page.json", "--page"])  # a page document needs none
+    write_command._default_model(args)
+    assert args.model is None
+    args = parsed(write_command, ["photo.jpg", "--page"])  # a photo of a page does
+    write_command._default_model(args)
+    assert args.model == name
+    assert serve_command._models(parsed(serve_command, [])) == [name]
+    assert serve_command._models(parsed(serve_command, ["--model", "a"])) == ["a"]
+    default = models.default_model()
+    expected = [("model", default.weights), ("model", default.folder / "model.json")]
+    assert _args.model_inputs(name) == expected
+
+
+def test_img2dmp_models_lists_each_with_its_figures_and_shows_a_card(capsys):
+    assert cli.main(["models"]) == 0
+    out = capsys.readouterr().out
+    for m in models.shipped_models():
+        assert f"{'*' if m.default else ' '} {m.name}  {m.size_bytes / 1e6:.2f} MB" in out
+        assert f"Chamfer {m.figures['chamfer_px']:.4f} px" in out
+        assert f"sha256 {m.sha256[:12]}... verified" in out
+    assert cli.main(["models", models.default_model().name]) == 0
+    assert capsys.readouterr().out.startswith("# Model card: digits-real")
+
+
+# --- the card's figures, on a sample of the test part ---------------------------------
+
+#: Test digits evaluated: every fourth of the test part (211 of 841).
+SAMPLE_EVERY = 4
+
+
+def _sample_tolerance(values: np.ndarray, n_population: int) -> float:
+    """Three standard errors of the mean of ``values``, a sample drawn from a population
+    of ``n_population`` without replacement (finite-population correction): the card's
+    mean over the whole test part lies within it unless the model or the measure changed."""
+    n = len(values)
+    correction = math.sqrt((n_population - n) / (n_population - 1))
+    return 3.0 * float(np.std(values, ddof=1)) / math.sqrt(n) * correction
+
+
+@pytest.mark.skipif(
+    not (DATA / "mnist").is_dir() or not (DATA / "ijs-mnist-trajectories").is_dir(),
+    reason=f"MNIST and the recorded pen paths are not at {DATA} (../shared/data)",
+)
+def test_the_default_model_reproduces_its_cards_figures_on_a_test_sample(tmp_path):
+    from img2dmp.data.prepare import PrepareOptions, prepare_dataset
+    from img2dmp.data.store import save_dataset
+    from img2dmp.evaluate import evaluate
+
+    m = models.default_model()
+    f = m.figures
+    # The test part as the card's data set holds it (never augmented: prepare's
+    # augmentation and paper copies touch training digits only).
+    options = PrepareOptions(scaling="none", duration_s=1.0)
+    with warnings.catch_warnings():  # the recordings whose time steps prepare repairs
+        warnings.simplefilter("ignore", UserWarning)
+        data = prepare_dataset(options, data_dir=DATA, progress=False).select_split("test")
+    assert len(data) == f["n"]
+    sample = data.subset(np.arange(0, len(data), SAMPLE_EVERY))
+    path = save_dataset(tmp_path / "sample.safetensors", sample)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # small tensors: one thread is twice as fast on 2 busy cores
+    try:
+        res = evaluate(m.name, path, split="test", n_figures=0, refine=f["refine"])
+    finally:
+        torch.set_num_threads(threads)
+    for key, card in (("chamfer_px", f["chamfer_px"]), ("on_ink_shares", f["path_on_ink"]),
+                      ("path_errors_px", f["path_error_px"])):  # fmt: skip
+        values = np.asarray(res[key], dtype=np.float64)
+        tolerance = _sample_tolerance(values, f["n"])
+        assert abs(values.mean() - card) <= tolerance, (key, values.mean(), card, tolerance)
