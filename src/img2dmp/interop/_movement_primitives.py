@@ -100,10 +100,11 @@ def to_movement_primitives(
     config : DMPConfig
         img2dmp's constants; default ``DMPConfig()``.
     dt : float or None
-        The peer's step (``dt_``, seconds); default ``tau / 2000`` per DMP. Its RK4 step
+        The peer's step (``dt_``, seconds); default ``tau / 4000`` per DMP. Its RK4 step
         evaluates the forcing term one step late (movement_primitives 0.9.1), so its
-        error is first order in ``dt``: about 0.4 px at ``tau / 100`` and 0.02-0.04 px at
-        ``tau / 2000`` on the digits of the 28-px frame (docs/INTEROP.md).
+        error is first order in ``dt``: at most 0.92 px at ``tau / 100``, 0.046 px at
+        ``tau / 2000`` and 0.023 px at ``tau / 4000`` on the ten digits of the 28-px
+        frame (docs/INTEROP.md).
     check : bool
         Roll each exported DMP out with the peer's ``open_loop()`` and return its largest
         distance from img2dmp's rollout (``error_px``).
