@@ -15,8 +15,8 @@ frame), ``T`` time stamps per sample over its own duration:
   pass fails unless run inside ``torch.autograd.graph.allow_mutation_on_saved_tensors()``,
   which clones them: its forward + backward is timed so.
 - **torchdiffeq rk4 / dopri5**: the same ODE written as a torch right-hand side (phase in
-  closed form), one RK4 step per stamp interval / adaptive dopri5 (rtol 1e-7, atol 1e-9),
-  autograd through the solver.
+  closed form), one RK4 step per stamp interval / adaptive dopri5 (rtol 1e-7, atol 1e-9;
+  float32 1e-5, 1e-6), autograd through the solver.
 - **movement_primitives** (``img2dmp.interop.to_movement_primitives``, dt = tau/(T-1)):
   its compiled RK4 ``open_loop()``, one trajectory at a time, NumPy, no gradient. Its
   step evaluates the forcing term one step late (0.9.1), so its error is first order.
@@ -40,7 +40,12 @@ of ``sum(y^2)`` from img2dmp's, relative to the largest of img2dmp's, per field.
 and pydmps' ``imitate_path`` (regression on differentiated accelerations), with the fit's
 largest distance from the demonstration when rolled out by the same package.
 
-Run: ``.venv/bin/python benchmarks/bench_peers.py`` (a few minutes);
+On a loaded machine torch's second thread waits for a busy core (small torch operations
+ran 3x slower on 2 threads than on 1 next to other jobs): ``--threads 1`` then compares
+every method on one thread.
+
+Run: ``.venv/bin/python benchmarks/bench_peers.py [--threads 1]`` (15-30 minutes: dopri5
+and rk4 at B = 4096 take tens of seconds a call);
 smoke: ``--batch 1 --rounds 1 --fast-calls 1 --time-stamps 21 --fit-demos 4``.
 """
 
@@ -155,7 +160,9 @@ def torchdiffeq_peer(method: str, cfg):
             return torch.cat([r * v, r * dv], dim=-1)
 
         state0 = torch.cat([q.y0, torch.zeros_like(q.y0)], dim=-1)
-        opts = {"rtol": 1e-7, "atol": 1e-9} if method == "dopri5" else {}
+        # float32 cannot meet float64's tolerances: the steps would shrink without end.
+        tol = (1e-7, 1e-9) if t.dtype == torch.float64 else (1e-5, 1e-6)
+        opts = {"rtol": tol[0], "atol": tol[1]} if method == "dopri5" else {}
         sol = odeint(rhs, state0, u, method=method, **opts)  # [T, B, 2d]
         return sol[..., :d].transpose(0, 1)
 
@@ -404,6 +411,9 @@ def parse_args(argv=None):
     ap.add_argument("--prodmp-steps", type=int, default=1000, help="ProDMP table steps per tau")
     ap.add_argument("--fit-demos", type=int, default=1000, help="demonstrations to fit (0: none)")
     ap.add_argument("--fit-rounds", type=int, default=2, help="alternated rounds of the fits")
+    ap.add_argument(
+        "--threads", type=int, default=0, help="torch threads, the fused kernels' cap (0: default)"
+    )
     args = ap.parse_args(argv)
     args.batch = [int(b) for b in args.batch.split(",")]
     names = [s for s in args.peers.split(",") if s]
@@ -417,6 +427,16 @@ def parse_args(argv=None):
 
 def main(argv=None) -> dict:
     args = parse_args(argv)
+    before = torch.get_num_threads()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    try:
+        return run(args)
+    finally:
+        torch.set_num_threads(before)
+
+
+def run(args) -> dict:
     cfg = DMPConfig()
     peers, missing = installed(args.peers)
     print(_machine.describe())
@@ -430,6 +450,9 @@ def main(argv=None) -> dict:
             for b in args.batch:
                 methods = methods_for(b, dtype, backward, cfg, peers, args, cache)
                 results[backward, dtype, b] = time_group(methods, args)
+                mode = "forward + backward" if backward else "forward"
+                print(f"  timed {mode}, {str(dtype)[6:]}, B = {b} "
+                      f"({time.perf_counter() - started:.0f} s)", flush=True)  # fmt: skip
     print(
         f"timings took {time.perf_counter() - started:.0f} s; load average at the end "
         f"{_machine.load_average()}"
