@@ -18,12 +18,14 @@ setup: $(STAMP)
 
 # torch first, pinned to the CPU build (on local disk; an unpinned torch would pull a
 # multi-GB CUDA build): the package itself declares only a range (torch>=2.1,<3), which
-# the installed build satisfies, so the second install keeps it.
+# the installed build satisfies, so the second install keeps it. interop and bench: the
+# peer DMP libraries, so that the bridges' tests and the peers' benchmark smoke test run
+# (movement-primitives builds from source with gcc: about 20 s).
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet torch==$(TORCH)
-	$(BIN)/python -m pip install --quiet -e '.[dev,robot,export,web]'
+	$(BIN)/python -m pip install --quiet -e '.[dev,robot,export,web,interop,bench]'
 	rm -f $(VENV)/.installed-* && touch $@
 
 demo: setup

@@ -17,7 +17,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "img2dmp"
 LAYERS = [
     {"__init__", "_files", "_processes", "_progress", "config", "errors", "models"},
     {"dmp", "metrics"},
-    {"data"},
+    {"data", "interop"},
     {"nn", "checkpoint"},
     {"training", "train"},
     {"predict", "page"},

@@ -132,3 +132,29 @@ def test_page_benchmark_makes_its_photo_and_times_the_stages(bench, tmp_path):
     run = bp.make_model(tmp_path, bp.img2dmp_command())[0]
     names = [name for name, _ in bp.stages(str(run), 0, photo)]
     assert len(names) == 6 and names[2].startswith("find the characters (")
+
+
+def test_peers_benchmark_runs_at_its_smallest_settings(bench, capsys):
+    """Every code path of bench_peers but dopri5 (its adaptive steps cost seconds even
+    here); a peer that is not installed is reported, not fatal."""
+    bp = bench("bench_peers")
+    before = torch.get_num_threads()
+    peers = "prodmp,mp_pytorch_dmp,torchdiffeq_rk4,movement_primitives,pydmps"
+    argv = ["--batch", "2", "--rounds", "1", "--fast-calls", "1", "--time-stamps", "21"]
+    argv += ["--fit-demos", "2", "--fit-rounds", "1", "--prodmp-steps", "50", "--peers", peers]
+    out_dict = bp.main(argv)
+    assert torch.get_num_threads() == before
+    out = capsys.readouterr().out
+    assert out.startswith("CPU: ") and "load average" in out
+    for part in ("forward, float32", "forward + backward of sum(y^2), float64",
+                 "max err vs solve_ivp", "gradient vs img2dmp's", "fitting 2 demonstrations",
+                 "img2dmp fused"):  # fmt: skip
+        assert part in out, part
+    present, missing = bp.installed(peers.split(","))
+    for name in present:
+        assert bp.LABELS[name] in out
+    for name in missing:
+        assert f"not installed, skipped: {bp.LABELS[name]}" in out
+    assert out_dict["errors"]["fused"] < 1e-5  # the exact rollout, against solve_ivp
+    with pytest.raises(SystemExit):
+        bp.parse_args(["--peers", "nope"])

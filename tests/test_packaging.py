@@ -85,7 +85,14 @@ def test_torch_is_a_range_and_the_set_up_pins_the_cpu_build_first():
     make = (ROOT / "Makefile").read_text()
     pin = make.index("pip install --quiet torch==$(TORCH)")
     assert "TORCH  ?= 2.13.0" in make
-    assert pin < make.index("pip install --quiet -e '.[dev,robot,export,web]'")
+    assert pin < make.index("pip install --quiet -e '.[dev,robot,export,web,interop,bench]'")
+    # The peers' extras are pinned to the versions the bridges are tested against, and
+    # none of them brings a torch of its own.
+    for extra in ("interop", "bench"):
+        assert (
+            "movement-primitives==0.9.1" in extras[extra] and "mp-pytorch==0.1.4" in extras[extra]
+        )
+        assert not any(d.startswith("torch") and "diffeq" not in d for d in extras[extra])
 
 
 def test_license_and_citation():
