@@ -182,7 +182,7 @@ def dark_on_light(planes: np.ndarray) -> bool:
     shorter side; not the cells of a table beside the sheet) than far above it for dark
     ink, far above for light ink; far: ``POLARITY_SPREADS`` times the paper's own robust
     spread (shading and grain reach as far either way). For a small image, or when
-    neither side has half as many again as the other, the border decides as it always
+    neither side has twice as many as the other, the border decides as it always
     has: brighter than the whole image's median, or than mid grey, is dark ink on light
     paper."""
     lum = _luma(planes)
@@ -210,7 +210,7 @@ def dark_on_light(planes: np.ndarray) -> bool:
         far = max(POLARITY_SPREADS * spread, 0.03)
         below = np.count_nonzero(sample < -far) / sample.size
         above = np.count_nonzero(sample > far) / sample.size
-        if max(below, above) > POLARITY_MIN_SHARE and max(below, above) > 1.5 * min(below, above):
+        if max(below, above) > POLARITY_MIN_SHARE and max(below, above) > 2 * min(below, above):
             return bool(below > above)
     border = float(np.median(_ring(lum)))
     return border > float(np.median(lum)) or border > 0.5
