@@ -18,9 +18,14 @@ LINES = [[("1", 40), ("7", 110), ("0", 190)], [("5", 60), ("0", 150)]]
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory, train_tiny_runs):
+def runs(tmp_path_factory, train_tiny_runs):
     work = tmp_path_factory.mktemp("page_run")
-    return train_tiny_runs(work, lambda k: work / f"run{k}")[1]
+    return train_tiny_runs(work, lambda k: work / f"run{k}")
+
+
+@pytest.fixture(scope="module")
+def run(runs):
+    return runs[1]
 
 
 def _photo(path, lines=LINES, size=(300, 520), orientation=None):
@@ -194,3 +199,19 @@ def test_a_photo_of_something_that_is_not_writing_is_flagged_not_read(tmp_path, 
     result = load_model(run).predict_page(tmp_path / "photo.jpg")
     assert result.flags in (["no_ink"], ["mostly_unreadable"]), result.flags
     assert json.loads(result.to_json())["flags"] == result.flags
+
+
+def test_a_page_refines_each_character_s_top_hypothesis_only(runs):
+    """``refine_top_only``: the top hypothesis as when every one is refined, the others as
+    the network gave them."""
+    rng = np.random.default_rng(0)
+    x = (rng.random((3, 40, 40)) > 0.85).astype(np.float32)
+    refined = load_model(runs[2], refine=5)  # two hypotheses
+    plain = load_model(runs[2])
+    all_, probs = refined.predict_hypotheses(x)
+    top, probs_top = refined.predict_hypotheses(x, refine_top_only=True)
+    raw, _ = plain.predict_hypotheses(x)
+    np.testing.assert_array_equal(probs, probs_top)
+    np.testing.assert_allclose(top[:, 0].to_vector(), all_[:, 0].to_vector(), atol=1e-4)
+    np.testing.assert_array_equal(top[:, 1:].to_vector(), raw[:, 1:].to_vector())
+    assert np.abs(top[:, 0].to_vector() - raw[:, 0].to_vector()).max() > 1e-3  # refined

@@ -265,8 +265,14 @@ class Predictor:
         top = z[torch.arange(z.shape[0]), logits.argmax(dim=1)]  # [B, P]
         return self._refined(top, x)
 
-    def predict_hypotheses(self, images, batch_size: int = 4096) -> tuple[DMPParams, np.ndarray]:
+    def predict_hypotheses(
+        self, images, batch_size: int = 4096, *, refine_top_only: bool = False
+    ) -> tuple[DMPParams, np.ndarray]:
         """All K hypotheses for prepared images, ranked by probability (highest first).
+
+        With refinement, every hypothesis is refined on its image, or only the top one
+        with ``refine_top_only`` (the one a page's robot writes; a quarter of the work for
+        four hypotheses; the others as the network gave them).
 
         Returns
         -------
@@ -276,7 +282,13 @@ class Predictor:
             Their probabilities (softmax of the scores), descending along K.
         """
         x, z, logits = self._outputs(images, batch_size)
-        z = self._refined_all(z, x)  # [B, K, P]
+        if refine_top_only and self.refine_options is not None:
+            top = logits.argmax(dim=1)  # [B]
+            rows = torch.arange(z.shape[0])
+            z = z.clone()
+            z[rows, top] = self._refined(z[rows, top], x)
+        else:
+            z = self._refined_all(z, x)  # [B, K, P]
         probs = torch.softmax(logits.double(), dim=1)
         order = torch.argsort(probs, dim=1, descending=True)  # [B, K]
         z = torch.gather(z, 1, order[..., None].expand_as(z))
