@@ -87,7 +87,7 @@ def stages(model_dir: str, refine: int, photo: Path) -> list[tuple[str, float]]:
     lap("frame them")
     import numpy as np
 
-    params, _ = model.predict_hypotheses(np.stack(inputs))
+    params, _ = model.predict_hypotheses(np.stack(inputs), refine_top_only=P.PAGE_REFINE_TOP_ONLY)
     model.trajectories(params, n_points=100)
     lap(f"network{' and refinement' if refine else ''}, rollouts")
     result = model.predict_page(photo)
