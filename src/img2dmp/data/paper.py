@@ -606,33 +606,37 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
     """Pixels of ``mask`` on ruled or squared paper's lines (both directions), and the
     angles found (``{"rows_deg", "columns_deg"}``).
 
+    Per direction, two passes: the rules at the direction's dominant angle, then a lone
+    line across the whole extent that they left (broken up, as a faint margin line, or at
+    an angle of its own, the page's perspective).
+
     A rule pixel stays ink where a stroke crosses the rule: stroke pixels (ink on no rule
     of either direction, so that squared paper's own crossings are not strokes) lie just
     before and just after it across the rule, or (given the darkness ``dark``) it is
-    darker than the rules by more than half the way to the strokes' ink."""
+    darker than its own set of lines by more than half the way to the strokes' ink."""
     found, per_axis, angles = np.zeros(mask.shape, bool), [], {}
     for axis, name in ((0, "rows_deg"), (1, "columns_deg")):
-        m, sh = (mask, sheet) if axis == 0 else (mask.T, sheet.T)
+
+        def along(a, axis=axis):  # rows of this direction
+            return a if axis == 0 else a.T
+
+        m, sh = along(mask), along(sheet)
         cols = np.flatnonzero(sh.any(axis=0))
         if cols.size < 8:
             continue
         extent = (int(cols[0]), int(cols[-1]) + 1)
         angles[name] = dominant_angle(m)
-        r, reach = _row_rules(m, extent, angles[name], found if axis == 0 else found.T,
-                              pen_width_px)  # fmt: skip
+        r, reach = _row_rules(m, extent, angles[name], along(found), pen_width_px)
         if reach:
             per_axis.append((axis, angles[name], r, reach))
-            found |= r if axis == 0 else r.T
-        # A lone line across the whole extent that the rules' pass left: broken up (a
-        # faint margin line), or at an angle of its own (the page's perspective).
-        rest = m & ~(found if axis == 0 else found.T)
+            found |= along(r)
+        rest = m & ~along(found)
         second = dominant_angle(rest)
-        r, reach = _row_rules(m, extent, second, found if axis == 0 else found.T,
-                              pen_width_px, lone=True)  # fmt: skip
+        r, reach = _row_rules(m, extent, second, along(found), pen_width_px, lone=True)
         r &= rest
         if reach and r.any():
             per_axis.append((axis, second, r, reach))
-            found |= r if axis == 0 else r.T
+            found |= along(r)
     for axis, _, r, reach in per_axis:
         grown = _rule_pieces((mask if axis == 0 else mask.T) & ~(found if axis == 0 else found.T),
                              r, reach)  # fmt: skip
