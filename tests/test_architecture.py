@@ -15,7 +15,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "img2dmp"
 
 #: Lower layers first; a module may import its own layer and those below it.
 LAYERS = [
-    {"__init__", "_files", "_processes", "_progress", "config", "errors", "models"},
+    {"__init__", "_files", "_lazy", "_processes", "_progress", "config", "errors", "models"},
     {"dmp", "metrics"},
     {"data", "interop"},
     {"nn", "checkpoint"},

@@ -25,6 +25,7 @@ from img2dmp.dmp import (
     rollout_sensitivity,
     sensitivity_rollout,
 )
+from img2dmp.dmp import _table as table_module  # the response table (no torch)
 from img2dmp.dmp import basis as basis_module
 
 rollout_module = importlib.import_module("img2dmp.dmp.rollout")  # the module, not rollout()
@@ -543,10 +544,10 @@ def test_flushing_the_tables_changes_no_result_beyond_rounding(backend, monkeypa
     results = {}
     monkeypatch.setenv("IMG2DMP_NO_TABLE_CACHE", "1")  # never keep the unflushed tables
     for flush in (True, False):
-        monkeypatch.setattr(rollout_module, "_FLUSH", flush)
+        monkeypatch.setattr(table_module, "_FLUSH", flush)  # where _cubic_pieces reads it
         if not flush:
             monkeypatch.setattr(basis_module, "_kernel_exp", np.exp)
-        for cache in (rollout_module._response_table_f64, rollout_module._response_table):
+        for cache in (table_module._response_table_f64, rollout_module._response_table):
             cache.cache_clear()
         rollout_module._kernel_table.cache_clear()
         for dtype in (torch.float32, torch.float64):
@@ -556,7 +557,7 @@ def test_flushing_the_tables_changes_no_result_beyond_rounding(backend, monkeypa
             (y**2).sum().backward()
             results[flush, dtype] = [y.detach()] + [leaf.grad for leaf in leaves]
     monkeypatch.undo()
-    for cache in (rollout_module._response_table_f64, rollout_module._response_table):
+    for cache in (table_module._response_table_f64, rollout_module._response_table):
         cache.cache_clear()
     rollout_module._kernel_table.cache_clear()
     for dtype in (torch.float32, torch.float64):
@@ -615,24 +616,24 @@ def test_idle_cores_sees_a_busy_neighbour(monkeypatch):
 def test_response_table_is_kept_on_disk_and_a_bad_file_is_ignored(tmp_path, monkeypatch):
     cfg = DMPConfig(n_kernels=7)
     path = tmp_path / "table.npy"
-    monkeypatch.setattr(rollout_module, "_table_cache_file", lambda config: str(path))
+    monkeypatch.setattr(table_module, "_table_cache_file", lambda config: str(path))
     solved = []
-    real_solve = rollout_module._solve_responses
+    real_solve = table_module._solve_responses
     monkeypatch.setattr(
-        rollout_module, "_solve_responses", lambda *a: solved.append(1) or real_solve(*a)
+        table_module, "_solve_responses", lambda *a: solved.append(1) or real_solve(*a)
     )
     tables = []
     for content in (None, "keep", b"not a table"):
         if isinstance(content, bytes):
             path.write_bytes(content)
-        rollout_module._response_table_f64.cache_clear()
-        tables.append(rollout_module._response_table_f64(cfg))
-    rollout_module._response_table_f64.cache_clear()
+        table_module._response_table_f64.cache_clear()
+        tables.append(table_module._response_table_f64(cfg))
+    table_module._response_table_f64.cache_clear()
     assert len(solved) == 2  # solved, then loaded, then solved again over the bad file
     for h, s_max, table in tables[1:]:
         assert (h, s_max) == tables[0][:2]
         np.testing.assert_array_equal(table, tables[0][2])
-    assert rollout_module._load_table(str(path), tables[0][2].shape) is not None
+    assert table_module._load_table(str(path), tables[0][2].shape) is not None
 
 
 def test_auto_backend_takes_torch_operations_for_small_calls_until_the_kernels_ran(monkeypatch):

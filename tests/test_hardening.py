@@ -190,8 +190,7 @@ def test_writers_never_write_through_a_planted_temporary(tmp_path):
     """The IDX writer and the rollout's table cache wrote to predictable temporary names
     (``NAME.tmp``, ``NAME.PID.tmp``): a link planted there was followed."""
     from img2dmp.data.mnist import read_idx, write_idx
-
-    rollout_module = sys.modules["img2dmp.dmp.rollout"]  # the module, not its function
+    from img2dmp.dmp import _table as table_module  # the rollout's table cache
 
     victim = tmp_path / "victim.txt"
     victim.write_text("precious\n")
@@ -203,7 +202,7 @@ def test_writers_never_write_through_a_planted_temporary(tmp_path):
     assert not (tmp_path / "y.idx").is_symlink()
     table = tmp_path / "dmp_responses_abc_def.npy"
     Path(f"{table}.{os.getpid()}.tmp").symlink_to(victim)
-    rollout_module._save_table(str(table), np.ones(3))
+    table_module._save_table(str(table), np.ones(3))
     assert np.array_equal(np.load(table), np.ones(3))
     assert victim.read_text() == "precious\n"
 

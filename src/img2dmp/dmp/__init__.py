@@ -14,15 +14,44 @@ No I/O and no plotting here. The public surface:
 - :class:`DMPIntegrator`, :func:`integrate` - step-by-step reference integrator
 """
 
-from .affine import affine_dmp
-from .basis import basis_functions, forcing_term, kernel_centres, kernel_widths, phase
-from .bend import bend_dmp
-from .config import DMPConfig
-from .fit import FitResult, fit_dmp
-from .integrate import DMPIntegrator, integrate
-from .params import DMPParams
-from .rollout import rollout, unit_responses
-from .sensitivity import rollout_sensitivity, sensitivity_rollout
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from .._lazy import exports
+
+_NAMES = {
+    "affine_dmp": ".affine",
+    "basis_functions": ".basis",
+    "forcing_term": ".basis",
+    "kernel_centres": ".basis",
+    "kernel_widths": ".basis",
+    "phase": ".basis",
+    "bend_dmp": ".bend",
+    "DMPConfig": ".config",
+    "FitResult": ".fit",
+    "fit_dmp": ".fit",
+    "DMPIntegrator": ".integrate",
+    "integrate": ".integrate",
+    "DMPParams": ".params",
+    "rollout": ".rollout",
+    "unit_responses": ".rollout",
+    "rollout_sensitivity": ".sensitivity",
+    "sensitivity_rollout": ".sensitivity",
+}
+
+if TYPE_CHECKING:  # the real imports, for type checkers and IDEs
+    from .affine import affine_dmp
+    from .basis import basis_functions, forcing_term, kernel_centres, kernel_widths, phase
+    from .bend import bend_dmp
+    from .config import DMPConfig
+    from .fit import FitResult, fit_dmp
+    from .integrate import DMPIntegrator, integrate
+    from .params import DMPParams
+    from .rollout import rollout, unit_responses
+    from .sensitivity import rollout_sensitivity, sensitivity_rollout
+
+__getattr__, __dir__ = exports(__name__, _NAMES, globals())
 
 __all__ = [
     "DMPConfig",

@@ -9,13 +9,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import torch
 
+from .._lazy import is_dtype, is_tensor
 from .config import DMPConfig
 
 
 def _exp(a):
-    return torch.exp(a) if isinstance(a, torch.Tensor) else np.exp(a)
+    return a.exp() if is_tensor(a) else np.exp(a)
 
 
 def negligible(dtype) -> float:
@@ -31,7 +31,12 @@ def negligible(dtype) -> float:
 
     ``dtype``: a torch or NumPy floating dtype.
     """
-    fi = torch.finfo(dtype) if isinstance(dtype, torch.dtype) else np.finfo(dtype)
+    if is_dtype(dtype):
+        import torch
+
+        fi = torch.finfo(dtype)
+    else:
+        fi = np.finfo(dtype)
     return max(float(fi.tiny), min(math.sqrt(float(fi.tiny)), float(fi.eps) ** 2))
 
 
@@ -42,8 +47,8 @@ def _kernel_exp(e):
     exponent down to -745 in float64, -103 in float32, would give one).
     """
     lo = math.log(negligible(e.dtype))
-    if isinstance(e, torch.Tensor):
-        return torch.exp(e.masked_fill(e < lo, -math.inf))
+    if is_tensor(e):
+        return e.masked_fill(e < lo, -math.inf).exp()
     return np.exp(np.where(e < lo, -np.inf, e))
 
 
@@ -102,14 +107,16 @@ def basis_functions(x, centres, widths):
     -------
     array [*batch, N]
     """
-    if isinstance(x, torch.Tensor):
+    if is_tensor(x):
+        import torch
+
         centres = torch.as_tensor(centres, dtype=x.dtype, device=x.device)
         widths = torch.as_tensor(widths, dtype=x.dtype, device=x.device)
     d = x[..., None] - centres
     # Subtracting the largest exponent keeps the ratio exact far from every centre; the
     # kernels below negligible() of the largest (which is 1) are exactly 0.
     e = -widths * d * d
-    if isinstance(e, torch.Tensor):
+    if is_tensor(e):
         psi = _kernel_exp(e - e.amax(dim=-1, keepdim=True))
         return psi * x[..., None] / psi.sum(dim=-1, keepdim=True)
     psi = _kernel_exp(e - e.max(axis=-1, keepdims=True))
@@ -134,7 +141,7 @@ def forcing_term(x, w, centres, widths):
     return (phi[..., :, None] * w).sum(-2)
 
 
-def basis_functions_and_derivative(x: torch.Tensor, centres, widths):
+def basis_functions_and_derivative(x, centres, widths):
     """``phi_k(x)`` of :func:`basis_functions` and its derivative ``d phi_k / dx``.
 
     With ``p_k = psi_k / sum_j psi_j`` and ``q_k = -2 h_k (x - c_k)`` (so that
@@ -149,6 +156,8 @@ def basis_functions_and_derivative(x: torch.Tensor, centres, widths):
     -------
     phi, dphi : tensors [*batch, N]
     """
+    import torch
+
     centres = torch.as_tensor(centres, dtype=x.dtype, device=x.device)
     widths = torch.as_tensor(widths, dtype=x.dtype, device=x.device)
     d = x[..., None] - centres

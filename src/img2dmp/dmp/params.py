@@ -26,18 +26,18 @@ import json
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
+from .._lazy import is_tensor
 from .config import DMPConfig
 
-
-def _is_torch(a) -> bool:
-    return isinstance(a, torch.Tensor)
+_is_torch = is_tensor
 
 
 def as_host_array(a) -> np.ndarray | None:
     """A zero-copy NumPy view of a CPU tensor or array (None for other devices/dtypes)."""
     if _is_torch(a):
+        import torch
+
         if not a.is_cpu or a.dtype in (torch.bfloat16,) or a.is_complex():
             return None
         return a.detach().numpy()
@@ -53,7 +53,7 @@ def all_finite(a) -> bool:
     """
     x = as_host_array(a)
     if x is None:
-        return bool(torch.isfinite(a).all())
+        return bool(a.isfinite().all())
     if x.dtype.kind not in "fc":
         return True
     with np.errstate(all="ignore"):
@@ -128,6 +128,8 @@ def first_index(mask) -> tuple:
 
 def _real_dtype(a) -> bool:
     if _is_torch(a):
+        import torch
+
         return a.dtype.is_floating_point or not (a.is_complex() or a.dtype == torch.bool)
     return a.dtype.kind in "iuf"
 
@@ -155,6 +157,8 @@ def _coerce_fields(p) -> None:
             continue
         arr = strict_numbers(f"DMPParams.{k}", v, finite=False)
         if tensors:
+            import torch
+
             dtype = ref.dtype if ref is not None else torch.float64
             device = next(iter(tensors.values())).device
             arr = torch.as_tensor(arr, dtype=dtype, device=device)
@@ -169,7 +173,11 @@ def _at(idx: tuple, a) -> str:
 
 
 def _cat(parts, like):
-    return torch.cat(parts, dim=-1) if _is_torch(like) else np.concatenate(parts, axis=-1)
+    if _is_torch(like):
+        import torch
+
+        return torch.cat(parts, dim=-1)
+    return np.concatenate(parts, axis=-1)
 
 
 def _swap_last(a):
@@ -269,7 +277,7 @@ class DMPParams:
             for name in names:
                 a = getattr(self, name)
                 if not all_finite(a):
-                    bad = ~torch.isfinite(a) if _is_torch(a) else ~np.isfinite(a)
+                    bad = ~a.isfinite() if _is_torch(a) else ~np.isfinite(a)
                     idx = first_index(bad)
                     raise ValueError(f"DMPParams.{name} contains NaN or inf{_at(idx, a)}")
         tau = hosts[1] if hosts[1] is not None else self.tau
@@ -313,7 +321,11 @@ class DMPParams:
         y0 = v[..., n * d + 1 + d :]
         return cls(w=w, tau=tau, g=g, y0=y0)
 
-    def to_torch(self, dtype=torch.float64, device=None) -> DMPParams:
+    def to_torch(self, dtype=None, device=None) -> DMPParams:
+        """The same parameters as torch tensors (``dtype`` default float64)."""
+        import torch
+
+        dtype = torch.float64 if dtype is None else dtype
         conv = lambda a: torch.as_tensor(a, dtype=dtype, device=device)  # noqa: E731
         return DMPParams(conv(self.w), conv(self.tau), conv(self.g), conv(self.y0))
 

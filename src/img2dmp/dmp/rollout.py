@@ -36,147 +36,21 @@ They agree to rounding, and both are checked by gradcheck.
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import hashlib
 import math
 import os
-import tempfile
 import time
 
 import numpy as np
 import torch
 
 from . import _kernels
-from .basis import basis_functions, kernel_centres, kernel_widths, negligible
+from ._table import _cubic_pieces
 from .config import DMPConfig
 from .params import DMPParams, all_finite, as_host_array
 
-# Nodes per shortest time scale of the responses: cubic Hermite error ~1e-7 relative
-# (~2e-6 px on a 40 px digit), below float32 resolution, with few pieces to combine.
-_NODES_PER_SCALE = 16
-# The table ends where the phase and the free response have decayed below this.
-_TAIL = 1e-10
-# Flush negligible table entries to 0 (see _response_table). Only a test turns it off,
-# to show what the flush prevents.
-_FLUSH = True
-
-
-@functools.lru_cache(maxsize=16)
-def _response_table_f64(config: DMPConfig) -> tuple[float, float, np.ndarray]:
-    """Solve the N + 1 unit responses on a uniform grid of s.
-
-    Returns ``(h, s_max, table)`` where ``table`` is ``[G, 2, N + 1]``: values and
-    s-derivatives of ``[a, R_1, ..., R_N]`` at ``s = 0, h, 2h, ...``. Solved once per
-    configuration and kept on disk (:func:`_table_cache_file`): solving takes about
-    0.5 s and importing the solver as long again, which a one-image prediction would
-    otherwise pay in every process.
-    """
-    n, az, bz, ax = config.n_kernels, config.alpha_z, config.beta, config.alpha_x
-    scale = min(1.0 / (n - 1), 1.0 / math.sqrt(az * bz), 2.0 / az)
-    h = scale / _NODES_PER_SCALE
-    # Slowest decay of the free response: the real part of the slower characteristic root.
-    disc = az * az - 4 * az * bz
-    slow = az / 2 - (math.sqrt(disc) / 2 if disc > 0 else 0.0)
-    s_max = max(-math.log(_TAIL) / ax, (-math.log(_TAIL) + 5.0) / slow, 1.0)
-    g = int(math.ceil(s_max / h)) + 1
-    s_grid = np.arange(g) * h
-    cache = _table_cache_file(config)
-    table = _load_table(cache, (g, 2, n + 1))
-    if table is None:
-        table = _solve_responses(config, s_grid)
-        _save_table(cache, table)
-    return h, float(s_grid[-1]), table
-
-
-def _solve_responses(config: DMPConfig, s_grid: np.ndarray) -> np.ndarray:
-    """``[G, 2, N + 1]`` values and derivatives of the unit responses (scipy DOP853)."""
-    from scipy.integrate import solve_ivp  # here: importing it costs ~0.4 s
-
-    n, az, bz, ax = config.n_kernels, config.alpha_z, config.beta, config.alpha_x
-    c, hw = kernel_centres(config), kernel_widths(config)
-
-    def rhs(s, u):
-        y, yd = u[: n + 1], u[n + 1 :]
-        drive = np.zeros(n + 1)
-        drive[1:] = basis_functions(np.exp(np.array(-ax * s)), c, hw)
-        return np.concatenate([yd, -az * bz * y - az * yd + drive])
-
-    u0 = np.zeros(2 * (n + 1))
-    u0[0] = 1.0  # a(0) = 1: unit initial offset; every R_k starts at rest
-    span = (0.0, float(s_grid[-1]))
-    sol = solve_ivp(rhs, span, u0, method="DOP853", t_eval=s_grid, rtol=1e-12, atol=1e-16)
-    if not sol.success:  # pragma: no cover - depends on scipy internals
-        raise RuntimeError(f"could not tabulate DMP responses: {sol.message}")
-    return np.stack([sol.y[: n + 1].T, sol.y[n + 1 :].T], axis=1)  # [G, 2, N+1]
-
-
-def _table_cache_file(config: DMPConfig) -> str | None:
-    """Where the table of ``config`` is kept: named by a hash of the constants and of
-    the code that computes it (this file and basis.py), so that a change of either
-    makes a new one. In ``__pycache__`` next to this file (as numba's cache), else in
-    ``$XDG_CACHE_HOME/img2dmp`` (``~/.cache/img2dmp``); None when neither is writable
-    or ``IMG2DMP_NO_TABLE_CACHE`` is set."""
-    if os.environ.get("IMG2DMP_NO_TABLE_CACHE"):
-        return None
-    here = os.path.dirname(os.path.abspath(__file__))
-    constants = (config.n_kernels, config.alpha_z, config.beta, config.alpha_x)
-    constants += (config.width_factor, _NODES_PER_SCALE, _TAIL)
-    code = hashlib.sha1()
-    try:
-        for name in ("rollout.py", "basis.py"):
-            with open(os.path.join(here, name), "rb") as f:
-                code.update(f.read())
-    except OSError:  # pragma: no cover - installed without sources
-        return None
-    name = f"dmp_responses_{hashlib.sha1(repr(constants).encode()).hexdigest()[:12]}"
-    name += f"_{code.hexdigest()[:12]}.npy"  # the other code's files go when this is saved
-    user = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    for folder in (os.path.join(here, "__pycache__"), os.path.join(user, "img2dmp")):
-        try:
-            os.makedirs(folder, exist_ok=True)
-        except OSError:
-            continue
-        if os.access(folder, os.W_OK):
-            return os.path.join(folder, name)
-    return None
-
-
-def _load_table(path: str | None, shape: tuple) -> np.ndarray | None:
-    """The cached table, or None if absent, unreadable or not what was expected."""
-    if path is None:
-        return None
-    try:
-        table = np.load(path, allow_pickle=False)
-    except (OSError, ValueError):
-        return None
-    ok = table.shape == shape and table.dtype == np.float64 and np.isfinite(table).all()
-    return table if ok else None
-
-
-def _save_table(path: str | None, table: np.ndarray) -> None:
-    """Write atomically (a temporary file renamed), so that readers never see half of it."""
-    if path is None:
-        return
-    folder, name = os.path.split(path)
-    tmp = None
-    try:
-        # mkstemp creates a new file (O_EXCL): a link planted at a predictable temporary
-        # name in a shared cache folder is never followed.
-        fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=folder or ".")
-        with os.fdopen(fd, "wb") as f:
-            np.save(f, table, allow_pickle=False)
-        os.replace(tmp, path)
-    except OSError:  # a read-only or full disk: solve again next time
-        with contextlib.suppress(OSError, TypeError):
-            os.remove(tmp)
-        return
-    # Tables of these constants made by an earlier version of the code are stale.
-    stale, sep, _ = name.rpartition("_")  # "dmp_responses_<constants>" "_" "<code>.npy"
-    for other in os.listdir(folder) if sep else ():
-        if other.startswith(stale + sep) and other.endswith(".npy") and other != name:
-            with contextlib.suppress(OSError):
-                os.remove(os.path.join(folder, other))
+# The table is solved, kept on disk and flushed in ._table, which imports no torch: the
+# NumPy rollout (._numpy_rollout) interpolates the very same pieces.
 
 
 @functools.lru_cache(maxsize=32)
@@ -195,12 +69,7 @@ def _response_table(config: DMPConfig, dtype: torch.dtype, device: str):
     rollout was 5x slower). Both backends share this table. The flushed entries are far
     below the ODE solver's own absolute tolerance (1e-16), so no accuracy is lost.
     """
-    h, s_max, table = _response_table_f64(config)
-    v, dv = table[:, 0], h * table[:, 1]  # [G, C]
-    v0, v1, d0, d1 = v[:-1], v[1:], dv[:-1], dv[1:]
-    poly = np.stack([v0, d0, 3 * (v1 - v0) - 2 * d0 - d1, 2 * (v0 - v1) + d0 + d1], -1)
-    if _FLUSH:
-        poly[np.abs(poly) < negligible(dtype)] = 0.0
+    h, s_max, poly = _cubic_pieces(config, dtype)  # [G-1, C, 4] float64, flushed
     poly = torch.as_tensor(poly.transpose(1, 0, 2), dtype=dtype, device=device)
     return h, s_max, poly.contiguous()  # [C, G-1, 4]
 

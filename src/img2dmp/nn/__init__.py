@@ -12,25 +12,54 @@
   (images -> network -> DMP rollout) of prediction, evaluation and validation
 """
 
-from .costs import (
-    COST_NAMES,
-    Cost,
-    dmp_trajectory,
-    parameter_cost,
-    trajectory_cost,
-    trajectory_error_px,
-)
-from .inference import dmp_trajectories, hypothesis_trajectories, network_outputs
-from .model import (
-    ConvEncoder,
-    EncoderDecoder,
-    FullyConnectedEncoder,
-    ModelConfig,
-    build_model,
-    split_hypotheses,
-    top_hypothesis,
-)
-from .normalise import ParamNormaliser
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from .._lazy import exports
+
+_NAMES = {
+    "COST_NAMES": ".costs",
+    "Cost": ".costs",
+    "dmp_trajectory": ".costs",
+    "parameter_cost": ".costs",
+    "trajectory_cost": ".costs",
+    "trajectory_error_px": ".costs",
+    "dmp_trajectories": ".inference",
+    "hypothesis_trajectories": ".inference",
+    "network_outputs": ".inference",
+    "ConvEncoder": ".model",
+    "EncoderDecoder": ".model",
+    "FullyConnectedEncoder": ".model",
+    "ModelConfig": ".model",
+    "build_model": ".model",
+    "split_hypotheses": ".model",
+    "top_hypothesis": ".model",
+    "ParamNormaliser": ".normalise",
+}
+
+if TYPE_CHECKING:  # the real imports, for type checkers and IDEs
+    from .costs import (
+        COST_NAMES,
+        Cost,
+        dmp_trajectory,
+        parameter_cost,
+        trajectory_cost,
+        trajectory_error_px,
+    )
+    from .inference import dmp_trajectories, hypothesis_trajectories, network_outputs
+    from .model import (
+        ConvEncoder,
+        EncoderDecoder,
+        FullyConnectedEncoder,
+        ModelConfig,
+        build_model,
+        split_hypotheses,
+        top_hypothesis,
+    )
+    from .normalise import ParamNormaliser
+
+__getattr__, __dir__ = exports(__name__, _NAMES, globals())
 
 __all__ = [
     "COST_NAMES",

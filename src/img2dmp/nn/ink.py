@@ -19,8 +19,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-#: A pixel counts as ink above this intensity (images in [0, 1], ink = 1).
-INK_THRESHOLD = 0.5
+from ._refine_numpy import INK_THRESHOLD  # noqa: F401 (one value for both; re-exported)
 
 
 @torch.no_grad()

@@ -29,17 +29,26 @@ goal-start scaling; without it the weights are already amplitudes.
 
 The inverse (:meth:`ParamNormaliser.denormalise`) maps the network's output ``z`` back to a
 :class:`~img2dmp.dmp.DMPParams`; tau comes out as ``exp(.)`` and is therefore always
-positive, which is what the rollout of cost (10) needs. It is differentiable.
+positive, which is what the rollout of cost (10) needs. It is differentiable; its NumPy
+twin :meth:`ParamNormaliser.denormalise_numpy` has a hand-written vector-Jacobian product
+(:meth:`ParamNormaliser.denormalise_numpy_vjp`) for the refinement without torch.
+
+torch is imported only by the methods that take tensors (a prediction that never
+imports torch uses this module).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
 
-from ..dmp import DMPConfig, DMPParams
+from ..dmp.config import DMPConfig
+from ..dmp.params import DMPParams
+
+if TYPE_CHECKING:
+    import torch
 
 _IQR_TO_STD = 1.3489795
 UNITS = ("weights", "amplitudes")
@@ -126,7 +135,7 @@ class ParamNormaliser:
         ti = config.n_kernels * config.n_dims
         if not (v[:, ti] > 0).all():
             raise ValueError("training parameter vectors have tau <= 0")
-        u = _to_units(torch.as_tensor(v), config.n_kernels, config.n_dims, units).numpy()
+        u = _to_units_numpy(v, config.n_kernels, config.n_dims, units)
         q1, med, q3 = np.percentile(u, [25.0, 50.0, 75.0], axis=0)
         scale = (q3 - q1) / _IQR_TO_STD
         # A unit with (almost) no spread would otherwise blow up its normalised error;
@@ -140,6 +149,8 @@ class ParamNormaliser:
     def _tensors(self, like: torch.Tensor):
         key = (like.dtype, like.device)
         if key not in self._cache:
+            import torch  # loaded already: ``like`` is a tensor
+
             c = torch.as_tensor(self.centre, dtype=like.dtype, device=like.device)
             s = torch.as_tensor(self.scale, dtype=like.dtype, device=like.device)
             self._cache[key] = (c, s)
@@ -173,6 +184,82 @@ class ParamNormaliser:
         p.w, p.tau, p.g, p.y0 = w, tau, g, y0
         return p
 
+    def _check_vector(self, what: str, a) -> np.ndarray:
+        """``a`` as a float64 array ``[*batch, P]``, or a ``ValueError`` naming ``what``."""
+        a = np.asarray(a)
+        if a.dtype.kind not in "iuf":
+            raise ValueError(f"{what} must hold real numbers, got dtype {a.dtype}")
+        if a.ndim == 0 or a.shape[-1] != self.n_params:
+            raise ValueError(
+                f"{what} has shape {a.shape}, expected [*batch, {self.n_params}] "
+                f"(N={self.n_kernels}, d={self.n_dims})"
+            )
+        return a.astype(np.float64, copy=False)
+
+    def denormalise_numpy(self, z) -> np.ndarray:
+        """:meth:`denormalise_vector` in NumPy float64: ``v = from_units(z * scale + centre)``.
+
+        ``from_units`` takes tau = exp(u_tau) and, with ``units="amplitudes"``, the weights
+        ``w = a / copysign(max(|g - y0|, 1e-9), g - y0)``.
+
+        Parameters
+        ----------
+        z : array [*batch, P]
+            Normalised units.
+
+        Returns
+        -------
+        ndarray [*batch, P]
+            Flat parameter vectors (the order of :meth:`DMPParams.to_vector`).
+        """
+        z = self._check_vector("z", z)
+        u = z * self.scale + self.centre
+        return _from_units_numpy(u, self.n_kernels, self.n_dims, self.units)
+
+    def denormalise_numpy_vjp(self, z, grad_v) -> np.ndarray:
+        """Vector-Jacobian product of :meth:`denormalise_numpy`: ``dL/dz`` from ``dL/dv``.
+
+        With ``u = z * scale + centre`` and ``v = from_units(u)``::
+
+            dL/du_tau = dL/dv_tau * exp(u_tau)
+            dL/du_w   = dL/dv_w / D                              ("amplitudes", else dL/dv_w)
+            dL/du_g  += sum_k -dL/dv_w_k * u_w_k / D^2 * [|g - y0| >= 1e-9]   (per dimension)
+            dL/du_y0 -= the same
+            dL/dz     = dL/du * scale
+
+        where ``D = copysign(max(|g - y0|, 1e-9), g - y0)``; below the floor ``D`` is
+        constant, as torch's autograd of :meth:`denormalise_vector` has it.
+
+        Parameters
+        ----------
+        z : array [*batch, P]
+        grad_v : array [*batch, P]
+            Gradient with respect to the flat parameter vectors.
+
+        Returns
+        -------
+        ndarray [*batch, P]
+        """
+        z = self._check_vector("z", z)
+        gv = self._check_vector("grad_v", grad_v)
+        if gv.shape != z.shape:
+            raise ValueError(f"grad_v has shape {gv.shape}, z has {z.shape}: they must match")
+        n, d = self.n_kernels, self.n_dims
+        ti = n * d
+        u = z * self.scale + self.centre  # [*batch, P]
+        gu = gv.copy()
+        gu[..., ti] = gv[..., ti] * np.exp(u[..., ti])
+        if self.units == "amplitudes":
+            span = _spans_numpy(u, n, d)  # [*batch, N*d]
+            den = np.copysign(np.maximum(np.abs(span), _MIN_SPAN), span)
+            gu[..., :ti] = gv[..., :ti] / den
+            # d(a / D)/dspan = -a / D^2 where the floor is not active (|span| >= floor).
+            g_span = -gv[..., :ti] * u[..., :ti] / (den * den) * (np.abs(span) >= _MIN_SPAN)
+            g_span = g_span.reshape(*g_span.shape[:-1], d, n).sum(-1)  # [*batch, d]
+            gu[..., ti + 1 : ti + 1 + d] += g_span
+            gu[..., ti + 1 + d :] -= g_span
+        return gu * self.scale
+
     def to_dict(self) -> dict:
         return {
             "kind": "robust-median-iqr-logtau",
@@ -201,6 +288,8 @@ class ParamNormaliser:
 
 def _spans(v: torch.Tensor, n: int, d: int) -> torch.Tensor:
     """``g - y0`` of flat vectors ``[*batch, P]``, repeated per weight: ``[*batch, N*d]``."""
+    import torch  # loaded already: ``v`` is a tensor
+
     g = v[..., n * d + 1 : n * d + 1 + d]
     y0 = v[..., n * d + 1 + d :]
     return torch.repeat_interleave(g - y0, n, dim=-1)
@@ -208,6 +297,8 @@ def _spans(v: torch.Tensor, n: int, d: int) -> torch.Tensor:
 
 def _to_units(v: torch.Tensor, n: int, d: int, units: str) -> torch.Tensor:
     """Flat DMP vectors to the units that are normalised: log tau, and w or (g - y0) w."""
+    import torch  # loaded already: ``v`` is a tensor
+
     ti = n * d
     w = v[..., :ti] * _spans(v, n, d) if units == "amplitudes" else v[..., :ti]
     return torch.cat([w, torch.log(v[..., ti : ti + 1]), v[..., ti + 1 :]], dim=-1)
@@ -215,9 +306,35 @@ def _to_units(v: torch.Tensor, n: int, d: int, units: str) -> torch.Tensor:
 
 def _from_units(u: torch.Tensor, n: int, d: int, units: str) -> torch.Tensor:
     """Inverse of :func:`_to_units` (tau = exp(.) > 0; |g - y0| floored when dividing)."""
+    import torch  # loaded already: ``u`` is a tensor
+
     ti = n * d
     w = u[..., :ti]
     if units == "amplitudes":
         span = _spans(u, n, d)
         w = w / torch.copysign(span.abs().clamp_min(_MIN_SPAN), span)
     return torch.cat([w, torch.exp(u[..., ti : ti + 1]), u[..., ti + 1 :]], dim=-1)
+
+
+def _spans_numpy(v: np.ndarray, n: int, d: int) -> np.ndarray:
+    """:func:`_spans` of NumPy vectors: ``g - y0`` repeated per weight, ``[*batch, N*d]``."""
+    g = v[..., n * d + 1 : n * d + 1 + d]
+    y0 = v[..., n * d + 1 + d :]
+    return np.repeat(g - y0, n, axis=-1)
+
+
+def _to_units_numpy(v: np.ndarray, n: int, d: int, units: str) -> np.ndarray:
+    """:func:`_to_units` of NumPy vectors (log tau, and w or (g - y0) w)."""
+    ti = n * d
+    w = v[..., :ti] * _spans_numpy(v, n, d) if units == "amplitudes" else v[..., :ti]
+    return np.concatenate([w, np.log(v[..., ti : ti + 1]), v[..., ti + 1 :]], axis=-1)
+
+
+def _from_units_numpy(u: np.ndarray, n: int, d: int, units: str) -> np.ndarray:
+    """:func:`_from_units` of NumPy vectors (tau = exp(.); |g - y0| floored when dividing)."""
+    ti = n * d
+    w = u[..., :ti]
+    if units == "amplitudes":
+        span = _spans_numpy(u, n, d)
+        w = w / np.copysign(np.maximum(np.abs(span), _MIN_SPAN), span)
+    return np.concatenate([w, np.exp(u[..., ti : ti + 1]), u[..., ti + 1 :]], axis=-1)

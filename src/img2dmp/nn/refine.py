@@ -14,47 +14,13 @@ move its shape onto the strokes. Adam, a fixed number of steps, no network invol
 
 from __future__ import annotations
 
-import numbers
-from dataclasses import dataclass
-
 import torch
 
-from ..config import check_positive
 from ..dmp import DMPConfig
+from ._refine_options import MAX_REFINE_STEPS, RefineOptions  # torch-free, re-exported here
 from .costs import dmp_trajectory
 from .ink import ink_attraction, ink_coverage, ink_distance_map
 from .normalise import ParamNormaliser
-
-#: Most refinement steps per prediction (``--refine``; 30 is the default).
-MAX_REFINE_STEPS = 10_000
-
-
-@dataclass(frozen=True)
-class RefineOptions:
-    """Settings of :func:`refine`.
-
-    ``steps`` Adam steps of size ``lr`` (normalised units); ``prior_weight`` = lambda;
-    ``ink_weight`` = a, ``coverage_weight`` = c (px^-2 scale); ``coverage_tolerance_px``
-    as in :func:`~img2dmp.nn.ink.ink_coverage`.
-    """
-
-    steps: int = 30
-    lr: float = 0.02
-    prior_weight: float = 5.0
-    ink_weight: float = 1.0
-    coverage_weight: float = 1.0
-    coverage_tolerance_px: float = 1.0
-
-    def __post_init__(self) -> None:
-        steps = self.steps
-        integer = isinstance(steps, numbers.Integral) and not isinstance(steps, bool)
-        if not integer or not 0 <= steps <= MAX_REFINE_STEPS:
-            raise ValueError(
-                f"refine steps must be an integer from 0 to {MAX_REFINE_STEPS}, got {steps!r}"
-            )
-        for name in ("lr", "prior_weight", "ink_weight", "coverage_weight"):
-            check_positive(f"refine {name}", getattr(self, name), allow_zero=True)
-        check_positive("refine coverage_tolerance_px", self.coverage_tolerance_px)
 
 
 def refine(
@@ -130,4 +96,4 @@ class _Adam:
         self.param.addcdiv_(self.m, denom, value=-self.lr / bias1)
 
 
-__all__ = ["RefineOptions", "refine"]
+__all__ = ["MAX_REFINE_STEPS", "RefineOptions", "refine"]

@@ -1,0 +1,189 @@
+"""The tabulated unit responses of the DMP transformation system, without torch.
+
+With tau fixed, the transformation system (eqs. 3-4) is linear and time-invariant in the
+normalised time ``s = t / tau``, so its solution is
+
+    y(s) = g + (y0 - g) * a(s) + S * sum_k w_k R_k(s)
+
+with ``a`` the free response to a unit initial offset (``a(0) = 1, a'(0) = 0``) and
+``R_k`` the response to the k-th kernel ``phi_k(x(s))`` from rest, each solving
+``r'' = -alpha_z beta_z r - alpha_z r' + drive(s)``. This module solves those N + 1
+functions once per configuration on a uniform grid of s (values and s-derivatives),
+keeps the table on disk, and turns it into the cubic Hermite pieces that both
+rollouts interpolate: :mod:`img2dmp.dmp.rollout` (torch) and
+:mod:`img2dmp.dmp._numpy_rollout` (NumPy, for a prediction that never imports torch).
+Neither torch nor scipy is imported here; scipy's solver is imported only when a table
+has to be solved.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import hashlib
+import math
+import os
+import tempfile
+
+import numpy as np
+
+from .basis import basis_functions, kernel_centres, kernel_widths, negligible
+from .config import DMPConfig
+
+# Nodes per shortest time scale of the responses: cubic Hermite error ~1e-7 relative
+# (~2e-6 px on a 40 px digit), below float32 resolution, with few pieces to combine.
+_NODES_PER_SCALE = 16
+# The table ends where the phase and the free response have decayed below this.
+_TAIL = 1e-10
+# Flush negligible table entries to 0 (see _cubic_pieces). Only a test turns it off,
+# to show what the flush prevents.
+_FLUSH = True
+
+
+@functools.lru_cache(maxsize=16)
+def _response_table_f64(config: DMPConfig) -> tuple[float, float, np.ndarray]:
+    """Solve the N + 1 unit responses on a uniform grid of s.
+
+    Returns ``(h, s_max, table)`` where ``table`` is ``[G, 2, N + 1]``: values and
+    s-derivatives of ``[a, R_1, ..., R_N]`` at ``s = 0, h, 2h, ...``. Solved once per
+    configuration and kept on disk (:func:`_table_cache_file`): solving takes about
+    0.5 s and importing the solver as long again, which a one-image prediction would
+    otherwise pay in every process.
+    """
+    n, az, bz, ax = config.n_kernels, config.alpha_z, config.beta, config.alpha_x
+    scale = min(1.0 / (n - 1), 1.0 / math.sqrt(az * bz), 2.0 / az)
+    h = scale / _NODES_PER_SCALE
+    # Slowest decay of the free response: the real part of the slower characteristic root.
+    disc = az * az - 4 * az * bz
+    slow = az / 2 - (math.sqrt(disc) / 2 if disc > 0 else 0.0)
+    s_max = max(-math.log(_TAIL) / ax, (-math.log(_TAIL) + 5.0) / slow, 1.0)
+    g = int(math.ceil(s_max / h)) + 1
+    s_grid = np.arange(g) * h
+    cache = _table_cache_file(config)
+    table = _load_table(cache, (g, 2, n + 1))
+    if table is None:
+        table = _solve_responses(config, s_grid)
+        _save_table(cache, table)
+    return h, float(s_grid[-1]), table
+
+
+def _cubic_pieces(config: DMPConfig, dtype) -> tuple[float, float, np.ndarray]:
+    """Cubic Hermite pieces of the unit responses, as float64 polynomial coefficients.
+
+    Returns ``(h, s_max, poly)`` with ``poly`` of shape ``[G - 1, C, 4]`` (C = N + 1
+    columns ``[a, R_1..R_N]``): on ``[s_i, s_i + h]`` column c is
+    ``sum_k poly[i, c, k] * u**k`` with ``u = (s - s_i) / h``, i.e. with values ``v``
+    and scaled derivatives ``d = h v'`` at the two nodes
+
+        p(u) = v0 + d0 u + (3 (v1 - v0) - 2 d0 - d1) u^2 + (2 (v0 - v1) + d0 + d1) u^3,
+
+    which matches both ends' values and derivatives (the interpolant is C^1).
+
+    Entries below ``negligible(dtype)`` (a torch or NumPy dtype: 1.1e-19 in float32,
+    1.5e-154 in float64) are exactly 0: the responses of far-away kernels and the
+    decayed tails reach 1e-300 and below, which a cast to float32 would turn into
+    subnormal numbers, and arithmetic on those is very slow on many x86 CPUs. The
+    flushed entries are far below the ODE solver's own absolute tolerance (1e-16), so
+    no accuracy is lost. A new array on every call (the callers cache their own form).
+    """
+    h, s_max, table = _response_table_f64(config)
+    v, dv = table[:, 0], h * table[:, 1]  # [G, C]
+    v0, v1, d0, d1 = v[:-1], v[1:], dv[:-1], dv[1:]
+    poly = np.stack([v0, d0, 3 * (v1 - v0) - 2 * d0 - d1, 2 * (v0 - v1) + d0 + d1], -1)
+    if _FLUSH:
+        poly[np.abs(poly) < negligible(dtype)] = 0.0
+    return h, s_max, poly  # [G-1, C, 4]
+
+
+def _solve_responses(config: DMPConfig, s_grid: np.ndarray) -> np.ndarray:
+    """``[G, 2, N + 1]`` values and derivatives of the unit responses (scipy DOP853)."""
+    from scipy.integrate import solve_ivp  # here: importing it costs ~0.4 s
+
+    n, az, bz, ax = config.n_kernels, config.alpha_z, config.beta, config.alpha_x
+    c, hw = kernel_centres(config), kernel_widths(config)
+
+    def rhs(s, u):
+        y, yd = u[: n + 1], u[n + 1 :]
+        drive = np.zeros(n + 1)
+        drive[1:] = basis_functions(np.exp(np.array(-ax * s)), c, hw)
+        return np.concatenate([yd, -az * bz * y - az * yd + drive])
+
+    u0 = np.zeros(2 * (n + 1))
+    u0[0] = 1.0  # a(0) = 1: unit initial offset; every R_k starts at rest
+    span = (0.0, float(s_grid[-1]))
+    sol = solve_ivp(rhs, span, u0, method="DOP853", t_eval=s_grid, rtol=1e-12, atol=1e-16)
+    if not sol.success:  # pragma: no cover - depends on scipy internals
+        raise RuntimeError(f"could not tabulate DMP responses: {sol.message}")
+    return np.stack([sol.y[: n + 1].T, sol.y[n + 1 :].T], axis=1)  # [G, 2, N+1]
+
+
+# The files whose code decides the table's numbers: a change to either makes a new cache.
+_TABLE_CODE = ("_table.py", "basis.py")
+
+
+def _table_cache_file(config: DMPConfig) -> str | None:
+    """Where the table of ``config`` is kept: named by a hash of the constants and of
+    the code that computes it (this file and basis.py), so that a change of either
+    makes a new one. In ``__pycache__`` next to this file (as numba's cache), else in
+    ``$XDG_CACHE_HOME/img2dmp`` (``~/.cache/img2dmp``); None when neither is writable
+    or ``IMG2DMP_NO_TABLE_CACHE`` is set."""
+    if os.environ.get("IMG2DMP_NO_TABLE_CACHE"):
+        return None
+    here = os.path.dirname(os.path.abspath(__file__))
+    constants = (config.n_kernels, config.alpha_z, config.beta, config.alpha_x)
+    constants += (config.width_factor, _NODES_PER_SCALE, _TAIL)
+    code = hashlib.sha1()
+    try:
+        for name in _TABLE_CODE:
+            with open(os.path.join(here, name), "rb") as f:
+                code.update(f.read())
+    except OSError:  # pragma: no cover - installed without sources
+        return None
+    name = f"dmp_responses_{hashlib.sha1(repr(constants).encode()).hexdigest()[:12]}"
+    name += f"_{code.hexdigest()[:12]}.npy"  # the other code's files go when this is saved
+    user = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    for folder in (os.path.join(here, "__pycache__"), os.path.join(user, "img2dmp")):
+        try:
+            os.makedirs(folder, exist_ok=True)
+        except OSError:
+            continue
+        if os.access(folder, os.W_OK):
+            return os.path.join(folder, name)
+    return None
+
+
+def _load_table(path: str | None, shape: tuple) -> np.ndarray | None:
+    """The cached table, or None if absent, unreadable or not what was expected."""
+    if path is None:
+        return None
+    try:
+        table = np.load(path, allow_pickle=False)
+    except (OSError, ValueError):
+        return None
+    ok = table.shape == shape and table.dtype == np.float64 and np.isfinite(table).all()
+    return table if ok else None
+
+
+def _save_table(path: str | None, table: np.ndarray) -> None:
+    """Write atomically (a temporary file renamed), so that readers never see half of it."""
+    if path is None:
+        return
+    folder, name = os.path.split(path)
+    tmp = None
+    try:
+        # mkstemp creates a new file (O_EXCL): a link planted at a predictable temporary
+        # name in a shared cache folder is never followed.
+        fd, tmp = tempfile.mkstemp(prefix=f".{name}.", suffix=".tmp", dir=folder or ".")
+        with os.fdopen(fd, "wb") as f:
+            np.save(f, table, allow_pickle=False)
+        os.replace(tmp, path)
+    except OSError:  # a read-only or full disk: solve again next time
+        with contextlib.suppress(OSError, TypeError):
+            os.remove(tmp)
+        return
+    # Tables of these constants made by an earlier version of the code are stale.
+    stale, sep, _ = name.rpartition("_")  # "dmp_responses_<constants>" "_" "<code>.npy"
+    for other in os.listdir(folder) if sep else ():
+        if other.startswith(stale + sep) and other.endswith(".npy") and other != name:
+            with contextlib.suppress(OSError):
+                os.remove(os.path.join(folder, other))
