@@ -30,6 +30,12 @@ checkpoint. Other versions are refused.
 Both files are written to a temporary file in the same directory and moved into place
 with ``os.replace``, so a process killed at any moment leaves either the old or the new
 checkpoint, never half of one.
+
+**Without torch.** This module imports torch only where a torch tensor is made or taken
+(saving, :func:`load_weights_into`, the optimiser's state, and loading with
+``framework="pt"``, the default). ``load_checkpoint(path, framework="numpy")`` reads the
+weights as NumPy arrays, with the same checks: :func:`weights_digest` gives the same
+digest for the arrays as for the tensors they were saved from.
 """
 
 from __future__ import annotations
@@ -40,10 +46,10 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import torch
+import numpy as np
 from safetensors import SafetensorError
-from safetensors.torch import load_file, save
 
 from . import __version__
 from . import models as _shipped
@@ -54,6 +60,10 @@ from ._files import (  # noqa: F401 (file_digest re-exported)
     file_digest,
     parse_json,
 )
+from ._lazy import is_tensor
+
+if TYPE_CHECKING:
+    import torch
 
 FORMAT = "img2dmp-checkpoint"
 VERSION = 2
@@ -63,6 +73,14 @@ SUFFIX = ".safetensors"
 # Where a run directory keeps its checkpoints, and which one a run directory stands for.
 CHECKPOINT_DIR = "checkpoints"
 DEFAULT_NAME = "best"
+#: What :func:`load_checkpoint` makes of the tensors: torch tensors or NumPy arrays.
+FRAMEWORKS = ("pt", "numpy")
+#: NumPy's dtypes that torch has too, by name: the digest spells them as torch does
+#: (``torch.float32``), so that it is the same for a state dict's tensors and arrays.
+_DIGEST_DTYPES = frozenset(
+    ["bool", "float16", "float32", "float64", "complex64", "complex128"]
+    + [f"{kind}{bits}" for kind in ("int", "uint") for bits in (8, 16, 32, 64)]
+)
 
 
 class CheckpointError(ValueError):
@@ -79,9 +97,9 @@ class Checkpoint:
         The ``.safetensors`` file read.
     meta : dict
         The JSON record (see the module docstring).
-    model_state : dict[str, Tensor]
-        ``state_dict`` of the network.
-    extra : dict[str, Tensor]
+    model_state : dict[str, Tensor] or dict[str, ndarray]
+        ``state_dict`` of the network (NumPy arrays when loaded with ``framework="numpy"``).
+    extra : dict[str, Tensor] or dict[str, ndarray]
         Other tensors, by their name without prefix (``optim.*`` -> optimiser state).
     """
 
@@ -92,13 +110,31 @@ class Checkpoint:
 
 
 def weights_digest(state: dict) -> str:
-    """SHA-256 over the names, dtypes, shapes and bytes of a ``state_dict``, sorted by name."""
+    """SHA-256 over the names, dtypes, shapes and bytes of a ``state_dict``, sorted by name.
+
+    Each value is a torch tensor or a NumPy array; both give the same digest for the same
+    values: the dtype is spelled as torch does (``torch.float32``), the bytes are
+    little-endian in row-major order. ``ValueError`` naming an array whose dtype torch
+    does not have.
+    """
     h = hashlib.sha256()
     for k in sorted(state):
-        t = state[k].detach().cpu().contiguous()
-        h.update(f"{k}|{t.dtype}|{tuple(t.shape)}|".encode())
-        flat = t.reshape(-1)  # a 0-dim tensor (BatchNorm's step count) cannot be viewed
-        h.update(flat.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+        v = state[k]
+        if is_tensor(v):
+            import torch
+
+            t = v.detach().cpu().contiguous()
+            dtype, shape = str(t.dtype), tuple(t.shape)
+            flat = t.reshape(-1)  # a 0-dim tensor (BatchNorm's step count) cannot be viewed
+            data = flat.view(torch.uint8).numpy().tobytes() if t.numel() else b""
+        else:
+            a = np.asarray(v)
+            if a.dtype.name not in _DIGEST_DTYPES:
+                raise ValueError(f"weights: {k!r} has dtype {a.dtype}, which torch has not")
+            dtype, shape = f"torch.{a.dtype.name}", tuple(a.shape)
+            data = a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes(order="C")
+        h.update(f"{k}|{dtype}|{shape}|".encode())
+        h.update(data)
     return h.hexdigest()
 
 
@@ -115,7 +151,7 @@ def _jsonable(obj):
         return {str(k): _jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [_jsonable(v) for v in obj]
-    if isinstance(obj, torch.Tensor):
+    if is_tensor(obj):
         return obj.tolist()
     if hasattr(obj, "item") and callable(obj.item):
         return obj.item()
@@ -143,6 +179,8 @@ def save_checkpoint(
     extra : dict[str, Tensor], optional
         Further tensors (e.g. optimiser state), stored as ``optim.<name>``.
     """
+    from safetensors.torch import save
+
     path = Path(path)
     if path.suffix != SUFFIX:
         raise ValueError(f"checkpoint path must end in {SUFFIX}, got {str(path)!r}")
@@ -201,7 +239,7 @@ def read_checkpoint_meta(path: str | os.PathLike) -> dict:
 
     p = resolve_checkpoint(path)
     try:
-        with safe_open(str(p), framework="pt") as f:
+        with safe_open(str(p), framework="np") as f:  # the header only: no torch needed
             raw = (f.metadata() or {}).get("img2dmp")
     except (SafetensorError, OSError, ValueError) as e:
         raise CheckpointError(
@@ -245,8 +283,22 @@ def _parse_meta(p: Path, raw) -> dict:
     return meta
 
 
-def load_checkpoint(path: str | os.PathLike, name: str = DEFAULT_NAME) -> Checkpoint:
+def load_checkpoint(
+    path: str | os.PathLike, name: str = DEFAULT_NAME, framework: str = "pt"
+) -> Checkpoint:
     """Read and verify a checkpoint written by :func:`save_checkpoint`.
+
+    Parameters
+    ----------
+    path : path or str
+        What :func:`resolve_checkpoint` takes: a checkpoint, its sidecar, a run directory
+        or the name of a shipped model.
+    name : str
+        Which checkpoint of a run directory (``"best"`` or ``"last"``).
+    framework : {"pt", "numpy"}
+        ``"pt"`` (default): the tensors as torch tensors; ``"numpy"``: as NumPy arrays,
+        without importing torch (for :class:`~img2dmp.nn._numpy_net.NumpyNetwork`). The
+        checks are the same.
 
     Raises
     ------
@@ -256,12 +308,22 @@ def load_checkpoint(path: str | os.PathLike, name: str = DEFAULT_NAME) -> Checkp
         The file is truncated, corrupt or modified (unreadable header, a record or tensors
         whose SHA-256 does not match the record), or not an img2dmp checkpoint.
     """
+    if framework not in FRAMEWORKS:
+        raise ValueError(f"framework must be one of {FRAMEWORKS}, got {framework!r}")
     p = resolve_checkpoint(path, name)
     meta = read_checkpoint_meta(p)  # before the tensors: a foreign file is not read whole
+    if framework == "pt":
+        from safetensors.torch import load_file
+    else:
+        from safetensors.numpy import load_file
     try:
         tensors = load_file(str(p))
     except (SafetensorError, OSError, ValueError, RuntimeError) as e:
         raise CheckpointError(f"checkpoint {p} is corrupt or truncated: {e}") from e
+    except TypeError as e:  # NumPy has no bfloat16; img2dmp itself saves none
+        raise CheckpointError(
+            f"checkpoint {p} holds tensors NumPy cannot represent ({e}): load it with torch"
+        ) from e
     model_state = {k[6:]: v for k, v in tensors.items() if k.startswith("model.")}
     extra = {k[6:]: v for k, v in tensors.items() if k.startswith("optim.")}
     if not model_state:
@@ -281,7 +343,10 @@ def _check_digest(p: Path, what: str, digest: str, recorded) -> None:
 
 
 def load_weights_into(model: torch.nn.Module, ckpt: Checkpoint) -> None:
-    """``model.load_state_dict`` with a clear error when the architecture differs."""
+    """``model.load_state_dict`` with a clear error when the architecture differs (a
+    checkpoint loaded as NumPy arrays is taken too)."""
+    import torch
+
     own = model.state_dict()
     missing = sorted(set(own) - set(ckpt.model_state))
     unexpected = sorted(set(ckpt.model_state) - set(own))
@@ -296,11 +361,14 @@ def load_weights_into(model: torch.nn.Module, ckpt: Checkpoint) -> None:
                 f"checkpoint {ckpt.path} was saved from another architecture: layer {k!r} "
                 f"has shape {tuple(ckpt.model_state[k].shape)}, the model has {tuple(v.shape)}"
             )
-    model.load_state_dict(ckpt.model_state)
+    state = {k: v if is_tensor(v) else torch.tensor(v) for k, v in ckpt.model_state.items()}
+    model.load_state_dict(state)
 
 
 def optimizer_to_tensors(opt: torch.optim.Optimizer) -> tuple[dict, dict]:
     """Split an optimiser's ``state_dict`` into tensors (for safetensors) and JSON."""
+    import torch
+
     sd = opt.state_dict()
     tensors, scalars = {}, {}
     for idx, st in sd["state"].items():

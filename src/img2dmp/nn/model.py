@@ -10,18 +10,32 @@ Encoders are interchangeable: anything with ``in_shape`` ``(H, W)``, ``out_featu
 ``forward(images [B, H, W]) -> [B, out_features]`` can be plugged into
 :class:`EncoderDecoder`. :class:`FullyConnectedEncoder` is the paper's;
 :class:`ConvEncoder` is a small convolutional alternative (the paper's stated next step).
-:func:`build_model` makes either from a :class:`ModelConfig`.
+:func:`build_model` makes either from a :class:`ModelConfig`, which (with the constants
+and :func:`check_weights`) lives in the torch-free :mod:`img2dmp.nn.architecture` and is
+re-exported here.
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
-
 import torch
 from torch import nn
 
-from ..errors import show
+from .architecture import (  # noqa: F401 (re-exported: the torch-free names of the network)
+    CONV_NORMS,
+    ENCODERS,
+    INITS,
+    INPUT_FILTERS,
+    MAX_HYPOTHESES,
+    MAX_LAYERS,
+    MAX_WEIGHTS,
+    PAPER_IMAGE_SIZE,
+    ModelConfig,
+    check_weights,
+    hypotheses_output_size,
+)
 
+#: The torch module of each activation ``ModelConfig`` names
+#: (:data:`img2dmp.nn.architecture.ACTIVATIONS`, in the same order).
 ACTIVATIONS = {
     "relu": nn.ReLU,
     "tanh": nn.Tanh,
@@ -30,20 +44,6 @@ ACTIVATIONS = {
     "leaky_relu": nn.LeakyReLU,
     "sigmoid": nn.Sigmoid,
 }
-ENCODERS = ("fc", "conv")
-CONV_NORMS = ("none", "batch")
-#: Initialisations of the weights, see :class:`ModelConfig` ``init``.
-INITS = ("torch", "he")
-INPUT_FILTERS = ("none", "impulse")
-#: The paper's input size (1600 inputs), used when a model is built without data.
-PAPER_IMAGE_SIZE = (40, 40)
-#: Most weights (parameters) of a network: the paper's has 6.5 million; 50 million take
-#: 0.2 GB, and training holds four copies (weights, gradients, Adam's two moments).
-MAX_WEIGHTS = 50_000_000
-#: Most hypotheses K: each is a DMP rolled out and scored for every image of a batch.
-MAX_HYPOTHESES = 64
-#: Most entries of each list of layer widths or channels.
-MAX_LAYERS = 64
 
 
 def _activation(name: str) -> nn.Module:
@@ -66,147 +66,6 @@ def _mlp(
         if hidden and dropout > 0:
             layers.append(nn.Dropout(dropout))
     return nn.Sequential(*layers)
-
-
-@dataclass
-class ModelConfig:
-    """Architecture of an :class:`EncoderDecoder`.
-
-    Parameters
-    ----------
-    encoder : {"fc", "conv"}
-        ``"fc"``: the paper's fully connected encoder; ``"conv"``: :class:`ConvEncoder`.
-    image_size : [H, W] or None
-        Input image size in pixels (the paper: 40 x 40 = 1600 inputs). None (default):
-        taken from the data by training; :func:`build_model` alone reads it as 40 x 40.
-    encoder_layers : list of int
-        Widths of the fully connected encoder's layers, the last being the latent code
-        (paper: 1500, 1300, 1000, 600, 200, 20). For ``"conv"`` only the last entry
-        (the latent size) is used.
-    conv_channels : list of int
-        Channels of the convolutional encoder's 3x3 convolutions.
-    conv_strides : list of int, optional
-        Stride of each of those convolutions (default ``None``: 2 for every one, each
-        halving the image). A stride-1 first layer sees the image at full resolution,
-        which can help to place the strokes to a fraction of a pixel, at about twice the
-        cost.
-    conv_norm : {"none", "batch"}
-        Normalisation after each convolution (before its activation): none (default) or
-        batch normalisation, which uses batch statistics in training and the running
-        averages saved with the weights at evaluation.
-    decoder_layers : list of int
-        Hidden widths of the decoder between the latent code and the output (paper: 35).
-    input_filter : {"none", "impulse"}
-        Fixed filter on the image before the encoder: none (default) or
-        :class:`ImpulseFilter`, which undoes most salt-and-pepper noise.
-    activation : str
-        One of :data:`ACTIVATIONS`, after every hidden layer.
-    n_outputs : int
-        Length P of the DMP vector (55 for N = 25, d = 2); set from the data.
-    hypotheses : int
-        K, the number of DMPs the network proposes for one image, each with a score
-        (:func:`split_hypotheses`). 1 (default) is the paper's network: one DMP, no score.
-    dropout : float
-        Share of the fully connected encoder's hidden units dropped at random in
-        training (after each activation but the code's; Srivastava et al. 2014), in
-        [0, 1); 0 (default, the paper's network as described): none. Prediction never
-        drops units.
-    init : {"torch", "he"}
-        How the weights start. ``"torch"`` (default): PyTorch's default for each layer,
-        under which the paper's deep ReLU stack shrinks the images' variation (its
-        standard deviation across images) about 2.7-fold per layer, to 1/140 of the first
-        layer's at the code, which first sees mostly the biases; ``"he"``:
-        He et al.'s normal initialisation (variance ``gain**2 / fan_in``, the gain of
-        the activation that follows the layer; 1 for the output layer) and zero biases,
-        which keeps the variation through every layer. The paper does not say which.
-    """
-
-    encoder: str = "fc"
-    image_size: list[int] | None = None
-    encoder_layers: list[int] = field(default_factory=lambda: [1500, 1300, 1000, 600, 200, 20])
-    conv_channels: list[int] = field(default_factory=lambda: [16, 32, 64])
-    conv_strides: list[int] | None = None
-    conv_norm: str = "none"
-    decoder_layers: list[int] = field(default_factory=lambda: [35])
-    input_filter: str = "none"
-    activation: str = "relu"
-    n_outputs: int = 55
-    hypotheses: int = 1
-    dropout: float = 0.0
-    init: str = "torch"
-
-    def __post_init__(self) -> None:
-        if self.encoder not in ENCODERS:
-            raise ValueError(f"model.encoder must be one of {ENCODERS}, got {self.encoder!r}")
-        if self.image_size is not None:
-            self.image_size = [int(s) for s in self.image_size]
-            if len(self.image_size) != 2 or min(self.image_size) < 4:
-                raise ValueError(f"model.image_size must be [H, W] >= 4, got {self.image_size!r}")
-        for name in ("encoder_layers", "conv_channels", "decoder_layers"):
-            vals = [int(v) for v in getattr(self, name)]
-            if any(v < 1 for v in vals) or len(vals) > MAX_LAYERS:
-                raise ValueError(
-                    f"model.{name} must hold at most {MAX_LAYERS} positive widths, got {show(vals)}"
-                )
-            setattr(self, name, vals)
-        if not self.encoder_layers:
-            raise ValueError("model.encoder_layers must name at least the latent size")
-        if self.encoder == "conv" and not self.conv_channels:
-            raise ValueError("model.conv_channels must not be empty for a conv encoder")
-        if self.conv_strides is not None:  # None: stride 2 everywhere
-            self.conv_strides = [int(v) for v in self.conv_strides]
-            if len(self.conv_strides) != len(self.conv_channels) or min(self.conv_strides) < 1:
-                raise ValueError(
-                    "model.conv_strides must hold one stride >= 1 per entry of "
-                    f"conv_channels {self.conv_channels}, got {self.conv_strides!r}"
-                )
-        if self.input_filter not in INPUT_FILTERS:
-            raise ValueError(
-                f"model.input_filter must be one of {INPUT_FILTERS}, got {self.input_filter!r}"
-            )
-        if self.conv_norm not in CONV_NORMS:
-            raise ValueError(f"model.conv_norm must be one of {CONV_NORMS}, got {self.conv_norm!r}")
-        if self.activation not in ACTIVATIONS:
-            raise ValueError(
-                f"model.activation must be one of {sorted(ACTIVATIONS)}, got {self.activation!r}"
-            )
-        if int(self.n_outputs) < 1:
-            raise ValueError(f"model.n_outputs must be >= 1, got {self.n_outputs!r}")
-        self.n_outputs = int(self.n_outputs)
-        if isinstance(self.hypotheses, bool) or not 1 <= int(self.hypotheses) <= MAX_HYPOTHESES:
-            raise ValueError(
-                f"model.hypotheses must be an integer from 1 to {MAX_HYPOTHESES}, got "
-                f"{self.hypotheses!r}"
-            )
-        self.hypotheses = int(self.hypotheses)
-        number = isinstance(self.dropout, (int, float)) and not isinstance(self.dropout, bool)
-        if not number or not 0 <= self.dropout < 1:
-            raise ValueError(f"model.dropout must be a number in [0, 1), got {self.dropout!r}")
-        self.dropout = float(self.dropout)
-        if self.dropout > 0 and self.encoder != "fc":
-            raise ValueError(
-                f"model.dropout ({self.dropout}) acts on the fully connected encoder's hidden "
-                f"layers; the {self.encoder!r} encoder has none (set model.encoder: fc or "
-                "model.dropout: 0)"
-            )
-        if self.init not in INITS:
-            raise ValueError(f"model.init must be one of {INITS}, got {self.init!r}")
-        check_weights(self)
-
-    @property
-    def output_size(self) -> int:
-        """Width of the network's output: ``P`` for one hypothesis, ``K (P + 1)`` for K."""
-        return hypotheses_output_size(self.n_outputs, self.hypotheses)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> ModelConfig:
-        unknown = set(d) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"unknown model config field(s): {sorted(unknown)}")
-        return cls(**d)
 
 
 class ImpulseFilter(nn.Module):
@@ -344,33 +203,6 @@ class EncoderDecoder(nn.Module):
         return self.decoder(self.encoder(self.input_filter(images)))
 
 
-def check_weights(config: ModelConfig) -> int:
-    """The number of weights of ``build_model(config)`` (at ``config.image_size``, else
-    the paper's 40 x 40), counted on PyTorch's meta device, where nothing is allocated;
-    ``ValueError`` naming the fields that decide it when it is above :data:`MAX_WEIGHTS`
-    (a network of 100 million units per layer would otherwise end in an allocation
-    failure, or the machine's memory)."""
-    with torch.device("meta"):
-        model = _build(config)
-    encoder = sum(p.numel() for p in model.encoder.parameters())
-    decoder = sum(p.numel() for p in model.decoder.parameters())
-    if encoder + decoder <= MAX_WEIGHTS:
-        return encoder + decoder
-    h, w = model.image_size
-    if encoder >= decoder:
-        field = "model.conv_channels" if config.encoder == "conv" else "model.encoder_layers"
-        value = config.conv_channels if config.encoder == "conv" else config.encoder_layers
-        part = f"the encoder ({h} x {w} pixels in)"
-    else:
-        field, value, part = "model.decoder_layers", config.decoder_layers, "the decoder"
-        if config.hypotheses > 1:
-            field += f" and model.hypotheses ({config.hypotheses})"
-    raise ValueError(
-        f"{field} {show(value)} give {part} {max(encoder, decoder):,} weights; a network "
-        f"may have at most {MAX_WEIGHTS:,} in all ({encoder + decoder:,} here)"
-    )
-
-
 def build_model(config: ModelConfig, seed: int | None = None) -> EncoderDecoder:
     """Make the network described by ``config`` (weights initialised as ``config.init``).
 
@@ -441,11 +273,6 @@ def he_initialise(model: nn.Module) -> None:
                 layer.weight.normal_(0.0, gain / fan_in**0.5)
                 if layer.bias is not None:
                     layer.bias.zero_()
-
-
-def hypotheses_output_size(n_params: int, hypotheses: int) -> int:
-    """``P`` for one hypothesis; ``K P`` DMP units and K scores for ``K > 1``."""
-    return n_params if hypotheses == 1 else hypotheses * (n_params + 1)
 
 
 def split_hypotheses(out: torch.Tensor, hypotheses: int) -> tuple[torch.Tensor, torch.Tensor]:

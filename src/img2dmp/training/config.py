@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from .. import config as _config
 from .._processes import machine_cores
 from ..config import ConfigError, check_positive
-from ..nn.model import ModelConfig
+from ..nn.architecture import ModelConfig
 
 #: Learning-rate schedules, see :class:`OptimConfig`.
 SCHEDULES = ("none", "cosine", "step", "plateau")
