@@ -1,17 +1,22 @@
 """Latency of the command line as a user meets it: whole processes, start to exit.
 
-Times, as separate processes (``subprocess``, several runs; min / median / max):
+Times, as separate processes (``subprocess``, several runs in alternation; min / median /
+max):
 
 1. ``img2dmp --help`` (target <= 0.5 s);
-2. ``img2dmp predict --model RUN IMAGE`` on one image, end to end: Python's start, the
-   imports, loading the network, preparing the image, the network, the rollout and the
-   JSON on stdout (target <= 1.5 s).
+2. ``img2dmp predict IMAGE`` with the shipped default model and the settings its card
+   recommends (30 refinement steps), end to end: Python's start, the imports, loading and
+   checking the model, preparing the image, the network, refinement, the rollout and the
+   JSON on stdout, on the NumPy backend (``--backend numpy``, what ``auto`` takes on the
+   CPU; target <= 1.0 s, issue 33) and on torch (``--backend torch``), side by side, with
+   their ratio;
+3. the same with ``--model RUN`` for a tiny network trained here (``--run-dir``-style
+   models: a 40-sample synthetic data set of one digit, one epoch of the demo's network,
+   about 10 s; target <= 1.5 s), with ``--tiny``.
 
-The model is a tiny one trained here, in a temporary directory: a 40-sample synthetic
-data set of one digit (``img2dmp generate``) and one epoch of the demo's network
-(``img2dmp train --config demo``), about 10 s. The image is
-one of the data set's, written as a PNG. One untimed prediction first warms the caches
-(numba's compiled code, the DMP response table, the OS's file cache, Python's bytecode).
+The image is ``examples/samples/digit_3.png``. One untimed run of each command first warms
+the caches (numba's compiled code, the DMP response table, the OS's file cache, Python's
+bytecode).
 
 Python's bytecode cache: an installed package has its modules compiled (pip compiles them
 on install; Python writes the cache of an editable install on first import). Where
@@ -23,7 +28,7 @@ the warm-up fills. ``--as-environment`` times them with the environment unchange
 ``--profile`` also prints where one prediction's time goes: the slowest imports
 (``python -X importtime``) and the functions with the most cumulative time (cProfile).
 
-Run: ``.venv/bin/python benchmarks/bench_latency.py [--runs 7] [--profile]``
+Run: ``.venv/bin/python benchmarks/bench_latency.py [--runs 7] [--tiny] [--profile]``
 """
 
 from __future__ import annotations
@@ -41,7 +46,9 @@ from pathlib import Path
 
 import _machine
 
-TARGETS = {"img2dmp --help": 0.5, "img2dmp predict (one image)": 1.5}
+NUMPY, TORCH, TINY = "predict (numpy)", "predict (torch)", "predict --model tiny"
+TARGETS = {"img2dmp --help": 0.5, NUMPY: 1.0, TORCH: 1.0, TINY: 1.5}
+SAMPLE = Path(__file__).resolve().parents[1] / "examples" / "samples" / "digit_3.png"
 
 
 def img2dmp_command() -> list[str]:
@@ -133,18 +140,26 @@ def main() -> None:
         action="store_true",
         help="time with the environment as it is, even if it turns Python's bytecode cache off",
     )
+    ap.add_argument("--tiny", action="store_true", help="also time a tiny run directory")
     args = ap.parse_args()
     cli = img2dmp_command()
     work = Path(tempfile.mkdtemp(prefix="img2dmp-latency-"))
     try:
         print(_machine.describe())
-        t0 = time.perf_counter()
-        run_dir, png = make_model(work, cli)
-        print(f"tiny model trained in {time.perf_counter() - t0:.1f} s ({work})")
-        predict = cli + ["predict", "--model", str(run_dir), str(png)]
+        predict = cli + ["predict", str(SAMPLE)]
+        commands = {
+            "img2dmp --help": cli + ["--help"],
+            NUMPY: predict + ["--backend", "numpy"],
+            TORCH: predict + ["--backend", "torch"],
+        }
+        if args.tiny:
+            t0 = time.perf_counter()
+            run_dir, png = make_model(work, cli)
+            print(f"tiny model trained in {time.perf_counter() - t0:.1f} s ({work})")
+            commands[TINY] = cli + ["predict", "--model", str(run_dir), str(png)]
         env, cache = bytecode_env(work, args.as_environment)
         print(cache)
-        commands = {"img2dmp --help": cli + ["--help"], "img2dmp predict (one image)": predict}
+        print(f"image {SAMPLE.name}, the shipped default model with its card's refinement")
         for cmd in commands.values():  # warm-up: numba, the response table, files, bytecode
             run(cmd, work, env=env)
         times = time_commands(commands, work, args.runs, env)
@@ -157,9 +172,11 @@ def main() -> None:
                 f"{name:30s} {min(ts):8.2f} {med:8.2f} {max(ts):8.2f} "
                 f"{TARGETS[name]:7.1f}  {verdict}"
             )
+        ratio = statistics.median(times[TORCH]) / statistics.median(times[NUMPY])
+        print(f"torch / numpy (medians): {ratio:.2f}x")
         print(f"load average at the end {_machine.load_average()} (1/5/15 min)")
         if args.profile:
-            print_profile(predict, work)
+            print_profile(commands[NUMPY], work)
     finally:
         shutil.rmtree(work, ignore_errors=True)
 

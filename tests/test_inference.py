@@ -120,11 +120,14 @@ def test_predictor_goes_through_the_inference_path(setup, monkeypatch):
 
         return wrapped
 
-    monkeypatch.setattr(predict_module, "network_outputs", spy(network_outputs))
-    monkeypatch.setattr(predict_module, "dmp_trajectories", spy(dmp_trajectories))
+    import img2dmp.nn.inference as inference
+
+    assert pred.backend == "torch"  # a Predictor made of a torch network computes in torch
+    monkeypatch.setattr(inference, "network_outputs", spy(network_outputs))
+    monkeypatch.setattr(inference, "rollout_outputs", spy(inference.rollout_outputs))
     z = pred.predict_normalised(data.images, batch_size=3)
     y = pred.trajectories_for_images(data.images, data.times + 0.25, batch_size=3)
-    assert calls == ["network_outputs", "dmp_trajectories"]
+    assert calls == ["network_outputs", "network_outputs", "rollout_outputs"]
     assert torch.equal(z, network_outputs(model, images, batch_size=3))
     assert isinstance(y, np.ndarray) and y.dtype == np.float32
     np.testing.assert_array_equal(y, dmp_trajectories(model, normaliser, cfg, images, times, 3))

@@ -31,8 +31,18 @@ resized), so its DMPs and their paths are in those pixels. ``Prediction.frame`` 
 :mod:`img2dmp.dmp.affine`). Both follow docs/CONTRACTS.md: x = column, y = row, the
 centre of pixel ``[i, j]`` at ``(j, i)``.
 
-The network runs through :mod:`img2dmp.nn.inference`, the batched path that evaluation
-and training's validation use too.
+**Backends.** A loaded model runs on one of two implementations of the same numbers
+(``backend``, :data:`BACKENDS`): ``"numpy"`` (:mod:`img2dmp.nn._numpy_net` for the
+network, :mod:`img2dmp.nn._refine_numpy` for refinement, :mod:`img2dmp.dmp._numpy_rollout`
+for the rollout), which never imports torch (its import alone takes 1.5-3 s, longer than
+the rest of a one-image prediction), and ``"torch"`` (:mod:`img2dmp.nn.inference`, the
+batched path that evaluation and training's validation use, on any device).
+``"auto"`` (the default) takes NumPy on the CPU. They agree to rounding: tests compare
+them to 1e-5 of each parameter's spread over the training set (docs/ARCHITECTURE.md).
+The two methods that serve evaluation (:meth:`~Predictor.hypothesis_trajectories`,
+:meth:`~Predictor.trajectories_for_images`) roll out in torch at float32 time stamps, as
+training's validation does, whatever the backend; :attr:`Predictor.model` is the torch
+network, built from the same weights when first asked for.
 """
 
 from __future__ import annotations
@@ -42,9 +52,9 @@ import os
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from .checkpoint import (
+    Checkpoint,
     CheckpointError,
     atomic_write_text,
     load_checkpoint,
@@ -65,15 +75,18 @@ from .data.images import (  # noqa: F401  (re-exported: their home was this modu
     stroke_width,
     typical_stroke_width,
 )
-from .dmp import DMPConfig, DMPParams, rollout
+from .dmp import DMPConfig, DMPParams
+from .dmp._numpy_rollout import rollout_numpy
 from .dmp.affine import affine_dmp
 from .models import ShippedModel, default_model
 from .models import resolve as resolve_shipped
-from .nn import ModelConfig, ParamNormaliser, build_model
-from .nn.device import place_model
-from .nn.inference import dmp_trajectories, network_outputs, rollout_outputs
-from .nn.model import split_hypotheses
-from .nn.refine import MAX_REFINE_STEPS, RefineOptions, refine
+from .nn._numpy_net import NumpyNetwork
+from .nn._refine_numpy import MAX_REFINE_STEPS, RefineOptions, refine_numpy
+from .nn.architecture import ModelConfig
+from .nn.normalise import ParamNormaliser
+
+#: How a loaded model computes (module docstring, "Backends").
+BACKENDS = ("auto", "numpy", "torch")
 
 #: Instants over a DMP's duration at which refinement compares its path with the ink.
 REFINE_POINTS = 100
@@ -145,6 +158,10 @@ class Predictor:
     Attributes
     ----------
     model : EncoderDecoder
+        The torch network (built from the NumPy backend's weights when first asked for,
+        which imports torch).
+    network : NumpyNetwork or None
+        The same network in NumPy (the ``"numpy"`` backend), None for ``"torch"``.
     normaliser : ParamNormaliser
     dmp_config : DMPConfig
     image_size : (H, W)
@@ -157,6 +174,9 @@ class Predictor:
     shipped : ShippedModel or None
         The model shipped with img2dmp this is (:mod:`img2dmp.models`: its name, card
         and recommended settings), None for a run directory or checkpoint.
+
+    ``Predictor(model, ...)`` with a torch network computes with torch;
+    :meth:`Predictor.load` chooses the backend (module docstring, "Backends").
     """
 
     def __init__(
@@ -167,40 +187,75 @@ class Predictor:
         meta: dict,
         refine_options: RefineOptions | None = None,
         shipped: ShippedModel | None = None,
+        *,
+        network: NumpyNetwork | None = None,
+        checkpoint: Checkpoint | None = None,
     ):
-        self.model = model.eval()
+        if model is None and (network is None or checkpoint is None):
+            raise ValueError("Predictor needs a torch model, or a NumpyNetwork and its checkpoint")
+        self._model = model.eval() if model is not None else None
+        self.network = network
+        self._checkpoint = checkpoint  # the NumPy weights, for the torch network on demand
         self.normaliser = normaliser
         self.dmp_config = dmp_config
         self.meta = meta
-        self.image_size = tuple(int(s) for s in model.image_size)
+        size = network.image_size if network is not None else model.image_size
+        self.image_size = tuple(int(s) for s in size)
         self.refine_options = refine_options
         self.shipped = shipped
 
-    def _refined(self, z: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        """``z [N, P]`` refined on images ``x [N, H, W]`` (unchanged without refinement),
-        compared with the ink at 100 instants over each DMP's own duration."""
-        o = self.refine_options
-        if o is None or o.steps == 0:
-            return z
-        check_count("refine steps (--refine)", o.steps, 0, MAX_REFINE_STEPS)
-        tau = self.normaliser.denormalise_vector(z.detach().double())[:, self.normaliser.tau_index]
-        t = tau[:, None] * torch.linspace(0.0, 1.0, REFINE_POINTS, dtype=torch.float64)
-        return refine(z, x, t, self.normaliser, self.dmp_config, o).to(z.dtype)
+    @property
+    def backend(self) -> str:
+        """``"numpy"`` or ``"torch"``: what :meth:`predict` and page reading compute with."""
+        return "numpy" if self.network is not None else "torch"
+
+    @property
+    def model(self):
+        """The torch network (``EncoderDecoder``, eval mode)."""
+        if self._model is None:
+            import torch
+
+            from .nn.model import build_model
+
+            ckpt = self._checkpoint
+            state = {k: torch.from_numpy(np.array(v)) for k, v in ckpt.model_state.items()}
+            model = build_model(self.network.config)
+            load_weights_into(model, Checkpoint(ckpt.path, ckpt.meta, state))
+            self._model = model.eval()
+        return self._model
+
+    @model.setter
+    def model(self, model) -> None:  # a torch network of one's own: torch computes
+        self._model, self.network = model.eval(), None
 
     @classmethod
-    def load(cls, path: str | os.PathLike, name: str = "best", device: str = "cpu") -> Predictor:
+    def load(
+        cls,
+        path: str | os.PathLike,
+        name: str = "best",
+        device: str = "cpu",
+        backend: str = "auto",
+    ) -> Predictor:
         """Load from a run directory (its ``checkpoints/<name>``), a checkpoint file or
         the name of a shipped model (``"digits-real"``, :mod:`img2dmp.models`; its file's
         SHA-256 checked). No refinement is set (:func:`load_model` applies a shipped
         model's recommended settings).
 
         ``device``: where the network runs (``"cpu"``, ``"cuda"``; inputs and outputs stay
-        on the CPU, :func:`img2dmp.nn.device.place_model`).
+        on the CPU, :func:`img2dmp.nn.device.place_model`). ``backend``: one of
+        :data:`BACKENDS`; ``"auto"`` is NumPy on the CPU, torch elsewhere.
 
         Raises ``FileNotFoundError`` if nothing is there and :class:`CheckpointError`
-        (a ``ValueError``) if the file is corrupt, truncated or of another architecture.
+        (a ``ValueError``) if the file is corrupt, truncated or of another architecture;
+        ``ValueError`` for an unknown backend or NumPy on another device than the CPU.
         """
-        ckpt = load_checkpoint(path, name)
+        if backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {', '.join(BACKENDS)}, got {backend!r}")
+        if backend == "numpy" and device != "cpu":
+            raise ValueError(f"backend 'numpy' runs on the CPU; device {device!r} needs "
+                             "backend 'torch'")  # fmt: skip
+        numpy = backend == "numpy" or (backend == "auto" and device == "cpu")
+        ckpt = load_checkpoint(path, name, framework="numpy" if numpy else "pt")
         try:
             mcfg = ModelConfig.from_dict(ckpt.meta["model"])
             normaliser = ParamNormaliser.from_dict(ckpt.meta["normaliser"])
@@ -212,9 +267,20 @@ class Predictor:
                 f"checkpoint {ckpt.path}: model has {mcfg.n_outputs} outputs but the DMP "
                 f"config needs {dmp_config.n_params}"
             )
+        shipped = resolve_shipped(path)
+        if numpy:
+            try:
+                network = NumpyNetwork(mcfg, ckpt.model_state)
+            except ValueError as e:
+                raise CheckpointError(f"checkpoint {ckpt.path} was saved from another "
+                                      f"architecture: {e}") from e  # fmt: skip
+            return cls(None, normaliser, dmp_config, ckpt.meta, shipped=shipped,
+                       network=network, checkpoint=ckpt)  # fmt: skip
+        from .nn.device import place_model
+        from .nn.model import build_model
+
         model = build_model(mcfg)
         load_weights_into(model, ckpt)
-        shipped = resolve_shipped(path)
         return cls(place_model(model, device), normaliser, dmp_config, ckpt.meta, shipped=shipped)
 
     @property
@@ -228,8 +294,16 @@ class Predictor:
         w = self.meta.get("stroke_width_px")
         return float(w) if w else None
 
-    def _check_images(self, images) -> torch.Tensor:
-        x = torch.as_tensor(np.asarray(images, dtype=np.float32))
+    @property
+    def n_hypotheses(self) -> int:
+        """K, the DMPs the network proposes per image (1: the paper's network)."""
+        if self.network is not None:
+            return self.network.config.hypotheses
+        return int(getattr(self.model, "n_hypotheses", 1))
+
+    def _check_images(self, images) -> np.ndarray:
+        """Prepared images as float32 ``[B, H, W]``, or ``ValueError`` saying what is wrong."""
+        x = np.asarray(images, dtype=np.float32)
         if x.ndim == 2:
             x = x[None]
         if x.ndim != 3 or tuple(x.shape[1:]) != self.image_size:
@@ -237,33 +311,71 @@ class Predictor:
                 f"images must have shape [B, {self.image_size[0]}, {self.image_size[1]}], "
                 f"got {tuple(x.shape)} (use prepare_image for other sizes)"
             )
-        if not bool(torch.isfinite(x).all()):
+        if not np.isfinite(x).all():
             raise ValueError("images contain NaN or inf")
         return x
 
-    @property
-    def n_hypotheses(self) -> int:
-        """K, the DMPs the network proposes per image (1: the paper's network)."""
-        return int(getattr(self.model, "n_hypotheses", 1))
-
     def _outputs(self, images, batch_size: int):
-        """Checked images ``x [B, H, W]``, the hypotheses ``z [B, K, P]`` and their scores."""
+        """Checked images ``x [B, H, W]``, the hypotheses ``z [B, K, P]`` (normalised,
+        float32) and their scores ``[B, K]``, NumPy arrays from either backend."""
         check_count("batch_size", batch_size, 1, MAX_BATCH_SIZE)
         x = self._check_images(images)
-        z, logits = split_hypotheses(network_outputs(self.model, x, batch_size), self.n_hypotheses)
-        return x, z, logits
+        if self.network is not None:
+            parts = [self.network(x[lo : lo + batch_size]) for lo in range(0, len(x), batch_size)]
+            out = np.concatenate(parts) if parts else self.network(x)  # [B, K (P + 1) | P]
+        else:
+            import torch
 
-    def _refined_all(self, z: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+            from .nn.inference import network_outputs
+
+            out = network_outputs(self.model, torch.from_numpy(x), batch_size).numpy()
+        k = self.n_hypotheses
+        if k == 1:
+            return x, out[:, None, :], np.zeros((len(out), 1), out.dtype)
+        p = out.shape[-1] // k - 1
+        return x, out[:, : k * p].reshape(-1, k, p), out[:, k * p :]
+
+    def _refined(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """``z [N, P]`` refined on images ``x [N, H, W]`` (unchanged without refinement),
+        compared with the ink at 100 instants over each DMP's own duration; the result
+        in ``z``'s dtype."""
+        o = self.refine_options
+        if o is None or o.steps == 0 or len(z) == 0:
+            return z
+        check_count("refine steps (--refine)", o.steps, 0, MAX_REFINE_STEPS)
+        z64 = z.astype(np.float64)
+        tau = self.normaliser.denormalise_numpy(z64)[:, self.normaliser.tau_index]
+        t = tau[:, None] * np.linspace(0.0, 1.0, REFINE_POINTS)  # [N, T]
+        if self.network is not None:
+            refined = refine_numpy(z64, x.astype(np.float64), t, self.normaliser,
+                                   self.dmp_config, o)  # fmt: skip
+        else:
+            import torch
+
+            from .nn.refine import refine
+
+            as_t = torch.from_numpy
+            refined = refine(as_t(z64), as_t(x), as_t(t), self.normaliser, self.dmp_config, o)
+            refined = refined.numpy()
+        return refined.astype(z.dtype)
+
+    def _refined_all(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
         """Every hypothesis ``z [B, K, P]`` refined on its image (see :meth:`_refined`)."""
         b, k, p = z.shape
-        return self._refined(z.reshape(b * k, p), x.repeat_interleave(k, 0)).reshape(b, k, p)
+        return self._refined(z.reshape(b * k, p), np.repeat(x, k, axis=0)).reshape(b, k, p)
 
-    def predict_normalised(self, images, batch_size: int = 4096) -> torch.Tensor:
-        """Network output ``[B, P]`` (normalised units; the top hypothesis of a network
-        with several) for prepared images ``[B, H, W]`` (:func:`img2dmp.nn.network_outputs`)."""
+    def _top_refined(self, images, batch_size: int) -> np.ndarray:
+        """The top hypothesis ``[B, P]`` (normalised) of every image, refined if asked."""
         x, z, logits = self._outputs(images, batch_size)
-        top = z[torch.arange(z.shape[0]), logits.argmax(dim=1)]  # [B, P]
+        top = z[np.arange(len(z)), logits.argmax(axis=1)]  # [B, P]
         return self._refined(top, x)
+
+    def predict_normalised(self, images, batch_size: int = 4096):
+        """Network output ``[B, P]`` (a torch tensor, normalised units; the top hypothesis
+        of a network with several) for prepared images ``[B, H, W]``, refined if asked."""
+        import torch
+
+        return torch.from_numpy(self._top_refined(images, batch_size))
 
     def predict_hypotheses(
         self, images, batch_size: int = 4096, *, refine_top_only: bool = False
@@ -283,28 +395,32 @@ class Predictor:
         """
         x, z, logits = self._outputs(images, batch_size)
         if refine_top_only and self.refine_options is not None:
-            top = logits.argmax(dim=1)  # [B]
-            rows = torch.arange(z.shape[0])
-            z = z.clone()
+            rows, top = np.arange(len(z)), logits.argmax(axis=1)  # [B]
+            z = z.copy()
             z[rows, top] = self._refined(z[rows, top], x)
         else:
             z = self._refined_all(z, x)  # [B, K, P]
-        probs = torch.softmax(logits.double(), dim=1)
-        order = torch.argsort(probs, dim=1, descending=True)  # [B, K]
-        z = torch.gather(z, 1, order[..., None].expand_as(z))
-        v = self.normaliser.denormalise_vector(z.double())
+        probs = _softmax(logits.astype(np.float64))  # [B, K]
+        order = np.argsort(-probs, axis=1, kind="stable")  # [B, K], highest first
+        z = np.take_along_axis(z, order[..., None], axis=1)
+        v = self.normaliser.denormalise_numpy(z.astype(np.float64))
         n, d = self.dmp_config.n_kernels, self.dmp_config.n_dims
-        return DMPParams.from_vector(v.numpy(), n, d), torch.gather(probs, 1, order).numpy()
+        return DMPParams.from_vector(v, n, d), np.take_along_axis(probs, order, axis=1)
 
     def hypothesis_trajectories(self, images, times, batch_size: int = 4096):
         """Every hypothesis rolled out at time stamps ``[B, T]``, in the network's order:
         ``y [B, K, T, d]`` and ``probs [B, K]`` (NumPy arrays), see
-        :func:`img2dmp.nn.hypothesis_trajectories`."""
+        :func:`img2dmp.nn.hypothesis_trajectories` (the rollout in torch, float32 stamps,
+        as training's validation)."""
+        import torch
+
+        from .nn.inference import rollout_outputs
+
         t = torch.as_tensor(np.asarray(times), dtype=torch.float32)
         x, z, logits = self._outputs(images, batch_size)
-        z = self._refined_all(z, x)  # unchanged without refinement
+        z = torch.from_numpy(self._refined_all(z, x))  # unchanged without refinement
         y = rollout_outputs(z, t, self.normaliser, self.dmp_config, batch_size)
-        return y.numpy(), torch.softmax(logits, dim=1).numpy()
+        return y.numpy(), _softmax(logits).astype(np.float32)
 
     def predict_images(self, images, batch_size: int = 4096) -> DMPParams:
         """DMPs for prepared images.
@@ -319,10 +435,10 @@ class Predictor:
         DMPParams
             NumPy float64, batch shape ``[B]``.
         """
-        z = self.predict_normalised(images, batch_size)
-        v = self.normaliser.denormalise_vector(z.double())
+        z = self._top_refined(images, batch_size)
+        v = self.normaliser.denormalise_numpy(z.astype(np.float64))
         n, d = self.dmp_config.n_kernels, self.dmp_config.n_dims
-        return DMPParams.from_vector(v.numpy(), n, d)
+        return DMPParams.from_vector(v, n, d)
 
     def predict_paths(
         self, paths, match_stroke_width: bool = True
@@ -424,7 +540,8 @@ class Predictor:
                          match_stroke_width=match_stroke_width, name=name)  # fmt: skip
 
     def trajectories(self, params: DMPParams, times=None, n_points: int = 100):
-        """Roll DMPs out (exact solution, eqs. 3-7).
+        """Roll DMPs out (exact solution, eqs. 3-7; :func:`img2dmp.dmp._numpy_rollout.rollout_numpy`,
+        the fast rollout's interpolant in NumPy, on either backend).
 
         Parameters
         ----------
@@ -442,30 +559,34 @@ class Predictor:
         """
         if not isinstance(params, DMPParams):
             raise ValueError(f"params must be a DMPParams, got {type(params).__name__}")
-        p = params.to_torch(torch.float64)
+        p = params.to_numpy()
         if times is None:
             n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
-            u = torch.linspace(0.0, 1.0, n_points, dtype=torch.float64)
-            t = p.tau[..., None] * u  # [*batch, T]
+            t = np.asarray(p.tau, dtype=np.float64)[..., None] * np.linspace(0.0, 1.0, n_points)
         else:
-            t = torch.as_tensor(np.asarray(times), dtype=torch.float64)
-        y = rollout(p, t, self.dmp_config)
-        t = t.expand(*y.shape[:-1])
-        return t.numpy(), y.numpy()
+            t = np.asarray(times, dtype=np.float64)
+        y = rollout_numpy(p, t, self.dmp_config)  # either backend: the same to 1e-12 px
+        return np.broadcast_to(t, y.shape[:-1]).copy(), y
 
     def trajectories_for_images(self, images, times, batch_size: int = 4096) -> np.ndarray:
         """The network's DMP trajectories ``[B, T, d]`` at given time stamps ``[B, T]``
         (seconds, each row shifted to start at 0; :func:`img2dmp.nn.dmp_trajectories`,
-        training's validation), the top hypothesis, refined on its image if asked."""
-        check_count("batch_size", batch_size, 1, MAX_BATCH_SIZE)
-        x = self._check_images(images)
+        training's validation: the rollout in torch at float32 stamps), the top
+        hypothesis, refined on its image if asked."""
+        import torch
+
+        from .nn.inference import rollout_outputs
+
         t = torch.as_tensor(np.asarray(times), dtype=torch.float32)  # [B, T], like training
-        if self.refine_options is None:
-            y = dmp_trajectories(self.model, self.normaliser, self.dmp_config, x, t, batch_size)
-            return y.numpy()  # [B, T, d]
-        z = self.predict_normalised(x, batch_size)  # [B, P], refined
+        z = torch.from_numpy(self._top_refined(images, batch_size))  # [B, P]
         y = rollout_outputs(z[:, None], t, self.normaliser, self.dmp_config, batch_size)
         return y[:, 0].numpy()
+
+
+def _softmax(logits: np.ndarray) -> np.ndarray:
+    """Softmax along the last axis, shifted by the largest score (no overflow)."""
+    e = np.exp(logits - logits.max(axis=-1, keepdims=True))
+    return e / e.sum(axis=-1, keepdims=True)
 
 
 class Prediction:
@@ -631,6 +752,7 @@ def load_model(
     refine: int | None = None,
     checkpoint: str = "best",
     device: str = "cpu",
+    backend: str = "auto",
 ) -> Predictor:
     """A trained network, ready to predict: ``load_model().predict(image)``.
 
@@ -649,6 +771,9 @@ def load_model(
         Which checkpoint of a run directory ("best" or "last").
     device : str
         Where the network runs ("cpu", "cuda"; :meth:`Predictor.load`).
+    backend : {"auto", "numpy", "torch"}
+        What computes (module docstring, "Backends"): "auto" is NumPy, without torch, on
+        the CPU.
 
     Raises ``FileNotFoundError`` if nothing is there (an
     :class:`~img2dmp.errors.UnknownModelError`, listing the shipped models, for an
@@ -659,7 +784,7 @@ def load_model(
     if refine is not None:  # before the model is read
         check_count("refine", refine, 0, MAX_REFINE_STEPS)
     source = default_model().name if path is None else path
-    predictor = Predictor.load(source, checkpoint, device)
+    predictor = Predictor.load(source, checkpoint, device, backend)
     if refine is None:
         refine = predictor.shipped.refine if predictor.shipped is not None else 0
     steps = int(refine)
@@ -718,6 +843,7 @@ __all__ = [
     "MAX_BATCH_SIZE",
     "MAX_POINTS",
     "MAX_REFINE_STEPS",
+    "BACKENDS",
     "ImageFrame",
     "Prediction",
     "Predictor",

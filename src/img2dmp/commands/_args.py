@@ -152,13 +152,22 @@ def model_or_default(model):
 
 
 def one_thread() -> None:
-    """Run torch on one thread, as ``serve`` does: a few images make tensors so small
+    """Compute on one thread, as ``serve`` does: a few images make arrays so small
     (refinement: [4, 100, 2] paths) that a second thread costs more in synchronisation
     than it computes; on the 2-core development machine refining one image took 0.29 s
-    on one thread and 4-8 s on two while other jobs ran (docs/CLI.md)."""
-    import torch
+    on one thread and 4-8 s on two while other jobs ran (docs/CLI.md), and the NumPy
+    network's matrix products on a busy machine ten times longer on two BLAS threads.
 
-    torch.set_num_threads(1)
+    Called before the model is loaded: in a process that has not imported NumPy yet
+    (a command's own), the thread counts of OpenBLAS under NumPy and OpenMP under torch
+    are set through their environment variables, unless the user set them (a process
+    that has, e.g. a test's, keeps its own); torch, if already imported, directly."""
+    if "numpy" not in sys.modules and "torch" not in sys.modules:
+        for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(name, "1")
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(1)
 
 
 def refine_steps(args, model, command: str) -> int:
@@ -236,6 +245,22 @@ def add_device(p: argparse.ArgumentParser, what: str) -> None:
         metavar="DEVICE",
         help=f"where {what} runs: cpu, or cuda (cuda:N) on a machine with a GPU; the DMP "
         "maths (rollout, costs) stays on the CPU",
+    )
+
+
+#: img2dmp.predict.BACKENDS (a literal: importing img2dmp.predict here would slow --help).
+BACKENDS = ("auto", "numpy", "torch")
+
+
+def add_backend(p: argparse.ArgumentParser) -> None:
+    """``--backend auto|numpy|torch``: what computes a prediction (img2dmp.predict)."""
+    p.add_argument(
+        "--backend",
+        default="auto",
+        choices=BACKENDS,
+        help="what computes the network, refinement and rollout: numpy (never imports "
+        "torch, about 2 s faster to start), torch, or auto (default: numpy on the CPU, "
+        "torch on a GPU); the two agree to rounding",
     )
 
 

@@ -81,6 +81,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     _args.add_refine(p)
     _args.add_device(p, "the network")
+    _args.add_backend(p)
     p.add_argument(
         "--keep-stroke-width",
         action="store_true",
@@ -179,7 +180,7 @@ def _run_pages(args, predictor) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..nn.refine import RefineOptions
+    from ..nn._refine_numpy import RefineOptions
     from ..predict import Predictor, write_prediction
 
     _check_options(args)
@@ -191,7 +192,8 @@ def run(args: argparse.Namespace) -> int:
     inputs = [("image", path) for path in args.images] + _args.model_inputs(model)
     _args.check_outputs(output_files(args), args.force, inputs)
     _args.check_images(args.images)
-    predictor = Predictor.load(model, device=_args.check_device(args.device))
+    predictor = Predictor.load(model, device=_args.check_device(args.device),
+                               backend=args.backend)  # fmt: skip
     refine = _args.refine_steps(args, model, "predict")
     if refine:
         predictor.refine_options = RefineOptions(steps=refine)

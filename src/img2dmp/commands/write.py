@@ -119,6 +119,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--frame-interval-s", type=float, default=0.1, help="simulated time between frames"
     )
     _args.add_refine(parser)
+    _args.add_backend(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -257,10 +258,10 @@ def _predictor(args):
     from img2dmp.predict import Predictor
 
     _args.one_thread()
-    predictor = Predictor.load(args.model)
+    predictor = Predictor.load(args.model, backend=args.backend)
     refine = _args.refine_steps(args, args.model, "write")
     if refine:
-        from img2dmp.nn.refine import RefineOptions
+        from img2dmp.nn._refine_numpy import RefineOptions
 
         predictor.refine_options = RefineOptions(steps=refine)
     return predictor
