@@ -540,8 +540,8 @@ class Predictor:
                          match_stroke_width=match_stroke_width, name=name)  # fmt: skip
 
     def trajectories(self, params: DMPParams, times=None, n_points: int = 100):
-        """Roll DMPs out (exact solution, eqs. 3-7; :func:`img2dmp.dmp._numpy_rollout.rollout_numpy`,
-        the fast rollout's interpolant in NumPy, on either backend).
+        """Roll DMPs out (exact solution, eqs. 3-7): the fast rollout's interpolant in
+        NumPy (:func:`img2dmp.dmp._numpy_rollout.rollout_numpy`), on either backend.
 
         Parameters
         ----------
