@@ -49,10 +49,15 @@ t in seconds (``time_unit="ms"``: milliseconds), strictly increasing.
    (stored per row in the metadata). At least ``min_on_ink`` of the pen-down path must
    then lie on the prepared image's ink (:func:`img2dmp.metrics.on_ink_share`), which
    catches swapped axes, y pointing up and paths of another image.
-3. The path is resampled to ``n_times`` instants evenly spaced over its own duration
-   (linear interpolation; with strokes, ``(x, y, pen)`` with the pen down on every
-   stretch between two pen-down points of one stroke) and, with ``duration_s``, rescaled
-   to last that long.
+3. The path is resampled to ``n_times`` instants (linear interpolation; with strokes,
+   ``(x, y, pen)``, the pen 1 on a stroke and 0 on the pen-up travel between): allocated
+   per stroke and pen-up stretch in proportion to their durations, at least
+   ``min(points, MIN_STROKE_INSTANTS)`` per stroke (a dot: one) and one per stretch, so
+   that every stroke keeps its own (:func:`resample_strokes`; ``resample="uniform"``:
+   evenly over the path's duration, :func:`resample_pen_path`, which refuses a path whose
+   short strokes or lifts fall between its instants); each stroke's first and last
+   instant are kept (the data set's ``stroke_spans``). With ``duration_s`` the path is
+   rescaled to last that long.
 
 Then ``augment`` random affine copies of every training sample are added
 (:func:`img2dmp.data.affine.sample_affine` / ``warp_images`` / ``warp_points``, as
@@ -95,7 +100,9 @@ from .store import (
     MAX_CLASS_NAME_CHARS,
     MAX_CLASSES,
     SPLITS,
+    STROKE_SPANS_KEY,
     DigitData,
+    pen_runs,
 )
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp")
@@ -127,6 +134,11 @@ class ImportOptions:
         (:func:`img2dmp.data.images.prepare_image`), in [0, 0.45].
     n_times : int
         Instants per trajectory (the DMP time grid).
+    resample : {"strokes", "uniform"}
+        How the instants are placed: ``"strokes"`` allocates them per stroke and pen-up
+        stretch, so that every stroke and dot keeps its own (:func:`resample_strokes`);
+        ``"uniform"`` spreads them evenly over the path's duration, refusing a path whose
+        strokes or lifts that grid loses (:func:`resample_pen_path`, the only way before).
     duration_s : float or None
         Rescale every path to last this long (None: the recorded timing).
     time_unit : {"s", "ms"}
@@ -161,6 +173,7 @@ class ImportOptions:
     image_size: int = 40
     margin: float = DEFAULT_MARGIN
     n_times: int = 100
+    resample: str = "strokes"
     duration_s: float | None = None
     time_unit: str = "s"
     n_dims: int | None = None
@@ -198,6 +211,8 @@ class ImportOptions:
         if self.stroke_width_px is not None:
             widest = self.image_size / 4.0
             _check_number("stroke_width_px", self.stroke_width_px, 0.0, widest, open_low=True)
+        if self.resample not in RESAMPLING:
+            raise ValueError(f"resample must be one of {list(RESAMPLING)}, got {self.resample!r}")
         if self.time_unit not in TIME_UNITS:
             raise ValueError(f"time_unit must be one of {list(TIME_UNITS)}, got {self.time_unit!r}")
         if self.n_dims not in (None, 2, 3):
@@ -883,6 +898,147 @@ def resample_pen_path(pen: PenPath, n_times: int) -> tuple[np.ndarray, np.ndarra
     return grid - t[0], np.concatenate([xy, down[:, None].astype(np.float64)], axis=-1)
 
 
+#: Fewest instants a stroke of this many points or more gets (its two ends and one
+#: between); a stroke of fewer points gets one per point, a dot one. Where a drawing's
+#: strokes cannot all have it, they get 2 (their ends).
+MIN_STROKE_INSTANTS = 3
+#: The ways of resampling a path (:class:`ImportOptions` ``resample``).
+RESAMPLING = ("strokes", "uniform")
+
+
+@dataclass
+class Resampled:
+    """A pen path at the instants of a data set's time grid.
+
+    Attributes
+    ----------
+    times : float64 [n]
+        Seconds since the first point, strictly increasing.
+    path : float64 [n, 3]
+        ``(x, y, pen)``, pen 1 down, 0 up.
+    spans : list of (int, int)
+        The first and last instant of every stroke, in writing order (the data set's
+        ``stroke_spans``).
+    """
+
+    times: np.ndarray
+    path: np.ndarray
+    spans: list[tuple[int, int]]
+
+
+def _pieces(pen: PenPath) -> list[tuple[str, float, float, int]]:
+    """The strokes and pen-up stretches of a path in time order, as ``(kind, start, end,
+    points)``: kind ``"stroke"``, ``"lead"`` (up before the first stroke), ``"up"``
+    (between two strokes) or ``"trail"`` (up after the last); points of a stroke only."""
+    t, s = pen.t_s, pen.stroke
+    out = []
+    for k in range(pen.n_strokes):
+        members = np.flatnonzero(s == k)
+        a, b = float(t[members[0]]), float(t[members[-1]])
+        if out:
+            out.append(("up", out[-1][2], a, 0))
+        elif a > t[0]:
+            out.append(("lead", float(t[0]), a, 0))
+        out.append(("stroke", a, b, len(members)))
+    if out[-1][2] < t[-1]:
+        out.append(("trail", out[-1][2], float(t[-1]), 0))
+    return out
+
+
+def _allocate(durations: np.ndarray, least: np.ndarray, n: int) -> np.ndarray:
+    """Instants per piece summing to ``n``: in proportion to the pieces' durations, as an
+    even grid would give them, but at least ``least`` each (``least.sum() <= n``)."""
+    free = np.ones(len(durations), bool)
+    while True:  # pin the pieces whose share falls short of their least; share the rest
+        budget = n - least[~free].sum()
+        share = np.where(free, budget * durations / durations[free].sum(), least)
+        short = free & (share < least)
+        if not short.any():
+            break
+        free &= ~short
+    counts = np.maximum(np.floor(share).astype(np.int64), least)
+    rest = n - int(counts.sum())  # the largest remainders take the instants left
+    order = np.argsort(-(share - np.floor(share)) * free, kind="stable")
+    counts[order[:rest]] += 1
+    return counts
+
+
+def _piece_times(kind: str, a: float, b: float, k: int, t_own: np.ndarray) -> np.ndarray:
+    """``k`` instants of one piece from ``a`` to ``b``: a stroke's both ends (or its own
+    points when it has as few as it gets), strictly inside a pen-up stretch between
+    strokes, from the start of the path before its first stroke, to its end after the
+    last."""
+    if kind == "stroke":
+        if k == len(t_own) and k <= MIN_STROKE_INSTANTS:
+            return t_own
+        return np.linspace(a, b, k) if k > 1 else np.array([a])
+    u = np.arange(k, dtype=np.float64)
+    frac = {"up": (u + 1) / (k + 1), "lead": u / k, "trail": (u + 1) / k}[kind]
+    return a + (b - a) * frac
+
+
+def resample_strokes(pen: PenPath, n_times: int) -> Resampled:
+    """A pen path at ``n_times`` instants allocated per stroke, so that none is lost.
+
+    The even grid of :func:`resample_pen_path` loses a stroke or a pen lift shorter than
+    its step (a dot has no duration at all). Here every stroke and every pen-up stretch
+    gets its own instants, in proportion to its duration as on the even grid, but every
+    stroke at least ``min(points, MIN_STROKE_INSTANTS)`` (a dot one, at its time) and
+    every pen-up stretch at least one. A stroke's instants run evenly from its first to
+    its last point (or are its own points, when it has no more than it gets), a pen-up
+    stretch's strictly between the strokes. Positions are interpolated linearly between
+    the recorded points; the pen is 1 at a stroke's instants, 0 at the others. A path of
+    one stroke gets the even grid.
+
+    Raises ``ValueError`` naming the file if the strokes need more instants than
+    ``n_times`` (2 per stroke, 1 per dot and 1 per pen-up stretch at the least).
+    """
+    pieces = _pieces(pen)
+    durations = np.array([b - a for _, a, b, _ in pieces])  # [P]
+    for least_points in (MIN_STROKE_INSTANTS, 2):
+        least = np.array(
+            [min(p, least_points) if kind == "stroke" else 1 for kind, _, _, p in pieces]
+        )
+        if least.sum() <= n_times:
+            break
+    else:
+        raise ValueError(
+            f"{pen.name}: its {pen.n_strokes} strokes and the pen-up travel between them need "
+            f"at least {least.sum()} instants, more than the {n_times} of the grid; use more "
+            f"instants (--n-times {least.sum()})"
+        )
+    counts = _allocate(durations, least, n_times)  # [P]
+    grid, spans, k, first = [], [], 0, 0
+    t = pen.t_s
+    for (kind, a, b, _), c in zip(pieces, counts, strict=True):
+        own = t[pen.stroke == k] if kind == "stroke" else t[:0]
+        grid.append(_piece_times(kind, a, b, int(c), own))
+        if kind == "stroke":
+            spans.append((first, first + int(c) - 1))
+            k += 1
+        first += int(c)
+    times = np.concatenate(grid)  # [n]
+    if not (np.diff(times.astype(np.float32)) > 0).all():
+        raise ValueError(
+            f"{pen.name}: two of its instants lie closer than a float32 time stamp can tell "
+            f"apart ({times[-1] - t[0]:.6g} s long); give the path fewer instants (--n-times)"
+        )
+    xy = np.stack([np.interp(times, t, pen.xy[:, j]) for j in range(2)], axis=-1)  # [n, 2]
+    down = np.zeros(n_times)
+    for lo, hi in spans:
+        down[lo : hi + 1] = 1.0
+    return Resampled(times - t[0], np.concatenate([xy, down[:, None]], axis=-1), spans)
+
+
+def resample(pen: PenPath, n_times: int, how: str = "strokes") -> Resampled:
+    """:func:`resample_strokes` (``how="strokes"``) or :func:`resample_pen_path`
+    (``"uniform"``) of a pen path, with the instants of every stroke."""
+    if how == "strokes":
+        return resample_strokes(pen, n_times)
+    times, path = resample_pen_path(pen, n_times)
+    return Resampled(times, path, pen_runs(path[:, 2] > 0.5))
+
+
 @dataclass
 class _Sample:
     image: np.ndarray  # [S, S] float32
@@ -891,6 +1047,7 @@ class _Sample:
     frame: ImageFrame  # the sample's image -> the prepared image
     needs_pen: bool
     n_strokes: int
+    spans: list[tuple[int, int]]  # each stroke's first and last instant
 
 
 def _import_one(src: SampleSource, opt: ImportOptions) -> _Sample:
@@ -907,8 +1064,8 @@ def _import_one(src: SampleSource, opt: ImportOptions) -> _Sample:
         stroke_width_px=opt.stroke_width_px,
     )
     check_within_image(pen, frame.image_size, str(src.image))
-    times, path = resample_pen_path(pen, opt.n_times)
-    path = frame.to_model(path)
+    res = resample(pen, opt.n_times, opt.resample)
+    times, path = res.times, frame.to_model(res.path)
     share = float(on_ink_share(image[None], path[None])[0])
     if share < opt.min_on_ink:
         raise ValueError(
@@ -918,7 +1075,7 @@ def _import_one(src: SampleSource, opt: ImportOptions) -> _Sample:
         )
     if opt.duration_s is not None:
         times = times * (opt.duration_s / times[-1])
-    return _Sample(image, times, path, frame, pen.needs_pen, pen.n_strokes)
+    return _Sample(image, times, path, frame, pen.needs_pen, pen.n_strokes, res.spans)
 
 
 # --- the data set ---------------------------------------------------------------------
@@ -1095,6 +1252,7 @@ def import_samples(
     }
     if class_names is not None:
         meta["class_names"] = list(class_names)
+    meta[STROKE_SPANS_KEY] = [[list(span) for span in good[r][1].spans] for r in rows]
     return DigitData(
         images=np.ascontiguousarray(images, dtype=np.float32),
         trajectories=paths.astype(np.float32),
