@@ -18,6 +18,10 @@ pen path that wrote it. :func:`import_dataset` reads them from
 - a **folder of recordings** made on the Record page of ``img2dmp serve --images DIR``
   (``image_<n>.json``, each naming its ``"Image file"`` and digit), with ``images``, the
   folder of the images they trace.
+- **Omniglot**: a folder holding ``images_NAME`` and ``strokes_NAME`` (folders, or the
+  zip files as distributed), or ``strokes_NAME`` itself with its images beside it or
+  given as ``images``; classes ``alphabet/character``, split by drawer (or ``split_by``
+  character or alphabet). Its stroke files and their rules: :mod:`img2dmp.data.omniglot`.
 
 **Trajectory files** (:func:`read_trajectory`), in pixels of the sample's own image:
 x = column, y = row (y points down), the centre of pixel ``[i, j]`` at ``(x=j, y=i)``;
@@ -117,6 +121,8 @@ MAX_POINTS = 1_000_000
 MAX_TRAJECTORY_BYTES = 256 << 20
 #: Most affine copies per training sample.
 MAX_AUGMENT = 1000
+#: The ways of splitting Omniglot's drawings (img2dmp.data.omniglot.SPLIT_BY).
+OMNIGLOT_SPLIT_BY = ("drawer", "character", "alphabet")
 #: A recording's file name (``img2dmp serve``'s Record page, the shared recordings).
 RECORDING_NAME = re.compile(r"image_(\d+)\.json")
 
@@ -159,7 +165,11 @@ class ImportOptions:
     seed : int
         Seed of the augmentation and of the random split.
     val_fraction, test_fraction : float
-        Share of each class put in validation / test when the source gives no split.
+        Share of each class put in validation / test when the source gives no split (of
+        each alphabet's characters, or of the alphabets, with ``split_by``).
+    split_by : {"drawer", "character", "alphabet"} or None
+        How Omniglot's drawings are split (:mod:`img2dmp.data.omniglot`); None: by
+        drawer. Other sources refuse it.
     classes : tuple of str or None
         The class names in label order; None: the classes found, sorted.
     min_on_ink : float
@@ -185,6 +195,7 @@ class ImportOptions:
     seed: int = 0
     val_fraction: float = 0.1
     test_fraction: float = 0.2
+    split_by: str | None = None
     classes: tuple[str, ...] | None = None
     min_on_ink: float = 0.5
     stroke_width_px: float | None = None
@@ -211,6 +222,10 @@ class ImportOptions:
         if self.stroke_width_px is not None:
             widest = self.image_size / 4.0
             _check_number("stroke_width_px", self.stroke_width_px, 0.0, widest, open_low=True)
+        if self.split_by not in (None, *OMNIGLOT_SPLIT_BY):
+            raise ValueError(
+                f"split_by must be one of {list(OMNIGLOT_SPLIT_BY)} or None, got {self.split_by!r}"
+            )
         if self.resample not in RESAMPLING:
             raise ValueError(f"resample must be one of {list(RESAMPLING)}, got {self.resample!r}")
         if self.time_unit not in TIME_UNITS:
@@ -593,13 +608,21 @@ class SampleSource:
 
     Attributes
     ----------
-    image, trajectory : Path
-        Its image file and its trajectory file.
+    image, trajectory : Path or img2dmp.data.omniglot.ArchiveMember
+        Its image file and its trajectory file (or a file in a zip).
     class_name : str
     split : {"train", "validation", "test"} or None
         None: drawn at random (:class:`ImportOptions` ``val_fraction``, ``test_fraction``).
     where : str
         Where it was listed, for messages (``manifest.csv: row 3``); empty for a folder.
+    format : str
+        How the trajectory is read: ``""`` by its suffix (:func:`read_trajectory`),
+        ``"omniglot"`` as an Omniglot stroke file (:mod:`img2dmp.data.omniglot`).
+    unit, stratum : str or None
+        With ``unit``, the samples of one unit go to one split together, the units of
+        each ``stratum`` drawn as a class's samples are (Omniglot by character: unit the
+        character, stratum its alphabet); None: each sample is its own unit, drawn among
+        its class.
     """
 
     image: Path
@@ -607,6 +630,9 @@ class SampleSource:
     class_name: str
     split: str | None = None
     where: str = ""
+    format: str = ""
+    unit: str | None = None
+    stratum: str | None = None
 
     @property
     def name(self) -> str:
@@ -615,19 +641,38 @@ class SampleSource:
 
 
 def find_samples(
-    source: str | os.PathLike, *, skip_bad: bool = False, images: str | os.PathLike | None = None
+    source: str | os.PathLike,
+    *,
+    skip_bad: bool = False,
+    images: str | os.PathLike | None = None,
+    split_by: str | None = None,
 ) -> tuple[list[SampleSource], list[str]]:
-    """The samples of a folder of class folders, of a manifest, or of a folder of
-    recordings with the folder of the images they trace (``images``; module docstring).
+    """The samples of a folder of class folders, of a manifest, of a folder of
+    recordings with the folder of the images they trace (``images``), or of Omniglot's
+    trees of images and strokes (module docstring; ``split_by``:
+    :mod:`img2dmp.data.omniglot`).
 
     Returns the samples and, with ``skip_bad``, the one-line errors of the files that make
     no sample (an image without trajectory, a stray file, a bad manifest row); without it
     the first such error is raised. A source that is not a folder or manifest at all, a
     folder without class folders and a manifest with a bad header always raise.
     """
+    from .omniglot import find_omniglot, omniglot_trees
+
     source = Path(source)
     if not source.exists():
         raise FileNotFoundError(f"import source {source} does not exist")
+    trees = omniglot_trees(source, images)
+    if trees is not None:
+        samples, problems = find_omniglot(trees, split_by)
+        if problems and not skip_bad:
+            raise problems[0]
+        return samples, [str(e) for e in problems]
+    if split_by is not None:
+        raise ValueError(
+            f"{source}: split_by {split_by!r} (--split-by) is for Omniglot sources; the "
+            "split of other sources comes from a manifest or is drawn per class"
+        )
     recordings = _recordings_in(source)
     if images is not None and not recordings:
         raise ValueError(
@@ -1048,6 +1093,7 @@ class _Sample:
     needs_pen: bool
     n_strokes: int
     spans: list[tuple[int, int]]  # each stroke's first and last instant
+    shift: tuple[float, float] | None = None  # Omniglot strokes moved onto the ink (px)
 
 
 def _import_one(src: SampleSource, opt: ImportOptions) -> _Sample:
@@ -1056,14 +1102,27 @@ def _import_one(src: SampleSource, opt: ImportOptions) -> _Sample:
         raise ValueError(
             f"{src.name}: class {src.class_name!r} is not one of the classes {list(opt.classes)}"
         )
-    pen = read_trajectory(src.trajectory, opt.time_unit)
+    from . import omniglot
+
+    drawing = src.format == omniglot.FORMAT
+    pen = (
+        omniglot.read_strokes(src.trajectory)
+        if drawing
+        else read_trajectory(src.trajectory, opt.time_unit)
+    )
     image, frame = prepare_image_framed(
-        src.image,
+        omniglot.image_of(src.image),
         (opt.image_size, opt.image_size),
         margin=opt.margin,
         stroke_width_px=opt.stroke_width_px,
+        name=str(src.image),
+        clean=not drawing,  # Omniglot's renderings: no paper (omniglot module docstring)
     )
-    check_within_image(pen, frame.image_size, str(src.image))
+    shift = None
+    if drawing:
+        pen, shift = omniglot.fit_to_image(pen, image, frame, str(src.image))
+    else:
+        check_within_image(pen, frame.image_size, str(src.image))
     res = resample(pen, opt.n_times, opt.resample)
     times, path = res.times, frame.to_model(res.path)
     share = float(on_ink_share(image[None], path[None])[0])
@@ -1075,7 +1134,7 @@ def _import_one(src: SampleSource, opt: ImportOptions) -> _Sample:
         )
     if opt.duration_s is not None:
         times = times * (opt.duration_s / times[-1])
-    return _Sample(image, times, path, frame, pen.needs_pen, pen.n_strokes, res.spans)
+    return _Sample(image, times, path, frame, pen.needs_pen, pen.n_strokes, res.spans, shift)
 
 
 # --- the data set ---------------------------------------------------------------------
@@ -1150,15 +1209,38 @@ def _splits(sources: list[SampleSource], labels: np.ndarray, opt: ImportOptions,
         raise ValueError(
             f"{first.name}: gives no split while other rows do; give every row a split or none"
         )
+    if any(s.unit is not None for s in sources):
+        return _unit_splits(sources, opt, rng)
     split = np.zeros(len(labels), np.uint8)
     for c in np.unique(labels):
         rows = rng.permutation(np.flatnonzero(labels == c))
-        n_test = min(int(math.floor(opt.test_fraction * len(rows) + 0.5)), len(rows) - 1)
-        n_val = int(math.floor(opt.val_fraction * len(rows) + 0.5))
-        n_val = min(n_val, len(rows) - n_test - 1)  # keep one to train on
+        n_test, n_val = _split_counts(len(rows), opt)
         split[rows[:n_test]] = SPLITS["test"]
         split[rows[n_test : n_test + n_val]] = SPLITS["validation"]
     return split
+
+
+def _split_counts(n: int, opt: ImportOptions) -> tuple[int, int]:
+    """How many of ``n`` samples (or units) go to test and to validation: the options'
+    fractions, rounded, at least one left to train on."""
+    n_test = min(int(math.floor(opt.test_fraction * n + 0.5)), n - 1)
+    n_val = int(math.floor(opt.val_fraction * n + 0.5))
+    return n_test, min(n_val, n - n_test - 1)
+
+
+def _unit_splits(sources: list[SampleSource], opt: ImportOptions, rng) -> np.ndarray:
+    """The split of every sample when whole units go to one split (Omniglot by
+    character or alphabet): the units of each stratum drawn with the fractions."""
+    units = [(s.stratum or "", s.unit or s.name) for s in sources]
+    unit_split = {}
+    for stratum in sorted({st for st, _ in units}):
+        names = sorted({u for st, u in units if st == stratum})
+        order = [names[i] for i in rng.permutation(len(names))]
+        n_test, n_val = _split_counts(len(names), opt)
+        for i, name in enumerate(order):
+            code = "test" if i < n_test else "validation" if i < n_test + n_val else "train"
+            unit_split[(stratum, name)] = SPLITS[code]
+    return np.array([unit_split[u] for u in units], np.uint8)
 
 
 def _augment(images, paths, split, opt: ImportOptions, rng, progress: bool):
@@ -1186,7 +1268,11 @@ def _augment(images, paths, split, opt: ImportOptions, rng, progress: bool):
     )
 
 
-def _relative(path: Path, root: Path | None) -> str:
+def _relative(path, root: Path | None) -> str:
+    """A sample's file relative to the source (a file in a zip: ``ARCHIVE/MEMBER``, the
+    archive relative to it)."""
+    if not isinstance(path, Path):
+        return f"{_relative(path.archive, root)}/{path.name}"
     try:
         return str(path.relative_to(root)) if root is not None else str(path)
     except ValueError:
@@ -1250,6 +1336,9 @@ def import_samples(
         "samples": len(good),
         "skipped": skipped,
     }
+    if any(src.format == "omniglot" for src in sources):
+        shifted = {_relative(src.trajectory, root): list(s.shift) for src, s in good if s.shift}
+        meta["source"].update(format="omniglot", split_by=opt.split_by or "drawer", shifted=shifted)
     if class_names is not None:
         meta["class_names"] = list(class_names)
     meta[STROKE_SPANS_KEY] = [[list(span) for span in good[r][1].spans] for r in rows]
@@ -1334,7 +1423,8 @@ def import_dataset(
     sample, unless ``skip_bad``: then bad samples are left out and listed in
     ``meta["source"]["skipped"]``.
     """
-    samples, skipped = find_samples(source, skip_bad=skip_bad, images=images)
+    opt = options or ImportOptions()
+    samples, skipped = find_samples(source, skip_bad=skip_bad, images=images, split_by=opt.split_by)
     return import_samples(
-        samples, options, source=source, progress=progress, skip_bad=skip_bad, skipped=skipped
+        samples, opt, source=source, progress=progress, skip_bad=skip_bad, skipped=skipped
     )
