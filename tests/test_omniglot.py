@@ -210,7 +210,11 @@ def test_stroke_resampling_keeps_the_dots_the_even_grid_refuses(tree, tmp_path, 
     assert _import(tree, out, "--resample", "uniform") == 2
     err = capsys.readouterr().err
     assert "3 stroke(s) become 2 on the grid of 100 instants" in err and "0101_01.txt" in err
-    assert _import(tree, out, "--n-times", "12") == 0  # 3 strokes in 12 instants
+    assert _import(tree, out, "--n-times", "12", "--n-kernels", "2") == 0  # 3 strokes in 12
+    printed = capsys.readouterr().out
+    # Too few kernels for 3 strokes: the remedy is more of them, the scaling is none already.
+    assert "DMP fit(s) are off" in printed and "try a larger --n-kernels" in printed
+    assert "--scaling none" not in printed
     data = load_dataset(out)
     assert [len(data.stroke_spans(r)) for r in range(4)] == [3, 3, 3, 3]
     assert data.meta["import"]["resample"] == "strokes"

@@ -259,11 +259,19 @@ def run(args: argparse.Namespace) -> int:
     )
     poor = meta["fit"]["poor"]
     if poor["rows"]:
+        # Without the goal-start scaling, what a fit misses is detail: many strokes or a
+        # long drawing for the kernels.
+        remedy = (
+            "where a path ends near its start in x or y the goal-start scaling fails: try "
+            "--scaling none"
+            if data.dmp_config.scaling == "goal-start"
+            else f"many strokes or a long path need more than {data.dmp_config.n_kernels} "
+            "kernels: try a larger --n-kernels"
+        )
         print(
             f"note: {poor['rows']} DMP fit(s) are off by more than {poor['threshold_px']:g} px "
             f"on average (worst {poor['worst_mean_error_px']:.2f} px, "
-            f"{poor['worst_trajectory']}); where a path ends near its start in x or y the "
-            "goal-start scaling fails: try --scaling none"
+            f"{poor['worst_trajectory']}); {remedy}"
         )
     shifted = meta["source"].get("shifted") or {}
     if shifted:
