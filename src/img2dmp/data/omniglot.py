@@ -123,6 +123,8 @@ class ArchiveMember:
         The zip file.
     name : str
         The member's name in it (``strokes_background_small1/Greek/character01/...``).
+    zip : zipfile.ZipFile
+        The archive, open: one for all its members (a zip's directory is read once).
     """
 
     archive: Path
@@ -131,10 +133,6 @@ class ArchiveMember:
 
     def __str__(self) -> str:
         return f"{self.archive}/{self.name}"
-
-    @property
-    def suffix(self) -> str:
-        return Path(self.name).suffix
 
     def read_bytes(self, limit: int) -> bytes:
         """The member's bytes; ``ValueError`` naming it if it is larger than ``limit``
