@@ -138,3 +138,83 @@ def test_load_rejects_bad_files(tmp_path):
     _write_raw(wrong_size, arrays, json.dumps(dict(meta, image_size=[40, 40])))
     with pytest.raises(ValueError, match="'image_size'"):
         load_dataset(wrong_size)
+
+
+# --- stroke spans (issue 32): which instants belong to which stroke ---------------------
+
+
+def _strokes(m: int = 4, t: int = 12) -> DigitData:
+    """A d = 3 data set whose rows hold 1 to 3 strokes, the pen channel down on them."""
+    config = DMPConfig(n_dims=3, scaling="none")
+    spans = [[[0, t - 1]], [[0, 4], [7, 7]], [[1, 3], [5, 6], [9, 11]], [[2, 9]]][:m]
+    pen = np.zeros((m, t), np.float32)
+    for r, row in enumerate(spans):
+        for a, b in row:
+            pen[r, a : b + 1] = 1.0
+    rng = np.random.default_rng(0)
+    xy = rng.normal(size=(m, t, 2)).astype(np.float32)
+    data = _data(m=m, t=t)
+    data.trajectories = np.concatenate([xy, pen[..., None]], axis=-1)
+    data.params = rng.normal(size=(m, config.n_params)).astype(np.float32)
+    data.meta = dict(data.meta, dmp_config=config.to_dict(), stroke_spans=spans)
+    return data
+
+
+def test_stroke_spans_round_trip_and_follow_subsets(tmp_path):
+    data = _strokes()
+    back = load_dataset(save_dataset(tmp_path / "s.safetensors", data))
+    assert [back.stroke_spans(r) for r in range(4)] == [
+        [(0, 11)],
+        [(0, 4), (7, 7)],
+        [(1, 3), (5, 6), (9, 11)],
+        [(2, 9)],
+    ]
+    part = back.subset(np.array([False, True, False, True]))
+    assert part.stroke_spans(0) == [(0, 4), (7, 7)] and part.stroke_spans(1) == [(2, 9)]
+    again = load_dataset(save_dataset(tmp_path / "part.safetensors", part))
+    assert again.meta["stroke_spans"] == [[[0, 4], [7, 7]], [[2, 9]]]
+    assert back.meta["stroke_spans"][0] == [[0, 11]]  # the subset left the whole alone
+
+
+def test_files_without_stroke_spans_load_and_read_the_strokes_off_the_pen(tmp_path):
+    data = _strokes()
+    del data.meta["stroke_spans"]
+    back = load_dataset(save_dataset(tmp_path / "old.safetensors", data))
+    assert "stroke_spans" not in back.meta
+    assert back.stroke_spans(2) == [(1, 3), (5, 6), (9, 11)]  # from the pen channel
+    assert load_dataset(save_dataset(tmp_path / "d2.safetensors", _data())).stroke_spans(1) == [
+        (0, 10)
+    ]
+
+
+@pytest.mark.parametrize(
+    ("spans", "message"),
+    [
+        ("all", "'stroke_spans' must be a list of one entry per row \\(4\\), got str"),
+        ([[[0, 11]]] * 3, "one entry per row \\(4\\), got 3 entries"),
+        (3, "got int"),
+        ("row 1 empty", "'stroke_spans' row 1 is \\[\\]: expected a non-empty list"),
+        ("row 2 overlaps", "row 2 is \\[\\[1, 3\\], \\[3, 6\\], \\[9, 11\\]\\]"),
+        ("row 3 beyond", "row 3 is \\[\\[2, 12\\]\\].*within 0-11"),
+        ("row 3 true", "row 3 is \\[\\[true, 9\\]\\]"),
+        ("row 1 not the pen", "row 1 does not match the pen channel: instant 7 is outside"),
+    ],
+)
+def test_bad_stroke_spans_are_named(tmp_path, spans, message):
+    data = _strokes()
+    rows = data.meta["stroke_spans"]
+    edits = {
+        "row 1 empty": (1, []),
+        "row 2 overlaps": (2, [[1, 3], [3, 6], [9, 11]]),
+        "row 3 beyond": (3, [[2, 12]]),
+        "row 3 true": (3, [[True, 9]]),
+        "row 1 not the pen": (1, [[0, 4]]),
+    }
+    if isinstance(spans, str) and spans in edits:
+        row, value = edits[spans]
+        rows[row] = value
+    else:
+        data.meta["stroke_spans"] = spans
+    with pytest.raises(ValueError, match=message):
+        save_dataset(tmp_path / "bad.safetensors", data)
+    assert not any(tmp_path.iterdir())

@@ -9,7 +9,11 @@ trajectory file of the same name:
 
 or a manifest: a CSV file with the header image,trajectory,class[,split] (or a JSON list
 of such objects), paths relative to the manifest; or a folder of recordings made on the
-Record page of `img2dmp serve --images DIR` (image_<n>.json) with --images DIR.
+Record page of `img2dmp serve --images DIR` (image_<n>.json) with --images DIR; or
+Omniglot: a folder holding images_NAME and strokes_NAME, as folders or as the zip files
+it comes in (classes alphabet/character, split by drawer 1-15 / 16-17 / 18-20, or
+--split-by character or alphabet for characters never seen), or strokes_NAME itself
+(folder or zip) with its images beside it or given with --images.
 Trajectories are in pixels of their own image, x = column and y = row (y down), t in
 seconds (--time-unit ms: milliseconds):
 CSV with the header x,y,t or x,y,t,pen (pen 1 down, 0 up: any number of strokes), JSON
@@ -18,10 +22,12 @@ CSV with the header x,y,t or x,y,t,pen (pen 1 down, 0 up: any number of strokes)
 
 Each image is prepared as `img2dmp predict` prepares one (crop to the ink, square with
 --margin, resized to --image-size) and its path is mapped by the same crop and resize;
-the path is resampled to --n-times instants, --augment affine copies of every training
-sample are added, and a DMP is fitted to every path. The split comes from the manifest's
-split column, or is drawn per class (--val-fraction, --test-fraction, --seed). Classes
-are stored with their names (labels index into the metadata's class_names).
+the path is resampled to --n-times instants (allocated per stroke, so that every stroke
+and dot keeps its own; --resample uniform: evenly over the path, as before), --augment
+affine copies of every training sample are added, and a DMP is fitted to every path.
+The split comes from the manifest's split column, or is drawn per class (--val-fraction,
+--test-fraction, --seed). Classes are stored with their names (labels index into the
+metadata's class_names).
 
 A bad sample (a missing trajectory or image, an unreadable file, NaN, time stamps that do
 not increase, too few points, a path off its image, an unknown class ...) stops the import
@@ -29,14 +35,16 @@ with one line naming the file and what is wrong; --skip-bad leaves such samples 
 lists them instead. An existing --out file is replaced only with --force (checked before
 anything is read).
 
-The options (img2dmp.data.importer.ImportOptions: image_size, margin, n_times,
+The options (img2dmp.data.importer.ImportOptions: image_size, margin, n_times, resample,
 duration_s, time_unit, n_dims, scaling, n_kernels, ridge, augment, affine, seed,
-val_fraction, test_fraction, classes, min_on_ink, stroke_width_px) come from the defaults, then
+val_fraction, test_fraction, split_by, classes, min_on_ink, stroke_width_px) come from
+the defaults, then
 --config FILE, then the flags below (each only when given), then --set KEY=VALUE.
 
   img2dmp import letters --out letters.safetensors --augment 10
   img2dmp import manifest.csv --out shapes.safetensors --classes circle,square --dims 3
   img2dmp import recordings --images photos --out mine.safetensors
+  img2dmp import omniglot --out omniglot.safetensors --split-by character
 """
 
 from __future__ import annotations
@@ -56,6 +64,7 @@ DEFAULTS = {
     "image_size": 40,
     "margin": 0.175,
     "n_times": 100,
+    "resample": "strokes",
     "time_unit": "s",
     "n_kernels": 25,
     "augment": 0,
@@ -65,11 +74,15 @@ DEFAULTS = {
     "min_on_ink": 0.5,
 }
 
+#: Beyond this many classes the summary gives their number, not each one's count.
+MAX_CLASSES_LISTED = 12
+
 #: Option flag (its ``args`` name) -> the ImportOptions field it sets.
 FLAG_FIELDS = {
     "image_size": "image_size",
     "margin": "margin",
     "n_times": "n_times",
+    "resample": "resample",
     "duration": "duration_s",
     "time_unit": "time_unit",
     "dims": "n_dims",
@@ -79,6 +92,7 @@ FLAG_FIELDS = {
     "seed": "seed",
     "val_fraction": "val_fraction",
     "test_fraction": "test_fraction",
+    "split_by": "split_by",
     "classes": "classes",
     "min_on_ink": "min_on_ink",
     "stroke_width": "stroke_width_px",
@@ -100,14 +114,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "source",
         metavar="SOURCE",
-        help="folder of class folders, a .csv / .json manifest, or a folder of recordings "
-        "(with --images)",
+        help="folder of class folders, a .csv / .json manifest, a folder of recordings "
+        "(with --images), or Omniglot (a folder of images_NAME and strokes_NAME, folders or "
+        ".zip, or strokes_NAME itself)",
     )
     p.add_argument(
         "--images",
         metavar="DIR",
         help="with a SOURCE folder of recordings made on img2dmp serve's Record page "
-        "(image_<n>.json): the folder of the images they trace (serve's --images)",
+        "(image_<n>.json): the folder of the images they trace (serve's --images); with "
+        "SOURCE Omniglot's strokes_NAME: its images_NAME (folder or .zip)",
     )
     p.add_argument("--out", "-o", required=True, metavar="FILE", help="output .safetensors file")
     _args.add_force(p, "--out file")
@@ -135,6 +151,13 @@ def _options(p: argparse.ArgumentParser) -> None:
     add("--margin", "share of the side left empty around the ink", type=_fraction, metavar="X")
     add("--n-times", "instants per trajectory", type=_args.int_at_least(2), **n)
     add(
+        "--resample",
+        "instants per stroke and pen lift, so that every stroke and dot keeps its own "
+        "(strokes), or evenly over the path, refusing a path whose short strokes or lifts "
+        "fall between them (uniform)",
+        choices=("strokes", "uniform"),
+    )
+    add(
         "--duration",
         "rescale every path to last this long (removes the writer's speed, which an image "
         "does not show)",
@@ -157,6 +180,14 @@ def _options(p: argparse.ArgumentParser) -> None:
         "share of each class in test (no split given)",
         type=_fraction,
         metavar="X",
+    )
+    add(
+        "--split-by",
+        "Omniglot: drawers 1-15 train, 16-17 validation, 18-20 test (drawer), or whole "
+        "characters (character) or alphabets (alphabet) drawn with --val-fraction and "
+        "--test-fraction: characters never seen",
+        "drawer",
+        choices=("drawer", "character", "alphabet"),
     )
     add(
         "--classes",
@@ -214,7 +245,12 @@ def run(args: argparse.Namespace) -> int:
     save_new_dataset(out, data, args.force)
     meta = data.meta
     counts = meta["counts_by_split"]
-    classes = ", ".join(f"{k} {v}" for k, v in meta["counts_by_class"].items())
+    by_class = meta["counts_by_class"]
+    classes = ", ".join(f"{k} {v}" for k, v in by_class.items())
+    if len(by_class) > MAX_CLASSES_LISTED:
+        least, most = min(by_class.values()), max(by_class.values())
+        each = f"{least}" if least == most else f"{least}-{most}"
+        classes = f"{len(by_class)} of {each} samples each"
     print(
         f"wrote {out}: {len(data)} samples (train {counts['train']}, validation "
         f"{counts['validation']}, test {counts['test']}), classes: {classes}; images "
@@ -223,11 +259,26 @@ def run(args: argparse.Namespace) -> int:
     )
     poor = meta["fit"]["poor"]
     if poor["rows"]:
+        # Without the goal-start scaling, what a fit misses is detail: many strokes or a
+        # long drawing for the kernels.
+        remedy = (
+            "where a path ends near its start in x or y the goal-start scaling fails: try "
+            "--scaling none"
+            if data.dmp_config.scaling == "goal-start"
+            else f"many strokes or a long path need more than {data.dmp_config.n_kernels} "
+            "kernels: try a larger --n-kernels"
+        )
         print(
             f"note: {poor['rows']} DMP fit(s) are off by more than {poor['threshold_px']:g} px "
             f"on average (worst {poor['worst_mean_error_px']:.2f} px, "
-            f"{poor['worst_trajectory']}); where a path ends near its start in x or y the "
-            "goal-start scaling fails: try --scaling none"
+            f"{poor['worst_trajectory']}); {remedy}"
+        )
+    shifted = meta["source"].get("shifted") or {}
+    if shifted:
+        far = max(max(abs(v) for v in s) for s in shifted.values())
+        print(
+            f"note: {len(shifted)} Omniglot drawing(s) lay off their image's ink; their "
+            f"strokes were shifted onto it (up to {far:g} px; metadata source.shifted)"
         )
     for line in meta["source"]["skipped"]:
         print(f"skipped: {line}")

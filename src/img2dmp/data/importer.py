@@ -18,6 +18,10 @@ pen path that wrote it. :func:`import_dataset` reads them from
 - a **folder of recordings** made on the Record page of ``img2dmp serve --images DIR``
   (``image_<n>.json``, each naming its ``"Image file"`` and digit), with ``images``, the
   folder of the images they trace.
+- **Omniglot**: a folder holding ``images_NAME`` and ``strokes_NAME`` (folders, or the
+  zip files as distributed), or ``strokes_NAME`` itself with its images beside it or
+  given as ``images``; classes ``alphabet/character``, split by drawer (or ``split_by``
+  character or alphabet). Its stroke files and their rules: :mod:`img2dmp.data.omniglot`.
 
 **Trajectory files** (:func:`read_trajectory`), in pixels of the sample's own image:
 x = column, y = row (y points down), the centre of pixel ``[i, j]`` at ``(x=j, y=i)``;
@@ -49,10 +53,15 @@ t in seconds (``time_unit="ms"``: milliseconds), strictly increasing.
    (stored per row in the metadata). At least ``min_on_ink`` of the pen-down path must
    then lie on the prepared image's ink (:func:`img2dmp.metrics.on_ink_share`), which
    catches swapped axes, y pointing up and paths of another image.
-3. The path is resampled to ``n_times`` instants evenly spaced over its own duration
-   (linear interpolation; with strokes, ``(x, y, pen)`` with the pen down on every
-   stretch between two pen-down points of one stroke) and, with ``duration_s``, rescaled
-   to last that long.
+3. The path is resampled to ``n_times`` instants (linear interpolation; with strokes,
+   ``(x, y, pen)``, the pen 1 on a stroke and 0 on the pen-up travel between): allocated
+   per stroke and pen-up stretch in proportion to their durations, at least
+   ``min(points, MIN_STROKE_INSTANTS)`` per stroke (a dot: one) and one per stretch, so
+   that every stroke keeps its own (:func:`resample_strokes`; ``resample="uniform"``:
+   evenly over the path's duration, :func:`resample_pen_path`, which refuses a path whose
+   short strokes or lifts fall between its instants); each stroke's first and last
+   instant are kept (the data set's ``stroke_spans``). With ``duration_s`` the path is
+   rescaled to last that long.
 
 Then ``augment`` random affine copies of every training sample are added
 (:func:`img2dmp.data.affine.sample_affine` / ``warp_images`` / ``warp_points``, as
@@ -95,7 +104,9 @@ from .store import (
     MAX_CLASS_NAME_CHARS,
     MAX_CLASSES,
     SPLITS,
+    STROKE_SPANS_KEY,
     DigitData,
+    pen_runs,
 )
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".gif", ".tif", ".tiff", ".webp")
@@ -110,6 +121,8 @@ MAX_POINTS = 1_000_000
 MAX_TRAJECTORY_BYTES = 256 << 20
 #: Most affine copies per training sample.
 MAX_AUGMENT = 1000
+#: The ways of splitting Omniglot's drawings (img2dmp.data.omniglot.SPLIT_BY).
+OMNIGLOT_SPLIT_BY = ("drawer", "character", "alphabet")
 #: A recording's file name (``img2dmp serve``'s Record page, the shared recordings).
 RECORDING_NAME = re.compile(r"image_(\d+)\.json")
 
@@ -127,6 +140,11 @@ class ImportOptions:
         (:func:`img2dmp.data.images.prepare_image`), in [0, 0.45].
     n_times : int
         Instants per trajectory (the DMP time grid).
+    resample : {"strokes", "uniform"}
+        How the instants are placed: ``"strokes"`` allocates them per stroke and pen-up
+        stretch, so that every stroke and dot keeps its own (:func:`resample_strokes`);
+        ``"uniform"`` spreads them evenly over the path's duration, refusing a path whose
+        strokes or lifts that grid loses (:func:`resample_pen_path`, the only way before).
     duration_s : float or None
         Rescale every path to last this long (None: the recorded timing).
     time_unit : {"s", "ms"}
@@ -147,7 +165,11 @@ class ImportOptions:
     seed : int
         Seed of the augmentation and of the random split.
     val_fraction, test_fraction : float
-        Share of each class put in validation / test when the source gives no split.
+        Share of each class put in validation / test when the source gives no split (of
+        each alphabet's characters, or of the alphabets, with ``split_by``).
+    split_by : {"drawer", "character", "alphabet"} or None
+        How Omniglot's drawings are split (:mod:`img2dmp.data.omniglot`); None: by
+        drawer. Other sources refuse it.
     classes : tuple of str or None
         The class names in label order; None: the classes found, sorted.
     min_on_ink : float
@@ -161,6 +183,7 @@ class ImportOptions:
     image_size: int = 40
     margin: float = DEFAULT_MARGIN
     n_times: int = 100
+    resample: str = "strokes"
     duration_s: float | None = None
     time_unit: str = "s"
     n_dims: int | None = None
@@ -172,6 +195,7 @@ class ImportOptions:
     seed: int = 0
     val_fraction: float = 0.1
     test_fraction: float = 0.2
+    split_by: str | None = None
     classes: tuple[str, ...] | None = None
     min_on_ink: float = 0.5
     stroke_width_px: float | None = None
@@ -198,6 +222,12 @@ class ImportOptions:
         if self.stroke_width_px is not None:
             widest = self.image_size / 4.0
             _check_number("stroke_width_px", self.stroke_width_px, 0.0, widest, open_low=True)
+        if self.split_by not in (None, *OMNIGLOT_SPLIT_BY):
+            raise ValueError(
+                f"split_by must be one of {list(OMNIGLOT_SPLIT_BY)} or None, got {self.split_by!r}"
+            )
+        if self.resample not in RESAMPLING:
+            raise ValueError(f"resample must be one of {list(RESAMPLING)}, got {self.resample!r}")
         if self.time_unit not in TIME_UNITS:
             raise ValueError(f"time_unit must be one of {list(TIME_UNITS)}, got {self.time_unit!r}")
         if self.n_dims not in (None, 2, 3):
@@ -578,13 +608,21 @@ class SampleSource:
 
     Attributes
     ----------
-    image, trajectory : Path
-        Its image file and its trajectory file.
+    image, trajectory : Path or img2dmp.data.omniglot.ArchiveMember
+        Its image file and its trajectory file (or a file in a zip).
     class_name : str
     split : {"train", "validation", "test"} or None
         None: drawn at random (:class:`ImportOptions` ``val_fraction``, ``test_fraction``).
     where : str
         Where it was listed, for messages (``manifest.csv: row 3``); empty for a folder.
+    format : str
+        How the trajectory is read: ``""`` by its suffix (:func:`read_trajectory`),
+        ``"omniglot"`` as an Omniglot stroke file (:mod:`img2dmp.data.omniglot`).
+    unit, stratum : str or None
+        With ``unit``, the samples of one unit go to one split together, the units of
+        each ``stratum`` drawn as a class's samples are (Omniglot by character: unit the
+        character, stratum its alphabet); None: each sample is its own unit, drawn among
+        its class.
     """
 
     image: Path
@@ -592,6 +630,9 @@ class SampleSource:
     class_name: str
     split: str | None = None
     where: str = ""
+    format: str = ""
+    unit: str | None = None
+    stratum: str | None = None
 
     @property
     def name(self) -> str:
@@ -600,19 +641,38 @@ class SampleSource:
 
 
 def find_samples(
-    source: str | os.PathLike, *, skip_bad: bool = False, images: str | os.PathLike | None = None
+    source: str | os.PathLike,
+    *,
+    skip_bad: bool = False,
+    images: str | os.PathLike | None = None,
+    split_by: str | None = None,
 ) -> tuple[list[SampleSource], list[str]]:
-    """The samples of a folder of class folders, of a manifest, or of a folder of
-    recordings with the folder of the images they trace (``images``; module docstring).
+    """The samples of a folder of class folders, of a manifest, of a folder of
+    recordings with the folder of the images they trace (``images``), or of Omniglot's
+    trees of images and strokes (module docstring; ``split_by``:
+    :mod:`img2dmp.data.omniglot`).
 
     Returns the samples and, with ``skip_bad``, the one-line errors of the files that make
     no sample (an image without trajectory, a stray file, a bad manifest row); without it
     the first such error is raised. A source that is not a folder or manifest at all, a
     folder without class folders and a manifest with a bad header always raise.
     """
+    from .omniglot import find_omniglot, omniglot_trees
+
     source = Path(source)
     if not source.exists():
         raise FileNotFoundError(f"import source {source} does not exist")
+    trees = omniglot_trees(source, images)
+    if trees is not None:
+        samples, problems = find_omniglot(trees, split_by)
+        if problems and not skip_bad:
+            raise problems[0]
+        return samples, [str(e) for e in problems]
+    if split_by is not None:
+        raise ValueError(
+            f"{source}: split_by {split_by!r} (--split-by) is for Omniglot sources; the "
+            "split of other sources comes from a manifest or is drawn per class"
+        )
     recordings = _recordings_in(source)
     if images is not None and not recordings:
         raise ValueError(
@@ -883,6 +943,147 @@ def resample_pen_path(pen: PenPath, n_times: int) -> tuple[np.ndarray, np.ndarra
     return grid - t[0], np.concatenate([xy, down[:, None].astype(np.float64)], axis=-1)
 
 
+#: Fewest instants a stroke of this many points or more gets (its two ends and one
+#: between); a stroke of fewer points gets one per point, a dot one. Where a drawing's
+#: strokes cannot all have it, they get 2 (their ends).
+MIN_STROKE_INSTANTS = 3
+#: The ways of resampling a path (:class:`ImportOptions` ``resample``).
+RESAMPLING = ("strokes", "uniform")
+
+
+@dataclass
+class Resampled:
+    """A pen path at the instants of a data set's time grid.
+
+    Attributes
+    ----------
+    times : float64 [n]
+        Seconds since the first point, strictly increasing.
+    path : float64 [n, 3]
+        ``(x, y, pen)``, pen 1 down, 0 up.
+    spans : list of (int, int)
+        The first and last instant of every stroke, in writing order (the data set's
+        ``stroke_spans``).
+    """
+
+    times: np.ndarray
+    path: np.ndarray
+    spans: list[tuple[int, int]]
+
+
+def _pieces(pen: PenPath) -> list[tuple[str, float, float, int]]:
+    """The strokes and pen-up stretches of a path in time order, as ``(kind, start, end,
+    points)``: kind ``"stroke"``, ``"lead"`` (up before the first stroke), ``"up"``
+    (between two strokes) or ``"trail"`` (up after the last); points of a stroke only."""
+    t, s = pen.t_s, pen.stroke
+    out = []
+    for k in range(pen.n_strokes):
+        members = np.flatnonzero(s == k)
+        a, b = float(t[members[0]]), float(t[members[-1]])
+        if out:
+            out.append(("up", out[-1][2], a, 0))
+        elif a > t[0]:
+            out.append(("lead", float(t[0]), a, 0))
+        out.append(("stroke", a, b, len(members)))
+    if out[-1][2] < t[-1]:
+        out.append(("trail", out[-1][2], float(t[-1]), 0))
+    return out
+
+
+def _allocate(durations: np.ndarray, least: np.ndarray, n: int) -> np.ndarray:
+    """Instants per piece summing to ``n``: in proportion to the pieces' durations, as an
+    even grid would give them, but at least ``least`` each (``least.sum() <= n``)."""
+    free = np.ones(len(durations), bool)
+    while True:  # pin the pieces whose share falls short of their least; share the rest
+        budget = n - least[~free].sum()
+        share = np.where(free, budget * durations / durations[free].sum(), least)
+        short = free & (share < least)
+        if not short.any():
+            break
+        free &= ~short
+    counts = np.maximum(np.floor(share).astype(np.int64), least)
+    rest = n - int(counts.sum())  # the largest remainders take the instants left
+    order = np.argsort(-(share - np.floor(share)) * free, kind="stable")
+    counts[order[:rest]] += 1
+    return counts
+
+
+def _piece_times(kind: str, a: float, b: float, k: int, t_own: np.ndarray) -> np.ndarray:
+    """``k`` instants of one piece from ``a`` to ``b``: a stroke's both ends (or its own
+    points when it has as few as it gets), strictly inside a pen-up stretch between
+    strokes, from the start of the path before its first stroke, to its end after the
+    last."""
+    if kind == "stroke":
+        if k == len(t_own) and k <= MIN_STROKE_INSTANTS:
+            return t_own
+        return np.linspace(a, b, k) if k > 1 else np.array([a])
+    u = np.arange(k, dtype=np.float64)
+    frac = {"up": (u + 1) / (k + 1), "lead": u / k, "trail": (u + 1) / k}[kind]
+    return a + (b - a) * frac
+
+
+def resample_strokes(pen: PenPath, n_times: int) -> Resampled:
+    """A pen path at ``n_times`` instants allocated per stroke, so that none is lost.
+
+    The even grid of :func:`resample_pen_path` loses a stroke or a pen lift shorter than
+    its step (a dot has no duration at all). Here every stroke and every pen-up stretch
+    gets its own instants, in proportion to its duration as on the even grid, but every
+    stroke at least ``min(points, MIN_STROKE_INSTANTS)`` (a dot one, at its time) and
+    every pen-up stretch at least one. A stroke's instants run evenly from its first to
+    its last point (or are its own points, when it has no more than it gets), a pen-up
+    stretch's strictly between the strokes. Positions are interpolated linearly between
+    the recorded points; the pen is 1 at a stroke's instants, 0 at the others. A path of
+    one stroke gets the even grid.
+
+    Raises ``ValueError`` naming the file if the strokes need more instants than
+    ``n_times`` (2 per stroke, 1 per dot and 1 per pen-up stretch at the least).
+    """
+    pieces = _pieces(pen)
+    durations = np.array([b - a for _, a, b, _ in pieces])  # [P]
+    for least_points in (MIN_STROKE_INSTANTS, 2):
+        least = np.array(
+            [min(p, least_points) if kind == "stroke" else 1 for kind, _, _, p in pieces]
+        )
+        if least.sum() <= n_times:
+            break
+    else:
+        raise ValueError(
+            f"{pen.name}: its {pen.n_strokes} strokes and the pen-up travel between them need "
+            f"at least {least.sum()} instants, more than the {n_times} of the grid; use more "
+            f"instants (--n-times {least.sum()})"
+        )
+    counts = _allocate(durations, least, n_times)  # [P]
+    grid, spans, k, first = [], [], 0, 0
+    t = pen.t_s
+    for (kind, a, b, _), c in zip(pieces, counts, strict=True):
+        own = t[pen.stroke == k] if kind == "stroke" else t[:0]
+        grid.append(_piece_times(kind, a, b, int(c), own))
+        if kind == "stroke":
+            spans.append((first, first + int(c) - 1))
+            k += 1
+        first += int(c)
+    times = np.concatenate(grid)  # [n]
+    if not (np.diff(times.astype(np.float32)) > 0).all():
+        raise ValueError(
+            f"{pen.name}: two of its instants lie closer than a float32 time stamp can tell "
+            f"apart ({times[-1] - t[0]:.6g} s long); give the path fewer instants (--n-times)"
+        )
+    xy = np.stack([np.interp(times, t, pen.xy[:, j]) for j in range(2)], axis=-1)  # [n, 2]
+    down = np.zeros(n_times)
+    for lo, hi in spans:
+        down[lo : hi + 1] = 1.0
+    return Resampled(times - t[0], np.concatenate([xy, down[:, None]], axis=-1), spans)
+
+
+def resample(pen: PenPath, n_times: int, how: str = "strokes") -> Resampled:
+    """:func:`resample_strokes` (``how="strokes"``) or :func:`resample_pen_path`
+    (``"uniform"``) of a pen path, with the instants of every stroke."""
+    if how == "strokes":
+        return resample_strokes(pen, n_times)
+    times, path = resample_pen_path(pen, n_times)
+    return Resampled(times, path, pen_runs(path[:, 2] > 0.5))
+
+
 @dataclass
 class _Sample:
     image: np.ndarray  # [S, S] float32
@@ -891,6 +1092,8 @@ class _Sample:
     frame: ImageFrame  # the sample's image -> the prepared image
     needs_pen: bool
     n_strokes: int
+    spans: list[tuple[int, int]]  # each stroke's first and last instant
+    shift: tuple[float, float] | None = None  # Omniglot strokes moved onto the ink (px)
 
 
 def _import_one(src: SampleSource, opt: ImportOptions) -> _Sample:
@@ -899,16 +1102,29 @@ def _import_one(src: SampleSource, opt: ImportOptions) -> _Sample:
         raise ValueError(
             f"{src.name}: class {src.class_name!r} is not one of the classes {list(opt.classes)}"
         )
-    pen = read_trajectory(src.trajectory, opt.time_unit)
+    from . import omniglot
+
+    drawing = src.format == omniglot.FORMAT
+    pen = (
+        omniglot.read_strokes(src.trajectory)
+        if drawing
+        else read_trajectory(src.trajectory, opt.time_unit)
+    )
     image, frame = prepare_image_framed(
-        src.image,
+        omniglot.image_of(src.image),
         (opt.image_size, opt.image_size),
         margin=opt.margin,
         stroke_width_px=opt.stroke_width_px,
+        name=str(src.image),
+        clean=not drawing,  # Omniglot's renderings: no paper (omniglot module docstring)
     )
-    check_within_image(pen, frame.image_size, str(src.image))
-    times, path = resample_pen_path(pen, opt.n_times)
-    path = frame.to_model(path)
+    shift = None
+    if drawing:
+        pen, shift = omniglot.fit_to_image(pen, image, frame, str(src.image))
+    else:
+        check_within_image(pen, frame.image_size, str(src.image))
+    res = resample(pen, opt.n_times, opt.resample)
+    times, path = res.times, frame.to_model(res.path)
     share = float(on_ink_share(image[None], path[None])[0])
     if share < opt.min_on_ink:
         raise ValueError(
@@ -918,7 +1134,7 @@ def _import_one(src: SampleSource, opt: ImportOptions) -> _Sample:
         )
     if opt.duration_s is not None:
         times = times * (opt.duration_s / times[-1])
-    return _Sample(image, times, path, frame, pen.needs_pen, pen.n_strokes)
+    return _Sample(image, times, path, frame, pen.needs_pen, pen.n_strokes, res.spans, shift)
 
 
 # --- the data set ---------------------------------------------------------------------
@@ -993,15 +1209,38 @@ def _splits(sources: list[SampleSource], labels: np.ndarray, opt: ImportOptions,
         raise ValueError(
             f"{first.name}: gives no split while other rows do; give every row a split or none"
         )
+    if any(s.unit is not None for s in sources):
+        return _unit_splits(sources, opt, rng)
     split = np.zeros(len(labels), np.uint8)
     for c in np.unique(labels):
         rows = rng.permutation(np.flatnonzero(labels == c))
-        n_test = min(int(math.floor(opt.test_fraction * len(rows) + 0.5)), len(rows) - 1)
-        n_val = int(math.floor(opt.val_fraction * len(rows) + 0.5))
-        n_val = min(n_val, len(rows) - n_test - 1)  # keep one to train on
+        n_test, n_val = _split_counts(len(rows), opt)
         split[rows[:n_test]] = SPLITS["test"]
         split[rows[n_test : n_test + n_val]] = SPLITS["validation"]
     return split
+
+
+def _split_counts(n: int, opt: ImportOptions) -> tuple[int, int]:
+    """How many of ``n`` samples (or units) go to test and to validation: the options'
+    fractions, rounded, at least one left to train on."""
+    n_test = min(int(math.floor(opt.test_fraction * n + 0.5)), n - 1)
+    n_val = int(math.floor(opt.val_fraction * n + 0.5))
+    return n_test, min(n_val, n - n_test - 1)
+
+
+def _unit_splits(sources: list[SampleSource], opt: ImportOptions, rng) -> np.ndarray:
+    """The split of every sample when whole units go to one split (Omniglot by
+    character or alphabet): the units of each stratum drawn with the fractions."""
+    units = [(s.stratum or "", s.unit or s.name) for s in sources]
+    unit_split = {}
+    for stratum in sorted({st for st, _ in units}):
+        names = sorted({u for st, u in units if st == stratum})
+        order = [names[i] for i in rng.permutation(len(names))]
+        n_test, n_val = _split_counts(len(names), opt)
+        for i, name in enumerate(order):
+            code = "test" if i < n_test else "validation" if i < n_test + n_val else "train"
+            unit_split[(stratum, name)] = SPLITS[code]
+    return np.array([unit_split[u] for u in units], np.uint8)
 
 
 def _augment(images, paths, split, opt: ImportOptions, rng, progress: bool):
@@ -1029,7 +1268,11 @@ def _augment(images, paths, split, opt: ImportOptions, rng, progress: bool):
     )
 
 
-def _relative(path: Path, root: Path | None) -> str:
+def _relative(path, root: Path | None) -> str:
+    """A sample's file relative to the source (a file in a zip: ``ARCHIVE/MEMBER``, the
+    archive relative to it)."""
+    if not isinstance(path, Path):
+        return f"{_relative(path.archive, root)}/{path.name}"
     try:
         return str(path.relative_to(root)) if root is not None else str(path)
     except ValueError:
@@ -1093,8 +1336,12 @@ def import_samples(
         "samples": len(good),
         "skipped": skipped,
     }
+    if any(src.format == "omniglot" for src in sources):
+        shifted = {_relative(src.trajectory, root): list(s.shift) for src, s in good if s.shift}
+        meta["source"].update(format="omniglot", split_by=opt.split_by or "drawer", shifted=shifted)
     if class_names is not None:
         meta["class_names"] = list(class_names)
+    meta[STROKE_SPANS_KEY] = [[list(span) for span in good[r][1].spans] for r in rows]
     return DigitData(
         images=np.ascontiguousarray(images, dtype=np.float32),
         trajectories=paths.astype(np.float32),
@@ -1176,7 +1423,8 @@ def import_dataset(
     sample, unless ``skip_bad``: then bad samples are left out and listed in
     ``meta["source"]["skipped"]``.
     """
-    samples, skipped = find_samples(source, skip_bad=skip_bad, images=images)
+    opt = options or ImportOptions()
+    samples, skipped = find_samples(source, skip_bad=skip_bad, images=images, split_by=opt.split_by)
     return import_samples(
-        samples, options, source=source, progress=progress, skip_bad=skip_bad, skipped=skipped
+        samples, opt, source=source, progress=progress, skip_bad=skip_bad, skipped=skipped
     )

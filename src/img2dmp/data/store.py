@@ -34,6 +34,14 @@ the key, labels are the digits 0-9, as in every file written before the key exis
 load unchanged (the format version stays 1). :attr:`DigitData.label_names` gives the name of
 every label either way, :meth:`DigitData.labels_of_digits` maps digits to labels.
 
+**Stroke spans.** A data set whose paths are made of strokes (``img2dmp import``) may
+hold in the metadata key ``stroke_spans`` which instants belong to which stroke: one entry
+per row, a list of ``[first, last]`` instant indices (inclusive) per stroke in writing
+order, each stroke after the one before (``0 <= first <= last < T``); the instants of no
+span are pen-up travel. With a pen channel (d = 3) the pen is down (> 0.5) at exactly the
+spans' instants. Files without the key load as before (format version 1);
+:meth:`DigitData.stroke_spans` then reads the strokes off the pen channel.
+
 Every value check names the file, the field and the first row at fault.
 """
 
@@ -77,6 +85,8 @@ MAX_CLASSES = 10_000
 #: least. A 1 x 1 "image" holds no shape to learn a movement from.
 MIN_IMAGE_SIDE = 8
 MAX_CLASS_NAME_CHARS = 100
+#: The metadata key of the stroke spans (module docstring).
+STROKE_SPANS_KEY = "stroke_spans"
 #: The names of the labels of a data set without ``class_names``.
 DIGIT_NAMES = tuple(str(d) for d in range(10))
 
@@ -132,6 +142,23 @@ def check_class_names(names, where: str = "data set") -> tuple[str, ...]:
     return tuple(names)
 
 
+def _is_span(span) -> bool:
+    """Whether ``span`` is a ``[first, last]`` pair of integers (JSON numbers, not
+    booleans)."""
+    return (
+        isinstance(span, (list, tuple))
+        and len(span) == 2
+        and all(isinstance(v, int) and not isinstance(v, bool) for v in span)
+    )
+
+
+def pen_runs(down: np.ndarray) -> list[tuple[int, int]]:
+    """``(first, last)`` of every run of True in ``down`` (bool ``[T]``)."""
+    d = np.concatenate([[False], np.asarray(down, bool), [False]])
+    edges = np.flatnonzero(d[1:] != d[:-1])  # starts and ends + 1, alternating
+    return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
 def _first_row(bad: np.ndarray) -> int:
     """The first row (index along the first axis) where ``bad`` holds a True."""
     return int(np.argmax(bad.reshape(bad.shape[0], -1).any(axis=1)))
@@ -156,8 +183,9 @@ class DigitData:
         JSON-ready metadata; must hold ``dmp_config`` (a ``DMPConfig.to_dict()``),
         ``source`` (a dict saying where the samples came from, e.g. the generator config)
         and ``seed`` (int or None); may hold ``class_names`` (the labels then index into
-        it, see the module docstring). ``format``, ``version``, ``image_size`` and
-        ``created`` are filled in by :func:`save_dataset`.
+        it, see the module docstring) and ``stroke_spans`` (each row's strokes: the
+        module docstring). ``format``, ``version``, ``image_size`` and ``created`` are
+        filled in by :func:`save_dataset`.
     """
 
     images: np.ndarray
@@ -240,14 +268,33 @@ class DigitData:
         return {name: getattr(self, name) for name in _FIELDS}
 
     def subset(self, index) -> DigitData:
-        """Rows selected by an index, slice or boolean mask; the metadata is shared."""
+        """Rows selected by an index, slice or boolean mask; the metadata is shared but
+        for ``stroke_spans``, which is selected with the rows."""
         rows = self._file_rows()[index] if self.origin is not None else None
+        meta = self.meta
+        spans = meta.get(STROKE_SPANS_KEY) if isinstance(meta, dict) else None
+        if spans is not None:
+            meta = {**meta, STROKE_SPANS_KEY: [spans[i] for i in np.arange(len(self))[index]]}
         return DigitData(
             **{k: v[index] for k, v in self.arrays().items()},
-            meta=self.meta,
+            meta=meta,
             origin=self.origin,
             file_rows=rows,
         )
+
+    def stroke_spans(self, row: int) -> list[tuple[int, int]]:
+        """``(first, last)`` instant of every stroke of ``row``, in writing order.
+
+        From the metadata's ``stroke_spans`` when the data set has them (module
+        docstring); else, for a data set of an earlier img2dmp or another source, the runs
+        of the pen channel (d = 3: pen > 0.5), or one stroke over all instants (d = 2).
+        """
+        spans = self.meta.get(STROKE_SPANS_KEY) if isinstance(self.meta, dict) else None
+        if spans is not None:
+            return [(int(a), int(b)) for a, b in spans[row]]
+        if self.trajectories.shape[-1] >= 3:
+            return pen_runs(self.trajectories[row, :, 2] > 0.5)
+        return [(0, int(self.trajectories.shape[1]) - 1)]
 
     def _file_rows(self) -> np.ndarray:
         return self.file_rows if self.file_rows is not None else np.arange(len(self))
@@ -324,6 +371,8 @@ class DigitData:
             )
         if isinstance(self.meta, dict) and self.meta.get(CLASS_NAMES_KEY) is not None:
             check_class_names(self.meta[CLASS_NAMES_KEY], where)
+        if isinstance(self.meta, dict) and self.meta.get(STROKE_SPANS_KEY) is not None:
+            self._validate_spans(where)
         if m:
             self._validate_values(where)
         self._validate_meta(where)
@@ -359,6 +408,41 @@ class DigitData:
         if self.times.shape[1] > 1 and not (np.diff(self.times, axis=1) > 0).all():
             row = _first_row(np.diff(self.times, axis=1) <= 0)
             raise DatasetError(f"{where}: field 'times' is not strictly increasing in row {row}")
+
+    def _validate_spans(self, where: str) -> None:
+        """The metadata's ``stroke_spans``: one entry per row, increasing spans within the
+        time grid, and with a pen channel the pen down at exactly their instants."""
+        spans, (m, t) = self.meta[STROKE_SPANS_KEY], self.times.shape
+        what = f"{where}: metadata field {STROKE_SPANS_KEY!r}"
+        if not isinstance(spans, list) or len(spans) != m:
+            got = f"{len(spans)} entries" if isinstance(spans, list) else type(spans).__name__
+            raise DatasetError(f"{what} must be a list of one entry per row ({m}), got {got}")
+        down = np.zeros((m, t), bool)  # [M, T] the instants of the spans
+        for row, entry in enumerate(spans):
+            last = -1
+            ok = isinstance(entry, list) and bool(entry)
+            for span in entry if ok else ():
+                ok = _is_span(span) and last < span[0] <= span[1] < t
+                if not ok:
+                    break
+                down[row, span[0] : span[1] + 1] = True
+                last = span[1]
+            if not ok:
+                shown = json.dumps(entry)[:60]
+                raise DatasetError(
+                    f"{what} row {row} is {shown}: expected a non-empty list of [first, last] "
+                    f"instants, each after the one before, within 0-{t - 1}"
+                )
+        if self.trajectories.shape[-1] >= 3 and m:
+            bad = down != (self.trajectories[..., 2] > 0.5)  # [M, T]
+            if bad.any():
+                row = _first_row(bad)
+                k = int(np.argmax(bad[row]))
+                raise DatasetError(
+                    f"{what} row {row} does not match the pen channel: instant {k} is "
+                    f"{'in' if down[row, k] else 'outside'} a stroke but the pen is "
+                    f"{self.trajectories[row, k, 2]:g}"
+                )
 
     def _validate_meta(self, where: str) -> None:
         if not isinstance(self.meta, dict):
