@@ -12,12 +12,13 @@ in at most 3 s end to end.
 reading and reducing the photo, separating the ink from the paper, finding the
 characters, framing them, the network and refinement, the page document and picture.
 
-The model: ``--model RUN`` (the recommended one: ``make model-real``, ``--refine 30``),
-else a tiny one trained here in a temporary folder (as ``bench_latency.py`` does), whose
-timings have the same shape except for the network's size. Python's bytecode cache is on
-(as for an installed package) unless ``--as-environment``.
+The model: the shipped default with its card's refinement (30 steps) unless ``--model``
+names another (a shipped name or a run directory) or ``--tiny`` asks for a tiny one
+trained here in a temporary folder (as ``bench_latency.py`` does); ``--refine`` overrides
+the steps. ``--backend`` passes through to ``predict`` (default auto: NumPy, no torch).
+Python's bytecode cache is on (as for an installed package) unless ``--as-environment``.
 
-Run: ``.venv/bin/python benchmarks/bench_page.py --model runs/real/run --refine 30``
+Run: ``.venv/bin/python benchmarks/bench_page.py [--stages] [--backend torch]``
 """
 
 from __future__ import annotations
@@ -59,7 +60,7 @@ def make_photo(work: Path, seed: int = 0, size_hw=SIZE_HW, n: int = N_CHARACTERS
     return path
 
 
-def stages(model_dir: str, refine: int, photo: Path) -> list[tuple[str, float]]:
+def stages(model_dir: str, refine: int | None, photo: Path, backend: str = "auto"):
     """Seconds of each stage of one reading, in this process (warmed up once)."""
     from img2dmp import page as P
     from img2dmp.data import images
@@ -67,7 +68,7 @@ def stages(model_dir: str, refine: int, photo: Path) -> list[tuple[str, float]]:
     from img2dmp.data.paper import paper_ink
     from img2dmp.predict import load_model
 
-    model = load_model(model_dir, refine=refine)
+    model = load_model(model_dir, refine=refine, backend=backend)
     model.predict_page(photo)  # warm-up
     out, t = [], time.perf_counter()
 
@@ -89,7 +90,7 @@ def stages(model_dir: str, refine: int, photo: Path) -> list[tuple[str, float]]:
 
     params, _ = model.predict_hypotheses(np.stack(inputs), refine_top_only=P.PAGE_REFINE_TOP_ONLY)
     model.trajectories(params, n_points=100)
-    lap(f"network{' and refinement' if refine else ''}, rollouts")
+    lap(f"network{' and refinement' if model.refine_options else ''}, rollouts")
     result = model.predict_page(photo)
     t = time.perf_counter()
     result.save(photo.parent / "stages", "page")
@@ -99,8 +100,10 @@ def stages(model_dir: str, refine: int, photo: Path) -> list[tuple[str, float]]:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--model", help="run directory (default: a tiny model trained here)")
-    ap.add_argument("--refine", type=int, default=0, help="refinement steps (30 for real)")
+    ap.add_argument("--model", help="shipped name or run directory (default: the default model)")
+    ap.add_argument("--tiny", action="store_true", help="a tiny model trained here instead")
+    ap.add_argument("--refine", type=int, help="refinement steps (default: the card's)")
+    ap.add_argument("--backend", default="auto", choices=("auto", "numpy", "torch"))
     ap.add_argument("--runs", type=int, default=5, help="timed runs of each command")
     ap.add_argument("--stages", action="store_true", help="also time the stages in-process")
     ap.add_argument(
@@ -114,26 +117,38 @@ def main() -> None:
     try:
         print(_machine.describe())
         # absolute: the commands run in the work folder
-        model = str(Path(args.model).resolve()) if args.model else str(make_model(work, cli)[0])
+        if args.tiny:
+            model = str(make_model(work, cli)[0])
+        elif args.model and Path(args.model).exists():
+            model = str(Path(args.model).resolve())
+        else:  # a shipped model's name, or the default one
+            from img2dmp.models import default_model
+
+            model = args.model or default_model().name
         photo = make_photo(work)
         print(
             f"photo: {SIZE_HW[1]} x {SIZE_HW[0]} JPEG, {N_CHARACTERS} digits on ruled paper, "
-            f"{photo.stat().st_size / 1e6:.1f} MB; model {model}, refine {args.refine}"
+            f"{photo.stat().st_size / 1e6:.1f} MB; model {model}, refine "
+            f"{'as its card says' if args.refine is None else args.refine}, backend {args.backend}"
         )
         env, cache = bytecode_env(work, args.as_environment)
         print(cache)
-        page = cli + [
-            "predict",
-            "--model",
-            model,
-            str(photo),
-            "--page",
-            "--out",
-            str(work / "out"),
-            "--force",
-            "--refine",
-            str(args.refine),
-        ]
+        page = (
+            cli
+            + [
+                "predict",
+                "--model",
+                model,
+                str(photo),
+                "--page",
+                "--out",
+                str(work / "out"),
+                "--force",
+                "--backend",
+                args.backend,
+            ]
+            + ([] if args.refine is None else ["--refine", str(args.refine)])
+        )
         floor = [sys.executable, "-c", "import img2dmp.predict"]
         commands = {"predict --page (12 MP, 60 digits)": page, "import img2dmp.predict": floor}
         for cmd in commands.values():
@@ -155,7 +170,7 @@ def main() -> None:
         )
         if args.stages:
             print("\nstages of one reading, in-process:")
-            for name, s in stages(model, args.refine, photo):
+            for name, s in stages(model, args.refine, photo, args.backend):
                 print(f"  {s:6.3f} s  {name}")
         print(f"load average at the end {_machine.load_average()} (1/5/15 min)")
     finally:
