@@ -7,7 +7,8 @@ Table I error that training records) with cost (9) and one with cost (10) are ti
 alternately; the ratio of their medians is printed (target <= 1.10: the trajectory cost
 rides on the fast rollout, so it should be almost free). Then the
 throughput of batch inference (images -> DMP parameters) in images per second (target
->= 5,000 / s on the 2-core development machine), and with the trajectory rollout added.
+>= 5,000 / s on the 2-core development machine), with the trajectory rollout added, and on
+the NumPy backend (:mod:`img2dmp.nn._numpy_net`, what ``predict`` runs on the CPU).
 
 Usage::
 
@@ -133,6 +134,22 @@ def main(argv=None) -> int:
     print(
         f"  with the trajectory at {big_t.shape[1]} time stamps: "
         f"{args.infer_batch / tt:,.0f} images/s"
+    )
+    # The same network on the NumPy backend (what `predict` runs on the CPU), same weights
+    # and images; its matrix products on NumPy's BLAS with that library's own threads.
+    from img2dmp.nn._numpy_net import NumpyNetwork
+
+    net = NumpyNetwork(mcfg, {k: v.numpy() for k, v in model.state_dict().items()})
+    big_np = big.numpy()
+
+    def infer_np():
+        norm.denormalise_numpy(net(big_np).astype(np.float64))
+
+    infer_np()
+    tn = _median_time(infer_np, 5)
+    print(
+        f"  the NumPy backend (BLAS threads its own): {args.infer_batch / tn:,.0f} images/s, "
+        f"{ti / tn:.2f}x torch's"
     )
     return 0
 
