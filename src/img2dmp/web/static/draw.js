@@ -536,6 +536,9 @@ async function bend({ play }) {
     return;
   }
   state.bendBusy = true;
+  // "bending" until the last asked-for bend is drawn: "done" before it would show a
+  // movement bent to a goal the pointer has already left
+  ui.result.dataset.state = "bending";
   const key = `${state.seq}:${state.selected}`; // what it bends: this prediction, this rank
   const h = state.answer.hypotheses[state.selected];
   const body = { dmp: state.answer.dmp, hypothesis: h.rank, n_points: h.t.length };
@@ -560,10 +563,16 @@ async function bend({ play }) {
     bend({ play: play || pending === "play" });
     return;
   }
-  if (!ok) return;
+  if (!ok) {
+    if (key === `${state.seq}:${state.selected}`) ui.result.dataset.state = "done";
+    return;
+  }
   showBent();
   if (play) animate();
-  else drawFrame(Infinity);
+  else {
+    drawFrame(Infinity);
+    ui.result.dataset.state = "done";
+  }
 }
 
 /** The line saying how the shown movement is bent; the Undo button. */
