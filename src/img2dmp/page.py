@@ -13,6 +13,8 @@
 4. each prediction is scored against its ink (:func:`img2dmp.predict.fit_score`) and
    flagged where it does not fit, or where the character touches the photo's border.
 
+:func:`segment_page` is steps 1 and 2 alone (no model): what the command finds on a page.
+
 :class:`PagePrediction` holds the result; :meth:`PagePrediction.save` writes the page
 document ``<stem>_page.json`` (format ``img2dmp-page``, version 1, docs/PAGE.md) and a
 picture of the whole page ``<stem>_page.png``.
