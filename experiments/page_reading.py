@@ -139,31 +139,45 @@ def _crop_scores(model, page, image, t: int) -> dict:
     return out
 
 
-def generated(model, args) -> dict:
-    """Every page's rows, by paper kind and condition."""
+def page_sources(data: str, split: str) -> list:
+    """The :class:`img2dmp.data.clutter.CharacterSource` of every recorded MNIST digit of
+    ``split`` ("validation" or "test") in the data folder ``data``."""
     import warnings
 
-    from img2dmp.data.clutter import generate_page, page_sources_from_recorded
+    from img2dmp.data.clutter import page_sources_from_recorded
     from img2dmp.data.recorded import load_recorded, split_of_index
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        recs = load_recorded(Path(args.data) / "ijs-mnist-trajectories" / "trajectories.tar.gz",
+        recs = load_recorded(Path(data) / "ijs-mnist-trajectories" / "trajectories.tar.gz",
                              progress=False)  # fmt: skip
-    code = {"validation": 1, "test": 2}[args.split]
-    recs = [r for r in recs if split_of_index(r.image_index) == code]
-    sources = page_sources_from_recorded(recs)
-    out: dict = {k: {"cluttered": [], "plain": []} for k in KINDS}
-    for p in range(args.pages):
-        rng = np.random.default_rng(args.seed + p)
+    code = {"validation": 1, "test": 2}[split]
+    return page_sources_from_recorded([r for r in recs if split_of_index(r.image_index) == code])
+
+
+def generated_pages(sources: list, pages: int, seed: int):
+    """Yield ``(p, kind, page)`` for the ``pages`` generated pages of ``seed``: page ``p``
+    from ``numpy.random.default_rng(seed + p)``, 8 to 30 of ``sources``, on the paper
+    kinds in turn (:data:`KINDS`)."""
+    from img2dmp.data.clutter import generate_page
+
+    for p in range(pages):
+        rng = np.random.default_rng(seed + p)
         pick = rng.choice(len(sources), int(rng.integers(8, 31)), replace=False)
         kind = KINDS[p % len(KINDS)]
-        page = generate_page(rng, [sources[i] for i in pick], kind=kind)
+        yield p, kind, generate_page(rng, [sources[i] for i in pick], kind=kind)
+
+
+def generated(model, args) -> dict:
+    """Every page's rows, by paper kind and condition."""
+    sources = page_sources(args.data, args.split)
+    out: dict = {k: {"cluttered": [], "plain": []} for k in KINDS}
+    for p, kind, page in generated_pages(sources, args.pages, args.seed):
         for cond, image in (("cluttered", page.image), ("plain", page.plain_image)):
             out[kind][cond] += _read_generated(
                 model, page, image, args.crops and cond == "cluttered"
             )
-        print(f"page {p + 1}/{args.pages} ({kind}, {len(pick)} characters)", flush=True)
+        print(f"page {p + 1}/{args.pages} ({kind}, {len(page.boxes)} characters)", flush=True)
     return out
 
 

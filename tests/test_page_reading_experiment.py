@@ -41,3 +41,21 @@ def test_a_line_found_too_many_costs_its_characters_not_the_lines_after_it(exper
     # two lines read as one: one line's characters missing, as many extra on the other
     assert pr.miscounted([7, 7], [14]) == 14
     assert pr.miscounted([5], []) == 5
+
+
+def test_the_segmentation_scan_names_what_became_of_each_character(experiment_script):
+    ps = experiment_script("page_segmentation")
+    true = [(0, 0, 10, 20), (12, 0, 22, 20), (30, 0, 40, 20), (50, 0, 60, 20), (70, 0, 80, 20)]
+    found = [
+        (0, 0, 10, 20),  # found
+        (12, 0, 22, 20),  # found
+        (30, 0, 35, 20),  # the third in two halves: split
+        (35, 0, 40, 20),
+        (50, 0, 52, 20),  # a sliver of the fourth: missed
+        (100, 0, 110, 20),  # on no character: extra
+    ]
+    classes, extra = ps.classify(found, true)
+    assert classes == ["found", "found", "split", "missed", "missed"]
+    assert extra == 1
+    merged, _ = ps.classify([(0, 0, 22, 20)], true[:2])
+    assert merged == ["merged", "merged"]

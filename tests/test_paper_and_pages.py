@@ -123,6 +123,38 @@ def test_touching_characters_are_cut_apart():
     assert _matches(layout, boxes, tol=6.0)
 
 
+def test_a_1_touching_a_7_is_cut_though_no_wider_than_a_character():
+    # the 1's top meets the 7's bar: one mark as narrow as a 0, two characters tall on
+    # either side of the single stroke between them (pages.WAIST_TALL)
+    line = [("0", 40), ("7", 110), ("1", 170), ("7", 180), ("0", 260)]
+    ink, boxes = _page([line])
+    mask = ink > 0.5
+    labels = __import__("scipy.ndimage", fromlist=["label"]).label(mask, np.ones((3, 3)))[1]
+    assert labels == 4  # the 1 and the second 7 touch
+    layout = find_characters(mask)
+    found = [c.box for c in layout.characters]
+    assert [c.split for c in layout.characters] == [False, False, True, True, False], found
+    one, seven = found[2], found[3]
+    assert 176 <= one[0] and one[2] <= 192  # the 1 and a little of the bar it touches
+    assert one[2] == seven[0] and abs(seven[2] - boxes[3][2]) <= 4  # the 7, cut on its bar
+    assert _matches(layout.__class__(characters=[layout.characters[i] for i in (0, 1, 4)]),
+                    [boxes[i] for i in (0, 1, 4)])  # fmt: skip
+
+
+def test_a_4_whose_downstroke_leans_is_not_cut_where_its_bar_meets_it():
+    # the column through the bar's junction with the leaning downstroke crosses one
+    # stroke with full-height ink on either side, but that stroke runs far down the
+    # column (pages.WAIST_RUN)
+    x, y, h = 100.0, 60.0, 40.0
+    four = [_stroke([(x + 14, y), (x, y + 26), (x + 26, y + 26)]),  # the open top and bar
+            _stroke([(x + 21, y), (x + 15, y + h)])]  # the downstroke, leaning left  # fmt: skip
+    zero = _ellipse(x + 70, y + h / 2, 12, h / 2)
+    mask = _ink((160, 260), [*four, zero]) > 0.5
+    layout = find_characters(mask)
+    assert len(layout.characters) == 2, [c.box for c in layout.characters]
+    assert not any(c.split for c in layout.characters)
+
+
 def test_an_empty_mask_has_no_characters_and_a_bad_one_is_refused():
     assert find_characters(np.zeros((50, 60), bool)).characters == []
     with pytest.raises(ValueError, match="2-D"):

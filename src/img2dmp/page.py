@@ -13,6 +13,8 @@
 4. each prediction is scored against its ink (:func:`img2dmp.predict.fit_score`) and
    flagged where it does not fit, or where the character touches the photo's border.
 
+:func:`segment_page` is steps 1 and 2 alone (no model): what the command finds on a page.
+
 :class:`PagePrediction` holds the result; :meth:`PagePrediction.save` writes the page
 document ``<stem>_page.json`` (format ``img2dmp-page``, version 1, docs/PAGE.md) and a
 picture of the whole page ``<stem>_page.png``.
@@ -266,6 +268,57 @@ def _frame_characters(predictor, found, layout, reduction, size, label, match_st
     return inputs, frames
 
 
+@dataclass
+class PageSegmentation:
+    """Steps 1 and 2 of :func:`read_page`: the page as read and its characters.
+
+    Attributes
+    ----------
+    levels : float array [h, w] or [h, w, 3]
+        The page as read (at most ``PAGE_WORK_PIXELS``).
+    reduction : float
+        Photo pixels per pixel of ``levels``.
+    size : (H, W)
+        The photo's own size (upright).
+    label : str
+        The page's name in messages.
+    ink : PaperInk or None
+        The ink separated from the paper (None: nothing stands out from it).
+    layout : PageLayout
+        The characters found on ``ink``, in reading order (empty without ink).
+    """
+
+    levels: np.ndarray
+    reduction: float
+    size: tuple[int, int]
+    label: str
+    ink: object
+    layout: PageLayout
+
+    def box_in_image(self, c: PageCharacter) -> tuple[int, int, int, int]:
+        """Character ``c``'s box in the photo's own pixels (half-open)."""
+        return _box_in_image(c.box, self.reduction, self.size)
+
+
+def segment_page(image, *, name: str | None = None) -> PageSegmentation:
+    """The page read upright at most ``PAGE_WORK_PIXELS``, its ink separated from the paper
+    and its characters found (:func:`read_page`'s steps 1 and 2, without a model).
+
+    Parameters
+    ----------
+    image : path, PIL image or array
+        As :func:`read_page` takes it.
+    name : str, optional
+        Names an array or PIL image in messages.
+    """
+    levels, reduction, size, label = _images._levels_framed(image, name, PAGE_WORK_PIXELS)
+    found = paper_ink(levels)
+    layout = PageLayout(shape=levels.shape[:2])
+    if found is not None:
+        layout = find_characters(found.mask, core=found.core, grow=_grow(found.pen_width_px))
+    return PageSegmentation(levels, reduction, size, label, found, layout)
+
+
 def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool = True,
               name: str | None = None) -> PagePrediction:  # fmt: skip
     """Every character of a page (module docstring).
@@ -287,18 +340,15 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
     from .predict import MAX_POINTS, Prediction, check_count
 
     n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
-    levels, reduction, size, label = _images._levels_framed(image, name, PAGE_WORK_PIXELS)
+    seg = segment_page(image, name=name)
+    levels, reduction, size, label, found = seg.levels, seg.reduction, seg.size, seg.label, seg.ink
     source = str(image) if isinstance(image, (str, os.PathLike)) else None
     steps = 0 if predictor.refine_options is None else int(predictor.refine_options.steps)
-    found = paper_ink(levels)
-    page = PagePrediction([], PageLayout(shape=levels.shape[:2]), size, reduction, source,
+    page = PagePrediction([], seg.layout, size, reduction, source,
                           ["no_ink"] if found is None else [],
                           {} if found is None else found.removed, refine_steps=steps)  # fmt: skip
     page.preview = _preview(levels)
-    if found is None:
-        return page
-    page.layout = find_characters(found.mask, core=found.core, grow=_grow(found.pen_width_px))
-    if not page.layout.characters:
+    if found is None or not page.layout.characters:
         return page
     inputs, frames = _frame_characters(predictor, found, page.layout, reduction, size, label,
                                        match_stroke_width)  # fmt: skip
@@ -362,6 +412,8 @@ __all__ = [
     "PAGE_WORK_PIXELS",
     "CharacterPrediction",
     "PagePrediction",
+    "PageSegmentation",
     "page_picture",
     "read_page",
+    "segment_page",
 ]
