@@ -194,3 +194,21 @@ def test_a_tinted_page_in_deep_shadow_is_dark_ink_on_light_paper():
     assert dark_on_light(_planes(page))
     assert not dark_on_light(_planes(1.0 - page))  # chalk on a blackboard
     assert _kept(paper_ink(page), truth) > 0.95
+
+
+def test_a_stroke_along_a_grid_line_as_dark_as_the_pen_keeps_its_pixels_there():
+    # a 0 whose flat top runs 12 px along a line of squared paper drawn with the pen's
+    # own colour and width: the line's pixels between where the 0 meets and leaves it
+    # stay ink (the rest of the line goes)
+    size, pen = (240, 320), (0.1, 0.2, 0.7)
+    zero = [_stroke([(176, 128), (164, 128), (156, 142), (156, 172), (170, 188), (184, 172),
+                     (184, 142), (176, 128)])]  # fmt: skip
+    truth = _ink(size, zero)
+    paper = _ruled(size, 64.0, vertical=True, colour=pen, width=3.0)
+    found = paper_ink(_on_paper(truth, paper, colour=pen))
+    top = np.zeros(size, bool)
+    top[126:131, 166:175] = True  # the 0's top, on the line at row 128
+    assert (found.ink[top & (truth > 0.5)] > 0.2).mean() > 0.9
+    line = np.zeros(size, bool)
+    line[126:131, 200:300] = True  # the same line away from the 0
+    assert (found.ink[line] > 0.2).mean() < 0.05
