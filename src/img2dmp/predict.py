@@ -298,7 +298,7 @@ class Predictor:
     def n_hypotheses(self) -> int:
         """K, the DMPs the network proposes per image (1: the paper's network)."""
         if self.network is not None:
-            return self.network.config.hypotheses
+            return self.network.n_hypotheses
         return int(getattr(self.model, "n_hypotheses", 1))
 
     def _check_images(self, images) -> np.ndarray:

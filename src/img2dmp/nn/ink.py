@@ -15,11 +15,10 @@ Both are in px^2 per sample, like cost (10), and differentiable in the path.
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ._refine_numpy import INK_THRESHOLD  # noqa: F401 (one value for both; re-exported)
+from ._refine_numpy import INK_THRESHOLD, ink_distance_map_numpy
 
 
 @torch.no_grad()
@@ -27,17 +26,11 @@ def ink_distance_map(images: torch.Tensor, threshold: float = INK_THRESHOLD) -> 
     """Distance (px) from every pixel to the nearest ink pixel, ``[B, H, W]``.
 
     0 on ink (intensity > ``threshold``); an image without ink gets a map of zeros, so
-    it pulls nowhere. Exact Euclidean distance transform (``scipy.ndimage``).
+    it pulls nowhere. Exact Euclidean distance transform
+    (:func:`img2dmp.nn._refine_numpy.ink_distance_map_numpy`, the one computation).
     """
-    from scipy.ndimage import distance_transform_edt
-
     x = images.detach().to("cpu", torch.float32).numpy()  # [B, H, W]
-    out = np.zeros_like(x)
-    for b in range(x.shape[0]):
-        ink = x[b] > threshold
-        if ink.any():
-            out[b] = distance_transform_edt(~ink)
-    return torch.from_numpy(out).to(images.device)
+    return torch.from_numpy(ink_distance_map_numpy(x, threshold)).to(images.device)
 
 
 def _pen_down(y: torch.Tensor) -> torch.Tensor:
