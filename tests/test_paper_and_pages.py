@@ -212,3 +212,22 @@ def test_a_stroke_along_a_grid_line_as_dark_as_the_pen_keeps_its_pixels_there():
     line = np.zeros(size, bool)
     line[126:131, 200:300] = True  # the same line away from the 0
     assert (found.ink[line] > 0.2).mean() < 0.05
+
+
+def test_strokes_joined_to_a_net_of_faint_wavy_lines_stay_and_the_net_goes():
+    # pale wavy lines (no rules: they bend too much) cross the whole image and join the
+    # 7 and the 0 into one component, mostly faint: the strokes are its strong pieces
+    size = SIZE
+    rows, cols = np.mgrid[: size[0], : size[1]].astype(np.float32)
+    line = np.zeros(size, np.float32)
+    for coord in (rows + 8.0 * np.sin(cols / 13.0), cols + 8.0 * np.sin(rows / 11.0)):
+        d = 20.0 - np.abs((coord % 40.0) - 20.0)  # to the nearest wavy line
+        line = np.maximum(line, np.clip(1.5 - d, 0.0, 1.0))
+    paper = np.ones(size + (3,), np.float32) * np.array([0.97, 0.96, 0.93], np.float32)
+    paper *= 1.0 - 0.25 * line[..., None]  # a quarter as dark as the pen
+    truth = _ink(size, DIGIT)
+    found = paper_ink(_on_paper(truth, paper))
+    assert found is not None
+    assert _kept(found, truth) > 0.9
+    far = _ink(size, DIGIT, width=14.0) < 0.01
+    assert (found.ink[far] > 0.2).mean() < 0.01, "the faint lines left as ink"

@@ -31,7 +31,9 @@ drops the rest, in named steps (each kept for a picture with ``keep_steps``;
 6. **strokes**: hysteresis: a connected set of dark pixels is ink when ``STRONG_SHARE``
    of its pixels are of at least ``strong`` darkness (a share of the page's ink level),
    so faint marks (text from the back, dotted lines, shadows' edges) go unless a stroke
-   passes through;
+   passes through; a component too faint as a whole is tried again in pieces, at a
+   level half way to ``strong``, and its pieces of ``RESCUE_AREA_PEN2`` pen widths
+   squared are ink (strokes that a remnant of curved rules joined into one net);
 7. **shapes**: components smaller than a few pen widths squared (specks), small marks
    at an even spacing (the dots of dotted paper), marks along the image's border (the
    sheet's edge) and components much thicker than the pen (``THICK_FACTOR``: a
@@ -80,6 +82,10 @@ TABLE_GROW_LEVEL = 0.5
 #: A component is ink when at least this share of its pixels (and two) are strong: a
 #: pen's stroke mostly is, a smudge of shade or a crease's edge hardly.
 STRONG_SHARE = 0.25
+#: A faint component's piece at the half-way level (step 6) is a stroke when it covers at
+#: least this many squared pen widths (on squared pages whose remnant rules joined them
+#: the pen's pieces covered 140-250, the remnants' own pieces 1-5).
+RESCUE_AREA_PEN2 = 20.0
 #: A stroke's core is inked at least this much (of the typical ink).
 CORE_LEVEL = 0.45
 #: Rules are searched within this angle of the rows and columns, degrees.
@@ -121,8 +127,9 @@ SPECK_AREA_PEN2 = 2.5
 MIN_STROKE_AREA_PX = 8
 #: Dots of dotted paper: marks at most this many pen widths across,
 DOT_SIZE_PEN = 2.5
-#: ... or filled discs: at most this many times their thickness (2 area / boundary) across,
-DOT_DISC = 3.0
+#: ... or filled discs: at most this many times their thickness (2 area / boundary) across
+#: (an ideal disc: 2; a blurred, grainy printed dot 2.5-3.3),
+DOT_DISC = 3.5
 #: ... at least this many of them, evenly spaced.
 MIN_DOTS = 8
 #: A component that touches the image's border along this share of that side is the
@@ -814,14 +821,30 @@ def pen_width(area: np.ndarray, boundary: np.ndarray, keep: np.ndarray) -> float
     return float(thick[order][np.searchsorted(cum, cum[-1] / 2.0)])
 
 
-def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool):
+def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool, rough_pen: float = 0.0):
     """The components of ``mask`` that are pen strokes (hysteresis; with
     ``shape_filters`` also not the sheet's edge, specks nor blobs), the pen width and
-    what was dropped."""
+    what was dropped. ``rough_pen``: the pen width guessed before (pixels), for the
+    pieces of faint components (``RESCUE_*``)."""
     labels, area, boundary, strong_px = _components(mask, dark, lv.strong)
     keep = (strong_px >= 2) & (strong_px >= STRONG_SHARE * area)  # a stroke, not a smudge
     keep[0] = False
     removed = {"faint_components": int(np.count_nonzero(~keep[1:]))}
+    faint = ~keep & (strong_px >= 2)
+    faint[0] = False
+    if shape_filters and faint.any():
+        # strokes joined to faint lines (a rule's remnant, a shadow's band): the faint
+        # component again at a level half way to the strong one, its pieces each tried
+        mid = 0.5 * (lv.weak + lv.strong)
+        faint_px = faint[labels]
+        again = keep[labels] | (faint_px & (dark >= mid))
+        labels, area, boundary, strong_px = _components(again, dark, lv.strong)
+        was_faint = np.bincount(labels.ravel(), weights=faint_px.ravel(), minlength=len(area)) > 0
+        keep = (strong_px >= 2) & (strong_px >= STRONG_SHARE * area)
+        # a pen's piece is more than a remnant's specks
+        keep &= ~was_faint | (area >= RESCUE_AREA_PEN2 * max(rough_pen, 1.0) ** 2)
+        keep[0] = False
+        removed["faint_components"] -= int(np.count_nonzero(keep & was_faint))
     if shape_filters:
         edge = keep & _along_border(labels, len(area) - 1)
         if np.count_nonzero(keep & ~edge):  # the edge first: its band is no pen width
@@ -969,7 +992,7 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
         if lv is None:
             return None
         weak = dark >= lv.weak
-    kept, width, removed = _kept_strokes(weak & ~ruled, dark, lv, shape_filters=local)
+    kept, width, removed = _kept_strokes(weak & ~ruled, dark, lv, local, pen)
     if not kept.any():
         return None
     halo = dilate3(kept) & ~ruled
