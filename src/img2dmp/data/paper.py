@@ -68,6 +68,11 @@ POLARITY_EVEN = 0.25
 POLARITY_SPREADS = 4.0
 #: ... when they are at least this share of the image.
 POLARITY_MIN_SHARE = 0.0005
+#: An image whose median grey is at least this light (or this dark, from black) is dark
+#: ink on light paper (light ink on dark) whatever its cells say: a clipped white paper
+#: has no spread, and in the cells of thick, tight writing its own pixels lie above the
+#: cells' median as light ink's would.
+POLARITY_PLAIN = 0.85
 #: Cells of the background estimate: about this many along the shorter side.
 BACKGROUND_CELLS = 24
 #: ... and at least this many pen widths (:func:`rough_pen_width`) on a side.
@@ -208,11 +213,16 @@ def dark_on_light(planes: np.ndarray) -> bool:
     pixels lie far below the local median (of cells of ``1 / POLARITY_CELLS`` of the
     shorter side; not the cells of a table beside the sheet) than far above it for dark
     ink, far above for light ink; far: ``POLARITY_SPREADS`` times the paper's own robust
-    spread (shading and grain reach as far either way). For a small image, or when
+    spread (shading and grain reach as far either way). An image whose median is
+    lighter than ``POLARITY_PLAIN`` (or darker than its complement) needs no cells. For
+    a small image, or when
     neither side has twice as many as the other, the border decides as it always
     has: brighter than the whole image's median, or than mid grey, is dark ink on light
     paper."""
     lum = _luma(planes)
+    median = float(np.median(lum))
+    if median >= POLARITY_PLAIN or median <= 1.0 - POLARITY_PLAIN:
+        return median >= POLARITY_PLAIN  # the minority, ink, is the other way
     if min(lum.shape) >= LOCAL_BACKGROUND_MIN_SIDE:
         # against the local median (paper, whichever its polarity), so that a lighting
         # gradient's spread is not taken for ink
@@ -240,7 +250,7 @@ def dark_on_light(planes: np.ndarray) -> bool:
         if max(below, above) > POLARITY_MIN_SHARE and max(below, above) > 2 * min(below, above):
             return bool(below > above)
     border = float(np.median(_ring(lum)))
-    return border > float(np.median(lum)) or border > 0.5
+    return border > median or border > 0.5
 
 
 def _cell_percentile(planes: np.ndarray, cell: int, q: float) -> tuple[np.ndarray, int]:
