@@ -13,7 +13,7 @@ from drawn import page as _page
 from drawn import ruled as _ruled
 from drawn import stroke as _stroke
 from img2dmp.data.pages import find_characters
-from img2dmp.data.paper import dominant_angle, paper_ink
+from img2dmp.data.paper import dominant_angle, paper_ink, rules
 
 SIZE = (240, 320)
 DIGIT = [_stroke([(100, 40), (150, 40), (115, 150)]), _ellipse(210, 95, 28, 50)]  # a 7, a 0
@@ -231,3 +231,21 @@ def test_strokes_joined_to_a_net_of_faint_wavy_lines_stay_and_the_net_goes():
     assert _kept(found, truth) > 0.9
     far = _ink(size, DIGIT, width=14.0) < 0.01
     assert (found.ink[far] > 0.2).mean() < 0.01, "the faint lines left as ink"
+
+
+def test_a_stroke_along_a_lighter_rule_keeps_its_pixels_on_it_where_no_rules_cross():
+    # the darkness itself: ruled lines (0.57) lighter than the pen (0.84), and a stroke
+    # that comes down, runs 40 px along the rule at row 100 (0.8 there: blurred, the
+    # stroke over the rule is no darker than the pen) and goes down again; with no
+    # columns there is no crossing of two rules, whose double darkness (0.87) the
+    # stroke's own pixels do not reach
+    dark = np.zeros((200, 300), np.float32)
+    for r in (50, 100, 150):
+        dark[r - 1 : r + 2] = 0.57
+    dark[60:100, 120:123] = 0.84  # down to the rule
+    dark[99:102, 120:163] = 0.80  # along it
+    dark[100:140, 160:163] = 0.84  # and down again
+    mask = dark >= 0.15
+    removed, _ = rules(mask, np.ones(mask.shape, bool), dark, 3.0)
+    assert removed[99:102, 200:290].all(), "the rule away from the stroke stays a rule"
+    assert not removed[99:102, 125:158].any(), "the stroke along the rule is kept"

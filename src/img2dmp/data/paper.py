@@ -695,7 +695,9 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
     A rule pixel stays ink where a stroke crosses the rule: stroke pixels (ink on no rule
     of either direction, so that squared paper's own crossings are not strokes) lie just
     before and just after it across the rule, or (given the darkness ``dark``) it is
-    darker than its own set of lines by more than half the way to the strokes' ink."""
+    darker than its own set of lines by more than half the way to the strokes' ink:
+    where rules of both directions meet also darker than two lines crossing, elsewhere
+    joined to a stroke through such pixels (a stroke run along the rule)."""
     found, per_axis, angles = np.zeros(mask.shape, bool), [], {}
     for axis, name in ((0, "rows_deg"), (1, "columns_deg")):
 
@@ -748,6 +750,14 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
         pieces = found.copy()  # grown pieces: against all the rules' level
         for r in passes:
             pieces &= ~r
+        # where rules of both directions meet (squared paper's crossings, a margin line
+        # across the rules), and only there, two lines absorb as two
+        by_axis = [np.zeros(mask.shape, bool), np.zeros(mask.shape, bool)]
+        for (axis, _, _, _), r in zip(per_axis, passes, strict=True):
+            by_axis[axis] |= r
+        meet = dilate3(dilate3(by_axis[0])) & dilate3(dilate3(by_axis[1]))
+        from scipy.ndimage import binary_propagation
+
         for pixels, level_of in [(p, p) for p in passes] + [(pieces, found)]:
             # each set of lines against its own level (a dark red margin line is not
             # where a stroke crosses the pale blue rules)
@@ -755,9 +765,15 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
                 continue
             level = float(np.median(dark[level_of]))
             if ink_level - level > 0.15:  # rules clearly lighter than the pen
+                stroke = dark > level + 0.5 * (ink_level - level)
                 # where two rules cross they absorb as two (1 - (1 - l)^2): no stroke
-                crossing = 1.0 - (1.0 - level) ** 2 + 0.05
-                keep |= pixels & (dark > max(level + 0.5 * (ink_level - level), crossing))
+                crossing = dark > 1.0 - (1.0 - level) ** 2 + 0.05
+                keep |= pixels & stroke & crossing
+                # elsewhere a stroke's own level, on the pixels that join a stroke
+                # (a stroke along a rule; not a dark grain that a line was found in)
+                along = pixels & stroke & ~meet
+                joined = binary_propagation(along & dilate3(strokes | keep), mask=dilate3(along))
+                keep |= along & joined
     return found & ~keep, angles
 
 
