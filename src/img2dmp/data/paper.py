@@ -746,35 +746,46 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
         cross = _unsheared(cross, off, st.shape[0])
         keep |= cross if axis == 0 else cross.T
     if ink_level is not None:
-        passes = [r if axis == 0 else r.T for axis, _, r, _ in per_axis]
-        pieces = found.copy()  # grown pieces: against all the rules' level
-        for r in passes:
-            pieces &= ~r
-        # where rules of both directions meet (squared paper's crossings, a margin line
-        # across the rules), and only there, two lines absorb as two
-        by_axis = [np.zeros(mask.shape, bool), np.zeros(mask.shape, bool)]
-        for (axis, _, _, _), r in zip(per_axis, passes, strict=True):
-            by_axis[axis] |= r
-        meet = dilate3(dilate3(by_axis[0])) & dilate3(dilate3(by_axis[1]))
-        from scipy.ndimage import binary_propagation
-
-        for pixels, level_of in [(p, p) for p in passes] + [(pieces, found)]:
-            # each set of lines against its own level (a dark red margin line is not
-            # where a stroke crosses the pale blue rules)
-            if not pixels.any():
-                continue
-            level = float(np.median(dark[level_of]))
-            if ink_level - level > 0.15:  # rules clearly lighter than the pen
-                stroke = dark > level + 0.5 * (ink_level - level)
-                # where two rules cross they absorb as two (1 - (1 - l)^2): no stroke
-                crossing = dark > 1.0 - (1.0 - level) ** 2 + 0.05
-                keep |= pixels & stroke & crossing
-                # elsewhere a stroke's own level, on the pixels that join a stroke
-                # (a stroke along a rule; not a dark grain that a line was found in)
-                along = pixels & stroke & ~meet
-                joined = binary_propagation(along & dilate3(strokes | keep), mask=dilate3(along))
-                keep |= along & joined
+        keep |= _kept_by_darkness(found, per_axis, dark, strokes, keep, ink_level)
     return found & ~keep, angles
+
+
+def _kept_by_darkness(found, per_axis, dark, strokes, keep, ink_level: float) -> np.ndarray:
+    """The pixels of the lines ``found`` (the passes ``per_axis`` of :func:`rules`) that
+    stay ink by their darkness ``dark``: on rules clearly lighter than the pen's
+    ``ink_level``, darker than their own set of lines by half the way to the pen (where
+    rules of both directions meet also darker than two lines crossing; elsewhere joined
+    to ``strokes`` or to the pixels ``keep`` kept so far through such pixels)."""
+    from scipy.ndimage import binary_propagation
+
+    keep = keep.copy()
+    passes = [r if axis == 0 else r.T for axis, _, r, _ in per_axis]
+    pieces = found.copy()  # grown pieces: against all the rules' level
+    for r in passes:
+        pieces &= ~r
+    # where rules of both directions meet (squared paper's crossings, a margin line
+    # across the rules), and only there, two lines absorb as two
+    by_axis = [np.zeros(found.shape, bool), np.zeros(found.shape, bool)]
+    for (axis, _, _, _), r in zip(per_axis, passes, strict=True):
+        by_axis[axis] |= r
+    meet = dilate3(dilate3(by_axis[0])) & dilate3(dilate3(by_axis[1]))
+    for pixels, level_of in [(p, p) for p in passes] + [(pieces, found)]:
+        # each set of lines against its own level (a dark red margin line is not
+        # where a stroke crosses the pale blue rules)
+        if not pixels.any():
+            continue
+        level = float(np.median(dark[level_of]))
+        if ink_level - level > 0.15:  # rules clearly lighter than the pen
+            stroke = dark > level + 0.5 * (ink_level - level)
+            # where two rules cross they absorb as two (1 - (1 - l)^2): no stroke
+            crossing = dark > 1.0 - (1.0 - level) ** 2 + 0.05
+            keep |= pixels & stroke & crossing
+            # elsewhere a stroke's own level, on the pixels that join a stroke
+            # (a stroke along a rule; not a dark grain that a line was found in)
+            along = pixels & stroke & ~meet
+            joined = binary_propagation(along & dilate3(strokes | keep), mask=dilate3(along))
+            keep |= along & joined
+    return keep
 
 
 @dataclass
