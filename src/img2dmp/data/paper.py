@@ -215,10 +215,9 @@ def dark_on_light(planes: np.ndarray) -> bool:
     ink, far above for light ink; far: ``POLARITY_SPREADS`` times the paper's own robust
     spread (shading and grain reach as far either way). An image whose median is
     lighter than ``POLARITY_PLAIN`` (or darker than its complement) needs no cells. For
-    a small image, or when
-    neither side has twice as many as the other, the border decides as it always
-    has: brighter than the whole image's median, or than mid grey, is dark ink on light
-    paper."""
+    a small image, or when neither side has twice as many as the other, the border
+    decides as it always has: brighter than the whole image's median, or than mid grey,
+    is dark ink on light paper."""
     lum = _luma(planes)
     median = float(np.median(lum))
     if median >= POLARITY_PLAIN or median <= 1.0 - POLARITY_PLAIN:
