@@ -494,6 +494,17 @@ class Cost:
         top = logits.argmax(dim=1)  # [B]
         return cost, y[torch.arange(b), top].detach()
 
+    def errors_px(self, z_pred, y, times, trajectories) -> torch.Tensor:
+        """Table I's error per sample ``[b]`` (px) of a training step: the cost's own
+        rollout ``y`` of the top hypothesis (cost 10), or, for ``y`` None (cost 9), one
+        more rollout of it at ``times``."""
+        if y is None:
+            from .model import top_hypothesis
+
+            top = top_hypothesis(z_pred, self.hypotheses)  # [b, P]
+            y = dmp_trajectory(top, times, self.normaliser, self.config)  # [b, T, d]
+        return trajectory_error_px(y, trajectories)
+
     def image_terms(self, z_pred: torch.Tensor, images: torch.Tensor, times: torch.Tensor):
         """The ink terms alone (no demonstration needed): for images without a recorded
         path. ``z_pred [B, ...]`` network outputs, ``images [B, H, W]``, ``times [B, T]``."""

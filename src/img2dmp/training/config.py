@@ -258,6 +258,70 @@ class CostConfig:
 
 
 @dataclass
+class StrokesConfig:
+    """A *stroke model* (:mod:`img2dmp.nn.strokes`): a character as up to ``slots``
+    strokes, each its own 2-D DMP of ``n_kernels`` kernels per dimension, with a presence,
+    an order key and a stroke count; 0 slots (the default) is the paper's one DMP per
+    image.
+
+    ``n_points``: instants per stroke at which the shapes are compared (cost 10 per
+    stroke). ``matching``: predicted slots to true strokes by least cost (``"best"``) or
+    slot i to the i-th stroke (``"order"``). ``presence_weight``, ``count_weight``,
+    ``order_weight`` (``"best"`` only), ``tau_weight``: weights of the presence and count
+    cross-entropies, the order key's and tau's squared errors beside the shapes' (px^2).
+    The ink terms, hypotheses and winner-takes-all are those of ``cost`` and ``model``.
+    """
+
+    slots: int = 0
+    n_kernels: int = 25
+    n_points: int = 32
+    matching: str = "best"
+    presence_weight: float = 2.0
+    count_weight: float = 1.0
+    order_weight: float = 2.0
+    tau_weight: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in ("presence_weight", "count_weight", "order_weight", "tau_weight"):
+            check_positive(f"strokes.{name}", getattr(self, name), allow_zero=True)
+        from ..nn.strokes import StrokeLayout
+
+        try:  # the other fields are checked also when the slots are off (0)
+            StrokeLayout(1 if self.slots == 0 else self.slots, self.n_kernels, self.n_points,
+                         self.matching)  # fmt: skip
+        except ValueError as e:
+            raise ConfigError(str(e)) from None
+
+    def layout(self):
+        """The :class:`~img2dmp.nn.strokes.StrokeLayout` (None for 0 slots)."""
+        if not self.slots:
+            return None
+        from ..nn.strokes import StrokeLayout
+
+        return StrokeLayout(self.slots, self.n_kernels, self.n_points, self.matching)
+
+
+def _check_strokes(cfg) -> None:
+    """Settings a stroke model cannot honour, refused by name."""
+    if not cfg.strokes.slots:
+        return
+    if cfg.cost.name != "trajectory":
+        raise ConfigError(
+            f"a stroke model (strokes.slots = {cfg.strokes.slots}) trains with cost (10) per "
+            f"stroke: cost.name must be 'trajectory', got {cfg.cost.name!r}"
+        )
+    if cfg.data.path is None:
+        raise ConfigError(
+            "a stroke model trains on a data set of paths with their strokes: set data.path "
+            "(the generator draws one-stroke digits)"
+        )
+    if cfg.cost.path_weight:
+        raise ConfigError("cost.path_weight is not used by a stroke model: set it to 0")
+    if cfg.data.unlabelled_mnist is not None:
+        raise ConfigError("data.unlabelled_mnist is not used by a stroke model: leave it out")
+
+
+@dataclass
 class TrainConfig:
     """Everything :func:`img2dmp.training.train` needs; read by :func:`load_config`.
 
@@ -279,6 +343,7 @@ class TrainConfig:
     data: DataConfig = field(default_factory=DataConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     cost: CostConfig = field(default_factory=CostConfig)
+    strokes: StrokesConfig = field(default_factory=StrokesConfig)
     seed: int = 0
     threads: int | None = None
     eval_batch_size: int = 1024
@@ -298,6 +363,7 @@ class TrainConfig:
             raise ConfigError(f"eval_batch_size must be >= 1, got {self.eval_batch_size!r}")
         if self.seed < 0:
             raise ConfigError(f"seed must be >= 0, got {self.seed!r}")
+        _check_strokes(self)
 
     def to_dict(self) -> dict:
         return _config.to_dict(self)
@@ -324,6 +390,7 @@ __all__ = [
     "DataConfig",
     "ModelConfig",
     "OptimConfig",
+    "StrokesConfig",
     "TrainConfig",
     "load_config",
     "machine_cores",

@@ -70,14 +70,35 @@ class Split:
         return int(self.images.shape[0])
 
     @classmethod
-    def of(cls, a: DigitData, idx: np.ndarray, norm: ParamNormaliser) -> Split:
-        params = torch.as_tensor(a.params[idx], dtype=torch.float64)
+    def of(cls, a: DigitData, idx: np.ndarray, norm: ParamNormaliser | None) -> Split:
+        """Rows ``idx`` of ``a``; without a normaliser (a stroke model, whose targets are
+        the paths' strokes) ``z_target`` is empty, ``[M, 0]``."""
+        if norm is None:
+            z_target = torch.zeros(len(idx), 0)
+        else:
+            params = torch.as_tensor(a.params[idx], dtype=torch.float64)
+            z_target = norm.normalise(params).to(torch.float32)
         return cls(
             images=torch.as_tensor(a.images[idx], dtype=torch.float32),
             times=torch.as_tensor(a.times[idx], dtype=torch.float32),
             trajectories=torch.as_tensor(a.trajectories[idx], dtype=torch.float32),
-            z_target=norm.normalise(params).to(torch.float32),
+            z_target=z_target,
         )
+
+
+def stroke_normaliser(a: DigitData, idx: np.ndarray, layout) -> ParamNormaliser:
+    """The output normalisation of a stroke model: of DMPs fitted to the strokes of the
+    rows ``idx`` of ``a`` (their pen runs), as the cost reads them."""
+    from ..nn.strokes import fit_stroke_normaliser, stroke_targets
+
+    pts, present, duration, _ = stroke_targets(
+        torch.as_tensor(a.trajectories[idx], dtype=torch.float64),
+        torch.as_tensor(a.times[idx], dtype=torch.float64),
+        layout,
+    )
+    if int(present.sum()) < 2:
+        raise ValueError(f"need at least 2 training strokes, got {int(present.sum())}")
+    return fit_stroke_normaliser(pts[present].numpy(), duration[present].numpy(), layout)
 
 
 def _split_indices(a: DigitData, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -144,12 +165,18 @@ class TrainingData:
         self.image_size = list(a.images.shape[1:])
         self.dataset_sha256 = file_digest(cfg.data.path)
         train_idx, val_idx = _split_indices(a, cfg)
-        self.normaliser = normaliser or ParamNormaliser.fit(
-            a.params[train_idx], self.dmp_config, cfg.cost.parameter_units
-        )
         self.fit_arrays = (a.params[train_idx], a.times[train_idx])
-        self._train = Split.of(a, train_idx, self.normaliser)
-        self.val = Split.of(a, val_idx, self.normaliser)
+        layout = cfg.strokes.layout()
+        if layout is not None:  # the model's DMPs are the strokes'
+            self.dmp_config = layout.config
+            self.normaliser = normaliser or stroke_normaliser(a, train_idx, layout)
+        else:
+            self.normaliser = normaliser or ParamNormaliser.fit(
+                a.params[train_idx], self.dmp_config, cfg.cost.parameter_units
+            )
+        targets = self.normaliser if layout is None else None
+        self._train = Split.of(a, train_idx, targets)
+        self.val = Split.of(a, val_idx, targets)
 
     def _from_generator(self, cfg: TrainConfig, normaliser: ParamNormaliser | None) -> None:
         gen = dict(cfg.data.generator)

@@ -42,8 +42,7 @@ import torch
 from .._files import lock_directory
 from .._progress import bar, live, say
 from ..errors import TrainingDiverged
-from ..nn import Cost, top_hypothesis, trajectory_error_px
-from ..nn.costs import dmp_trajectory
+from ..nn import Cost, trajectory_error_px
 from ..nn.inference import dmp_trajectories
 from .config import TrainConfig
 from .data import Augmenter, Split, TrainingData
@@ -273,10 +272,7 @@ def train_step(
         torch.nn.utils.clip_grad_norm_(model.parameters(), grad_clip)
     optimizer.step()
     with torch.no_grad():
-        if y is None:
-            top = top_hypothesis(z.detach(), cost.hypotheses)  # [b, P]
-            y = dmp_trajectory(top, times, cost.normaliser, cost.config)  # [b, T, d]
-        error = trajectory_error_px(y, trajectories)  # [b]
+        error = cost.errors_px(z.detach(), y, times, trajectories)  # [b]
     return StepResult(float(loss.detach()), error)
 
 
@@ -294,19 +290,38 @@ def trajectory_errors(
 def validate(run: Run, epoch: int, fallback: float) -> float:
     """Mean validation error (px); ``fallback`` (the training error) with no validation."""
     val = run.data.val
-    err = trajectory_errors(
-        run.state.model,
-        run.data.normaliser,
-        run.data.dmp_config,
-        val.images,
-        val.times,
-        val.trajectories,
-        run.cfg.eval_batch_size,
-    )
+    if not isinstance(run.cost, Cost):  # a stroke model: the mean shape error per stroke
+        err = _stroke_errors(run, val)
+    else:
+        err = trajectory_errors(
+            run.state.model,
+            run.data.normaliser,
+            run.data.dmp_config,
+            val.images,
+            val.times,
+            val.trajectories,
+            run.cfg.eval_batch_size,
+        )
     mean = float(err.mean()) if len(err) else fallback
     if not math.isfinite(mean):
         raise _diverged(run, f"validation error is {mean} at epoch {epoch}")
     return mean
+
+
+@torch.no_grad()
+def _stroke_errors(run: Run, split) -> np.ndarray:
+    """A stroke model's shape error per sample (px) on ``split``, in batches."""
+    model, out = run.state.model, []
+    model.eval()
+    try:
+        for lo in range(0, len(split), run.cfg.eval_batch_size):
+            sl = slice(lo, lo + run.cfg.eval_batch_size)
+            z = model(split.images[sl])
+            _, err = run.cost(z, split.z_target[sl], split.times[sl], split.trajectories[sl])
+            out.append(err.double().cpu().numpy())
+    finally:
+        model.train()
+    return np.concatenate(out) if out else np.zeros(0)
 
 
 def _diverged(run: Run, what: str) -> TrainingDiverged:

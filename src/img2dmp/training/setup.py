@@ -35,7 +35,7 @@ class Run:
     run_dir: Path
     data: TrainingData
     weighting: ParameterWeighting | None  # cost (9)'s per-unit weights
-    cost: Cost
+    cost: Cost  # or a stroke model's StrokeCost (the same call)
     augment: Augmenter | None
     state: RunState
     net: torch.nn.Module  # state.model, or its DistributedDataParallel wrapper
@@ -176,13 +176,28 @@ def _resolved(cfg: TrainConfig, data: TrainingData) -> TrainConfig:
     """``cfg`` with the image size and the output count taken from the data."""
     cfg = copy.deepcopy(cfg)
     cfg.model.image_size = list(data.image_size)
-    cfg.model.n_outputs = data.dmp_config.n_params
+    layout = cfg.strokes.layout()
+    cfg.model.n_outputs = data.dmp_config.n_params if layout is None else layout.n_outputs
     return cfg
 
 
-def make_cost(cfg: TrainConfig, normaliser, dmp_config, weighting=None) -> Cost:
-    """The run's :class:`~img2dmp.nn.Cost` from ``cfg.cost`` and ``model.hypotheses``."""
+def make_cost(cfg: TrainConfig, normaliser, dmp_config, weighting=None):
+    """The run's :class:`~img2dmp.nn.Cost` from ``cfg.cost`` and ``model.hypotheses``, or
+    for a stroke model (``strokes.slots`` > 0) its :class:`~img2dmp.nn.strokes.StrokeCost`."""
     c = cfg.cost
+    layout = cfg.strokes.layout()
+    if layout is not None:
+        from ..nn.strokes import StrokeCost
+
+        st = cfg.strokes
+        return StrokeCost(
+            layout, normaliser, cfg.model.hypotheses,
+            presence_weight=st.presence_weight, count_weight=st.count_weight,
+            tau_weight=st.tau_weight, order_weight=st.order_weight,
+            ink_weight=c.ink_weight, coverage_weight=c.coverage_weight,
+            coverage_tolerance_px=c.coverage_tolerance_px,
+            score_weight=c.score_weight, wta_relax=c.wta_relax,
+        )  # fmt: skip
     return Cost(
         c.name,
         normaliser,

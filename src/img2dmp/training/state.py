@@ -97,6 +97,7 @@ def checkpoint_meta(cfg: TrainConfig, data: TrainingData, state: RunState, weigh
         "normaliser": data.normaliser.to_dict(),
         "parameter_weighting": weighting.to_dict() if weighting else None,
         "dmp_config": data.dmp_config.to_dict(),
+        "strokes": layout.to_dict() if (layout := cfg.strokes.layout()) else None,
         "train_config": cfg.to_dict(),
         "dataset": {"path": cfg.data.path, "sha256": data.dataset_sha256},
         "image_size": list(cfg.model.image_size),
