@@ -56,7 +56,7 @@ from .metrics import (  # noqa: F401  (arc_fractions, points_at_fractions: re-ex
     width_ratio,
 )
 from .nn.costs import trajectory_error_px
-from .predict import MAX_BATCH_SIZE, MAX_REFINE_STEPS, Predictor, check_count
+from .predict import MAX_BATCH_SIZE, MAX_REFINE_STEPS, Predictor, check_count, index_resampled
 
 #: Most samples drawn in ``examples.png`` (``--figures``): the most one grid holds
 #: (:data:`img2dmp.data.plotting.MAX_GRID_CELLS`, not imported here: matplotlib).
@@ -187,6 +187,26 @@ def format_metrics_table(result: dict) -> str:
             f"the most probable hypothesis is the best in {100 * best['top_is_best']:.0f} % "
             "of the samples"
         )
+    strokes = result.get("strokes")
+    if strokes:
+        lines.append(_strokes_lines(strokes))
+    return "\n".join(lines)
+
+
+def _strokes_lines(strokes: dict) -> str:
+    """A stroke model's lines: the stroke count right, and the measures per alphabet."""
+    lines = [f"stroke count right: {100 * strokes['count_right']:.1f} % (TableI of a stroke "
+             "model: its path by index at the demonstration's instants)"]  # fmt: skip
+    per = strokes["per_alphabet"]
+    if len(per) > 1:
+        w = max(len(a) for a in per)
+        lines.append(f"{'alphabet':>{w}} {'n':>5} {'path':>7} {'Chamfer':>8} {'ink %':>6} "
+                     f"{'count %':>7}")  # fmt: skip
+        for a, m in per.items():
+            lines.append(
+                f"{a:>{w}} {m['n']:>5} {_cell(m, 'path_error', 7)} {_cell(m, 'chamfer', 8)} "
+                f"{_cell(m, 'on_ink', 6, 100, 1)} {100 * m['count_right']:>7.1f}"
+            )
     return "\n".join(lines)
 
 
@@ -417,9 +437,8 @@ def evaluate(
     refine = check_count("refine (--refine)", refine, 0, MAX_REFINE_STEPS)
     predictor = _load_predictor(model_path, device, refine)
     data = _evaluation_data(predictor, dataset_path, split, digits, classes)
-    y_all, probs = predict_hypotheses(predictor, data.images, data.times, batch_size)
     names = data.class_names
-    measures = hypothesis_metrics(y_all, probs, data.trajectories, data.images, data.labels, names)
+    y_all, probs, measures = _measured(predictor, data, batch_size)
     _, y = top_hypothesis(y_all, probs)  # [M, T, d]
     errors = np.asarray(measures["errors_px"])  # [M], Table I
     result = _headline(measures, names)
@@ -442,6 +461,69 @@ def evaluate(
     return result
 
 
+def _measured(predictor, data, batch_size: int):
+    """The hypotheses ``[M, K, T, d]``, their probabilities ``[M, K]`` and the path
+    measures of :func:`hypothesis_metrics` (a stroke model's also ``strokes``,
+    :func:`stroke_measures`)."""
+    strokes = getattr(predictor, "strokes", None) is not None
+    if strokes:
+        y_all, probs, counts = _stroke_predictions(predictor, data, batch_size)
+    else:
+        y_all, probs = predict_hypotheses(predictor, data.images, data.times, batch_size)
+    measures = hypothesis_metrics(
+        y_all, probs, data.trajectories, data.images, data.labels, data.class_names
+    )
+    if strokes:
+        measures["strokes"] = stroke_measures(counts, data, measures)
+    return y_all, probs, measures
+
+
+def _stroke_predictions(predictor, data, batch_size: int):
+    """A stroke model's characters ``[M, 1, T, 3]`` (the path by its instants' index at
+    the data's T, :meth:`~img2dmp.predict.Predictor.stroke_paths`), probabilities 1 and
+    the predicted stroke counts ``[M]``."""
+    from .nn.strokes import character_paths
+
+    strokes = predictor.predict_strokes(data.images, batch_size)
+    paths = character_paths(strokes, predictor.normaliser, predictor.strokes)
+    t = data.trajectories.shape[1]
+    y = np.stack([index_resampled(p, t) for p in paths])[:, None]
+    return y, np.ones((len(y), 1)), np.array([len(v) for v, _ in strokes])
+
+
+def _share(ok: np.ndarray, groups: np.ndarray, names) -> dict:
+    return {str(names[g]): float(np.mean(ok[groups == g])) for g in np.unique(groups)}
+
+
+def stroke_measures(counts, data, measures: dict) -> dict:
+    """What a stroke model adds to the evaluation: the share of characters whose stroke
+    count is right (overall, per class, per alphabet: the class name's part before
+    ``/``, as Omniglot's ``alphabet/character``), the true and predicted counts, and the
+    path measures per alphabet."""
+    truth = np.array([len(data.stroke_spans(i)) for i in range(len(data))])
+    ok = np.asarray(counts) == truth
+    names = data.label_names
+    alphabet = np.array([str(names[int(c)]).split("/")[0] for c in data.labels])
+    alphabets, groups = np.unique(alphabet, return_inverse=True)
+    per_alphabet = {}
+    for key, name in (("path_errors_px", "path_error"), ("chamfer_px", "chamfer"),
+                      ("on_ink_shares", "on_ink")):  # fmt: skip
+        v = np.asarray(measures[key], dtype=np.float64)
+        for g, a in enumerate(alphabets):
+            sel = (groups == g) & np.isfinite(v)
+            per_alphabet.setdefault(str(a), {})[name] = float(v[sel].mean()) if sel.any() else None
+    for g, a in enumerate(alphabets):
+        sel = groups == g
+        per_alphabet[str(a)].update(n=int(sel.sum()), count_right=float(ok[sel].mean()))
+    return {
+        "count_right": float(ok.mean()),
+        "count_right_per_class": _share(ok, np.asarray(data.labels), names),
+        "per_alphabet": per_alphabet,
+        "true_counts": truth.tolist(),
+        "predicted_counts": np.asarray(counts).tolist(),
+    }
+
+
 def _headline(measures: dict, class_names) -> dict:
     """Table I's statistics, taken out of :func:`hypothesis_metrics`' ``measures``:
     ``overall``, ``per_digit`` and ``path_error``; for a data set with class names
@@ -459,7 +541,9 @@ def _load_predictor(model, device: str = "cpu", refine: int = 0):
     refine its predictions with ``refine`` steps (when not 0)."""
     if not (hasattr(model, "trajectories_for_images") or hasattr(model, "hypothesis_trajectories")):
         model = Predictor.load(model, device=device)
-    if refine:
+    if refine and hasattr(model, "refine_with"):
+        model.refine_with(int(refine))
+    elif refine:
         from .nn.refine import RefineOptions
 
         model.refine_options = RefineOptions(steps=int(refine))
@@ -484,7 +568,8 @@ def _evaluation_data(predictor: Predictor, dataset_path, split: str, digits, cla
             f"data set {dataset_path} has {data.image_size} images, the model expects "
             f"{predictor.image_size}"
         )
-    if data.dmp_config.n_dims != predictor.dmp_config.n_dims:
+    strokes = getattr(predictor, "strokes", None) is not None  # any path: its pen runs
+    if not strokes and data.dmp_config.n_dims != predictor.dmp_config.n_dims:
         raise ValueError(
             f"data set {dataset_path} has d={data.dmp_config.n_dims} dimensions, the model "
             f"d={predictor.dmp_config.n_dims}"

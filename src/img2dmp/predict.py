@@ -82,6 +82,13 @@ from .models import ShippedModel, default_model
 from .models import resolve as resolve_shipped
 from .nn._numpy_net import NumpyNetwork
 from .nn._refine_numpy import MAX_REFINE_STEPS, RefineOptions, refine_numpy
+from .nn._stroke_layout import (
+    STROKE_REFINE,
+    StrokeLayout,
+    character_paths,
+    read_strokes,
+    stroke_params,
+)
 from .nn.architecture import ModelConfig
 from .nn.normalise import ParamNormaliser
 
@@ -174,6 +181,10 @@ class Predictor:
     shipped : ShippedModel or None
         The model shipped with img2dmp this is (:mod:`img2dmp.models`: its name, card
         and recommended settings), None for a run directory or checkpoint.
+    strokes : StrokeLayout or None
+        A stroke model's layout (:mod:`img2dmp.nn.strokes`: a character as up to S
+        strokes, each its own DMP); None for one DMP per image. A stroke model's
+        :meth:`predict` gives a :class:`StrokePrediction`.
 
     ``Predictor(model, ...)`` with a torch network computes with torch;
     :meth:`Predictor.load` chooses the backend (module docstring, "Backends").
@@ -190,6 +201,7 @@ class Predictor:
         *,
         network: NumpyNetwork | None = None,
         checkpoint: Checkpoint | None = None,
+        strokes: StrokeLayout | None = None,
     ):
         if model is None and (network is None or checkpoint is None):
             raise ValueError("Predictor needs a torch model, or a NumpyNetwork and its checkpoint")
@@ -203,6 +215,7 @@ class Predictor:
         self.image_size = tuple(int(s) for s in size)
         self.refine_options = refine_options
         self.shipped = shipped
+        self.strokes = strokes
 
     @property
     def backend(self) -> str:
@@ -260,12 +273,16 @@ class Predictor:
             mcfg = ModelConfig.from_dict(ckpt.meta["model"])
             normaliser = ParamNormaliser.from_dict(ckpt.meta["normaliser"])
             dmp_config = DMPConfig.from_dict(ckpt.meta["dmp_config"])
+            strokes = ckpt.meta.get("strokes")
+            strokes = StrokeLayout.from_dict(strokes) if strokes is not None else None
         except (KeyError, TypeError, ValueError) as e:
             raise CheckpointError(f"checkpoint {ckpt.path}: invalid record ({e})") from e
-        if mcfg.n_outputs != dmp_config.n_params:
+        need = dmp_config.n_params if strokes is None else strokes.n_outputs
+        if mcfg.n_outputs != need:
             raise CheckpointError(
                 f"checkpoint {ckpt.path}: model has {mcfg.n_outputs} outputs but the DMP "
-                f"config needs {dmp_config.n_params}"
+                f"config needs {need}"
+                + ("" if strokes is None else f" ({strokes.slots} stroke slots)")
             )
         shipped = resolve_shipped(path)
         if numpy:
@@ -275,13 +292,22 @@ class Predictor:
                 raise CheckpointError(f"checkpoint {ckpt.path} was saved from another "
                                       f"architecture: {e}") from e  # fmt: skip
             return cls(None, normaliser, dmp_config, ckpt.meta, shipped=shipped,
-                       network=network, checkpoint=ckpt)  # fmt: skip
+                       network=network, checkpoint=ckpt, strokes=strokes)  # fmt: skip
         from .nn.device import place_model
         from .nn.model import build_model
 
         model = build_model(mcfg)
         load_weights_into(model, ckpt)
-        return cls(place_model(model, device), normaliser, dmp_config, ckpt.meta, shipped=shipped)
+        return cls(place_model(model, device), normaliser, dmp_config, ckpt.meta, shipped=shipped,
+                   strokes=strokes)  # fmt: skip
+
+    def refine_with(self, steps: int) -> None:
+        """Refine every prediction with ``steps`` gradient steps on the ink (0: off), with
+        the default settings of this kind of model (a stroke model's
+        :data:`~img2dmp.nn.strokes.STROKE_REFINE`)."""
+        steps = check_count("refine", steps, 0, MAX_REFINE_STEPS)
+        extra = STROKE_REFINE if self.strokes is not None else {}
+        self.refine_options = RefineOptions(steps=steps, **extra) if steps else None
 
     @property
     def margin(self) -> float:
@@ -315,9 +341,8 @@ class Predictor:
             raise ValueError("images contain NaN or inf")
         return x
 
-    def _outputs(self, images, batch_size: int):
-        """Checked images ``x [B, H, W]``, the hypotheses ``z [B, K, P]`` (normalised,
-        float32) and their scores ``[B, K]``, NumPy arrays from either backend."""
+    def _raw_outputs(self, images, batch_size: int):
+        """Checked images ``x [B, H, W]`` and the network's outputs for them (NumPy)."""
         check_count("batch_size", batch_size, 1, MAX_BATCH_SIZE)
         x = self._check_images(images)
         if self.network is not None:
@@ -329,6 +354,17 @@ class Predictor:
             from .nn.inference import network_outputs
 
             out = network_outputs(self.model, torch.from_numpy(x), batch_size).numpy()
+        return x, out
+
+    def _outputs(self, images, batch_size: int):
+        """Checked images ``x [B, H, W]``, the hypotheses ``z [B, K, P]`` (normalised,
+        float32) and their scores ``[B, K]``, NumPy arrays from either backend."""
+        if self.strokes is not None:
+            raise ValueError(
+                f"this is a stroke model ({self.strokes.slots} stroke slots): its "
+                "predictions are strokes (predict, predict_strokes), not one DMP per image"
+            )
+        x, out = self._raw_outputs(images, batch_size)
         k = self.n_hypotheses
         if k == 1:
             return x, out[:, None, :], np.zeros((len(out), 1), out.dtype)
@@ -412,6 +448,8 @@ class Predictor:
         ``y [B, K, T, d]`` and ``probs [B, K]`` (NumPy arrays), see
         :func:`img2dmp.nn.hypothesis_trajectories` (the rollout in torch, float32 stamps,
         as training's validation)."""
+        if self.strokes is not None:
+            return self._stroke_hypotheses(images, times, batch_size)
         import torch
 
         from .nn.inference import rollout_outputs
@@ -421,6 +459,41 @@ class Predictor:
         z = torch.from_numpy(self._refined_all(z, x))  # unchanged without refinement
         y = rollout_outputs(z, t, self.normaliser, self.dmp_config, batch_size)
         return y.numpy(), _softmax(logits).astype(np.float32)
+
+    def predict_strokes(self, images, batch_size: int = 4096) -> list:
+        """A stroke model's strokes of prepared images ``[B, H, W]``: per image the top
+        hypothesis' strokes in writing order, (normalised vectors ``[c, P]``, presence
+        probabilities ``[c]``) (:func:`img2dmp.nn.strokes.read_strokes`), refined on the
+        image if asked (:func:`img2dmp.nn.strokes.refine_strokes`, in torch)."""
+        if self.strokes is None:
+            raise ValueError("predict_strokes needs a stroke model; this one predicts one DMP")
+        x, out = self._raw_outputs(images, batch_size)
+        strokes = read_strokes(out, self.strokes, self.n_hypotheses)
+        if self.refine_options is not None and self.refine_options.steps:
+            from .nn.strokes import refine_strokes
+
+            strokes = refine_strokes(strokes, x, self.normaliser, self.strokes,
+                                     self.refine_options)  # fmt: skip
+        return strokes
+
+    def stroke_paths(self, images, batch_size: int = 4096, n_per_stroke: int = 40) -> list:
+        """Each image's character as one path ``[T_i, 3]`` (x, y, pen; model frame): its
+        strokes (:meth:`predict_strokes`) each at ``n_per_stroke`` instants with straight
+        pen-up travel between (:func:`img2dmp.nn.strokes.character_paths`)."""
+        n_per_stroke = check_count("n_per_stroke", n_per_stroke, 2, MAX_POINTS)
+        strokes = self.predict_strokes(images, batch_size)
+        return character_paths(strokes, self.normaliser, self.strokes, n_per_stroke)
+
+    def _stroke_hypotheses(self, images, times, batch_size: int):
+        """:meth:`hypothesis_trajectories` of a stroke model: each character's path
+        brought to the ``T`` of ``times`` by its instants' index (the strokes' own
+        timing; pen-up travel straight), as ``[B, 1, T, 3]`` with probability 1."""
+        t_len = np.asarray(times).shape[-1]
+        paths = self.stroke_paths(images, batch_size)
+        y = np.stack([index_resampled(p, t_len) for p in paths]) if paths else None
+        if y is None:
+            return np.zeros((0, 1, t_len, 3), np.float32), np.zeros((0, 1), np.float32)
+        return y[:, None].astype(np.float32), np.ones((len(y), 1), np.float32)
 
     def predict_images(self, images, batch_size: int = 4096) -> DMPParams:
         """DMPs for prepared images.
@@ -501,17 +574,27 @@ class Predictor:
 
         Returns
         -------
-        Prediction
+        Prediction or StrokePrediction
             All hypotheses, ranked, in both frames; :meth:`Prediction.save` writes them.
+            A stroke model's: its strokes, each a DMP, and the character's path.
         """
         n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
         width = self.stroke_width if match_stroke_width else None
         prepared, frame, mask = prepare_image_found(
             image, self.image_size, margin=self.margin, stroke_width_px=width, name=name
         )
+        o = self.refine_options
+        if self.strokes is not None:
+            (strokes,) = self.predict_strokes(prepared[None])
+            return StrokePrediction(
+                strokes, self.normaliser, self.strokes, frame, prepared,
+                source=str(image) if isinstance(image, (str, os.PathLike)) else None,
+                refine_steps=0 if o is None else int(o.steps), user_image=image,
+                stroke_width_px=self.stroke_width, n_characters=count_characters(mask),
+                n_per_stroke=n_points,
+            )  # fmt: skip
         params, probs = self.predict_hypotheses(prepared[None])  # [1, K], ranked
         times, path = self.trajectories(params[0], n_points=n_points)  # [K, T], [K, T, d]
-        o = self.refine_options
         return Prediction(
             params=params[0],
             probabilities=probs[0],
@@ -581,6 +664,18 @@ class Predictor:
         z = torch.from_numpy(self._top_refined(images, batch_size))  # [B, P]
         y = rollout_outputs(z[:, None], t, self.normaliser, self.dmp_config, batch_size)
         return y[:, 0].numpy()
+
+
+def index_resampled(path: np.ndarray, n: int) -> np.ndarray:
+    """A path ``[T, 3]`` at ``n`` instants evenly spaced by index (x, y linear, the pen
+    of the nearer instant)."""
+    u = np.linspace(0.0, len(path) - 1.0, n)
+    i0 = np.minimum(np.floor(u).astype(int), len(path) - 1)
+    i1 = np.minimum(i0 + 1, len(path) - 1)
+    f = (u - i0)[:, None]
+    xy = (1 - f) * path[i0, :2] + f * path[i1, :2]
+    pen = np.where(f[:, 0] < 0.5, path[i0, 2], path[i1, 2])
+    return np.column_stack([xy, pen])
 
 
 def _softmax(logits: np.ndarray) -> np.ndarray:
@@ -727,6 +822,167 @@ class Prediction:
         )
 
 
+#: How long the pen-up travel between two strokes takes in a stroke model's character
+#: path (s): the model predicts each stroke's duration, not the lifts'.
+LIFT_S = 0.2
+#: ... drawn as this many points of the path.
+LIFT_POINTS = 4
+STROKES_FORMAT = "img2dmp-strokes"
+
+
+class StrokePrediction:
+    """The strokes one image shows, as a stroke model's :meth:`Predictor.predict` gives
+    them: c strokes in writing order, each its own DMP, and the character's path.
+
+    Attributes
+    ----------
+    strokes, strokes_image : DMPParams
+        Batch shape ``[c]``, NumPy float64, in the model's and the user's image frame
+        (:func:`img2dmp.dmp.affine.affine_dmp`); 2-D DMPs of ``dmp_config``.
+    presence : ndarray [c]
+        How sure the network is of each stroke.
+    times : ndarray [T]
+        The character path's instants (s): each stroke over its own tau, ``LIFT_S``
+        of straight pen-up travel between strokes.
+    path_model, path_image : ndarray [1, T, 3]
+        The character's path (x, y, pen: 1 on the strokes, 0 on the travel), one
+        "hypothesis" as :class:`Prediction` has K; ``probabilities`` is ``[1.0]``.
+    frame, image, source, refine_steps, user_image, fit, flags
+        As :class:`Prediction`.
+    """
+
+    def __init__(self, strokes, normaliser, layout, frame, image, *, source=None,
+                 refine_steps=0, user_image=None, stroke_width_px=None, n_characters=1,
+                 n_per_stroke: int = 100):  # fmt: skip
+        vectors, presence = strokes
+        self.dmp_config, self.frame, self.image = layout.config, frame, image
+        self.presence = np.asarray(presence, dtype=np.float64)
+        self.strokes = stroke_params(vectors, normaliser)
+        self.strokes_image = affine_dmp(self.strokes, self.dmp_config, frame.model_to_image)
+        (path,) = character_paths([strokes], normaliser, layout, n_per_stroke, LIFT_POINTS)
+        self.times = _character_times(np.asarray(self.strokes.tau), n_per_stroke, LIFT_POINTS)
+        self.n_per_stroke = int(n_per_stroke)
+        self.path_model = path[None]
+        self.path_image = frame.to_image(self.path_model)
+        self.probabilities = np.ones(1)
+        self.source, self.refine_steps, self.user_image = source, int(refine_steps), user_image
+        self.fit = fit_score(image, path, stroke_width_px)
+        # A character of c strokes may stand in up to c pieces: more is several characters.
+        self.flags = fit_flags(self.fit, n_characters if n_characters > self.n_strokes else 1)
+
+    n_hypotheses = 1
+
+    @property
+    def n_strokes(self) -> int:
+        return int(self.strokes.batch_shape[0])
+
+    @property
+    def dmp(self):
+        raise ValueError(
+            f"a stroke model's prediction is {self.n_strokes} DMPs, one per stroke "
+            "(StrokePrediction.strokes), not one DMP"
+        )
+
+    def to_document(self) -> dict:
+        """The stroke document (format ``img2dmp-strokes``, version 1, docs/ROBOT.md)."""
+        starts = _stroke_starts(np.asarray(self.strokes.tau))
+        strokes = [
+            {"index": j + 1, "presence": round(float(self.presence[j]), 6),
+             "t_start_s": round(float(starts[j]), 6), "params": self.strokes[j].to_dict(),
+             "params_image": self.strokes_image[j].to_dict()}
+            for j in range(self.n_strokes)
+        ]  # fmt: skip
+        trajectory = trajectory_entry(self.times, xy_model=self.path_model[0],
+                                      xy_image=self.path_image[0])  # fmt: skip
+        return {
+            "format": STROKES_FORMAT, "version": 1, "dmp_config": self.dmp_config.to_dict(),
+            "image_size": list(self.frame.model_size), "frame": "model", "strokes": strokes,
+            "hypotheses": [{"rank": 1, "probability": 1.0, "trajectory": trajectory}],
+            "image_frame": {"image": self.source, **self.frame.to_dict()},
+            "refinement": {"steps": self.refine_steps}, "fit": self.fit, "flags": self.flags,
+        }  # fmt: skip
+
+    def stroke_rows(self, j: int) -> slice:
+        """The rows of stroke ``j`` (0-based) in :attr:`path_model` and :attr:`times`."""
+        first = j * (self.n_per_stroke + LIFT_POINTS)
+        return slice(first, first + self.n_per_stroke)
+
+    def to_page_document(self) -> dict:
+        """The strokes as a page document (format ``img2dmp-page`` version 1,
+        docs/PAGE.md) in the model's frame: one entry of ``characters`` per stroke, all
+        on line 0 in writing order, each its own 2-D DMP (``"frame": "image"``, the
+        model's ``image_size``). What ``img2dmp write`` has the arm write
+        (:func:`img2dmp.robot.plan_page`): each stroke pen down, the pen lifted and
+        carried to the next one's start."""
+        h, w = self.frame.model_size
+        entries = []
+        for j in range(self.n_strokes):
+            rows = self.stroke_rows(j)
+            xy, t = self.path_model[0, rows, :2], self.times[rows]
+            dmp = dmp_document(self.strokes[j], self.dmp_config, (h, w), frame="image")
+            entries.append({
+                "index": j, "line": 0, "box_image_px": _box_px(xy, (h, w)),
+                "path_image_px": np.round(xy, 3).tolist(), "pen": [1] * len(xy),
+                "times_s": np.round(t - t[0], 6).tolist(),
+                "confidence": round(float(self.presence[j]), 6), "fit": dict(self.fit),
+                "flags": [], "dmp": dmp, "stroke": j + 1,
+            })  # fmt: skip
+        return {"format": "img2dmp-page", "version": 1, "image": None,
+                "image_size_px": [int(w), int(h)], "frame": "model", "source": self.source,
+                "lines": [{"index": 0, "characters": list(range(self.n_strokes))}],
+                "characters": entries}  # fmt: skip
+
+    def to_json(self, name: str | os.PathLike = "stroke document") -> str:
+        """The document's text; ``ValueError`` naming ``name`` for a value JSON cannot
+        hold (NaN, infinity)."""
+        import json
+
+        try:
+            return json.dumps(self.to_document(), indent=1, allow_nan=False) + "\n"
+        except ValueError as e:
+            raise ValueError(f"{name}: {e}") from None
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write :meth:`to_json` atomically. Returns ``path``."""
+        atomic_write_text(path, self.to_json(path))
+        return Path(path)
+
+    def trajectory_csv(self) -> str:
+        """The character's path as :meth:`Prediction.trajectory_csv` writes one."""
+        return trajectory_csv(self.probabilities, self.times[None], self.path_model,
+                              self.path_image)  # fmt: skip
+
+    def __repr__(self) -> str:
+        return f"StrokePrediction({self.n_strokes} strokes, fit={self.fit}, flags={self.flags})"
+
+
+def _box_px(xy: np.ndarray, size: tuple[int, int]) -> list[int]:
+    """Half-open integer pixel bounds ``[x0, y0, x1, y1]`` around the points ``[n, 2]``
+    (the centre of pixel ``[i, j]`` at ``(j, i)``), inside an image of ``size`` (H, W)
+    and at least one pixel each way (a dot)."""
+    h, w = size
+    lo = np.floor(np.min(xy, axis=0) + 0.5).astype(int)
+    hi = np.floor(np.max(xy, axis=0) + 0.5).astype(int) + 1
+    x0, y0 = int(np.clip(lo[0], 0, w - 1)), int(np.clip(lo[1], 0, h - 1))
+    x1, y1 = int(np.clip(hi[0], x0 + 1, w)), int(np.clip(hi[1], y0 + 1, h))
+    return [x0, y0, x1, y1]
+
+
+def _stroke_starts(tau: np.ndarray) -> np.ndarray:
+    """When each stroke begins (s): after the ones before it and a lift after each."""
+    return np.concatenate([[0.0], np.cumsum(tau + LIFT_S)[:-1]])
+
+
+def _character_times(tau: np.ndarray, n_per_stroke: int, n_travel: int) -> np.ndarray:
+    """The instants of :func:`img2dmp.nn.strokes.character_paths`' path (s)."""
+    starts, parts = _stroke_starts(tau), []
+    for j, (t0, d) in enumerate(zip(starts, tau, strict=True)):
+        parts.append(t0 + np.linspace(0.0, d, n_per_stroke))
+        if j + 1 < len(tau):
+            parts.append(t0 + d + np.linspace(0.0, LIFT_S, n_travel + 2)[1:-1])
+    return np.concatenate(parts)
+
+
 def trajectory_csv(probabilities, times, path_model, path_image) -> str:
     """The trajectory CSV of ``img2dmp predict``:
     ``rank,probability,t_s,x_model_px,y_model_px,x_image_px,y_image_px[,pen]``, one
@@ -787,9 +1043,7 @@ def load_model(
     predictor = Predictor.load(source, checkpoint, device, backend)
     if refine is None:
         refine = predictor.shipped.refine if predictor.shipped is not None else 0
-    steps = int(refine)
-    if steps:
-        predictor.refine_options = RefineOptions(steps=steps)
+    predictor.refine_with(int(refine))
     return predictor
 
 
@@ -847,6 +1101,7 @@ __all__ = [
     "ImageFrame",
     "Prediction",
     "Predictor",
+    "StrokePrediction",
     "check_count",
     "count_characters",
     "fit_flags",

@@ -180,7 +180,6 @@ def _run_pages(args, predictor) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..nn._refine_numpy import RefineOptions
     from ..predict import Predictor, write_prediction
 
     _check_options(args)
@@ -196,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
                                backend=args.backend)  # fmt: skip
     refine = _args.refine_steps(args, model, "predict")
     if refine:
-        predictor.refine_options = RefineOptions(steps=refine)
+        predictor.refine_with(refine)
     if args.page:
         return _run_pages(args, predictor)
     predictions = []
@@ -218,6 +217,8 @@ def run(args: argparse.Namespace) -> int:
         files = write_prediction(args.out, Path(path).stem, pred, overlay=args.overlay, text=text)
         if args.explain:
             files.append(_explain(args, path))
-        tau = float(pred.dmp.tau)
-        print(f"{path}: tau = {tau:.3f} s -> " + ", ".join(str(f) for f in files))
+        n = getattr(pred, "n_strokes", None)  # a stroke model's: its strokes' durations
+        tau = float(pred.dmp.tau) if n is None else float(pred.strokes.tau.sum())
+        what = f"tau = {tau:.3f} s" if n is None else f"{n} strokes, {tau:.3f} s of writing"
+        print(f"{path}: {what} -> " + ", ".join(str(f) for f in files))
     return 0
