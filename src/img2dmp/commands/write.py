@@ -46,6 +46,9 @@ from . import _args
 
 HELP = "write a digit or a page with a simulated KUKA arm (pybullet) and measure how well it went"
 DEFAULT_WRITING_HEIGHT_MM = 40.0
+#: A stroke model's pen between two strokes of a character: this far above the
+#: controller's lift height (the page's travel between characters is 2 cm up).
+STROKE_LIFT_M = 0.004
 DEFAULT_PAGE_WIDTH_MM = 160.0  # img2dmp.robot.page.DEFAULT_WIDTH_MM (not imported: no NumPy here)
 
 
@@ -221,8 +224,9 @@ def _written(v) -> str:
     return ",".join(f"{x:g}" for x in v) if isinstance(v, tuple) else f"{v:g}"
 
 
-def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
-    """(name, params, config, image_size, image or None) for every input."""
+def _inputs(args, predictor=None) -> list[tuple[str, object, object, tuple, object]]:
+    """(name, params, config, image_size, image or None) for every input (images read
+    by ``predictor``, else by :func:`_predictor`'s)."""
     import numpy as np
 
     from img2dmp.robot import load_dmp_json
@@ -232,7 +236,7 @@ def _inputs(args) -> list[tuple[str, object, object, tuple, object]]:
         params, config, size = load_dmp_json(args.dmp, hypothesis=args.hypothesis, image_size=size)
         image = _read_image(args.image) if args.image else None
         return [(_name(args.dmp), params, config, size, image)]
-    predictor = _predictor(args)
+    predictor = predictor or _predictor(args)
     k, n = args.hypothesis, predictor.n_hypotheses
     if k > n:
         raise ValueError(
@@ -261,9 +265,7 @@ def _predictor(args):
     predictor = Predictor.load(args.model, backend=args.backend)
     refine = _args.refine_steps(args, args.model, "write")
     if refine:
-        from img2dmp.nn._refine_numpy import RefineOptions
-
-        predictor.refine_options = RefineOptions(steps=refine)
+        predictor.refine_with(refine)
     return predictor
 
 
@@ -412,7 +414,10 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
 
     height_mm = args.writing_height_mm
     height_mm = DEFAULT_WRITING_HEIGHT_MM if height_mm is None else height_mm
-    for name, params, config, size, image in _inputs(args):
+    predictor = None if args.dmp else _predictor(args)
+    if getattr(predictor, "strokes", None) is not None:
+        return _run_strokes(args, scene_cfg, ctl_cfg, predictor)
+    for name, params, config, size, image in _inputs(args, predictor):
         params, bent_line = _bent(args, name, params, config)
         if bent_line:
             print(bent_line)
@@ -518,27 +523,69 @@ def _page_photo(page, directory: str):
     return None
 
 
-def _run_page(args, scene_cfg, ctl_cfg) -> int:
-    """``--page``: every character of one page in one run."""
-    from img2dmp._progress import bar as progress_bar
-    from img2dmp.robot import (
-        WritingOptions,
-        page_summary_lines,
-        plan_page,
-        plot_page,
-        save_characters_csv,
-        write_page_plan,
-    )
+def _writing_options(args, scene_cfg, ctl_cfg):
+    from img2dmp.robot import WritingOptions
 
-    options = WritingOptions(
+    return WritingOptions(
         control_rate_hz=args.rate_hz,
         scene_config=scene_cfg,
         controller_config=ctl_cfg,
         frame_interval_s=args.frame_interval_s if args.video else None,
     )
+
+
+def _run_page(args, scene_cfg, ctl_cfg) -> int:
+    """``--page``: every character of one page in one run."""
+    from img2dmp.robot import plan_page
+
+    options = _writing_options(args, scene_cfg, ctl_cfg)
     name, page, photo = _page_input(args)
     width_mm = DEFAULT_PAGE_WIDTH_MM if args.width_mm is None else args.width_mm
     plan = plan_page(page, options, width_mm=width_mm, skip_flagged=args.skip_flagged)
+    return _write_plan(args, name, plan, photo, "a page", "_characters.csv")
+
+
+def _run_strokes(args, scene_cfg, ctl_cfg, predictor) -> int:
+    """A stroke model's characters, one run each: its strokes as a page of one line
+    (:meth:`img2dmp.predict.StrokePrediction.to_page_document`), the pen lifted
+    ``STROKE_LIFT_M`` between them, at the scale of ``--writing-height-mm`` for the
+    model's frame (as a one-DMP model's digit)."""
+    import numpy as np
+
+    from img2dmp.robot import check_page_document, plan_page
+
+    if bend_options(args) or args.hypothesis != 1:
+        what = "bending" if bend_options(args) else "--hypothesis"
+        raise ValueError(f"{what} is for one-DMP models; {args.model} is a stroke model")
+    outputs = [(os.path.join(args.out_dir, _name(p) + "_strokes.csv"), p) for p in args.images]
+    _args.check_outputs(outputs, args.force, _args.model_inputs(args.model))
+    options = _writing_options(args, scene_cfg, ctl_cfg)
+    height_mm = args.writing_height_mm
+    height_mm = DEFAULT_WRITING_HEIGHT_MM if height_mm is None else height_mm
+    travel_m = options.controller_config.lift_height_m + STROKE_LIFT_M
+    for path in args.images:
+        with _args.reading_image(path):
+            pred = predictor.predict(path)
+        where = f"{path} (the strokes read by {args.model})"
+        page = check_page_document(pred.to_page_document(), where)
+        x0, y0, x1, y1 = page.written_area_px
+        width_mm = height_mm * (x1 - x0) / pred.frame.model_size[0]
+        plan = plan_page(page, options, width_mm=width_mm, travel_height_m=travel_m)
+        image = np.asarray(pred.image, dtype=np.float32)
+        code = _write_plan(args, _name(path), plan, image, f"{pred.n_strokes} strokes",
+                           "_strokes.csv", "stroke")  # fmt: skip
+        if code:
+            return code
+    return 0
+
+
+def _write_plan(args, name: str, plan, photo, what: str, table: str, noun="character") -> int:
+    """Simulate a planned page (or a stroke model's character), then its figure, the
+    table of its characters (or strokes) ``<name><table>``, the run's files and its
+    summary."""
+    from img2dmp._progress import bar as progress_bar
+    from img2dmp.robot import page_summary_lines, plot_page, save_characters_csv, write_page_plan
+
     os.makedirs(args.out_dir, exist_ok=True)
     n, started = len(plan.characters), []
     with progress_bar(
@@ -560,9 +607,9 @@ def _run_page(args, scene_cfg, ctl_cfg) -> int:
             return 1
         bar.total = bar.n
     base = os.path.join(args.out_dir, name)
-    plot_page(result, base + "_paper.png", image=photo, title=f"{name}: KUKA iiwa writes a page")
-    save_characters_csv(result, base + "_characters.csv")
-    written = [base + "_paper.png", base + "_characters.csv"] + _save_run(args, result, name, 1)
-    print("\n".join(page_summary_lines(name, result)))
+    plot_page(result, base + "_paper.png", image=photo, title=f"{name}: KUKA iiwa writes {what}")
+    save_characters_csv(result, base + table)
+    written = [base + "_paper.png", base + table] + _save_run(args, result, name, 1)
+    print("\n".join(page_summary_lines(name, result, noun)))
     print("  wrote " + ", ".join(written))
     return 0

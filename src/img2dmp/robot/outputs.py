@@ -441,16 +441,17 @@ def save_characters_csv(result, path) -> None:
     atomic_write_text(path, f.getvalue())
 
 
-def page_summary_lines(name: str, result) -> list[str]:
-    """A page's measures in words: the totals, then one line per character."""
+def page_summary_lines(name: str, result, noun: str = "character") -> list[str]:
+    """A page's measures in words: the totals, then one line per character (``noun``:
+    what its entries are called, e.g. a stroke model's ``"stroke"``)."""
     m = result.metrics
     between = (
-        "no ink between characters"
+        f"no ink between {noun}s"
         if m["travel_contact_s"] == 0
-        else f"the pen touched the paper for {m['travel_contact_s']:.3f} s between characters"
+        else f"the pen touched the paper for {m['travel_contact_s']:.3f} s between {noun}s"
     )
     lines = [
-        f"{name}: {m['characters_written']} of {m['characters']} characters written on "
+        f"{name}: {m['characters_written']} of {m['characters']} {noun}s written on "
         f"{m['width_mm']:.1f} x {m['height_mm']:.1f} mm; commanded paths inked "
         f"{100 * m['ink_share']:.1f} %, ink on the commanded paths "
         f"{100 * m['ink_on_path_share']:.1f} %; {between}",
@@ -463,7 +464,7 @@ def page_summary_lines(name: str, result) -> list[str]:
     ]
     for r in result.characters:
         c, cm = r.character, r.metrics
-        head = f"  character {c.index} (line {c.line}"
+        head = f"  {noun} {c.index} (line {c.line}"
         head += f", flags {' '.join(c.flags)})" if c.flags else ")"
         if not r.written:
             lines.append(f"{head}: skipped")
