@@ -1,0 +1,324 @@
+"""Stroke models: a character as up to S strokes, each its own DMP (issue 32, part 4).
+
+Against hand-made strokes: where the samplers read a path's strokes, that the matching
+pairs each true stroke with the slot that holds it (in any order, or in order only with
+``matching="order"``), how a network output is read (count, presence, order keys) and
+rolled out (strokes with straight pen-up travel), that refinement pulls strokes onto
+the ink, the configuration's refusals, and a short training on Omniglot-like drawings
+that must learn the stroke counts.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from img2dmp import cli
+from img2dmp.config import ConfigError
+from img2dmp.data.store import load_dataset
+from img2dmp.nn.refine import RefineOptions
+from img2dmp.nn.strokes import (
+    StrokeCost,
+    StrokeLayout,
+    character_paths,
+    fit_stroke_normaliser,
+    fit_stroke_vectors,
+    pen_spans,
+    read_strokes,
+    refine_strokes,
+    stroke_samplers,
+    stroke_targets,
+)
+from img2dmp.training.config import load_config
+from test_omniglot import write_tree
+
+
+def _path(strokes: list[np.ndarray], gap: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Strokes ``[k, 2]`` as one path ``[T, 3]`` (pen 1 on them, 0 on ``gap`` travel
+    points between) at 0.01 s per instant."""
+    rows = []
+    for i, s in enumerate(strokes):
+        rows.append(np.column_stack([s, np.ones(len(s))]))
+        if i + 1 < len(strokes):
+            f = np.linspace(0, 1, gap + 2)[1:-1, None]
+            a, b = s[-1], strokes[i + 1][0]
+            rows.append(np.column_stack([a + f * (b - a), np.zeros(gap)]))
+    p = np.concatenate(rows)
+    return p, np.arange(len(p)) * 0.01
+
+
+BAR = np.linspace([5.0, 10.0], [30.0, 10.0], 26)
+DOT = np.array([[20.0, 20.0]])
+_A = np.linspace(0, np.pi, 31)
+ARC = np.stack([18 + 8 * np.cos(_A), 28 + 6 * np.sin(_A)], -1)
+
+
+def test_the_pen_runs_are_the_strokes_and_a_two_dimensional_path_is_one():
+    p, _ = _path([BAR, DOT, ARC])
+    assert pen_spans(p) == [(0, 25), (29, 29), (33, 63)]
+    assert pen_spans(p[:, :2]) == [(0, len(p) - 1)]
+    assert pen_spans(np.column_stack([p[:, :2], np.zeros(len(p))])) == [(0, len(p) - 1)]
+
+
+def test_samplers_read_each_stroke_evenly_in_time_keep_a_dot_and_count_beyond_s():
+    lay = StrokeLayout(slots=2, n_points=11)
+    p, t = _path([BAR, DOT, ARC])
+    pts, present, duration, n = stroke_targets(
+        torch.as_tensor(p[None]), torch.as_tensor(t[None]), lay
+    )
+    assert n.tolist() == [3]  # all strokes counted, the first S kept
+    assert present.tolist() == [[True, True]]
+    np.testing.assert_allclose(pts[0, 0].numpy(), np.linspace(BAR[0], BAR[-1], 11), atol=1e-12)
+    np.testing.assert_allclose(pts[0, 1].numpy(), np.repeat(DOT, 11, 0), atol=1e-12)
+    np.testing.assert_allclose(duration[0].numpy(), [0.25, 0.02])  # a dot: MIN_STROKE_S
+    with pytest.raises(ValueError, match="row 0 has no stroke"):
+        stroke_samplers([[]], t[None], lay)
+
+
+def _setting(strokes, slots=3, matching="best"):
+    lay = StrokeLayout(slots=slots, n_points=24, matching=matching)
+    p, t = _path(strokes)
+    target, present, duration, n = stroke_targets(
+        torch.as_tensor(p[None]), torch.as_tensor(t[None]), lay
+    )
+    pts, dur = target[present].numpy(), duration[present].numpy()
+    rng = np.random.default_rng(0)  # a normaliser needs spread: jittered copies
+    jitter = pts[None] + rng.normal(0, 1.0, (8, *pts.shape))
+    norm = fit_stroke_normaliser(jitter.reshape(-1, *pts.shape[1:]), np.tile(dur, 8), lay)
+    vectors, err = fit_stroke_vectors(pts, dur, lay)
+    assert err < 0.05
+    return lay, norm, torch.as_tensor(vectors), (target, present, duration, n)
+
+
+def _output(lay, norm, vectors, slots_order, count, keys=None):
+    """A network output ``[1, S (P + 3)]`` whose slots ``slots_order[j]`` hold stroke j."""
+    z = norm.normalise(vectors)  # [n, P]
+    out = torch.zeros(lay.slots, lay.slot_width, dtype=torch.float64)
+    out[:, lay.n_params] = -8.0  # absent
+    for j, slot in enumerate(slots_order):
+        out[slot, : lay.n_params] = z[j]
+        out[slot, lay.n_params] = 8.0
+        out[slot, lay.n_params + 1] = (keys or slots_order)[j] if keys else j / (lay.slots - 1)
+    counts = torch.full((lay.slots,), -8.0, dtype=torch.float64)
+    counts[count - 1] = 8.0
+    return torch.cat([out.reshape(-1), counts])[None]
+
+
+def test_best_matching_finds_the_strokes_in_any_slots_and_order_matching_only_in_order():
+    lay, norm, vectors, (target, present, duration, n) = _setting([BAR, ARC])
+    cost = StrokeCost(lay, norm, presence_weight=0, count_weight=0, order_weight=0, tau_weight=0)
+    swapped = _output(lay, norm, vectors, [2, 0], 2)
+    _, err = cost.strokes_cost(swapped, target, present, duration, n)
+    assert float(err[0]) < 0.05  # each stroke found in its slot
+    lay_o = StrokeLayout(slots=3, n_points=24, matching="order")
+    cost_o = StrokeCost(lay_o, norm, presence_weight=0, count_weight=0, tau_weight=0)
+    _, err_o = cost_o.strokes_cost(swapped, target, present, duration, n)
+    assert float(err_o[0]) > 5.0  # slot 0 holds the arc, compared with the bar
+    in_order = _output(lay, norm, vectors, [0, 1], 2)
+    assert float(cost_o.strokes_cost(in_order, target, present, duration, n)[1][0]) < 0.05
+
+
+def test_the_cost_has_gradients_everywhere_and_steps_on_it_learn_a_character():
+    lay, norm, vectors, (target, present, duration, n) = _setting([BAR, DOT, ARC])
+    cost = StrokeCost(lay, norm)
+    out = torch.zeros(1, lay.n_outputs, dtype=torch.float64, requires_grad=True)
+    first, _ = cost.strokes_cost(out, target, present, duration, n)
+    adam = torch.optim.Adam([out], lr=0.05)
+    for _ in range(300):
+        loss, err = cost.strokes_cost(out, target, present, duration, n)
+        adam.zero_grad()
+        loss.backward()
+        assert torch.isfinite(out.grad).all()
+        adam.step()
+    assert float(loss.detach()) < 0.1 * float(first.detach())
+    assert float(err[0]) < 1.0
+    (strokes,) = read_strokes(out.detach().numpy(), lay, 1)
+    assert len(strokes[0]) == 3  # count, presence and order learnt
+
+
+def test_a_character_is_its_strokes_in_key_order_with_straight_pen_up_travel():
+    lay, norm, vectors, _ = _setting([BAR, DOT, ARC])
+    out = _output(lay, norm, vectors, [1, 2, 0], 3, keys=[0.1, 0.5, 0.9]).numpy()
+    (strokes,) = read_strokes(out, lay, 1)
+    (path,) = character_paths([strokes], norm, lay, n_per_stroke=20, n_travel=4)
+    assert path.shape == (3 * 20 + 2 * 4, 3)
+    assert pen_spans(path) == [(0, 19), (24, 43), (48, 67)]
+    np.testing.assert_allclose(path[0, :2], BAR[0], atol=0.1)  # the bar first (key 0.1)
+    np.testing.assert_allclose(path[24:44, :2], np.repeat(DOT, 20, 0), atol=0.1)
+    np.testing.assert_allclose(path[-1, :2], ARC[-1], atol=0.1)
+    travel = path[20:24, :2]
+    line = np.linspace(path[19, :2], path[24, :2], 6)[1:-1]
+    np.testing.assert_allclose(travel, line, atol=1e-9)
+    out_two = _output(lay, norm, vectors, [1, 2, 0], 2, keys=[0.1, 0.5, 0.9]).numpy()
+    assert len(read_strokes(out_two, lay, 1)[0][0]) == 2  # the count decides
+
+
+def test_refinement_pulls_a_shifted_stroke_back_onto_its_ink():
+    lay, norm, vectors, _ = _setting([BAR, ARC], slots=2)
+    image = np.zeros((40, 40))
+    for s in (BAR, ARC):
+        fine = np.concatenate([np.linspace(a, b, 10) for a, b in zip(s[:-1], s[1:], strict=True)])
+        image[np.round(fine[:, 1]).astype(int), np.round(fine[:, 0]).astype(int)] = 1.0
+    v = vectors.clone()
+    v[:, -4:] += 2.5  # g and y0 of both strokes moved 2.5 px off the ink
+    z = norm.normalise(v).numpy()
+    strokes = [(z, np.ones(2))]
+
+    def off(st):
+        (path,) = character_paths(st, norm, lay)
+        ink = np.argwhere(image > 0)[:, ::-1]
+        d = np.linalg.norm(path[path[:, 2] > 0.5, None, :2] - ink[None], axis=-1)
+        return d.min(1).mean()
+
+    refined = refine_strokes(strokes, image[None], norm, lay, RefineOptions(steps=60))
+    assert off(refined) < 0.5 * off(strokes)
+
+
+@pytest.mark.parametrize(
+    "setting, message",
+    [
+        ("strokes.slots=40", "strokes.slots must be an integer from 1 to 32"),
+        ("strokes.matching=greedy", "strokes.matching must be one of"),
+        ("strokes.presence_weight=-1", "strokes.presence_weight"),
+    ],
+)
+def test_bad_stroke_settings_are_refused_by_name(setting, message):
+    with pytest.raises(ConfigError, match=message):
+        load_config(None, ["data.path=x.safetensors", setting])
+
+
+def test_a_stroke_model_refuses_what_it_cannot_honour():
+    base = ["strokes.slots=4", "data.path=x.safetensors"]
+    with pytest.raises(ConfigError, match="cost.name must be 'trajectory'"):
+        load_config(None, [*base, "cost.name=parameter"])
+    with pytest.raises(ConfigError, match="set data.path"):
+        load_config(None, ["strokes.slots=4"])
+    with pytest.raises(ConfigError, match="cost.path_weight is not used"):
+        load_config(None, [*base, "cost.path_weight=1"])
+
+
+@pytest.fixture(scope="module")
+def omni_root(tmp_path_factory):
+    return write_tree(tmp_path_factory.mktemp("omni") / "omniglot", characters=2, drawers=20)
+
+
+@pytest.fixture(scope="module")
+def small_omniglot(omni_root, tmp_path_factory):
+    root = omni_root
+    out = tmp_path_factory.mktemp("data") / "omni.safetensors"
+    code = cli.main(["import", str(root), "--out", str(out), "--no-progress", "--n-times", "120"])
+    assert code == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def trained(small_omniglot, tmp_path_factory):
+    run = tmp_path_factory.mktemp("strokes") / "run"
+    args = ["train", "--config", "omniglot", "--data", str(small_omniglot), "--run-dir",
+            str(run), "--epochs", "60", "--no-progress", "--set", "optim.batch_size=16",
+            "--set", "cost.ink_weight=0", "--set", "cost.coverage_weight=0"]  # fmt: skip
+    assert cli.main(args) == 0
+    return run
+
+
+def test_a_short_training_learns_the_stroke_counts_and_shapes(small_omniglot, trained):
+    from img2dmp.checkpoint import load_checkpoint
+    from img2dmp.nn.model import ModelConfig, build_model
+
+    ckpt = load_checkpoint(trained)
+    lay = StrokeLayout.from_dict(ckpt.meta["strokes"])
+    assert lay.slots == 8
+    curve = np.genfromtxt(trained / "metrics.csv", delimiter=",", names=True)
+    assert curve["val_error_px"][-1] < 0.5 * curve["val_error_px"][0]
+    data = load_dataset(small_omniglot)
+    val = np.flatnonzero(data.split > 0)
+    net = build_model(ModelConfig.from_dict(ckpt.meta["model"]))
+    net.load_state_dict(ckpt.model_state)
+    with torch.no_grad():
+        out = net.eval()(torch.as_tensor(data.images[val])).numpy()
+    counts = [len(v) for v, _ in read_strokes(out, lay, 1)]
+    truth = [len(data.stroke_spans(i)) for i in val]
+    assert np.mean(np.equal(counts, truth)) >= 0.9
+
+
+def test_predict_writes_a_stroke_document_with_the_whole_characters_path_and_pen(
+    omni_root, trained, tmp_path
+):
+    from img2dmp.predict import StrokePrediction, load_model
+
+    # a test drawer's hook and tick (2 strokes) as the drawer's own 105-px PNG
+    image = omni_root / "images_test" / "Alpha" / "character02" / "0102_20.png"
+    out = tmp_path / "out"
+    assert cli.main(["predict", str(image), "--model", str(trained), "--out", str(out)]) == 0
+    doc = json.loads((out / "0102_20_dmp.json").read_text())
+    assert doc["format"] == "img2dmp-strokes"
+    top = doc["hypotheses"][0]["trajectory"]
+    xy, pen = np.asarray(top["xy_image_px"]), np.asarray(top["pen"])
+    assert xy.shape == (len(pen), 2) and set(np.unique(pen)) <= {0.0, 1.0}
+    runs = pen_spans(np.column_stack([xy, pen]))
+    assert len(runs) == len(doc["strokes"]) == 2
+    starts = [s["t_start_s"] for s in doc["strokes"]]
+    assert starts == sorted(starts) and starts[0] == 0.0
+    assert xy[:, 0].max() > 40  # the image frame: the 105-px image, not the model's 40
+    pred = load_model(trained).predict(image)
+    assert isinstance(pred, StrokePrediction) and pred.n_strokes == len(doc["strokes"])
+    with pytest.raises(ValueError, match="one per stroke"):
+        pred.dmp  # noqa: B018 (the robot's one DMP is refused by name)
+
+
+def test_evaluate_reports_the_stroke_count_and_the_measures_per_alphabet(small_omniglot, trained):
+    from img2dmp.evaluate import evaluate
+
+    res = evaluate(trained, small_omniglot, split="validation", n_figures=0)
+    st = res["strokes"]
+    ok = np.equal(st["true_counts"], st["predicted_counts"])
+    assert st["count_right"] == pytest.approx(ok.mean())
+    assert set(st["per_alphabet"]) == {"Alpha", "Beta"}
+    assert sum(a["n"] for a in st["per_alphabet"].values()) == len(ok) == res["overall"]["n"]
+    assert res["chamfer"]["overall"]["mean"] < 2.0  # learnt shapes, on a 40-px frame
+
+
+def test_the_page_document_of_a_characters_strokes_holds_each_stroke_as_its_dmp(omni_root, trained):
+    from img2dmp.predict import load_model
+    from img2dmp.robot.pagefile import check_page_document
+
+    pred = load_model(trained).predict(omni_root / "images_test/Beta/character01/0201_20.png")
+    page = check_page_document(pred.to_page_document(), "strokes")
+    assert len(page.characters) == pred.n_strokes and page.lines == (tuple(range(pred.n_strokes)),)
+    for j, c in enumerate(page.characters):
+        rows = pred.stroke_rows(j)
+        assert np.all(pred.path_model[0, rows, 2] == 1)  # the stroke's own rows, pen down
+        np.testing.assert_allclose(c.path_image_px, pred.path_model[0, rows, :2], atol=1e-3)
+        np.testing.assert_allclose(c.params_image.g, pred.strokes[j].g)  # in the model frame
+        x0, y0, x1, y1 = c.box_image_px
+        inside = np.clip(c.path_image_px, 0, 39)
+        assert (inside[:, 0] >= x0 - 0.5).all() and (inside[:, 0] < x1 + 0.5).all()
+        assert (inside[:, 1] >= y0 - 0.5).all() and (inside[:, 1] < y1 + 0.5).all()
+
+
+@pytest.mark.skipif(
+    not __import__("img2dmp.robot", fromlist=["available"]).available(),
+    reason="pybullet is not installed (pip install img2dmp[robot])",
+)
+def test_write_has_the_arm_write_each_stroke_and_lift_the_pen_between(
+    omni_root, trained, tmp_path, capsys
+):
+    import csv
+
+    image = omni_root / "images_test" / "Alpha" / "character02" / "0102_20.png"
+    out = tmp_path / "robot"
+    argv = ["write", str(image), "--model", str(trained), "--out-dir", str(out), "--no-progress"]
+    assert cli.main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "2 of 2 strokes written" in printed and "no ink between strokes" in printed
+    with open(out / "0102_20_strokes.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["index"] for r in rows] == ["0", "1", "page"]
+    assert all(r["written"] == "1" and float(r["ink_share"]) >= 0.95 for r in rows[:2])
+    # 40 mm for the model's 40-px frame, as a one-DMP model's digit
+    assert "--goal" not in printed
+    assert cli.main(argv + ["--goal", "3,4", "--force"]) == 2
+    assert "bending is for one-DMP models" in capsys.readouterr().err
