@@ -322,3 +322,36 @@ def test_write_has_the_arm_write_each_stroke_and_lift_the_pen_between(
     assert "--goal" not in printed
     assert cli.main(argv + ["--goal", "3,4", "--force"]) == 2
     assert "bending is for one-DMP models" in capsys.readouterr().err
+
+
+def test_the_onnx_graph_of_a_stroke_model_reads_as_its_strokes(omni_root, trained, tmp_path):
+    pytest.importorskip("onnxruntime")
+    pytest.importorskip("onnxscript")
+    import onnxruntime as ort
+
+    from img2dmp.export import STROKE_OUTPUTS, export_onnx
+    from img2dmp.predict import load_model
+
+    report = export_onnx(trained, tmp_path / "s.onnx", n_check=8)
+    assert report.max_difference < 1e-4
+    info = json.loads((tmp_path / "s.json").read_text())
+    assert [o["name"] for o in info["outputs"]] == list(STROKE_OUTPUTS)
+    assert info["strokes"]["slots"] == 8 and "argmax(count" in info["strokes"]["reading"]
+    predictor = load_model(trained, refine=0)
+    image = omni_root / "images_test" / "Beta" / "character02" / "0202_19.png"
+    x = np.asarray(predictor.prepare(image)[0], dtype=np.float32)[None]
+    session = ort.InferenceSession(str(tmp_path / "s.onnx"), providers=["CPUExecutionProvider"])
+    strokes, presence, order, count = session.run(list(STROKE_OUTPUTS), {"images": x})
+    c = int(count[0].argmax()) + 1  # the reading the description gives
+    on = np.sort(np.argsort(-presence[0], kind="stable")[:c])
+    on = on[np.argsort(order[0, on], kind="stable")]
+    pred = predictor.predict(image)
+    np.testing.assert_allclose(strokes[0, on], pred.strokes.to_vector(), rtol=1e-4, atol=1e-4)
+
+
+def test_the_web_server_refuses_a_stroke_model_by_name(trained):
+    pytest.importorskip("fastapi")
+    from img2dmp.web.models import load_models
+
+    with pytest.raises(ValueError, match=r"run: a stroke model .* cannot be served"):
+        load_models([trained])

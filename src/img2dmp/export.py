@@ -23,6 +23,17 @@ The graph::
   ``img2dmp predict`` reports first and ``img2dmp write`` writes.
 - ``probability``: softmax of the network's scores, in the same order (1 for K = 1).
 
+**Stroke models** (:mod:`img2dmp.nn.strokes`: a character as up to S strokes, one
+hypothesis) export as :class:`StrokeOnnxGraph`::
+
+    input   images    float32 [B, H, W]
+    output  strokes   float64 [B, S, P]   each slot's 2-D DMP vector, physical units
+    output  presence  float64 [B, S]      the probability that the slot holds a stroke
+    output  order     float64 [B, S]      the slot's order key (lower: written earlier)
+    output  count     float64 [B, S]      the probabilities of 1 .. S strokes
+
+read as :data:`STROKE_READING` says (the description's ``strokes.reading``).
+
 The normalisation (:class:`img2dmp.nn.ParamNormaliser`: ``z * scale + centre``,
 ``tau = exp(.)``, forcing amplitudes back to weights) runs in float64 inside the graph,
 as :class:`~img2dmp.predict.Predictor` runs it, so weights that grow like
@@ -78,6 +89,8 @@ FORMAT = "img2dmp-onnx"
 VERSION = 1
 INPUT = "images"
 OUTPUTS = ("dmp", "probability")
+#: A stroke model's graph's outputs (:class:`StrokeOnnxGraph`).
+STROKE_OUTPUTS = ("strokes", "presence", "order", "count")
 #: Largest difference between onnxruntime and torch that an export accepts (see the
 #: module docstring); a float32 network gives a few 1e-8.
 TOLERANCE = 1e-4
@@ -86,6 +99,8 @@ EXPORT_PACKAGES = ("onnx", "onnxruntime", "onnxscript")
 INSTALL_HINT = "pip install 'img2dmp[export]'"
 #: Images the check runs on by default.
 CHECK_IMAGES = 64
+#: Images per network call in the check.
+MAX_CHECK_BATCH = 4096
 SUFFIX = ".onnx"
 
 
@@ -189,6 +204,31 @@ class OnnxGraph(nn.Module):
         return torch.gather(v, 1, order[..., None].expand_as(v)), probs
 
 
+class StrokeOnnxGraph(OnnxGraph):
+    """A stroke model's graph: ``forward(images [B, H, W] float32) -> (strokes [B, S, P],
+    presence [B, S], order [B, S], count [B, S])``, all float64: each slot's DMP in
+    physical units, the probability that it holds a stroke, its order key, and the
+    probabilities of 1 .. S strokes (module docstring; the reading is
+    :func:`img2dmp.nn.strokes.read_strokes`)."""
+
+    def __init__(self, predictor: Predictor):
+        if predictor.n_hypotheses != 1:
+            raise ValueError(
+                f"only stroke models of one hypothesis export, this one has "
+                f"{predictor.n_hypotheses}"
+            )
+        super().__init__(predictor)
+        self.layout = predictor.strokes
+
+    def forward(self, images: torch.Tensor):
+        lay = self.layout
+        out = self.model(images).double()
+        s, p, width = lay.slots, lay.n_params, lay.slot_width
+        z = out[:, : s * width].reshape(-1, s, width)
+        return (self.denormalise(z[..., :p]), torch.sigmoid(z[..., p]), z[..., p + 1],
+                torch.softmax(out[:, s * width :], dim=-1))  # fmt: skip
+
+
 def vector_layout(n_kernels: int, n_dims: int) -> dict:
     """Where each field lies in the flat DMP vector: ``{"w": [start, stop], ...}`` (stop
     excluded) and how the weights are ordered."""
@@ -209,15 +249,18 @@ def describe(predictor: Predictor, source: str | None = None) -> dict:
     h, w = predictor.image_size
     k, p = predictor.n_hypotheses, cfg.n_params
     meta = predictor.meta
-    return {
+    outputs = [
+        {"name": OUTPUTS[0], "dtype": "float64", "shape": ["B", k, p]},
+        {"name": OUTPUTS[1], "dtype": "float64", "shape": ["B", k]},
+    ]
+    if predictor.strokes is not None:
+        outputs = _stroke_outputs(predictor.strokes)
+    info = {
         "format": FORMAT,
         "version": VERSION,
         "opset": OPSET,
         "input": {"name": INPUT, "dtype": "float32", "shape": ["B", h, w]},
-        "outputs": [
-            {"name": OUTPUTS[0], "dtype": "float64", "shape": ["B", k, p]},
-            {"name": OUTPUTS[1], "dtype": "float64", "shape": ["B", k]},
-        ],
+        "outputs": outputs,
         "vector_layout": vector_layout(cfg.n_kernels, cfg.n_dims),
         "hypotheses": k,
         "ranked": "hypotheses sorted by probability, highest first",
@@ -243,11 +286,30 @@ def describe(predictor: Predictor, source: str | None = None) -> dict:
         "img2dmp_version": __version__,
         "torch_version": torch.__version__,
     }
+    if predictor.strokes is not None:
+        info["strokes"] = {**predictor.strokes.to_dict(), "reading": STROKE_READING}
+    return info
+
+
+#: How a stroke model's outputs are read as a character's strokes (the description's
+#: ``strokes.reading``; :func:`img2dmp.nn.strokes.read_strokes`).
+STROKE_READING = (
+    "c = 1 + argmax(count[b]) strokes; with matching 'best' the c slots of highest "
+    "presence, written in increasing order key; with 'order' slots 0 .. c-1 in that "
+    "order; each slot's strokes[b, s] is one 2-D DMP vector laid out as vector_layout says"
+)
+
+
+def _stroke_outputs(layout) -> list[dict]:
+    s, p = layout.slots, layout.n_params
+    shapes = {"strokes": ["B", s, p], "presence": ["B", s], "order": ["B", s], "count": ["B", s]}
+    return [{"name": n, "dtype": "float64", "shape": shapes[n]} for n in STROKE_OUTPUTS]
 
 
 def to_onnx(predictor: Predictor):
     """The :class:`OnnxGraph` of ``predictor`` as an ``onnx.ModelProto`` (batch size free)."""
-    graph = OnnxGraph(predictor).eval()
+    strokes = predictor.strokes is not None
+    graph = (StrokeOnnxGraph if strokes else OnnxGraph)(predictor).eval()
     example = torch.zeros(3, *predictor.image_size)  # 3: a batch of 1 would be fixed
     with _quiet_exporter():
         program = torch.onnx.export(
@@ -256,7 +318,7 @@ def to_onnx(predictor: Predictor):
             dynamo=True,
             opset_version=OPSET,
             input_names=[INPUT],
-            output_names=list(OUTPUTS),
+            output_names=list(STROKE_OUTPUTS if strokes else OUTPUTS),
             dynamic_shapes={"images": {0: torch.export.Dim("batch")}},
             verbose=False,
         )
@@ -309,6 +371,9 @@ def max_difference(onnx_bytes: bytes, predictor: Predictor, images: np.ndarray) 
     options = ort.SessionOptions()
     options.intra_op_num_threads = 1
     session = ort.InferenceSession(onnx_bytes, options, providers=["CPUExecutionProvider"])
+    if predictor.strokes is not None:
+        return _stroke_difference(session.run(list(STROKE_OUTPUTS), {INPUT: images}),
+                                  predictor, images)  # fmt: skip
     dmp, prob = session.run(list(OUTPUTS), {INPUT: images})
     plain = Predictor(predictor.model, predictor.normaliser, predictor.dmp_config, predictor.meta)
     params, probs = plain.predict_hypotheses(images)
@@ -319,6 +384,30 @@ def max_difference(onnx_bytes: bytes, predictor: Predictor, images: np.ndarray) 
     if not np.isfinite(dmp).all() or not (dmp[..., predictor.normaliser.tau_index] > 0).all():
         raise ExportCheckFailed("onnxruntime gave DMP parameters that are not finite or tau <= 0")
     return max(normalised_difference(predictor.normaliser, dmp, ref), _abs_max(prob - probs))
+
+
+def _stroke_difference(got, predictor: Predictor, images: np.ndarray) -> float:
+    """:func:`max_difference` of a stroke model's graph: its outputs ``got`` against
+    the network's outputs read in NumPy (:func:`img2dmp.nn.strokes.split_slots_numpy`),
+    the strokes in the network's output units, the probabilities and keys as they are."""
+    from .nn._stroke_layout import split_slots_numpy
+
+    _, out = predictor._raw_outputs(images, MAX_CHECK_BATCH)
+    z, presence, order, count, _ = split_slots_numpy(out, predictor.strokes, 1)
+    c = np.exp(count[:, 0] - count[:, 0].max(-1, keepdims=True))
+    ref = (predictor.normaliser.denormalise_numpy(z[:, 0]), 1 / (1 + np.exp(-presence[:, 0])),
+           order[:, 0], c / c.sum(-1, keepdims=True))  # fmt: skip
+    for name, a, b in zip(STROKE_OUTPUTS, got, ref, strict=True):
+        if a.shape != b.shape:
+            raise ExportCheckFailed(f"onnxruntime gave {name} of shape {a.shape}, torch {b.shape}")
+    strokes = got[0]
+    if (
+        not np.isfinite(strokes).all()
+        or not (strokes[..., predictor.normaliser.tau_index] > 0).all()
+    ):
+        raise ExportCheckFailed("onnxruntime gave strokes that are not finite or tau <= 0")
+    diffs = [normalised_difference(predictor.normaliser, strokes, ref[0])]
+    return max(diffs + [_abs_max(a - b) for a, b in zip(got[1:], ref[1:], strict=True)])
 
 
 def normalised_difference(normaliser, a: np.ndarray, b: np.ndarray) -> float:

@@ -67,7 +67,8 @@ def load_models(sources, refine: int | None = None) -> dict[str, LoadedModel]:
     recommends, 0 for a run directory, :func:`img2dmp.predict.load_model`).
 
     Raises ``FileNotFoundError`` or ``ValueError`` (from :func:`img2dmp.predict.load_model`)
-    naming a path that holds no model.
+    naming a path that holds no model, and ``ValueError`` for a stroke model (a character
+    as several DMPs: the front end draws, bends and writes one DMP per hypothesis).
     """
     models: dict[str, LoadedModel] = {}
     for source in sources:
@@ -77,6 +78,12 @@ def load_models(sources, refine: int | None = None) -> dict[str, LoadedModel]:
         else:
             name, path = model_id(source), os.fspath(source)
             predictor = load_model(source, refine=refine)
+        if getattr(predictor, "strokes", None) is not None:
+            raise ValueError(
+                f"{path}: a stroke model (a character as up to {predictor.strokes.slots} "
+                "DMPs) cannot be served: the browser front end shows one DMP per "
+                "hypothesis; use img2dmp predict or write with it"
+            )
         unique, n = name, 1
         while unique in models:
             n += 1
