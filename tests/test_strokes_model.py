@@ -355,3 +355,22 @@ def test_the_web_server_refuses_a_stroke_model_by_name(trained):
 
     with pytest.raises(ValueError, match=r"run: a stroke model .* cannot be served"):
         load_models([trained])
+
+
+def test_the_class_mode_count_share_is_counted_against_the_training_drawers(
+    small_omniglot, experiment_script, monkeypatch
+):
+    mod = experiment_script("stroke_choices")
+    data = load_dataset(small_omniglot)
+    counts = np.array([len(data.stroke_spans(i)) for i in range(len(data))])
+    shares = mod.class_mode_shares(data)
+    assert set(shares) == {"train", "validation", "test"}
+    # the tree's characters are drawn with one count each: the mode is always right
+    assert all(v == 1.0 for v in shares.values()) and set(counts) == {2, 3}
+    # one training drawer per class drawing another count moves train's share, not test's
+    fake = counts.copy()
+    first = [int(np.flatnonzero((data.labels == c) & (data.split == 0))[0]) for c in range(4)]
+    fake[first] += 1
+    monkeypatch.setattr(type(data), "stroke_spans", lambda self, i: [None] * fake[i])
+    again = mod.class_mode_shares(data)
+    assert again["train"] == pytest.approx(1 - 4 / 60) and again["test"] == 1.0
