@@ -59,13 +59,7 @@ def refine(
     with torch.enable_grad():
         for _ in range(int(o.steps)):
             y = dmp_trajectory(z, t, normaliser, config)  # [B, T, d]
-            j = o.prior_weight * ((z - z0) ** 2).mean(-1)  # [B]
-            if o.ink_weight:
-                j = j + o.ink_weight * ink_attraction(y, dist)
-            if o.coverage_weight:
-                j = j + o.coverage_weight * ink_coverage(
-                    y, imgs, tolerance_px=o.coverage_tolerance_px
-                )
+            j = o.prior_weight * ((z - z0) ** 2).mean(-1) + ink_terms(y, dist, imgs, o)  # [B]
             z.grad = None
             j.sum().backward()  # samples are independent: the sum's gradient is each one's
             adam.step()
@@ -97,3 +91,15 @@ class _Adam:
 
 
 __all__ = ["MAX_REFINE_STEPS", "RefineOptions", "refine"]
+
+
+def ink_terms(y: torch.Tensor, dist: torch.Tensor, images: torch.Tensor, o) -> torch.Tensor:
+    """Refinement's image terms per sample ``[B]`` of paths ``y [B, T, d]``: ``o``'s
+    (:class:`RefineOptions`) weighted ink attraction (on the distance map ``dist``) and
+    coverage of ``images``; 0 where both weights are 0."""
+    j = torch.zeros(len(y), dtype=y.dtype, device=y.device)
+    if o.ink_weight:
+        j = j + o.ink_weight * ink_attraction(y, dist)
+    if o.coverage_weight:
+        j = j + o.coverage_weight * ink_coverage(y, images, tolerance_px=o.coverage_tolerance_px)
+    return j

@@ -353,8 +353,8 @@ def refine_strokes(strokes: list, images, normaliser, layout: StrokeLayout, opti
     :mod:`img2dmp.nn.refine` objective (ink attraction and coverage of the union of a
     character's strokes, prior ``|z - z_0|^2 / P``) over all of its strokes' vectors at
     once, Adam for ``options.steps`` steps. The same list shape, vectors replaced."""
-    from .ink import ink_attraction, ink_coverage, ink_distance_map
-    from .refine import RefineOptions, _Adam
+    from .ink import ink_distance_map
+    from .refine import RefineOptions, _Adam, ink_terms
 
     o = options or RefineOptions()
     if o.steps == 0 or not strokes:
@@ -371,13 +371,7 @@ def refine_strokes(strokes: list, images, normaliser, layout: StrokeLayout, opti
             xy = stroke_shapes(z, normaliser, layout).reshape(len(z), -1, 2)
             y = torch.cat([xy, pen], -1)  # [B, S_max n, 3]
             prior = (((z - z0) ** 2).mean(-1) * mask).sum(-1) / mask.sum(-1)
-            j = o.prior_weight * prior
-            if o.ink_weight:
-                j = j + o.ink_weight * ink_attraction(y, dist)
-            if o.coverage_weight:
-                j = j + o.coverage_weight * ink_coverage(
-                    y, imgs, tolerance_px=o.coverage_tolerance_px
-                )
+            j = o.prior_weight * prior + ink_terms(y, dist, imgs, o)
             z.grad = None
             j.sum().backward()
             adam.step()
