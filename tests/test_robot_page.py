@@ -517,12 +517,17 @@ class _FakePagePrediction:
 class _FakePredictor:
     """What ``write PHOTO --page --model`` uses of a Predictor: ``predict_page(PHOTO)``
     returning an object whose ``to_document()`` is the page document, and
-    ``refine_options``."""
+    ``refine_with(steps)`` setting ``refine_options``."""
 
     calls: list = []
 
     def __init__(self, document):
         self.document, self.refine_options = document, None
+
+    def refine_with(self, steps: int) -> None:
+        from img2dmp.nn._refine_numpy import RefineOptions
+
+        self.refine_options = RefineOptions(steps=steps) if steps else None
 
     def predict_page(self, photo):
         self.calls.append((photo, self.refine_options))

@@ -310,11 +310,6 @@ def _check_strokes(cfg) -> None:
             f"a stroke model (strokes.slots = {cfg.strokes.slots}) trains with cost (10) per "
             f"stroke: cost.name must be 'trajectory', got {cfg.cost.name!r}"
         )
-    if cfg.data.path is None:
-        raise ConfigError(
-            "a stroke model trains on a data set of paths with their strokes: set data.path "
-            "(the generator draws one-stroke digits)"
-        )
     if cfg.cost.path_weight:
         raise ConfigError("cost.path_weight is not used by a stroke model: set it to 0")
     if cfg.data.unlabelled_mnist is not None:

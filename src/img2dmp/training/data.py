@@ -152,6 +152,11 @@ class TrainingData:
         self._pool: tuple[int, Split] | None = None  # (epoch drawn for, samples)
         if cfg.data.path is not None:
             self._from_file(cfg, normaliser)
+        elif cfg.strokes.slots:
+            raise ConfigError(
+                "a stroke model trains on a data set of paths with their strokes: set "
+                "data.path (--data; the generator draws one-stroke digits)"
+            )
         else:
             self._from_generator(cfg, normaliser)
         self.unlabelled = self._unlabelled(cfg)
