@@ -193,6 +193,7 @@ def main(argv=None) -> int:
     p.add_argument("--out")
     args = p.parse_args(argv)
     start = time.perf_counter()
+    report = {"run": run_record(__file__, argv)}  # the revision the run starts from
     data = Path(args.data)
     names = drawings(data, args.limit)
     rows = []
@@ -203,7 +204,7 @@ def main(argv=None) -> int:
             text = zs.read(stroke).decode() if stroke in known else None
             rows.append(measure(name, zi.read(name), text, args.specks, args.speck_gap,
                                 args.seed + k))  # fmt: skip
-    report = {"run": run_record(__file__, argv), "table": summarise(rows)}
+    report["table"] = summarise(rows)
     report["wall_s"] = round(time.perf_counter() - start, 1)
     report["lost"] = [c for r in rows for c in r["lost"]]
     print(format_record(report["run"]))
