@@ -137,7 +137,9 @@ DOT_AREA_PEN2 = 0.5
 #: ... and this many pixels (a thin pen's 2 x 2 grain is no dot, its 3 x 3 dot is),
 DOT_MIN_PX = 5
 #: ... at least this many pen widths across both ways (Omniglot's: 1.04-1.6; a rule's
-#: remnant is as thin as the rule) and at most ``DOT_SIZE_PEN``,
+#: remnant is as thin as the rule) and at most ``DOT_SIZE_PEN``, not touching a rule's
+#: removed pixels (a red margin line's bits where the rules cross it, 2 x 4 px beside a
+#: 2.1-px pen: they cost the segmentation of validation seed 7 a character),
 DOT_SIDE_PEN = 0.6
 #: ... with at least this share of its pixels as dark as the pen's strong level,
 DOT_STRONG_SHARE = 0.5
@@ -873,11 +875,12 @@ def pen_width(area: np.ndarray, boundary: np.ndarray, keep: np.ndarray) -> float
     return float(thick[order][np.searchsorted(cum, cum[-1] / 2.0)])
 
 
-def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool, rough_pen: float = 0.0):
+def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool, rough_pen: float = 0.0, ruled=None):
     """The components of ``mask`` that are pen strokes (hysteresis; with
     ``shape_filters`` also not the sheet's edge, specks nor blobs), the pen width and
     what was dropped. ``rough_pen``: the pen width guessed before (pixels), for the
-    pieces of faint components (``RESCUE_*``)."""
+    pieces of faint components (``RESCUE_*``); ``ruled``: the rules' pixels removed
+    (their remnants beside them are no pen dots)."""
     labels, area, boundary, strong_px = _components(mask, dark, lv.strong)
     keep = (strong_px >= 2) & (strong_px >= STRONG_SHARE * area)  # a stroke, not a smudge
     keep[0] = False
@@ -906,7 +909,12 @@ def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool, rough_pen: float
     if shape_filters and width > 0:
         thick = 2.0 * area / np.maximum(boundary, 1)
         speck = keep & (area < max(SPECK_AREA_PEN2 * width**2, MIN_STROKE_AREA_PX))
-        speck &= ~_pen_dots(labels, area, boundary, strong_px, speck, keep & ~speck, width)
+        beside = np.zeros(len(area), bool)  # what a rule's removal left of it
+        if ruled is not None and ruled.any():
+            beside[np.unique(labels[dilate3(ruled)])] = True
+        speck &= ~_pen_dots(
+            labels, area, boundary, strong_px, speck & ~beside, keep & ~speck, width
+        )
         keep &= ~speck  # a page of specks alone holds no ink
         removed["specks"] = int(speck.sum())
         dots = _dot_lattice(labels, area, boundary, keep, width)
@@ -929,8 +937,9 @@ def _pen_dots(labels, area, boundary, strong_px, speck, strokes, width: float) -
     ``DOT_SIZE_PEN`` pen widths on both sides of its box), as dark as the pen (a
     ``DOT_STRONG_SHARE`` of it strong) and near a stroke (within ``DOT_NEAR_SHARE`` of
     the longer side of one of the ``strokes``' boxes); dust, grain and salt-and-pepper
-    noise are smaller, text from the back fainter, a rule's remnant thinner, and the
-    dots of dotted paper lie on a lattice (:func:`_dot_lattice`, over all such marks)."""
+    noise are smaller, text from the back fainter, a rule's remnant thinner (and beside
+    the rule's removed pixels: not in ``speck``), and the dots of dotted paper lie on a
+    lattice (:func:`_dot_lattice`, over all such marks)."""
     from scipy.ndimage import find_objects
 
     out = np.zeros(len(area), bool)
@@ -1080,7 +1089,7 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
         if lv is None:
             return None
         weak = dark >= lv.weak
-    kept, width, removed = _kept_strokes(weak & ~ruled, dark, lv, local, pen)
+    kept, width, removed = _kept_strokes(weak & ~ruled, dark, lv, local, pen, ruled)
     if not kept.any():
         return None
     halo = dilate3(kept) & ~ruled
