@@ -131,9 +131,11 @@ SPECK_AREA_PEN2 = 2.5
 #: ... and so is any of fewer pixels than this (a page of specks has no pen width);
 MIN_STROKE_AREA_PX = 8
 #: ... except a pen's dot (an i's, a diacritic): a speck of at least this many pen widths
-#: squared (an ideal disc one pen width across: pi / 4; Omniglot's dots, 410 dot strokes
-#: of its background-small-1 drawings: 1.09-2.05),
-DOT_AREA_PEN2 = 0.5
+#: squared (an ideal disc one pen width across: pi / 4; Omniglot's dots, in its
+#: background-small-1 drawings: 1.09-2.05 by their pen width; of 2,400 square specks of
+#: 1-3 px sides added 4-20 px from 400 of its characters, ``experiments/pen_dots.py``,
+#: 0.5 kept 189, 0.6 28, 0.7 11, 0.8 5, 0.9 none; no dot lost at any of them),
+DOT_AREA_PEN2 = 0.7
 #: ... and this many pixels (a thin pen's 2 x 2 grain is no dot, its 3 x 3 dot is),
 DOT_MIN_PX = 5
 #: ... at least this many pen widths across both ways (Omniglot's: 1.04-1.6; a rule's
@@ -145,9 +147,11 @@ DOT_SIDE_PEN = 0.6
 DOT_STRONG_SHARE = 0.5
 #: ... within this share of a kept stroke's longer side from that stroke's box (an i's
 #: or j's dot sits up to 6.7 pen widths above its stem: Omniglot's Latin, 0.4-0.8 of
-#: the stem's length; a pen-width reach would drop them) and not on a lattice of such
-#: marks (dotted paper's).
+#: the stem's length; a reach of a few pen widths would drop them) ...
 DOT_NEAR_SHARE = 1.0
+#: ... and at most this many pen widths from it (1.5 times the farthest of Omniglot's
+#: dots), and not on a lattice of such marks (dotted paper's).
+DOT_NEAR_PEN = 10.0
 #: Dots of dotted paper: marks at most this many pen widths across,
 DOT_SIZE_PEN = 2.5
 #: ... or filled discs: at most this many times their thickness (2 area / boundary) across
@@ -936,10 +940,11 @@ def _pen_dots(labels, area, boundary, strong_px, speck, strokes, width: float) -
     widths squared and ``DOT_MIN_PX`` pixels at least, ``DOT_SIDE_PEN`` to
     ``DOT_SIZE_PEN`` pen widths on both sides of its box), as dark as the pen (a
     ``DOT_STRONG_SHARE`` of it strong) and near a stroke (within ``DOT_NEAR_SHARE`` of
-    the longer side of one of the ``strokes``' boxes); dust, grain and salt-and-pepper
-    noise are smaller, text from the back fainter, a rule's remnant thinner (and beside
-    the rule's removed pixels: not in ``speck``), and the dots of dotted paper lie on a
-    lattice (:func:`_dot_lattice`, over all such marks)."""
+    the longer side of one of the ``strokes``' boxes and ``DOT_NEAR_PEN`` pen widths
+    of it); dust, grain and salt-and-pepper noise are smaller, text from the back
+    fainter, a rule's remnant thinner (and beside the rule's removed pixels: not in
+    ``speck``), and the dots of dotted paper lie on a lattice (:func:`_dot_lattice`,
+    over all such marks)."""
     from scipy.ndimage import find_objects
 
     out = np.zeros(len(area), bool)
@@ -956,7 +961,7 @@ def _pen_dots(labels, area, boundary, strong_px, speck, strokes, width: float) -
     if dot.any():
         dot &= ~_dot_lattice(labels, area, boundary, dot | strokes, width)
     cand, near = np.flatnonzero(dot), np.flatnonzero(strokes)
-    reach = DOT_NEAR_SHARE * sides[near].max(1)
+    reach = np.minimum(DOT_NEAR_SHARE * sides[near].max(1), DOT_NEAR_PEN * width)
     for k in range(0, len(cand), 512):  # candidates x strokes, in slices
         b = boxes[cand[k : k + 512], None]
         gap_r = np.maximum(boxes[None, near, 0] - b[..., 2], b[..., 0] - boxes[None, near, 2])
