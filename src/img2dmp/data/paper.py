@@ -34,10 +34,11 @@ drops the rest, in named steps (each kept for a picture with ``keep_steps``;
    passes through; a component too faint as a whole is tried again in pieces, at a
    level half way to ``strong``, and its pieces of ``RESCUE_AREA_PEN2`` pen widths
    squared are ink (strokes that a remnant of curved rules joined into one net);
-7. **shapes**: components smaller than a few pen widths squared (specks), small marks
-   at an even spacing (the dots of dotted paper), marks along the image's border (the
-   sheet's edge) and components much thicker than the pen (``THICK_FACTOR``: a
-   shadow's band) are dropped;
+7. **shapes**: components smaller than a few pen widths squared (specks; not a pen's
+   dot: about a pen width across, as dark as the pen, near a kept stroke and on no
+   lattice, ``DOT_*``), small marks at an even spacing (the dots of dotted paper), marks
+   along the image's border (the sheet's edge) and components much thicker than the pen
+   (``THICK_FACTOR``: a shadow's band) are dropped;
 8. **ink**: the darkness scaled so that the typical ink is 1, on the kept strokes and a
    pixel around them (anti-aliased edges kept), 0 elsewhere.
 
