@@ -149,7 +149,7 @@ def test_a_folder_of_omniglot_trees_imports_with_classes_drawers_and_every_strok
             if len(own) == 1:  # a dot: one instant, where the dot is, and on the image
                 dot = data.trajectories[r, a, :2]
                 assert a == b and np.allclose(dot, own[0] @ m[:, :2].T + m[:, 2])
-                # (the paper cleaning for photos would take the dot for a speck)
+                # (the images are read without the paper cleaning for photos)
                 assert bilinear(data.images[r][None], dot[None, None])[0, 0] > 0.5
             else:
                 assert b - a + 1 >= 3

@@ -34,10 +34,11 @@ drops the rest, in named steps (each kept for a picture with ``keep_steps``;
    passes through; a component too faint as a whole is tried again in pieces, at a
    level half way to ``strong``, and its pieces of ``RESCUE_AREA_PEN2`` pen widths
    squared are ink (strokes that a remnant of curved rules joined into one net);
-7. **shapes**: components smaller than a few pen widths squared (specks), small marks
-   at an even spacing (the dots of dotted paper), marks along the image's border (the
-   sheet's edge) and components much thicker than the pen (``THICK_FACTOR``: a
-   shadow's band) are dropped;
+7. **shapes**: components smaller than a few pen widths squared (specks; not a pen's
+   dot: about a pen width across, as dark as the pen, near a kept stroke and on no
+   lattice, ``DOT_*``), small marks at an even spacing (the dots of dotted paper), marks
+   along the image's border (the sheet's edge) and components much thicker than the pen
+   (``THICK_FACTOR``: a shadow's band) are dropped;
 8. **ink**: the darkness scaled so that the typical ink is 1, on the kept strokes and a
    pixel around them (anti-aliased edges kept), 0 elsewhere.
 
@@ -128,8 +129,30 @@ BRIDGE_CHAIN = 2.0
 THICK_FACTOR = 3.5
 #: Components smaller than this many pen widths squared are specks,
 SPECK_AREA_PEN2 = 2.5
-#: ... and so is any of fewer pixels than this (a page of specks has no pen width).
+#: ... and so is any of fewer pixels than this (a page of specks has no pen width);
 MIN_STROKE_AREA_PX = 8
+#: ... except a pen's dot (an i's, a diacritic): a speck of at least this many pen widths
+#: squared (an ideal disc one pen width across: pi / 4; Omniglot's dots, in its
+#: background-small-1 drawings: 1.09-2.05 by their pen width; of 2,400 square specks of
+#: 1-3 px sides added 4-20 px from 400 of its characters, ``experiments/pen_dots.py``,
+#: 0.5 kept 189, 0.6 28, 0.7 11, 0.8 5, 0.9 none; no dot lost at any of them),
+DOT_AREA_PEN2 = 0.7
+#: ... and this many pixels (a thin pen's 2 x 2 grain is no dot, its 3 x 3 dot is),
+DOT_MIN_PX = 5
+#: ... at least this many pen widths across both ways (Omniglot's: 1.04-1.6; a rule's
+#: remnant is as thin as the rule) and at most ``DOT_SIZE_PEN``, not touching a rule's
+#: removed pixels (a red margin line's bits where the rules cross it, 2 x 4 px beside a
+#: 2.1-px pen: they cost the segmentation of validation seed 7 a character),
+DOT_SIDE_PEN = 0.6
+#: ... with at least this share of its pixels as dark as the pen's strong level,
+DOT_STRONG_SHARE = 0.5
+#: ... within this share of a kept stroke's longer side from that stroke's box (an i's
+#: or j's dot sits up to 6.7 pen widths above its stem: Omniglot's Latin, 0.4-0.8 of
+#: the stem's length; a reach of a few pen widths would drop them) ...
+DOT_NEAR_SHARE = 1.0
+#: ... and at most this many pen widths from it (1.5 times the farthest of Omniglot's
+#: dots), and not on a lattice of such marks (dotted paper's).
+DOT_NEAR_PEN = 10.0
 #: Dots of dotted paper: marks at most this many pen widths across,
 DOT_SIZE_PEN = 2.5
 #: ... or filled discs: at most this many times their thickness (2 area / boundary) across
@@ -857,11 +880,12 @@ def pen_width(area: np.ndarray, boundary: np.ndarray, keep: np.ndarray) -> float
     return float(thick[order][np.searchsorted(cum, cum[-1] / 2.0)])
 
 
-def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool, rough_pen: float = 0.0):
+def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool, rough_pen: float = 0.0, ruled=None):
     """The components of ``mask`` that are pen strokes (hysteresis; with
     ``shape_filters`` also not the sheet's edge, specks nor blobs), the pen width and
     what was dropped. ``rough_pen``: the pen width guessed before (pixels), for the
-    pieces of faint components (``RESCUE_*``)."""
+    pieces of faint components (``RESCUE_*``); ``ruled``: the rules' pixels removed
+    (their remnants beside them are no pen dots)."""
     labels, area, boundary, strong_px = _components(mask, dark, lv.strong)
     keep = (strong_px >= 2) & (strong_px >= STRONG_SHARE * area)  # a stroke, not a smudge
     keep[0] = False
@@ -890,6 +914,12 @@ def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool, rough_pen: float
     if shape_filters and width > 0:
         thick = 2.0 * area / np.maximum(boundary, 1)
         speck = keep & (area < max(SPECK_AREA_PEN2 * width**2, MIN_STROKE_AREA_PX))
+        beside = np.zeros(len(area), bool)  # what a rule's removal left of it
+        if ruled is not None and ruled.any():
+            beside[np.unique(labels[dilate3(ruled)])] = True
+        speck &= ~_pen_dots(
+            labels, area, boundary, strong_px, speck & ~beside, keep & ~speck, width
+        )
         keep &= ~speck  # a page of specks alone holds no ink
         removed["specks"] = int(speck.sum())
         dots = _dot_lattice(labels, area, boundary, keep, width)
@@ -903,6 +933,43 @@ def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool, rough_pen: float
             keep &= ~blob
         width = pen_width(area, boundary, keep)
     return keep[labels], width, removed
+
+
+def _pen_dots(labels, area, boundary, strong_px, speck, strokes, width: float) -> np.ndarray:
+    """Per label: the ``speck`` components that are a pen's dots (an i's, a diacritic),
+    not the paper's specks. A dot is about a pen width across (``DOT_AREA_PEN2`` pen
+    widths squared and ``DOT_MIN_PX`` pixels at least, ``DOT_SIDE_PEN`` to
+    ``DOT_SIZE_PEN`` pen widths on both sides of its box), as dark as the pen (a
+    ``DOT_STRONG_SHARE`` of it strong) and near a stroke (within ``DOT_NEAR_SHARE`` of
+    the longer side of one of the ``strokes``' boxes and ``DOT_NEAR_PEN`` pen widths
+    of it); dust, grain and salt-and-pepper noise are smaller, text from the back
+    fainter, a rule's remnant thinner (and beside the rule's removed pixels: not in
+    ``speck``), and the dots of dotted paper lie on a lattice (:func:`_dot_lattice`,
+    over all such marks)."""
+    from scipy.ndimage import find_objects
+
+    out = np.zeros(len(area), bool)
+    if not strokes.any():
+        return out
+    boxes = np.zeros((len(area), 4))
+    for lab, sl in enumerate(find_objects(labels), start=1):
+        if sl is not None:
+            boxes[lab] = sl[0].start, sl[1].start, sl[0].stop, sl[1].stop
+    sides = np.stack([boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]], -1)
+    dot = speck & (area >= max(DOT_AREA_PEN2 * width**2, DOT_MIN_PX))
+    dot &= (sides.min(1) >= DOT_SIDE_PEN * width) & (sides.max(1) <= DOT_SIZE_PEN * width)
+    dot &= strong_px >= DOT_STRONG_SHARE * area
+    if dot.any():
+        dot &= ~_dot_lattice(labels, area, boundary, dot | strokes, width)
+    cand, near = np.flatnonzero(dot), np.flatnonzero(strokes)
+    reach = np.minimum(DOT_NEAR_SHARE * sides[near].max(1), DOT_NEAR_PEN * width)
+    for k in range(0, len(cand), 512):  # candidates x strokes, in slices
+        b = boxes[cand[k : k + 512], None]
+        gap_r = np.maximum(boxes[None, near, 0] - b[..., 2], b[..., 0] - boxes[None, near, 2])
+        gap_c = np.maximum(boxes[None, near, 1] - b[..., 3], b[..., 1] - boxes[None, near, 3])
+        gap = np.hypot(np.maximum(gap_r, 0), np.maximum(gap_c, 0))
+        out[cand[k : k + 512]] = (gap <= reach[None]).any(1)
+    return out
 
 
 def _component_medians(labels: np.ndarray, dark: np.ndarray, n: int) -> np.ndarray:
@@ -1028,7 +1095,7 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
         if lv is None:
             return None
         weak = dark >= lv.weak
-    kept, width, removed = _kept_strokes(weak & ~ruled, dark, lv, local, pen)
+    kept, width, removed = _kept_strokes(weak & ~ruled, dark, lv, local, pen, ruled)
     if not kept.any():
         return None
     halo = dilate3(kept) & ~ruled

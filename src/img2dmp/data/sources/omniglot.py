@@ -59,8 +59,8 @@ the first stroke and ``BREAK`` after each stroke. Its rules:
 
 Every refusal is one ``ValueError`` naming the file and its line. The images are black
 ink on white, as rendered from the strokes: they are read without the paper cleaning
-meant for photos (:func:`img2dmp.data.paper.paper_ink`), which takes a straight stroke of
-a clean image for a ruled line and a dot for a speck.
+meant for photos (:func:`img2dmp.data.paper.paper_ink`), which takes a long straight
+stroke of a clean image for a ruled line (and a dot beside it for a rule's remnant).
 """
 
 from __future__ import annotations
