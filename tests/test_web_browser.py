@@ -23,8 +23,9 @@
   page of another origin cannot write, a name given with --allowed-host works.
 
 Everything runs against a server started here on two tiny networks (one epoch each),
-conftest's tiny stroke model and a tiny MNIST folder. Without ``/usr/bin/chromium`` or the ``playwright`` package the tests
-skip, unless ``IMG2DMP_REQUIRE_BROWSER=1`` (CI), where they fail.
+conftest's tiny stroke model and a tiny MNIST folder. Without ``/usr/bin/chromium`` or
+the ``playwright`` package the tests skip, unless ``IMG2DMP_REQUIRE_BROWSER=1`` (CI),
+where they fail.
 """
 
 from __future__ import annotations

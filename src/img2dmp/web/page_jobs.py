@@ -89,17 +89,9 @@ def submit_page(jobs, pages, page_id: str, width_mm: float, skip_flagged: bool, 
     """Queue the arm writing page ``page_id`` of ``pages`` (404 if not kept) with the
     ``jobs`` manager; the job's state."""
     text, filename = pages.document(page_id)
-    characters = plan_page_job(text, filename, width_mm, skip_flagged)
     options = {"filename": filename, "width_mm": float(width_mm),
                "skip_flagged": bool(skip_flagged), "video": bool(video)}  # fmt: skip
-    return jobs.submit_job(
-        "page",
-        run_page_job,
-        options,
-        PAGE_FILES,
-        lambda d: atomic_write_text(d / "page.json", text),
-        characters,
-    )
+    return _submit(jobs, "page", text, options)
 
 
 def submit_strokes(jobs, doc, video: bool) -> dict:
@@ -127,10 +119,17 @@ def submit_strokes(jobs, doc, video: bool) -> dict:
         "travel_height_m": writing.controller_config.lift_height_m + STROKE_LIFT_M,
         "noun": "stroke",
     }
-    characters = plan_page_job(text, options["filename"], options["width_mm"], False,
-                               options["travel_height_m"])  # fmt: skip
+    return _submit(jobs, "strokes", text, options)
+
+
+def _submit(jobs, kind: str, text: str, options: dict) -> dict:
+    """Queue a job of ``kind`` writing the page document ``text`` as ``options`` (those of
+    :func:`run_page_job`) say, planned first (422 if it cannot be written); its state."""
+    travel_m = options.get("travel_height_m", TRAVEL_HEIGHT_M)
+    characters = plan_page_job(text, options["filename"], options["width_mm"],
+                               options["skip_flagged"], travel_m)  # fmt: skip
     return jobs.submit_job(
-        "strokes",
+        kind,
         run_page_job,
         options,
         PAGE_FILES,
@@ -141,8 +140,10 @@ def submit_strokes(jobs, doc, video: bool) -> dict:
 
 def run_page_job(job_dir: str, options: dict, report) -> None:
     """The process of a page's job: write ``job_dir/page.json`` with the arm
-    (:func:`run_in_job_dir`). ``report[SHARE]``: the progress (0-1); ``report[BEGUN]``:
-    the characters begun."""
+    (:func:`run_in_job_dir`) as ``options`` say: ``filename``, ``width_mm``,
+    ``skip_flagged``, ``video`` and, for a stroke model's character, ``travel_height_m``
+    and ``noun`` (``"stroke"``: what the summary calls its entries). ``report[SHARE]``:
+    the progress (0-1); ``report[BEGUN]``: the characters begun."""
     run_in_job_dir(job_dir, lambda d: _write_page(d, options, report))
 
 
