@@ -295,10 +295,11 @@ function showStrokes(answer) {
   if (!strokes) return;
   const n = strokes.length;
   const sure = strokes.map((s) => `${Math.round(100 * s.presence)}\u00a0%`).join(", ");
+  const order = n > 1
+    ? ", written in the order numbered, the pen lifted between them (dashed)" : "";
   ui.strokeNote.textContent =
     `${n} stroke${n === 1 ? "" : "s"} read (this model reads up to ` +
-    `${modelSlots(answer.model)}), written in the order numbered, the pen lifted between ` +
-    `them (dashed); how sure it is of each: ${sure}.`;
+    `${modelSlots(answer.model)})${order}; how sure it is of each: ${sure}.`;
   ui.bendOff.textContent =
     `Bending is for one-DMP models: ${answer.model} is a stroke model, whose character is ` +
     `${n} DMP${n === 1 ? "" : "s"}, one per stroke.`;
