@@ -100,3 +100,40 @@ def _handwritten_page():
 def handwritten_page():
     """``(image, boxes)`` of :func:`_handwritten_page`: a generated photo of a page."""
     return _handwritten_page()
+
+
+@pytest.fixture(scope="session")
+def omni_root(tmp_path_factory) -> Path:
+    """A small Omniglot tree (``test_omniglot.write_tree``): two alphabets of two
+    characters drawn by 20 drawers each, in two or three strokes."""
+    from test_omniglot import write_tree
+
+    return write_tree(tmp_path_factory.mktemp("omni") / "omniglot", characters=2, drawers=20)
+
+
+@pytest.fixture(scope="session")
+def small_omniglot(omni_root, tmp_path_factory) -> Path:
+    """:func:`omni_root` imported as a data set with its strokes (``img2dmp import``)."""
+    from img2dmp import cli
+
+    out = tmp_path_factory.mktemp("data") / "omni.safetensors"
+    code = cli.main(
+        ["import", str(omni_root), "--out", str(out), "--no-progress", "--n-times", "120"]
+    )
+    assert code == 0
+    return out
+
+
+@pytest.fixture(scope="session")
+def stroke_run(small_omniglot, tmp_path_factory) -> Path:
+    """The run directory of a tiny stroke model (``--config omniglot``, 8 slots) trained
+    60 epochs on :func:`small_omniglot` (about 15 s), for the tests of stroke models,
+    serving them and the browser."""
+    from img2dmp import cli
+
+    run = tmp_path_factory.mktemp("strokes") / "run"
+    args = ["train", "--config", "omniglot", "--data", str(small_omniglot), "--run-dir",
+            str(run), "--epochs", "60", "--no-progress", "--set", "optim.batch_size=16",
+            "--set", "cost.ink_weight=0", "--set", "cost.coverage_weight=0"]  # fmt: skip
+    assert cli.main(args) == 0
+    return run

@@ -33,7 +33,6 @@ from img2dmp.nn.strokes import (
     stroke_targets,
 )
 from img2dmp.training.config import load_config
-from test_omniglot import write_tree
 
 
 def _path(strokes: list[np.ndarray], gap: int = 3) -> tuple[np.ndarray, np.ndarray]:
@@ -202,27 +201,9 @@ def test_a_stroke_model_refuses_what_it_cannot_honour(tmp_path, capsys):
 
 
 @pytest.fixture(scope="module")
-def omni_root(tmp_path_factory):
-    return write_tree(tmp_path_factory.mktemp("omni") / "omniglot", characters=2, drawers=20)
-
-
-@pytest.fixture(scope="module")
-def small_omniglot(omni_root, tmp_path_factory):
-    root = omni_root
-    out = tmp_path_factory.mktemp("data") / "omni.safetensors"
-    code = cli.main(["import", str(root), "--out", str(out), "--no-progress", "--n-times", "120"])
-    assert code == 0
-    return out
-
-
-@pytest.fixture(scope="module")
-def trained(small_omniglot, tmp_path_factory):
-    run = tmp_path_factory.mktemp("strokes") / "run"
-    args = ["train", "--config", "omniglot", "--data", str(small_omniglot), "--run-dir",
-            str(run), "--epochs", "60", "--no-progress", "--set", "optim.batch_size=16",
-            "--set", "cost.ink_weight=0", "--set", "cost.coverage_weight=0"]  # fmt: skip
-    assert cli.main(args) == 0
-    return run
+def trained(stroke_run):
+    """The tiny stroke model of conftest's ``stroke_run`` (on ``small_omniglot``)."""
+    return stroke_run
 
 
 def test_a_short_training_learns_the_stroke_counts_and_shapes(small_omniglot, trained):
@@ -348,14 +329,6 @@ def test_the_onnx_graph_of_a_stroke_model_reads_as_its_strokes(omni_root, traine
     on = on[np.argsort(order[0, on], kind="stable")]
     pred = predictor.predict(image)
     np.testing.assert_allclose(strokes[0, on], pred.strokes.to_vector(), rtol=1e-4, atol=1e-4)
-
-
-def test_the_web_server_refuses_a_stroke_model_by_name(trained):
-    pytest.importorskip("fastapi")
-    from img2dmp.web.models import load_models
-
-    with pytest.raises(ValueError, match=r"run: a stroke model .* cannot be served"):
-        load_models([trained])
 
 
 def test_the_class_mode_count_share_is_counted_against_the_training_drawers(

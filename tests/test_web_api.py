@@ -162,6 +162,7 @@ def test_model_ids_are_the_run_names_and_unique(runs, tmp_path):
     assert answer["default"] == "net1"
     assert [m["id"] for m in answer["models"]] == ["net1", "net1-2", "net2"]
     assert [m["n_hypotheses"] for m in answer["models"]] == [1, 1, 2]
+    assert {(m["kind"], m["stroke_slots"]) for m in answer["models"]} == {("dmp", None)}
     assert answer["models"][0]["image_size"] == [40, 40]
     assert answer["models"][0]["path"] == str(runs[1])
 

@@ -7,7 +7,9 @@
   flagged prediction gets its one-line note, an unflagged one none; the goal dragged
   moves the path's end, the speed slider halves its duration (the same path), and the
   robot writes the bent DMP and shows its figure near its own size; a model of one
-  hypothesis says in one line that its probability means nothing;
+  hypothesis says in one line that its probability means nothing; a stroke model's
+  two-stroke character is drawn stroke by stroke, its count said, the pen-up travel
+  between the strokes faint and dashed, bending off;
 - Page: a photo of a page chosen on the Page view shows every character's box over its
   ink, the count of characters and lines, writes them one after the other, marks and
   lists the flagged one, and downloads the page document; the arm writes a page of three
@@ -20,9 +22,10 @@
   resolve to 127.0.0.1 (DNS rebinding) gets 400 for itself and for its own requests, a
   page of another origin cannot write, a name given with --allowed-host works.
 
-Everything runs against a server started here on two tiny networks (one epoch each) and a
-tiny MNIST folder. Without ``/usr/bin/chromium`` or the ``playwright`` package the tests
-skip, unless ``IMG2DMP_REQUIRE_BROWSER=1`` (CI), where they fail.
+Everything runs against a server started here on two tiny networks (one epoch each),
+conftest's tiny stroke model and a tiny MNIST folder. Without ``/usr/bin/chromium`` or
+the ``playwright`` package the tests skip, unless ``IMG2DMP_REQUIRE_BROWSER=1`` (CI),
+where they fail.
 """
 
 from __future__ import annotations
@@ -145,14 +148,16 @@ def _get_json(url: str, body: dict | None = None) -> tuple[int, dict]:
 
 
 @pytest.fixture(scope="module")
-def server(work, runs, mnist):
-    """``img2dmp serve`` on a free port: {"url", "data_dir"}; stopped at the end."""
+def server(work, runs, mnist, stroke_run):
+    """``img2dmp serve`` on a free port: {"url", "data_dir", "port", "strokes"} (the id of
+    the third model, conftest's tiny stroke model); stopped at the end."""
     exe = shutil.which("img2dmp", path=str(Path(sys.executable).parent)) or "img2dmp"
     port = _free_port()
     data_dir = work / "recordings"
     cmd = [exe, "serve", "--model", str(runs[2]), "--model", str(runs[1]),
-           "--mnist", str(mnist), "--data-dir", str(data_dir), "--jobs-dir", str(work / "jobs"),
-           "--host", "127.0.0.1", "--port", str(port), "--allowed-host", "lan.test"]  # fmt: skip
+           "--model", str(stroke_run), "--mnist", str(mnist), "--data-dir", str(data_dir),
+           "--jobs-dir", str(work / "jobs"), "--host", "127.0.0.1", "--port", str(port),
+           "--allowed-host", "lan.test"]  # fmt: skip
     log = open(work / "server.log", "wb")
     proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT)
     url = f"http://127.0.0.1:{port}"
@@ -169,7 +174,7 @@ def server(work, runs, mnist):
             if time.monotonic() > deadline:
                 pytest.fail(f"img2dmp serve did not answer within 60 s:\n{_tail(work)}")
             time.sleep(0.2)
-        yield {"url": url, "data_dir": data_dir, "port": port}
+        yield {"url": url, "data_dir": data_dir, "port": port, "strokes": stroke_run.parent.name}
     finally:
         proc.terminate()
         try:
@@ -458,6 +463,61 @@ def test_a_model_of_one_hypothesis_says_its_probability_means_nothing(page, serv
     assert text.startswith("This model proposes one movement per image")
     assert "says nothing about how sure it is" in text and "on ink " in text
     assert len(text.splitlines()) == 1
+
+
+#: A hook and a tick (test_omniglot's odd characters) in fractions of the drawing area.
+HOOK_AND_TICK = [[(0.29, 0.24), (0.29, 0.5), (0.29, 0.76), (0.5, 0.76), (0.71, 0.76)],
+                 [(0.57, 0.38), (0.6, 0.42), (0.63, 0.46)]]  # fmt: skip
+
+#: The alpha of the Draw page's model-frame overlay at points ``[x, y]`` of the model's
+#: input (each a pixel's centre, as the page maps them).
+_ALPHA_AT = """([points, mw, mh]) => {
+  const c = document.getElementById('seen-overlay');
+  const r = c.getBoundingClientRect();
+  const k = c.width / r.width;
+  const s = Math.min(r.width / mw, r.height / mh);
+  const ox = (r.width - mw * s) / 2, oy = (r.height - mh * s) / 2;
+  const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+  return points.map(([x, y]) => {
+    const px = Math.floor((ox + (x + 0.5) * s) * k), py = Math.floor((oy + (y + 0.5) * s) * k);
+    return d[(py * c.width + px) * 4 + 3];
+  });
+}"""
+
+
+def test_a_stroke_model_writes_a_character_stroke_by_stroke_lifting_the_pen(page, server, shots):
+    answers = []
+    page.on(
+        "response",
+        lambda r: answers.append(r) if r.url.endswith("/api/predict") and r.ok else None,
+    )
+    page.goto(server["url"] + "/")
+    page.locator("#model-select").select_option(server["strokes"])
+    _strokes_on(page, "#drawing", HOOK_AND_TICK)
+    assert page.locator("#drawing").get_attribute("data-strokes") == "2"
+    _predicted(page, 1)
+    _wait_played(page)
+    a = answers[-1].json()
+    n, (h,) = a["n_strokes"], a["hypotheses"]
+    assert a["kind"] == "strokes" and n >= 2
+    assert page.locator("#result").get_attribute("data-strokes") == str(n)
+    note = page.locator("#stroke-note").inner_text()
+    assert note.startswith(f"{n} strokes read (this model reads up to 8)")
+    assert page.locator("#bend").is_hidden()
+    assert page.locator("#bend-off").inner_text().startswith("Bending is for one-DMP models")
+    assert page.locator("#download-dmp").inner_text() == "Download strokes"
+    page.screenshot(path=str(shots / "draw-strokes.png"), full_page=True)
+    # as drawn: each stroke opaque at its middle; between two strokes the pen's travel
+    # faint and dashed (drawn in part, gaps between the dashes)
+    xy, size = np.array(h["model"]), a["model_size"]
+    middles = [xy[(s["rows"][0] + s["rows"][1]) // 2].tolist() for s in h["strokes"]]
+    assert min(page.evaluate(_ALPHA_AT, [middles, size[1], size[0]])) >= 250
+    for s, t in zip(h["strokes"][:-1], h["strokes"][1:], strict=True):
+        assert h["pen"][s["rows"][1] + 1] == 0  # the pen is up between them
+        f = np.linspace(0.25, 0.75, 200)[:, None]
+        line = (1 - f) * xy[s["rows"][1]] + f * xy[t["rows"][0]]
+        alpha = np.array(page.evaluate(_ALPHA_AT, [line.tolist(), size[1], size[0]]))
+        assert alpha.max() < 200 and np.mean(alpha > 0) > 0.3 and np.mean(alpha == 0) > 0.1
 
 
 # -- Page ----------------------------------------------------------------------------------

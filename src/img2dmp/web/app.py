@@ -38,7 +38,7 @@ from .bending import BEND_FIELDS, bend_answer
 from .errors import WebError, one_line, show
 from .jobs import JobManager, check_write
 from .models import LoadedModel, load_models, predict_with, prediction_answer
-from .page_jobs import DEFAULT_WIDTH_MM, submit_page
+from .page_jobs import DEFAULT_WIDTH_MM, submit_page, submit_strokes
 from .pages import PAGE_TYPES, PAGE_UPLOAD_MB, PageStore, check_page_type, page_answer, read_photo
 from .recordings import FolderImages, MnistImages, Recordings
 from .strokes import (
@@ -91,9 +91,13 @@ class PredictRequest(_Body):
 
 
 class WriteRequest(_Body):
-    """``POST /api/write``: a DMP document (img2dmp-dmp) for the simulated arm."""
+    """``POST /api/write``: exactly one of a DMP document (img2dmp-dmp) and a stroke
+    model's character (``strokes_page``) for the simulated arm."""
 
-    dmp: dict
+    dmp: dict | None = None
+    strokes_page: dict | None = Field(
+        None, description="a stroke model's character: strokes_page of POST /api/predict"
+    )
     hypothesis: int = Field(1, ge=1)
     video: bool = True
 
@@ -476,7 +480,8 @@ def _predict_routes(app: FastAPI, state: ServerState) -> None:
 
     @app.post("/api/predict")
     def predict(body: PredictRequest) -> Response:
-        """The DMP(s) of a drawn or uploaded digit, ranked, in both frames."""
+        """The DMP(s) of a drawn or uploaded digit, ranked, in both frames; a stroke
+        model's character as its strokes, each a DMP."""
         model = state.model(body.model)
         if (body.strokes is None) == (body.image is None):
             raise WebError(422, "body: give exactly one of strokes (with canvas) and image")
@@ -536,6 +541,7 @@ def _page_routes(app: FastAPI, state: ServerState, max_page_mb: float) -> None:
         """Every handwritten character of a photo of a page, in reading order: the page
         document without the characters' DMPs; ``document`` is the whole one's URL."""
         loaded = state.model(model)
+        loaded.refuse_strokes("reading a page")
         check_page_type(request.headers.get("content-type"))
         raw = await request.body()
         answer = await run_in_threadpool(read, loaded, raw, n_points, name)
@@ -579,11 +585,19 @@ def _image_routes(app: FastAPI, state: ServerState) -> None:
 def _job_routes(app: FastAPI, state: ServerState) -> None:
     @app.post("/api/write", status_code=202)
     def write(body: WriteRequest) -> Response:
-        """Queue a run of the simulated KUKA iiwa writing one hypothesis of a DMP."""
+        """Queue a run of the simulated KUKA iiwa writing one hypothesis of a DMP, or a
+        stroke model's character stroke by stroke."""
         from ..robot import available
 
+        if (body.dmp is None) == (body.strokes_page is None):
+            raise WebError(422, "body: give exactly one of dmp and strokes_page")
         if not available():
             raise WebError(503, "the robot needs pybullet: pip install 'img2dmp[robot]'")
+        if body.strokes_page is not None:
+            if body.hypothesis != 1:
+                raise WebError(422, "hypothesis: a stroke model's character has one (1), "
+                               f"got {body.hypothesis}")  # fmt: skip
+            return _json(submit_strokes(state.jobs, body.strokes_page, body.video), 202)
         doc = check_write(body.dmp, body.hypothesis)
         return _json(state.jobs.submit(doc, body.hypothesis, body.video), 202)
 

@@ -31,9 +31,10 @@ def bend_answer(doc, hypothesis: int, options: dict, n_points: int) -> bytes:
 
     ``options``: the given fields of :data:`BEND_FIELDS` (positions in pixels of the
     document's ``params`` frame). 422 naming the field or value for a document that does
-    not check, a hypothesis it does not have, or a bend the DMP cannot take.
+    not check (or is a stroke model's character), a hypothesis it does not have, or a
+    bend the DMP cannot take.
     """
-    f = read_document(doc, hypothesis)
+    f = read_document(doc, hypothesis, "bending is for one-DMP models")
     config, source = f.config, f.document
     try:
         bent = bend_dmp(f.hypothesis(hypothesis), config, **options)

@@ -33,6 +33,7 @@ from pathlib import Path
 from .._files import atomic_write_text
 from .._processes import children_ignore_interrupts
 from ..data.dmpfile import FORMAT, VERSION, DMPFile, check_dmp_document, write_dmp_document
+from ..predict import STROKES_FORMAT
 from .errors import WebError, one_line, show
 
 #: The outputs of a job, by the key of ``files`` in ``GET /api/jobs/{id}``.
@@ -128,10 +129,20 @@ def check_write(doc, hypothesis) -> dict:
     return read_document(doc, hypothesis).document
 
 
-def read_document(doc, hypothesis) -> DMPFile:
-    """:func:`check_write`'s check; the document read (its ``document``: version 2)."""
+#: What ``POST /api/write`` says of a stroke model's document sent as ``dmp``.
+STROKES_ADVICE = ("the arm writes a stroke model's character from strokes_page (the page "
+                  "document of its strokes, in POST /api/predict's answer)")  # fmt: skip
+
+
+def read_document(doc, hypothesis, strokes_advice: str = STROKES_ADVICE) -> DMPFile:
+    """:func:`check_write`'s check; the document read (its ``document``: version 2). A
+    stroke model's document (``img2dmp-strokes``: several DMPs) is refused with
+    ``strokes_advice``."""
     if not isinstance(doc, dict):
         raise WebError(422, f"dmp: must be a DMP document (a JSON object), got {show(doc)}")
+    if doc.get("format") == STROKES_FORMAT:
+        raise WebError(422, f"dmp: is a stroke model's character ({STROKES_FORMAT}: a DMP "
+                       f"per stroke), not one DMP; {strokes_advice}")  # fmt: skip
     if "format" not in doc and "version" not in doc:
         doc = {"format": FORMAT, "version": VERSION, **doc}
     try:

@@ -2,7 +2,10 @@
 
 A model's id is its run directory's name, or the parent's name for a folder called
 ``run`` (``out/demo/run`` is ``demo``); a second model of the same name gets ``-2``.
-:func:`prediction_answer` is the JSON body of ``POST /api/predict`` (docs/WEB.md).
+:func:`prediction_answer` is the JSON body of ``POST /api/predict`` (docs/WEB.md): a
+one-DMP model's K ranked hypotheses, or a stroke model's character (one hypothesis, the
+whole path with the pen lifted between strokes, and each stroke's DMP:
+:class:`~img2dmp.predict.StrokePrediction`).
 """
 
 from __future__ import annotations
@@ -17,7 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from ..data.dmpfile import TRAJECTORY_DECIMALS
-from ..predict import Prediction, Predictor, load_model
+from ..predict import Prediction, Predictor, StrokePrediction, load_model
+from .errors import WebError
 from .strokes import grey_png
 
 
@@ -41,14 +45,35 @@ class LoadedModel:
     predictor: Predictor
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
+    @property
+    def stroke_slots(self) -> int | None:
+        """S, the strokes a stroke model can read in a character; None for a one-DMP
+        model."""
+        strokes = getattr(self.predictor, "strokes", None)
+        return None if strokes is None else int(strokes.slots)
+
     def describe(self) -> dict:
-        """The model's entry in ``GET /api/models``."""
+        """The model's entry in ``GET /api/models``: ``kind`` ``"dmp"`` (one DMP per
+        hypothesis) or ``"strokes"`` (a character as up to ``stroke_slots`` DMPs)."""
+        slots = self.stroke_slots
         return {
             "id": self.id,
             "path": self.path,
+            "kind": "dmp" if slots is None else "strokes",
+            "stroke_slots": slots,
             "n_hypotheses": self.predictor.n_hypotheses,
             "image_size": list(self.predictor.image_size),
         }
+
+    def refuse_strokes(self, what: str) -> None:
+        """422 naming this model when it is a stroke model: ``what`` (e.g. "reading a
+        page") is for one-DMP models."""
+        if self.stroke_slots is not None:
+            raise WebError(
+                422,
+                f"model {self.id}: {what} is for one-DMP models; {self.id} is a stroke "
+                f"model (a character as up to {self.stroke_slots} DMPs)",
+            )
 
 
 def model_id(path: str | os.PathLike) -> str:
@@ -67,8 +92,7 @@ def load_models(sources, refine: int | None = None) -> dict[str, LoadedModel]:
     recommends, 0 for a run directory, :func:`img2dmp.predict.load_model`).
 
     Raises ``FileNotFoundError`` or ``ValueError`` (from :func:`img2dmp.predict.load_model`)
-    naming a path that holds no model, and ``ValueError`` for a stroke model (a character
-    as several DMPs: the front end draws, bends and writes one DMP per hypothesis).
+    naming a path that holds no model.
     """
     models: dict[str, LoadedModel] = {}
     for source in sources:
@@ -78,12 +102,6 @@ def load_models(sources, refine: int | None = None) -> dict[str, LoadedModel]:
         else:
             name, path = model_id(source), os.fspath(source)
             predictor = load_model(source, refine=refine)
-        if getattr(predictor, "strokes", None) is not None:
-            raise ValueError(
-                f"{path}: a stroke model (a character as up to {predictor.strokes.slots} "
-                "DMPs) cannot be served: the browser front end shows one DMP per "
-                "hypothesis; use img2dmp predict or write with it"
-            )
         unique, n = name, 1
         while unique in models:
             n += 1
@@ -132,19 +150,39 @@ def _hypotheses(pred: Prediction) -> list[dict]:
     ]
 
 
+def _stroke_hypotheses(pred: StrokePrediction, document: dict) -> list[dict]:
+    """A stroke model's one "hypothesis": the character's whole path (pen 1 on the
+    strokes, 0 on the travel between) and ``"strokes"``, each stroke's entry of the
+    stroke document (``index``, ``presence``, ``t_start_s``, ``params``,
+    ``params_image``) with its ``tau_s`` and ``rows``, its first and last sample in the
+    path."""
+    entry = hypothesis_entry(1, 1.0, pred.times[-1], pred.times, pred.path_model[0],
+                             pred.path_image[0])  # fmt: skip
+    rows = [pred.stroke_rows(j) for j in range(pred.n_strokes)]
+    entry["strokes"] = [
+        {**s, "tau_s": float(pred.strokes.tau[j]), "rows": [r.start, r.stop - 1]}
+        for j, (s, r) in enumerate(zip(document["strokes"], rows, strict=True))
+    ]
+    return [entry]
+
+
 def warm_up(model: LoadedModel) -> None:
-    """One prediction of a drawn "1" and one page of two, so that the first request does
-    not pay for the caches (numba's compiled rollout, the DMP response table, the page
-    reading's first run)."""
+    """One prediction of a drawn "1" and (but for a stroke model, which reads no pages)
+    one page of two, so that the first request does not pay for the caches (numba's
+    compiled rollout, the DMP response table, the page reading's first run)."""
     image = np.full((64, 64), 255, np.uint8)
     image[12:52, 29:35] = 0
     predict_with(model, image, 100, "warm-up")
+    if model.stroke_slots is not None:
+        return
     with model.lock:
         model.predictor.predict_page(np.tile(image, (1, 2)), name="warm-up page")
 
 
-def predict_with(model: LoadedModel, image, n_points: int, name: str) -> Prediction:
-    """``model``'s prediction for ``image`` (array or PIL image), one at a time per model.
+def predict_with(model: LoadedModel, image, n_points: int,
+                 name: str) -> Prediction | StrokePrediction:  # fmt: skip
+    """``model``'s prediction for ``image`` (array or PIL image), one at a time per model
+    (a stroke model's: ``n_points`` samples per stroke).
 
     Raises ``ValueError`` for an image the library refuses (e.g. one without ink).
     """
@@ -152,20 +190,28 @@ def predict_with(model: LoadedModel, image, n_points: int, name: str) -> Predict
         return model.predictor.predict(image, n_points=n_points, name=name)
 
 
-def prediction_answer(model: LoadedModel, pred: Prediction, elapsed_ms: float) -> bytes:
-    """The JSON body of ``POST /api/predict`` for one prediction (docs/WEB.md)."""
+def prediction_answer(model: LoadedModel, pred: Prediction | StrokePrediction,
+                      elapsed_ms: float) -> bytes:  # fmt: skip
+    """The JSON body of ``POST /api/predict`` for one prediction (docs/WEB.md); a stroke
+    model's adds ``n_strokes`` and ``strokes_page``, the page document of its strokes
+    that ``POST /api/write`` takes (:meth:`StrokePrediction.to_page_document`)."""
+    document = pred.to_document()
+    strokes = isinstance(pred, StrokePrediction)
     answer = {
         "model": model.id,
+        "kind": "strokes" if strokes else "dmp",
         "elapsed_ms": round(float(elapsed_ms), 3),
         "model_size": list(pred.frame.model_size),
         "image_size": list(pred.frame.image_size),
         "input_image": png_data_url(pred.image),
-        "hypotheses": _hypotheses(pred),
+        "hypotheses": _stroke_hypotheses(pred, document) if strokes else _hypotheses(pred),
         "fit": dict(pred.fit),
         "flags": list(pred.flags),
-        "dmp": pred.to_document(),
+        "dmp": document,
         "csv": pred.trajectory_csv(),
     }
+    if strokes:
+        answer.update(n_strokes=pred.n_strokes, strokes_page=pred.to_page_document())
     return json.dumps(answer, allow_nan=False, separators=(",", ":")).encode("utf-8")
 
 

@@ -19,6 +19,10 @@ a frame costs about 0.09 s to render and 0.03 s to encode (AMD EPYC, 2 cores sha
 and 0.5 MB of memory until the GIF is written, so a page of a few minutes kept every
 0.1 s, as one DMP's video is, would take longer to film than to write and hold
 gigabytes.
+
+A stroke model's character is written the same way (``POST /api/write`` with
+``strokes_page``, :func:`submit_strokes`): its strokes as a page of one line, as
+``img2dmp write IMAGE --model STROKE_MODEL`` writes them.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ import math
 from pathlib import Path, PurePath
 
 from .._files import atomic_write_text
-from ..robot.page import DEFAULT_WIDTH_MM
+from ..robot.page import DEFAULT_WIDTH_MM, TRAVEL_HEIGHT_M
 from .errors import WebError
 from .jobs import (
     BEGUN,
@@ -46,6 +50,9 @@ PAGE_FILES = {**JOB_FILES, "characters": "characters.csv"}
 #: Most frames of a page's video (a 12 s time lapse); a longer page is kept at longer
 #: intervals.
 MAX_PAGE_FRAMES = 120
+#: A stroke model's pen between two strokes of a character: this far above the
+#: controller's lift height, as ``img2dmp write`` lifts it (its ``STROKE_LIFT_M``).
+STROKE_LIFT_M = 0.004
 #: The page's totals in the job's answer (:func:`img2dmp.robot.page.page_metrics` and
 #: the run's), those of the first lines of ``img2dmp write --page``.
 _TOTALS = (
@@ -56,34 +63,73 @@ _TOTALS = (
 )  # fmt: skip
 
 
-def plan_page_job(text: str, filename: str, width_mm: float, skip_flagged: bool) -> tuple:
+def plan_page_job(text: str, filename: str, width_mm: float, skip_flagged: bool,
+                  travel_height_m: float = TRAVEL_HEIGHT_M) -> tuple:  # fmt: skip
     """The indices of the characters a job of this page document (its JSON ``text``, named
     ``filename``) writes, in order, from its layout at ``width_mm``; 422 with the
     library's one line when it cannot be written (e.g. it does not fit the sheet)."""
     try:
-        plan = _plan(json.loads(text), filename, width_mm, skip_flagged)
+        plan = _plan(json.loads(text), filename, width_mm, skip_flagged, travel_height_m)
     except ValueError as e:
         raise WebError(422, str(e)) from None
     return tuple(cp.character.index for cp in plan.characters)
 
 
-def _plan(doc: dict, filename: str, width_mm: float, skip_flagged: bool):
+def _plan(doc: dict, filename: str, width_mm: float, skip_flagged: bool,
+          travel_height_m: float = TRAVEL_HEIGHT_M):  # fmt: skip
     from ..robot import WritingOptions, check_page_document, plan_page
 
     page = check_page_document(doc, filename)
     options = WritingOptions(control_rate_hz=CONTROL_RATE_HZ, render_size_px=None)
-    return plan_page(page, options, width_mm=width_mm, skip_flagged=skip_flagged)
+    return plan_page(page, options, width_mm=width_mm, skip_flagged=skip_flagged,
+                     travel_height_m=travel_height_m)  # fmt: skip
 
 
 def submit_page(jobs, pages, page_id: str, width_mm: float, skip_flagged: bool, video: bool):
     """Queue the arm writing page ``page_id`` of ``pages`` (404 if not kept) with the
     ``jobs`` manager; the job's state."""
     text, filename = pages.document(page_id)
-    characters = plan_page_job(text, filename, width_mm, skip_flagged)
     options = {"filename": filename, "width_mm": float(width_mm),
                "skip_flagged": bool(skip_flagged), "video": bool(video)}  # fmt: skip
+    return _submit(jobs, "page", text, options)
+
+
+def submit_strokes(jobs, doc, video: bool) -> dict:
+    """Queue the arm writing a stroke model's character with the ``jobs`` manager: ``doc``
+    is the page document of its strokes (a prediction's ``strokes_page``,
+    :meth:`~img2dmp.predict.StrokePrediction.to_page_document`), written as ``img2dmp
+    write`` writes it: each stroke pen down, the pen lifted :data:`STROKE_LIFT_M` above
+    the lift height between them, the model's frame ``writing_height_mm`` (40 mm) high.
+    The job's state; 422 with the library's line for a document that does not check or
+    cannot be written."""
+    from ..robot import WritingOptions, check_page_document
+
+    try:
+        text = json.dumps(doc, allow_nan=False)
+        page = check_page_document(json.loads(text), "strokes_page")
+    except ValueError as e:
+        raise WebError(422, str(e)) from None
+    x0, _, x1, _ = page.written_area_px
+    writing = WritingOptions()
+    options = {
+        "filename": "character.json",
+        "width_mm": writing.writing_height_mm * (x1 - x0) / page.image_size_px[1],
+        "skip_flagged": False,
+        "video": bool(video),
+        "travel_height_m": writing.controller_config.lift_height_m + STROKE_LIFT_M,
+        "noun": "stroke",
+    }
+    return _submit(jobs, "strokes", text, options)
+
+
+def _submit(jobs, kind: str, text: str, options: dict) -> dict:
+    """Queue a job of ``kind`` writing the page document ``text`` as ``options`` (those of
+    :func:`run_page_job`) say, planned first (422 if it cannot be written); its state."""
+    travel_m = options.get("travel_height_m", TRAVEL_HEIGHT_M)
+    characters = plan_page_job(text, options["filename"], options["width_mm"],
+                               options["skip_flagged"], travel_m)  # fmt: skip
     return jobs.submit_job(
-        "page",
+        kind,
         run_page_job,
         options,
         PAGE_FILES,
@@ -94,8 +140,10 @@ def submit_page(jobs, pages, page_id: str, width_mm: float, skip_flagged: bool, 
 
 def run_page_job(job_dir: str, options: dict, report) -> None:
     """The process of a page's job: write ``job_dir/page.json`` with the arm
-    (:func:`run_in_job_dir`). ``report[SHARE]``: the progress (0-1); ``report[BEGUN]``:
-    the characters begun."""
+    (:func:`run_in_job_dir`) as ``options`` say: ``filename``, ``width_mm``,
+    ``skip_flagged``, ``video`` and, for a stroke model's character, ``travel_height_m``
+    and ``noun`` (``"stroke"``: what the summary calls its entries). ``report[SHARE]``:
+    the progress (0-1); ``report[BEGUN]``: the characters begun."""
     run_in_job_dir(job_dir, lambda d: _write_page(d, options, report))
 
 
@@ -104,7 +152,8 @@ def _write_page(d: Path, options: dict, report) -> dict:
 
     doc = json.loads((d / "page.json").read_text(encoding="utf-8"))
     filename, name = options["filename"], PurePath(options["filename"]).stem
-    plan = _plan(doc, filename, options["width_mm"], options["skip_flagged"])
+    travel_m, noun = options.get("travel_height_m", TRAVEL_HEIGHT_M), options.get("noun")
+    plan = _plan(doc, filename, options["width_mm"], options["skip_flagged"], travel_m)
     expected = max(1, plan.estimated_steps())
     interval_s = _frame_interval_s(expected / CONTROL_RATE_HZ) if options["video"] else None
     plan = dataclasses.replace(
@@ -112,10 +161,12 @@ def _write_page(d: Path, options: dict, report) -> dict:
     )
     result = _run(plan, expected, report)
     report[SHARE] = SIMULATION_SHARE
-    _save_outputs(result, d, name, video=interval_s is not None)
+    what = "a page" if noun is None else f"{len(plan.characters)} {noun}s"
+    _save_outputs(result, d, f"{name}: KUKA iiwa writes {what}", video=interval_s is not None)
     report[SHARE] = 1.0
     speed = None if interval_s is None else interval_s / FRAME_INTERVAL_S
-    return {"summary": page_summary_lines(name, result), "page": page_measures(result, speed)}
+    lines = page_summary_lines(name, result, noun or "character")
+    return {"summary": lines, "page": page_measures(result, speed)}
 
 
 def _run(plan, expected_steps: int, report):
@@ -134,10 +185,10 @@ def _run(plan, expected_steps: int, report):
     return write_page_plan(plan, progress=advance, on_character=begin)
 
 
-def _save_outputs(result, d: Path, name: str, video: bool) -> None:
+def _save_outputs(result, d: Path, title: str, video: bool) -> None:
     from ..robot import plot_page, save_characters_csv, save_log_csv, save_video
 
-    plot_page(result, d / PAGE_FILES["paper"], title=f"{name}: KUKA iiwa writes a page")
+    plot_page(result, d / PAGE_FILES["paper"], title=title)
     save_characters_csv(result, d / PAGE_FILES["characters"])
     save_log_csv(result, d / PAGE_FILES["log"])
     if video:
@@ -185,8 +236,10 @@ __all__ = [
     "DEFAULT_WIDTH_MM",
     "MAX_PAGE_FRAMES",
     "PAGE_FILES",
+    "STROKE_LIFT_M",
     "page_measures",
     "plan_page_job",
     "run_page_job",
     "submit_page",
+    "submit_strokes",
 ]

@@ -197,7 +197,8 @@ export function initHeader(page, errorBox, { switcher = true } = {}) {
       select.replaceChildren(
         ...state.models.map((m) => {
           const hyp = m.n_hypotheses > 1 ? `, ${m.n_hypotheses} hypotheses` : "";
-          return el("option", { value: m.id }, `${m.id}${hyp}`);
+          const kind = m.kind === "strokes" ? `, strokes (up to ${m.stroke_slots})` : "";
+          return el("option", { value: m.id }, `${m.id}${hyp}${kind}`);
         }),
       );
       select.value = state.current || "";

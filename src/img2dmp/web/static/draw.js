@@ -1,5 +1,6 @@
 // The Draw page: draw (or drop) a digit, predict its DMP, watch it written, download it,
-// have the simulated robot write it.
+// have the simulated robot write it. A stroke model's character is played stroke by
+// stroke (the pen-up travel between them dashed and faint); it cannot be bent.
 import {
   api, ApiError, capture, downloadText, el, fitCanvas, flagText, initHeader, showError,
   showJobState, showMessage,
@@ -16,6 +17,8 @@ const COLORS = {
 };
 // Dragging the goal starts within this many CSS pixels of its marker.
 const GOAL_GRAB_PX = 22;
+// The pen-up travel (between a stroke model's strokes): dashed, thin and this faint.
+const PEN_UP_ALPHA = 0.5;
 
 const $ = (id) => document.getElementById(id);
 const ui = {
@@ -25,7 +28,8 @@ const ui = {
   seenOverlay: $("seen-overlay"), seenEmpty: $("seen-empty"), meta: $("result-meta"),
   fitNote: $("fit-note"), confNote: $("confidence-note"), bend: $("bend"), speed: $("speed"),
   speedValue: $("speed-value"), bendReset: $("bend-reset"), bendMeta: $("bend-meta"),
-  bendError: $("bend-error"),
+  bendError: $("bend-error"), bendOff: $("bend-off"), strokeNote: $("stroke-note"),
+  robotHint: $("robot-hint"),
   hyps: $("hypotheses"), replay: $("replay"), dlDmp: $("download-dmp"),
   dlCsv: $("download-csv"), write: $("write"), job: $("job"), jobProgress: $("job-progress"),
   jobStatus: $("job-status"), robotError: $("robot-error"), jobResult: $("job-result"),
@@ -255,6 +259,7 @@ function showAnswer(answer) {
     `answered in ${Math.round(answer.elapsed_ms)}\u00a0ms`;
   showFlags(answer);
   showConfidence(answer);
+  showStrokes(answer);
   if (state.job === null) {  // the last run wrote the previous drawing: not this one
     resetJobView();
     ui.job.hidden = true;
@@ -262,9 +267,48 @@ function showAnswer(answer) {
   renderHypotheses();
   for (const b of [ui.replay, ui.dlDmp, ui.dlCsv, ui.write]) b.disabled = false;
   ui.write.disabled = state.job !== null;
-  ui.bend.hidden = false;
-  ui.seenOverlay.classList.add("bendable");
+  ui.bend.hidden = isStrokes();
+  ui.seenOverlay.classList.toggle("bendable", !isStrokes());
   animate();
+}
+
+/** Whether the answer shown is a stroke model's: a character as several DMPs. */
+function isStrokes() {
+  return Boolean(state.answer && state.answer.kind === "strokes");
+}
+
+/**
+ * A stroke model's answer: how many strokes it read and how sure it is of each; why
+ * bending is off; what the robot and the download do with it. A one-DMP model's: none.
+ */
+function showStrokes(answer) {
+  const strokes = answer.kind === "strokes" ? answer.hypotheses[0].strokes : null;
+  ui.result.dataset.strokes = strokes ? String(strokes.length) : "";
+  ui.strokeNote.hidden = !strokes;
+  ui.bendOff.hidden = !strokes;
+  ui.dlDmp.textContent = strokes ? "Download strokes" : "Download DMP";
+  ui.robotHint.textContent = strokes
+    ? "A simulated KUKA iiwa arm writes the character stroke by stroke on paper, lifting " +
+      "the pen between strokes; this takes a few seconds."
+    : "A simulated KUKA iiwa arm writes the movement shown (the selected hypothesis, bent " +
+      "if you bent it) on paper; this takes a few seconds.";
+  if (!strokes) return;
+  const n = strokes.length;
+  const sure = strokes.map((s) => `${Math.round(100 * s.presence)}\u00a0%`).join(", ");
+  const order = n > 1
+    ? ", written in the order numbered, the pen lifted between them (dashed)" : "";
+  ui.strokeNote.textContent =
+    `${n} stroke${n === 1 ? "" : "s"} read (this model reads up to ` +
+    `${modelSlots(answer.model)})${order}; how sure it is of each: ${sure}.`;
+  ui.bendOff.textContent =
+    `Bending is for one-DMP models: ${answer.model} is a stroke model, whose character is ` +
+    `${n} DMP${n === 1 ? "" : "s"}, one per stroke.`;
+}
+
+/** The stroke slots of a served model ("?" if the list does not say). */
+function modelSlots(id) {
+  const m = models.info();
+  return m && m.id === id && m.stroke_slots ? String(m.stroke_slots) : "?";
 }
 
 /** One line when the model has one hypothesis: its probability (always 1) means nothing. */
@@ -276,8 +320,9 @@ function showConfidence(answer) {
   const pct = (v) => `${Math.round(100 * v)} %`;
   const how = Number.isFinite(fit.path_on_ink) && Number.isFinite(fit.ink_written)
     ? `: on ink ${pct(fit.path_on_ink)}, ink written ${pct(fit.ink_written)}` : "";
+  const what = answer.kind === "strokes" ? "one reading of the character" : "one movement";
   ui.confNote.textContent =
-    "This model proposes one movement per image, so its probability is always 100 % " +
+    `This model proposes ${what} per image, so its probability is always 100 % ` +
     `and says nothing about how sure it is; how well the path covers the ink does${how}.`;
 }
 
@@ -352,12 +397,14 @@ function drawPath(ctx, pts, pen, k, style) {
     const down = isDown(i);
     ctx.lineWidth = down ? style.width : Math.max(1, style.width / 2);
     ctx.setLineDash(down ? [] : [4, 4]);
+    ctx.globalAlpha = down ? 1 : PEN_UP_ALPHA;
     ctx.beginPath();
     ctx.moveTo(pts[i - 1][0], pts[i - 1][1]);
     for (; i <= last && isDown(i) === down; i++) ctx.lineTo(pts[i][0], pts[i][1]);
     ctx.stroke();
   }
   ctx.setLineDash([]);
+  ctx.globalAlpha = 1;
   if (!style.markers || pts.length === 0) return;
   drawArrow(ctx, pts, style);
   ctx.fillStyle = COLORS.start;
@@ -419,7 +466,8 @@ function drawFrame(k) {
   const bold = state.selected === 0 ? 4 : 2.5;
   drawPath(seen.ctx, mapPoints(sel.model, mm), sel.pen, k,
     { color: COLORS.traj, width: bold, markers: true });
-  drawGoal(seen.ctx, mapPoints([goal()], mm)[0]);
+  if (sel.strokes) drawStrokeNumbers(seen.ctx, mapPoints(sel.model, mm), sel.strokes, k);
+  else drawGoal(seen.ctx, mapPoints([goal()], mm)[0]);
   const end = sel.model[sel.model.length - 1];
   ui.result.dataset.end = `${end[0].toFixed(3)},${end[1].toFixed(3)}`;
   ui.result.dataset.tau = String(sel.tau_s);
@@ -429,6 +477,29 @@ function drawFrame(k) {
   const im = fitFrame(drawn.width, drawn.height, ih, iw);
   drawPath(drawn.ctx, mapPoints(sel.image, im), sel.pen, k,
     { color: COLORS.traj, width: bold - 1, markers: true });
+  if (sel.strokes) drawStrokeNumbers(drawn.ctx, mapPoints(sel.image, im), sel.strokes, k);
+}
+
+/** Each stroke begun by sample k: a dot where it starts (after the first) and its number. */
+function drawStrokeNumbers(ctx, pts, strokes, k) {
+  ctx.font = "bold 13px system-ui, sans-serif";
+  ctx.textBaseline = "bottom";
+  strokes.forEach((s, j) => {
+    const first = s.rows[0];
+    if (first > k || first >= pts.length) return;
+    const [x, y] = pts[first];
+    if (j > 0) {
+      ctx.fillStyle = COLORS.start;
+      ctx.beginPath();
+      ctx.arc(x, y, 4, 0, 2 * Math.PI);
+      ctx.fill();
+    }
+    ctx.lineWidth = 3;
+    ctx.strokeStyle = "#fff";
+    ctx.strokeText(String(j + 1), x + 7, y - 4);
+    ctx.fillStyle = COLORS.start;
+    ctx.fillText(String(j + 1), x + 7, y - 4);
+  });
 }
 
 /** The goal's marker: a ring where the movement is drawn to (the DMP's g). */
@@ -523,7 +594,7 @@ function resetBend() {
  * One request at a time: what is asked meanwhile is sent when it is back.
  */
 async function bend({ play }) {
-  if (!state.answer) return;
+  if (!state.answer || isStrokes()) return;
   if (state.goal === null && ui.speed.value === "0") {
     state.bent = null;
     showBent();
@@ -611,7 +682,8 @@ function nearGoal(e) {
 }
 
 function onGoalDown(e) {
-  if (!state.answer || (e.pointerType === "mouse" && e.button !== 0) || !nearGoal(e)) return;
+  if (!state.answer || isStrokes()) return;
+  if ((e.pointerType === "mouse" && e.button !== 0) || !nearGoal(e)) return;
   e.preventDefault();
   capture(ui.seenOverlay, e);
   cancelAnimationFrame(state.raf);
@@ -620,7 +692,7 @@ function onGoalDown(e) {
 }
 
 function onGoalMove(e) {
-  if (!state.answer) return;
+  if (!state.answer || isStrokes()) return;
   if (state.drag !== e.pointerId) {
     ui.seenOverlay.style.cursor = nearGoal(e) ? "grab" : "";
     return;
@@ -655,10 +727,11 @@ async function writeWithRobot() {
   resetJobView();
   ui.write.disabled = true;
   const { dmp, rank } = shownDocument();
+  const body = isStrokes()
+    ? { strokes_page: state.answer.strokes_page, video: true }
+    : { dmp, hypothesis: rank, video: true };
   try {
-    const job = await api("/api/write", {
-      method: "POST", body: { dmp, hypothesis: rank, video: true },
-    });
+    const job = await api("/api/write", { method: "POST", body });
     state.job = job.id;
     showJob(job);
     pollJob(job.id);
@@ -730,7 +803,8 @@ function download(kind) {
   if (!state.answer) return;
   const name = state.bent ? `${state.name}-bent` : state.name;
   if (kind === "dmp") {
-    downloadText(`${JSON.stringify(shownDocument().dmp, null, 1)}\n`, `${name}.dmp.json`);
+    const suffix = isStrokes() ? "strokes" : "dmp";
+    downloadText(`${JSON.stringify(shownDocument().dmp, null, 1)}\n`, `${name}.${suffix}.json`);
   } else {
     downloadText((state.bent || state.answer).csv, `${name}.csv`, "text/csv");
   }
