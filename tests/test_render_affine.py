@@ -12,6 +12,7 @@ from img2dmp.data.affine import (
     affine_matrix,
     sample_affine,
     warp_images,
+    warp_images_numpy,
     warp_points,
 )
 from img2dmp.data.render import gaussian_filter, render_paths, salt_and_pepper
@@ -211,3 +212,16 @@ def test_warp_points_passes_the_pen_channel_through():
     np.testing.assert_allclose(warp_points(pts, m), [[[2.0, 3.0, 1.0], [4.0, 5.0, 0.0]]])
     with pytest.raises(ValueError, match="batch shape"):
         warp_points(pts, np.zeros((3, 2, 3)))
+
+
+def test_the_numpy_warp_is_the_torch_warp():
+    rng = np.random.default_rng(5)
+    images = rng.random((4, 40, 30)).astype(np.float32)
+    m = sample_affine(rng, 4, (40, 30), AffineRanges(translation_rel=(-0.5, 0.5)))
+    np.testing.assert_allclose(warp_images_numpy(images, m), warp_images(images, m).numpy(),
+                               atol=1e-5)  # fmt: skip
+    one = m[0]  # one matrix for a batch, and a single image
+    np.testing.assert_allclose(warp_images_numpy(images[0], one),
+                               warp_images(images[0], one).numpy(), atol=1e-5)  # fmt: skip
+    with pytest.raises(ValueError, match="affine matrix must have shape"):
+        warp_images_numpy(images, np.eye(3))

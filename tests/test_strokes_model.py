@@ -24,8 +24,11 @@ from img2dmp.nn.strokes import (
     StrokeCost,
     StrokeLayout,
     character_paths,
+    count_probabilities,
+    count_views,
     fit_stroke_normaliser,
     fit_stroke_vectors,
+    ink_pieces,
     pen_spans,
     read_strokes,
     refine_strokes,
@@ -33,6 +36,7 @@ from img2dmp.nn.strokes import (
     stroke_targets,
 )
 from img2dmp.training.config import load_config
+from img2dmp.training.data import count_targets
 
 
 def _path(strokes: list[np.ndarray], gap: int = 3) -> tuple[np.ndarray, np.ndarray]:
@@ -155,6 +159,84 @@ def test_a_character_is_its_strokes_in_key_order_with_straight_pen_up_travel():
     assert len(read_strokes(out_two, lay, 1)[0][0]) == 2  # the count decides
 
 
+def test_the_count_is_read_from_given_probabilities_and_never_below_the_ink_pieces():
+    lay, norm, vectors, _ = _setting([BAR, DOT, ARC])
+    out = _output(lay, norm, vectors, [1, 2, 0], 2, keys=[0.1, 0.5, 0.9]).numpy()
+    assert len(read_strokes(out, lay, 1)[0][0]) == 2  # the outputs' own count
+    probs = np.zeros((1, 1, lay.slots))
+    probs[0, 0, 2] = 0.6  # averaged views say 3
+    assert len(read_strokes(out, lay, 1, count_probs=probs)[0][0]) == 3
+    # three pieces of ink cannot be two strokes: the likeliest count of at least 3
+    assert len(read_strokes(out, lay, 1, min_counts=[3])[0][0]) == 3
+    assert len(read_strokes(out, lay, 1, min_counts=[40])[0][0]) == lay.slots  # capped at S
+
+
+def test_ink_pieces_count_unbroken_lines_and_leave_single_specks_out():
+    image = np.zeros((3, 40, 40))
+    image[0, 10, 5:30] = 1.0  # a bar
+    image[0, 12:30, 20] = 0.8  # a stroke below it, not touching
+    image[0, 35, 35] = 1.0  # a speck of one pixel
+    image[1, 10, 5:30] = 1.0
+    image[1, 11:30, 20] = 0.8  # touching the bar: one piece
+    image[2, 20:22, 20:22] = 0.4  # too faint
+    assert ink_pieces(image).tolist() == [2, 1, 0]
+
+
+def test_count_views_are_small_fixed_affine_copies():
+    rng = np.random.default_rng(3)
+    x = rng.random((2, 40, 40)).astype(np.float32)
+    views = count_views(x, 5)
+    assert views.shape == (4, 2, 40, 40) and views.dtype == np.float32
+    np.testing.assert_array_equal(views, count_views(x, 5))  # the same views every call
+    assert count_views(x, 1).shape == (0, 2, 40, 40)
+    moved = np.abs(views - x[None]).mean((1, 2, 3))
+    assert (moved > 0.01).all() and (moved < 0.5).all()  # moved, a little
+
+
+def test_count_probabilities_average_the_views_softmax():
+    a = np.array([[[[0.0, 2.0]]], [[[2.0, 0.0]]]])  # two views [V, B, K, S] that disagree
+    np.testing.assert_allclose(count_probabilities(a), [[[0.5, 0.5]]])
+    one = count_probabilities(a[0])
+    np.testing.assert_allclose(one.sum(-1), 1.0)
+    assert one[0, 0, 1] > 0.85
+
+
+class _Drawings:
+    """What count_targets reads of a data set: labels and each row's strokes."""
+
+    def __init__(self, labels, counts):
+        self.labels, self.counts = np.asarray(labels), counts
+
+    def stroke_spans(self, row):
+        return [(2 * j, 2 * j + 1) for j in range(self.counts[row])]
+
+
+def test_the_count_target_mixes_a_drawing_s_count_with_its_class_s_among_training_rows():
+    a = _Drawings([0, 0, 0, 0, 1, 2], [2, 2, 3, 9, 1, 4])
+    train = np.array([0, 1, 2, 4])
+    own = count_targets(a, np.arange(6), train, slots=4, class_weight=0.0).numpy()
+    np.testing.assert_array_equal(own.argmax(1), [1, 1, 2, 3, 0, 3])  # 9 strokes count as S
+    np.testing.assert_array_equal(own.sum(1), 1.0)
+    mixed = count_targets(a, np.array([2, 3, 5]), train, slots=4, class_weight=0.5).numpy()
+    class0 = np.array([0, 2, 1, 0]) / 3  # class 0's training rows: 2, 2 and 3 strokes
+    np.testing.assert_allclose(mixed[0], 0.5 * np.eye(4)[2] + 0.5 * class0, atol=1e-7)
+    np.testing.assert_allclose(mixed[1], 0.5 * np.eye(4)[3] + 0.5 * class0, atol=1e-7)
+    np.testing.assert_allclose(mixed[2], np.eye(4)[3])  # class 2 has no training row
+
+
+def test_a_one_count_target_is_the_count_s_own_cross_entropy_and_a_class_s_pulls_its_mode():
+    lay, norm, vectors, (target, present, duration, n) = _setting([BAR, ARC])
+    cost = StrokeCost(lay, norm, count_weight=1.0)
+    logits = torch.randn(1, 1, lay.slots, dtype=torch.float64, requires_grad=True)
+    hard = cost._count_ce(logits, n)
+    onehot = torch.nn.functional.one_hot(n.clamp(1, lay.slots) - 1, lay.slots).double()
+    torch.testing.assert_close(cost._count_ce(logits, n, onehot), hard)
+    soft = torch.zeros(1, lay.slots, dtype=torch.float64)
+    soft[0, 2] = 1.0  # the class's drawers mostly drew 3 strokes
+    cost._count_ce(logits, n, soft).sum().backward()
+    assert logits.grad[0, 0, 2] < 0  # a step raises the count 3
+
+
 def test_refinement_pulls_a_shifted_stroke_back_onto_its_ink():
     lay, norm, vectors, _ = _setting([BAR, ARC], slots=2)
     image = np.zeros((40, 40))
@@ -182,6 +264,7 @@ def test_refinement_pulls_a_shifted_stroke_back_onto_its_ink():
         ("strokes.slots=40", "strokes.slots must be an integer from 1 to 32"),
         ("strokes.matching=greedy", "strokes.matching must be one of"),
         ("strokes.presence_weight=-1", "strokes.presence_weight"),
+        ("strokes.count_class_weight=1.5", "strokes.count_class_weight must be a number from 0"),
     ],
 )
 def test_bad_stroke_settings_are_refused_by_name(setting, message):
@@ -249,6 +332,31 @@ def test_predict_writes_a_stroke_document_with_the_whole_characters_path_and_pen
     assert isinstance(pred, StrokePrediction) and pred.n_strokes == len(doc["strokes"])
     with pytest.raises(ValueError, match="one per stroke"):
         pred.dmp  # noqa: B018 (the robot's one DMP is refused by name)
+
+
+_NO_TORCH = """
+import json, sys
+sys.modules["torch"] = None  # any import of torch now fails, loudly
+import img2dmp
+pred = img2dmp.load_model(sys.argv[1]).predict(sys.argv[2])
+print(json.dumps({"n": pred.n_strokes, "path": pred.path_model.tolist()}))
+"""
+
+
+def test_a_stroke_model_reads_a_character_without_torch_as_with_it(omni_root, trained):
+    import subprocess
+    import sys
+
+    from img2dmp.predict import load_model
+
+    image = omni_root / "images_test" / "Alpha" / "character02" / "0102_20.png"
+    code = [sys.executable, "-c", _NO_TORCH, str(trained), str(image)]
+    proc = subprocess.run(code, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    got = json.loads(proc.stdout.strip().splitlines()[-1])
+    pred = load_model(trained, backend="torch").predict(image)
+    assert got["n"] == pred.n_strokes
+    np.testing.assert_allclose(got["path"], pred.path_model, atol=1e-3)
 
 
 def test_evaluate_reports_the_stroke_count_and_the_measures_per_alphabet(small_omniglot, trained):

@@ -83,10 +83,15 @@ from .models import resolve as resolve_shipped
 from .nn._numpy_net import NumpyNetwork
 from .nn._refine_numpy import MAX_REFINE_STEPS, RefineOptions, refine_numpy
 from .nn._stroke_layout import (
+    COUNT_VIEWS,
     STROKE_REFINE,
     StrokeLayout,
     character_paths,
+    count_probabilities,
+    count_views,
+    ink_pieces,
     read_strokes,
+    split_slots_numpy,
     stroke_params,
 )
 from .nn.architecture import ModelConfig
@@ -216,6 +221,7 @@ class Predictor:
         self.refine_options = refine_options
         self.shipped = shipped
         self.strokes = strokes
+        self.count_views = COUNT_VIEWS
 
     @property
     def backend(self) -> str:
@@ -468,13 +474,26 @@ class Predictor:
         if self.strokes is None:
             raise ValueError("predict_strokes needs a stroke model; this one predicts one DMP")
         x, out = self._raw_outputs(images, batch_size)
-        strokes = read_strokes(out, self.strokes, self.n_hypotheses)
+        strokes = read_strokes(out, self.strokes, self.n_hypotheses,
+                               count_probs=self._count_probabilities(x, out, batch_size),
+                               min_counts=ink_pieces(x))  # fmt: skip
         if self.refine_options is not None and self.refine_options.steps:
             from .nn.strokes import refine_strokes
 
             strokes = refine_strokes(strokes, x, self.normaliser, self.strokes,
                                      self.refine_options)  # fmt: skip
         return strokes
+
+    def _count_probabilities(self, x: np.ndarray, out: np.ndarray, batch_size: int):
+        """The stroke count's probabilities ``[B, K, S]`` of images ``x`` whose network
+        outputs are ``out``, averaged over ``count_views`` views of each image
+        (:func:`img2dmp.nn.strokes.count_views`)."""
+        views = check_count("count_views", self.count_views, 1, 64)
+        logits = [split_slots_numpy(out, self.strokes, self.n_hypotheses)[3]]  # [B, K, S]
+        for view in count_views(x, views):
+            view_out = self._raw_outputs(view, batch_size)[1]
+            logits.append(split_slots_numpy(view_out, self.strokes, self.n_hypotheses)[3])
+        return count_probabilities(np.stack(logits))  # [V, B, K, S] -> [B, K, S]
 
     def stroke_paths(self, images, batch_size: int = 4096, n_per_stroke: int = 40) -> list:
         """Each image's character as one path ``[T_i, 3]`` (x, y, pen; model frame): its

@@ -46,9 +46,6 @@ from . import _args
 
 HELP = "write a digit or a page with a simulated KUKA arm (pybullet) and measure how well it went"
 DEFAULT_WRITING_HEIGHT_MM = 40.0
-#: A stroke model's pen between two strokes of a character: this far above the
-#: controller's lift height (the page's travel between characters is 2 cm up).
-STROKE_LIFT_M = 0.004
 DEFAULT_PAGE_WIDTH_MM = 160.0  # img2dmp.robot.page.DEFAULT_WIDTH_MM (not imported: no NumPy here)
 
 
@@ -548,11 +545,12 @@ def _run_page(args, scene_cfg, ctl_cfg) -> int:
 def _run_strokes(args, scene_cfg, ctl_cfg, predictor) -> int:
     """A stroke model's characters, one run each: its strokes as a page of one line
     (:meth:`img2dmp.predict.StrokePrediction.to_page_document`), the pen lifted
-    ``STROKE_LIFT_M`` between them, at the scale of ``--writing-height-mm`` for the
-    model's frame (as a one-DMP model's digit)."""
+    :data:`img2dmp.robot.page.STROKE_LIFT_M` between them, at the scale of
+    ``--writing-height-mm`` for the model's frame (as a one-DMP model's digit)."""
     import numpy as np
 
     from img2dmp.robot import check_page_document, plan_page
+    from img2dmp.robot.page import STROKE_LIFT_M
 
     if bend_options(args) or args.hypothesis != 1:
         what = "bending" if bend_options(args) else "--hypothesis"

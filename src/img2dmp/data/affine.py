@@ -8,7 +8,9 @@ One helper for the synthetic and the MNIST pipelines. A transform is a ``[2, 3]`
 
 Points are mapped forwards by :func:`warp_points`. :func:`warp_images` fills each output
 pixel ``p'`` with the input sampled at ``A^-1 (p' - b)`` (bilinear, background outside),
-which is the same map: ink at ``p`` in the input appears at ``p'`` in the output.
+which is the same map: ink at ``p`` in the input appears at ``p'`` in the output;
+:func:`warp_images_numpy` does the same in NumPy. The module imports torch only when a
+torch function runs, so that prediction without torch can warp images too.
 
 :func:`sample_affine` draws the paper's data-augmentation transform: translation,
 rotation, scaling and shearing, each uniform in a configurable range, composed about the
@@ -23,12 +25,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import torch
-import torch.nn.functional as F
 
-from .render import _tensor
+if TYPE_CHECKING:
+    import torch
 
 
 def _check_range(name: str, r, lo_limit: float = -math.inf, hi_limit: float = math.inf):
@@ -148,6 +150,8 @@ def sample_affine(
 
 
 def _as_matrices(matrix, batch: tuple, dtype) -> torch.Tensor:
+    from .render import _tensor
+
     m = _tensor(matrix).to(dtype)
     if m.shape[-2:] != (2, 3):
         raise ValueError(f"affine matrix must have shape [*batch, 2, 3], got {tuple(m.shape)}")
@@ -174,6 +178,10 @@ def warp_points(points, matrix):
     -------
     Same kind as ``points`` (NumPy in, NumPy out), same dtype and shape.
     """
+    import torch
+
+    from .render import _tensor
+
     as_numpy = not torch.is_tensor(points)
     p = _tensor(points)
     if p.ndim < 2 or p.shape[-1] < 2:
@@ -197,6 +205,11 @@ def warp_images(images, matrix) -> torch.Tensor:
     -------
     tensor float32 [*batch, H, W]
     """
+    import torch
+    import torch.nn.functional as F
+
+    from .render import _tensor
+
     x = _tensor(images).to(torch.float32)
     if x.ndim < 2:
         raise ValueError(f"images must have shape [*batch, H, W], got {tuple(x.shape)}")
@@ -216,3 +229,42 @@ def warp_images(images, matrix) -> torch.Tensor:
         x.reshape(-1, 1, h, w), grid, mode="bilinear", padding_mode="zeros", align_corners=True
     )
     return out.reshape(shape)
+
+
+def warp_images_numpy(images, matrix) -> np.ndarray:
+    """:func:`warp_images` in NumPy (bilinear, zero outside; the same numbers to float32
+    rounding), for prediction without torch.
+
+    Parameters
+    ----------
+    images : array [*batch, H, W]
+    matrix : array [*batch, 2, 3] or [2, 3]
+
+    Returns
+    -------
+    float32 array [*batch, H, W]
+    """
+    x = np.asarray(images, dtype=np.float32)
+    if x.ndim < 2:
+        raise ValueError(f"images must have shape [*batch, H, W], got {x.shape}")
+    h, w = x.shape[-2:]
+    flat = x.reshape(-1, h, w)  # [B, H, W]
+    m = np.asarray(matrix, dtype=np.float64)
+    if m.shape[-2:] != (2, 3):
+        raise ValueError(f"affine matrix must have shape [*batch, 2, 3], got {m.shape}")
+    m = np.broadcast_to(m, (*x.shape[:-2], 2, 3)).reshape(-1, 2, 3)  # [B, 2, 3]
+    a_inv = np.linalg.inv(m[:, :, :2])  # [B, 2, 2]
+    ys, xs = np.meshgrid(np.arange(h, dtype=np.float64), np.arange(w, dtype=np.float64),
+                         indexing="ij")  # fmt: skip
+    dst = np.stack([xs, ys], -1).reshape(1, -1, 2)  # [1, H*W, 2]
+    src = (dst - m[:, None, :, 2]) @ a_inv.transpose(0, 2, 1)  # [B, H*W, 2]
+    x0, y0 = np.floor(src[..., 0]), np.floor(src[..., 1])
+    fx, fy = src[..., 0] - x0, src[..., 1] - y0
+    b = np.arange(len(flat))[:, None]
+    out = np.zeros(src.shape[:2])
+    for dy, dx, wgt in ((0, 0, (1 - fx) * (1 - fy)), (0, 1, fx * (1 - fy)),
+                        (1, 0, (1 - fx) * fy), (1, 1, fx * fy)):  # fmt: skip
+        xi, yi = (x0 + dx).astype(np.int64), (y0 + dy).astype(np.int64)
+        inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+        out += np.where(inside, wgt * flat[b, yi.clip(0, h - 1), xi.clip(0, w - 1)], 0.0)
+    return out.astype(np.float32).reshape(x.shape)

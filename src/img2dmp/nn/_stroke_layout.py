@@ -21,6 +21,16 @@ MIN_STROKE_S = 0.02
 STROKE_REFINE = {"lr": 0.04, "prior_weight": 0.3}
 #: The largest number of stroke slots a model may have.
 MAX_SLOTS = 32
+#: How many views of an image a stroke model reads its stroke count from: the image and
+#: ``COUNT_VIEWS - 1`` small affine copies of it (:data:`COUNT_VIEW_RANGES`), whose count
+#: probabilities are averaged (chosen on Omniglot's validation drawers, RESULTS 8.1).
+COUNT_VIEWS = 8
+#: The copies' transforms (:class:`~img2dmp.data.affine.AffineRanges` fields), drawn once
+#: from a fixed seed: the same views of every image, every run.
+COUNT_VIEW_RANGES = {"translation_rel": (-0.03, 0.03), "rotation_deg": (-6.0, 6.0),
+                     "scale": (0.93, 1.07), "shear_deg": (-6.0, 6.0)}  # fmt: skip
+#: The ink level and the fewest pixels of a piece of ink (:func:`ink_pieces`).
+PIECE_LEVEL, PIECE_MIN_PX = 0.5, 2
 
 
 def stroke_dmp_config(n_kernels: int = 25) -> DMPConfig:
@@ -108,18 +118,63 @@ def split_slots_numpy(out: np.ndarray, layout: StrokeLayout, hypotheses: int):
     return z[..., :p], z[..., p], z[..., p + 1], v[..., s * width :], scores
 
 
-def read_strokes(out, layout: StrokeLayout, hypotheses: int, hypothesis=None) -> list:
+def count_views(images: np.ndarray, n_views: int = COUNT_VIEWS) -> np.ndarray:
+    """The ``n_views - 1`` affine copies ``[n_views - 1, B, H, W]`` of prepared images
+    ``[B, H, W]`` that a stroke count is also read from (:data:`COUNT_VIEW_RANGES`; NumPy)."""
+    from ..data.affine import AffineRanges, sample_affine, warp_images_numpy
+
+    x = np.asarray(images, dtype=np.float32)
+    rng = np.random.default_rng(0)
+    m = sample_affine(rng, n_views - 1, tuple(x.shape[-2:]), AffineRanges(**COUNT_VIEW_RANGES))
+    if not len(m):
+        return np.zeros((0, *x.shape), np.float32)
+    return np.stack([warp_images_numpy(x, mi) for mi in m])
+
+
+def ink_pieces(images: np.ndarray) -> np.ndarray:
+    """Pieces of ink ``[B]`` of prepared images ``[B, H, W]``: 8-connected sets of at
+    least :data:`PIECE_MIN_PX` pixels above :data:`PIECE_LEVEL`. A stroke is one
+    unbroken line, so a character has at least as many strokes as pieces."""
+    from scipy.ndimage import label
+
+    out = []
+    for im in np.asarray(images):
+        labels, n = label(im > PIECE_LEVEL, structure=np.ones((3, 3), bool))
+        out.append(int((np.bincount(labels.ravel(), minlength=n + 1)[1:] >= PIECE_MIN_PX).sum()))
+    return np.asarray(out, dtype=np.int64)
+
+
+def count_probabilities(count_logits: np.ndarray) -> np.ndarray:
+    """The stroke count's probabilities ``[B, K, S]`` from its logits read off several
+    views of each image ``[V, B, K, S]`` (or one view ``[B, K, S]``): their softmax,
+    averaged over the views."""
+    a = np.asarray(count_logits, dtype=np.float64)
+    e = np.exp(a - a.max(-1, keepdims=True))
+    p = e / e.sum(-1, keepdims=True)
+    return p.mean(0) if p.ndim == 4 else p
+
+
+def read_strokes(
+    out, layout: StrokeLayout, hypotheses: int, hypothesis=None, count_probs=None,
+    min_counts=None,
+) -> list:  # fmt: skip
     """The strokes of each image from network outputs ``out [B, ...]``: per sample the
     chosen hypothesis' (``hypothesis`` [B], or the top-scored one) strokes in writing
     order, as (normalised vectors ``[c, P]``, presence probabilities ``[c]``) pairs. c is
-    the most probable stroke count; the strokes are the first c slots
+    the most probable stroke count (by ``count_probs [B, K, S]``, :func:`count_probabilities`,
+    or else the outputs' own count logits) of those at least ``min_counts [B]`` (e.g.
+    :func:`ink_pieces`; capped at S); the strokes are the first c slots
     (``matching="order"``) or the c most probably present ones in the order of their
     keys (``"best"``)."""
     z, presence, order, count, scores = split_slots_numpy(out, layout, hypotheses)
     rows = np.arange(len(z))
     h = scores.argmax(1) if hypothesis is None else np.asarray(hypothesis)
     prob = _sigmoid(presence[rows, h])  # [B, S]
-    c = count[rows, h].argmax(-1) + 1  # [B]
+    p_count = count_probabilities(count if count_probs is None else count_probs)[rows, h]
+    if min_counts is not None:
+        least = np.clip(np.asarray(min_counts), 1, layout.slots)[:, None]  # [B, 1]
+        p_count = np.where(np.arange(1, layout.slots + 1)[None] >= least, p_count, -1.0)
+    c = p_count.argmax(-1) + 1  # [B]
     result = []
     for i in rows:
         if layout.matching == "order":

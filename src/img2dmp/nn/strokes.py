@@ -30,12 +30,17 @@ import torch
 
 from ..dmp.rollout import rollout
 from ._stroke_layout import (  # noqa: F401 (re-exported: the torch-free names)
+    COUNT_VIEW_RANGES,
+    COUNT_VIEWS,
     MATCHINGS,
     MAX_SLOTS,
     MIN_STROKE_S,
     STROKE_REFINE,
     StrokeLayout,
     character_paths,
+    count_probabilities,
+    count_views,
+    ink_pieces,
     read_strokes,
     split_slots_numpy,
     stroke_dmp_config,
@@ -243,17 +248,24 @@ class StrokeCost:
         return self.ink_weight > 0 or self.coverage_weight > 0
 
     def __call__(self, out, z_target, times, trajectories, images=None):
-        """The cost with :class:`img2dmp.nn.costs.Cost`'s signature (``z_target`` is not
-        used): the true strokes read off ``trajectories [B, T, d]`` (their pen runs) at
-        ``times [B, T]``. Returns the cost and the per-sample shape error (px)."""
+        """The cost with :class:`img2dmp.nn.costs.Cost`'s signature: the true strokes read
+        off ``trajectories [B, T, d]`` (their pen runs) at ``times [B, T]``; ``z_target``
+        the stroke count's target distributions ``[B, S]``
+        (:func:`img2dmp.training.data.count_targets`), or empty ``[B, 0]`` for each
+        path's own count. Returns the cost and the per-sample shape error (px)."""
         target, present, duration, n = stroke_targets(trajectories, times, self.layout)
-        return self.strokes_cost(out, target.to(out.dtype), present, duration, n, images)
+        counts = z_target if z_target.shape[-1] == self.layout.slots else None
+        return self.strokes_cost(
+            out, target.to(out.dtype), present, duration, n, images, count_target=counts
+        )
 
     def errors_px(self, z, y, times, trajectories) -> torch.Tensor:
         """A training step's per-sample error: what the cost returned beside itself."""
         return y
 
-    def strokes_cost(self, out, target, present, duration, n_strokes, images=None):
+    def strokes_cost(
+        self, out, target, present, duration, n_strokes, images=None, count_target=None
+    ):
         lay = self.layout
         z, presence, order, count, scores = split_slots(out, lay, self.hypotheses)
         y = stroke_shapes(z, self.normaliser, lay)  # [B, K, S, n, 2]
@@ -265,13 +277,24 @@ class StrokeCost:
         match = _assignment(pair.detach().cpu().numpy(), present.cpu().numpy(), lay.matching)
         m = torch.as_tensor(match, device=pair.device)  # [B, K, S_true]: slot, or -1
         per, used = self._matched(pair, m, presence, order)
-        n = (n_strokes.to(m.device).clamp(1, lay.slots) - 1)[:, None].expand(-1, count.shape[1])
-        ce = torch.nn.functional.cross_entropy(count.flatten(0, 1), n.flatten(), reduction="none")
-        per = per + self.count_weight * ce.reshape(n.shape)
+        per = per + self.count_weight * self._count_ce(count, n_strokes, count_target)
         if images is not None and self.uses_images:
             per = per + self._ink(y, used, images)
         err = self._shape_error(d2, m, scores)
         return self._winner(per, scores), err
+
+    def _count_ce(self, count, n_strokes, count_target=None) -> torch.Tensor:
+        """The count logits' ``[B, K, S]`` cross-entropy ``[B, K]`` against each
+        character's count (above S as S), or against ``count_target`` ``[B, S]``
+        (distributions over the counts 1 to S)."""
+        b, k, s = count.shape
+        if count_target is None:
+            n = (n_strokes.to(count.device).clamp(1, s) - 1)[:, None].expand(-1, k)
+            target = n.flatten()
+        else:
+            target = count_target.to(count)[:, None].expand(-1, k, -1).flatten(0, 1)
+        ce = torch.nn.functional.cross_entropy(count.flatten(0, 1), target, reduction="none")
+        return ce.reshape(b, k)
 
     def _tau_units(self, duration: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
         ti = self.normaliser.tau_index

@@ -67,6 +67,9 @@ DEFAULT_WIDTH_MM = 160.0
 # The pen travels between characters this high above the paper: clear of the ink and of
 # the 6 mm lift height it writes with, reachable everywhere on the sheet.
 TRAVEL_HEIGHT_M = 0.02
+#: A stroke model's pen between two strokes of one character: this far above the
+#: controller's lift height (``img2dmp write`` and the web server's robot jobs).
+STROKE_LIFT_M = 0.004
 # Top speed of a travel in the plane (its minimum-jerk profile peaks at 1.875 times the
 # mean speed).
 TRAVEL_SPEED_M_S = 0.1

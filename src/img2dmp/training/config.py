@@ -269,7 +269,10 @@ class StrokesConfig:
     slot i to the i-th stroke (``"order"``). ``presence_weight``, ``count_weight``,
     ``order_weight`` (``"best"`` only), ``tau_weight``: weights of the presence and count
     cross-entropies, the order key's and tau's squared errors beside the shapes' (px^2).
-    The ink terms, hypotheses and winner-takes-all are those of ``cost`` and ``model``.
+    ``count_class_weight`` (0 to 1): how much of the count's target is the distribution
+    of the character's class's counts among the training drawings rather than the
+    drawing's own count (:func:`img2dmp.training.data.count_targets`). The ink terms,
+    hypotheses and winner-takes-all are those of ``cost`` and ``model``.
     """
 
     slots: int = 0
@@ -280,10 +283,14 @@ class StrokesConfig:
     count_weight: float = 1.0
     order_weight: float = 2.0
     tau_weight: float = 0.1
+    count_class_weight: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("presence_weight", "count_weight", "order_weight", "tau_weight"):
             check_positive(f"strokes.{name}", getattr(self, name), allow_zero=True)
+        w = self.count_class_weight
+        if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0 <= w <= 1:
+            raise ConfigError(f"strokes.count_class_weight must be a number from 0 to 1, got {w!r}")
         from ..nn.strokes import StrokeLayout
 
         try:  # the other fields are checked also when the slots are off (0)

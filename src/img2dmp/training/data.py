@@ -64,17 +64,20 @@ class Split:
     images: torch.Tensor  # [M, H, W]
     times: torch.Tensor  # [M, T]
     trajectories: torch.Tensor  # [M, T, d]
-    z_target: torch.Tensor  # [M, P], normalised DMP vector (cost 9's target)
+    # [M, P], normalised DMP vector (cost 9's target); a stroke model's: the target
+    # distribution of the stroke count [M, S] (count_targets)
+    z_target: torch.Tensor
 
     def __len__(self) -> int:
         return int(self.images.shape[0])
 
     @classmethod
-    def of(cls, a: DigitData, idx: np.ndarray, norm: ParamNormaliser | None) -> Split:
+    def of(cls, a: DigitData, idx: np.ndarray, norm: ParamNormaliser | None, counts=None) -> Split:
         """Rows ``idx`` of ``a``; without a normaliser (a stroke model, whose targets are
-        the paths' strokes) ``z_target`` is empty, ``[M, 0]``."""
+        the paths' strokes) ``z_target`` is ``counts`` (the rows' stroke-count targets
+        ``[M, S]``), or empty, ``[M, 0]``."""
         if norm is None:
-            z_target = torch.zeros(len(idx), 0)
+            z_target = torch.zeros(len(idx), 0) if counts is None else counts
         else:
             params = torch.as_tensor(a.params[idx], dtype=torch.float64)
             z_target = norm.normalise(params).to(torch.float32)
@@ -99,6 +102,35 @@ def stroke_normaliser(a: DigitData, idx: np.ndarray, layout) -> ParamNormaliser:
     if int(present.sum()) < 2:
         raise ValueError(f"need at least 2 training strokes, got {int(present.sum())}")
     return fit_stroke_normaliser(pts[present].numpy(), duration[present].numpy(), layout)
+
+
+def count_targets(
+    a: DigitData, idx: np.ndarray, train_idx: np.ndarray, slots: int, class_weight: float
+) -> torch.Tensor:
+    """The stroke count's target distributions ``[M, S]`` of the rows ``idx`` (count 1 to
+    S; a drawing of more strokes counts as S): each row's own count, mixed with weight
+    ``class_weight`` with the distribution of its class's counts among the training rows
+    ``train_idx`` (a class with no training row: its own count alone).
+
+    Drawers disagree on how many strokes a character has (two strokes meeting end to end
+    look like one): the class's distribution teaches the count most drawers would give,
+    where one drawing's own count is noise the image may not show.
+    """
+    counts = np.array([min(len(a.stroke_spans(int(i))), slots) for i in idx]) - 1
+    own = np.eye(slots)[counts]  # [M, S]
+    if class_weight == 0:
+        return torch.as_tensor(own, dtype=torch.float32)
+    labels = np.asarray(a.labels)
+    train_counts = np.array([min(len(a.stroke_spans(int(i))), slots) for i in train_idx]) - 1
+    hist = {}
+    for c in np.unique(labels[train_idx]):
+        hist[int(c)] = np.bincount(train_counts[labels[train_idx] == c], minlength=slots)
+    mixed = own.copy()
+    for r, i in enumerate(idx):
+        h = hist.get(int(labels[i]))
+        if h is not None:
+            mixed[r] = (1 - class_weight) * own[r] + class_weight * h / h.sum()
+    return torch.as_tensor(mixed, dtype=torch.float32)
 
 
 def _split_indices(a: DigitData, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -180,8 +212,12 @@ class TrainingData:
                 a.params[train_idx], self.dmp_config, cfg.cost.parameter_units
             )
         targets = self.normaliser if layout is None else None
-        self._train = Split.of(a, train_idx, targets)
-        self.val = Split.of(a, val_idx, targets)
+        counts = (None, None)
+        if layout is not None:
+            w = cfg.strokes.count_class_weight
+            counts = [count_targets(a, i, train_idx, layout.slots, w) for i in (train_idx, val_idx)]
+        self._train = Split.of(a, train_idx, targets, counts[0])
+        self.val = Split.of(a, val_idx, targets, counts[1])
 
     def _from_generator(self, cfg: TrainConfig, normaliser: ParamNormaliser | None) -> None:
         gen = dict(cfg.data.generator)

@@ -33,7 +33,7 @@ import math
 from pathlib import Path, PurePath
 
 from .._files import atomic_write_text
-from ..robot.page import DEFAULT_WIDTH_MM, TRAVEL_HEIGHT_M
+from ..robot.page import DEFAULT_WIDTH_MM, STROKE_LIFT_M, TRAVEL_HEIGHT_M
 from .errors import WebError
 from .jobs import (
     BEGUN,
@@ -50,9 +50,6 @@ PAGE_FILES = {**JOB_FILES, "characters": "characters.csv"}
 #: Most frames of a page's video (a 12 s time lapse); a longer page is kept at longer
 #: intervals.
 MAX_PAGE_FRAMES = 120
-#: A stroke model's pen between two strokes of a character: this far above the
-#: controller's lift height, as ``img2dmp write`` lifts it (its ``STROKE_LIFT_M``).
-STROKE_LIFT_M = 0.004
 #: The page's totals in the job's answer (:func:`img2dmp.robot.page.page_metrics` and
 #: the run's), those of the first lines of ``img2dmp write --page``.
 _TOTALS = (
@@ -98,10 +95,10 @@ def submit_strokes(jobs, doc, video: bool) -> dict:
     """Queue the arm writing a stroke model's character with the ``jobs`` manager: ``doc``
     is the page document of its strokes (a prediction's ``strokes_page``,
     :meth:`~img2dmp.predict.StrokePrediction.to_page_document`), written as ``img2dmp
-    write`` writes it: each stroke pen down, the pen lifted :data:`STROKE_LIFT_M` above
-    the lift height between them, the model's frame ``writing_height_mm`` (40 mm) high.
-    The job's state; 422 with the library's line for a document that does not check or
-    cannot be written."""
+    write`` writes it: each stroke pen down, the pen lifted
+    :data:`~img2dmp.robot.page.STROKE_LIFT_M` above the lift height between them, the
+    model's frame ``writing_height_mm`` (40 mm) high. The job's state; 422 with the
+    library's line for a document that does not check or cannot be written."""
     from ..robot import WritingOptions, check_page_document
 
     try:
@@ -236,7 +233,6 @@ __all__ = [
     "DEFAULT_WIDTH_MM",
     "MAX_PAGE_FRAMES",
     "PAGE_FILES",
-    "STROKE_LIFT_M",
     "page_measures",
     "plan_page_job",
     "run_page_job",
