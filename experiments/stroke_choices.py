@@ -1,13 +1,16 @@
-"""The choices of a stroke model, on the validation drawers: refinement settings and how
-often a class's most common stroke count is right (the count's ceiling for a reader that
-knew the character).
+"""The choices of a stroke model, on the validation drawers: refinement settings, how the
+stroke count is read, and how often a class's most common stroke count is right (the
+count's ceiling for a reader that knew the character).
 
 A stroke model (docs/TRAINING.md, "Stroke models") is refined on its image by all its
 strokes at once; this script evaluates one trained run on the validation split with each
 refinement setting of ``SETTINGS`` (steps, learning rate, prior weight) and prints the
-path measures and the stroke count. It also prints, per split, the share of characters
-whose stroke count equals their class's most common count among the training drawers:
-what a model that recognised every character, and knew nothing else, would score.
+path measures and the stroke count; then the count read from one view of each image or
+from ``COUNT_VIEWS`` (the image and small affine copies, their probabilities averaged),
+each with and without the bound of the image's pieces of ink. It also prints, per split,
+the share of characters whose stroke count equals their class's most common count among
+the training drawers: what a model that recognised every character, and knew nothing
+else, would score.
 
 Run from the repository's root::
 
@@ -31,6 +34,7 @@ import numpy as np
 from img2dmp.data.store import load_dataset
 from img2dmp.evaluate import evaluate
 from img2dmp.nn.refine import RefineOptions
+from img2dmp.nn.strokes import COUNT_VIEWS, ink_pieces
 from img2dmp.predict import Predictor
 
 # isort: split
@@ -56,6 +60,30 @@ def class_mode_shares(data) -> dict:
         if len(idx):
             out[name] = float(np.mean([counts[i] == mode[int(labels[i])] for i in idx]))
     return out
+
+
+def count_readings(predictor, data, split: str = "validation") -> list[dict]:
+    """The share of ``split``'s characters whose stroke count is read right from 1 or
+    :data:`~img2dmp.nn.strokes.COUNT_VIEWS` views of each image, each with and without
+    the bound of the image's pieces of ink (a one-hypothesis model)."""
+    if predictor.n_hypotheses != 1:
+        raise ValueError("count_readings reads one-hypothesis stroke models")
+    idx = np.flatnonzero(data.split == {"train": 0, "validation": 1, "test": 2}[split])
+    truth = np.array([len(data.stroke_spans(int(i))) for i in idx])
+    images = data.images[idx]
+    pieces = np.clip(ink_pieces(images), 1, predictor.strokes.slots)
+    rows, kept = [], predictor.count_views
+    try:
+        for views in (1, COUNT_VIEWS):
+            predictor.count_views = views
+            p = predictor.stroke_count_probabilities(images)[:, 0]  # [B, S]
+            at_least = np.arange(1, p.shape[-1] + 1)[None] >= pieces[:, None]
+            for bound, q in ((False, p), (True, np.where(at_least, p, -1.0))):
+                right = float(np.mean(q.argmax(-1) + 1 == truth))
+                rows.append({"views": views, "pieces_bound": bound, "count_right": right})
+    finally:
+        predictor.count_views = kept
+    return rows
 
 
 def _row(res: dict) -> dict:
@@ -90,12 +118,19 @@ def main(argv: list[str]) -> int:
         ink, count = 100 * r["on_ink"], 100 * r["count_right"]
         print(f"{steps:>5} {lr:>5g} {prior:>5g} {r['chamfer_px']:>8.3f} {ink:>8.1f} "
               f"{r['path_px']:>6.2f} {count:>7.1f}")  # fmt: skip
-    modes = class_mode_shares(load_dataset(args.data))
+    data = load_dataset(args.data)
+    readings = count_readings(predictor, data)
+    print("the stroke count read right (validation):")
+    for r in readings:
+        bound = "no fewer strokes than pieces of ink" if r["pieces_bound"] else "count alone"
+        print(f"  {r['views']:>2} view(s), {bound:<36} {100 * r['count_right']:5.1f} %")
+    modes = class_mode_shares(data)
     print("a class's most common count (training drawers) is right for: "
           + ", ".join(f"{k} {100 * v:.1f} %" for k, v in modes.items()))  # fmt: skip
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)
-        doc = {"record": record, "refinement": rows, "class_mode_count_right": modes}
+        doc = {"record": record, "refinement": rows, "count_readings": readings,
+               "class_mode_count_right": modes}  # fmt: skip
         (args.out / "stroke_choices.json").write_text(json.dumps(doc, indent=1) + "\n")
     return 0
 

@@ -457,3 +457,23 @@ def test_the_class_mode_count_share_is_counted_against_the_training_drawers(
     monkeypatch.setattr(type(data), "stroke_spans", lambda self, i: [None] * fake[i])
     again = mod.class_mode_shares(data)
     assert again["train"] == pytest.approx(1 - 4 / 60) and again["test"] == 1.0
+
+
+def test_the_count_readings_compare_views_and_the_pieces_bound(
+    small_omniglot, trained, experiment_script
+):
+    from img2dmp.predict import Predictor
+
+    mod = experiment_script("stroke_choices")
+    predictor = Predictor.load(trained)
+    data = load_dataset(small_omniglot)
+    rows = mod.count_readings(predictor, data)
+    assert [(r["views"], r["pieces_bound"]) for r in rows] == [
+        (1, False), (1, True), (8, False), (8, True)
+    ]  # fmt: skip
+    val = np.flatnonzero(data.split == 1)
+    _, out = predictor._raw_outputs(data.images[val], 64)
+    plain = [len(v) for v, _ in read_strokes(out, predictor.strokes, 1)]
+    truth = [len(data.stroke_spans(int(i))) for i in val]
+    assert rows[0]["count_right"] == pytest.approx(np.mean(np.equal(plain, truth)))
+    assert predictor.count_views == 8  # left as it was

@@ -484,6 +484,15 @@ class Predictor:
                                      self.refine_options)  # fmt: skip
         return strokes
 
+    def stroke_count_probabilities(self, images, batch_size: int = 4096) -> np.ndarray:
+        """A stroke model's probabilities ``[B, K, S]`` of 1 to S strokes per hypothesis
+        for prepared images ``[B, H, W]``, averaged over :attr:`count_views` views of each
+        (what :meth:`predict_strokes` reads the count from, before the pieces of ink)."""
+        if self.strokes is None:
+            raise ValueError("stroke counts need a stroke model; this one predicts one DMP")
+        x, out = self._raw_outputs(images, batch_size)
+        return self._count_probabilities(x, out, batch_size)
+
     def _count_probabilities(self, x: np.ndarray, out: np.ndarray, batch_size: int):
         """The stroke count's probabilities ``[B, K, S]`` of images ``x`` whose network
         outputs are ``out``, averaged over ``count_views`` views of each image
