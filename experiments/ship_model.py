@@ -7,7 +7,8 @@ part, the refinement it ran with), the settings the card recommends and where th
 came from. ``CARD.md`` beside them is written by hand from these (``tests/test_models.py``
 checks that its figures are ``model.json``'s). Each shipped file must stay under 3 MB.
 
-Run from the repository's root, after ``make model-real``::
+Run from the repository's root, after ``make model-real`` (or ``make model-omniglot``,
+a stroke model, whose figures add the share of characters whose stroke count is right)::
 
     python experiments/ship_model.py --run runs/real/run \\
         --evaluation runs/real/evaluation/evaluation.json --name digits-real --default \\
@@ -36,9 +37,10 @@ MAX_BYTES = 3 * 1024 * 1024
 
 
 def figures(evaluation: dict, command: str) -> dict:
-    """The card's figures from an ``evaluation.json`` (means over its samples)."""
-    best = evaluation["best_of_k"]
-    return {
+    """The card's figures from an ``evaluation.json`` (means over its samples); a one-DMP
+    model's best of its hypotheses, a stroke model's share of characters whose stroke
+    count is right."""
+    out = {
         "data": evaluation["dataset"],
         "dataset_sha256": evaluation["dataset_sha256"],
         "split": evaluation["split"],
@@ -48,10 +50,15 @@ def figures(evaluation: dict, command: str) -> dict:
         "path_on_ink": round(evaluation["on_ink"]["overall"]["mean"], 4),
         "path_error_px": round(evaluation["path_error"]["overall"]["mean"], 4),
         "table1_error_px": round(evaluation["overall"]["mean"], 4),
-        "best_of_k_path_error_px": round(best["path_error"]["overall"]["mean"], 4),
         "human_on_ink": round(evaluation["on_ink_human"]["overall"]["mean"], 4),
         "command": command,
     }
+    if "best_of_k" in evaluation:
+        best = evaluation["best_of_k"]["path_error"]["overall"]["mean"]
+        out["best_of_k_path_error_px"] = round(best, 4)
+    if "strokes" in evaluation:
+        out["count_right"] = round(evaluation["strokes"]["count_right"], 4)
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:

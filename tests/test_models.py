@@ -280,3 +280,34 @@ def test_the_default_model_reproduces_its_cards_figures_on_a_test_sample(tmp_pat
         values = np.asarray(res[key], dtype=np.float64)
         tolerance = _sample_tolerance(values, f["n"])
         assert abs(values.mean() - card) <= tolerance, (key, values.mean(), card, tolerance)
+
+
+@pytest.mark.skipif(
+    not (DATA / "omniglot").is_dir(), reason=f"Omniglot is not at {DATA} (../shared/data)"
+)
+def test_the_stroke_model_reproduces_its_cards_figures_on_a_sample_of_the_test_drawers(tmp_path):
+    from img2dmp.data.importer import ImportOptions, import_dataset
+    from img2dmp.data.store import save_dataset
+    from img2dmp.evaluate import evaluate
+
+    m = models.find_shipped("omniglot-strokes")
+    f = m.figures
+    data = import_dataset(DATA / "omniglot", ImportOptions(n_times=300), progress=False)
+    data = data.select_split("test")
+    assert len(data) == f["n"]
+    sample = data.subset(np.arange(0, len(data), SAMPLE_EVERY))
+    path = save_dataset(tmp_path / "sample.safetensors", sample)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        res = evaluate(m.name, path, split="test", n_figures=0, refine=f["refine"])
+    finally:
+        torch.set_num_threads(threads)
+    for key, card in (("chamfer_px", f["chamfer_px"]), ("on_ink_shares", f["path_on_ink"]),
+                      ("path_errors_px", f["path_error_px"])):  # fmt: skip
+        values = np.asarray(res[key], dtype=np.float64)
+        tolerance = _sample_tolerance(values, f["n"])
+        assert abs(values.mean() - card) <= tolerance, (key, values.mean(), card, tolerance)
+    right = np.equal(res["strokes"]["predicted_counts"], res["strokes"]["true_counts"])
+    tolerance = _sample_tolerance(right.astype(np.float64), f["n"])
+    assert abs(right.mean() - f["count_right"]) <= tolerance, (right.mean(), f["count_right"])

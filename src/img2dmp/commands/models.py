@@ -25,10 +25,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _figures(f: dict) -> str:
     if not f:
         return "no figures recorded"
+    strokes = "count_right" in f  # a stroke model's: characters, and their stroke count
     return (
-        f"{f['split']} part ({f['n']} digits, --refine {f['refine']}): "
-        f"Chamfer {f['chamfer_px']:.4f} px, path on the ink {100 * f['path_on_ink']:.1f} %, "
-        f"path error {f['path_error_px']:.3f} px (top hypothesis)"
+        f"{f['split']} part ({f['n']} {'characters' if strokes else 'digits'}, "
+        f"--refine {f['refine']}): Chamfer {f['chamfer_px']:.4f} px, path on the ink "
+        f"{100 * f['path_on_ink']:.1f} %, path error {f['path_error_px']:.3f} px "
+        + (
+            f"(stroke count right {100 * f['count_right']:.1f} %)"
+            if strokes
+            else "(top hypothesis)"
+        )
     )
 
 
