@@ -174,7 +174,10 @@ def rollout(
     -------
     tensor [*batch, T, d]
     """
-    config = config or DMPConfig()
+    config = _DEFAULT_CONFIG if config is None else config
+    y = _direct_rollout(params, t, config, validate, backend)
+    if y is not None:  # a call that records no gradient, once the kernels are loaded
+        return y
     params = _torch_params(params)
     w, tau, g, y0 = params.w, params.tau, params.g, params.y0
     t = _time_tensor(t, w)
@@ -200,6 +203,97 @@ def rollout(
     coef = coef.reshape(-1, *coef.shape[-2:])  # [B, N+1, d]
     y = _combine_responses(s, coef, config) + g.reshape(-1, 1, g.shape[-1])
     return y.reshape(*batch, *y.shape[-2:])
+
+
+_DEFAULT_CONFIG = DMPConfig()  # frozen: one instance serves every call without a config
+
+
+def _direct_rollout(params, t, config: DMPConfig, validate: bool, backend: str):
+    """The fused forward kernel on NumPy views of the inputs, without autograd, or None.
+
+    For calls that record no gradient, once the kernels are loaded: a small batch then
+    pays for its checks and the kernel only (a B = 1 call spent 5 us of its ~50 us in
+    the kernel; the rest went to building an autograd node, converting tensors and
+    checks done as many small NumPy operations). None sends the call down the general
+    path, which gives the same numbers (the same kernel) and raises its own messages:
+    a gradient to record, another device or dtype, a shape that does not fit, or
+    anything the checks would refuse.
+    """
+    if not (_fused_loaded and backend in ("auto", "fused") and _kernels.available()):
+        return None
+    arrays = _host_arrays(params, t)
+    if arrays is None or not _shapes_fit(*arrays, config):
+        return None
+    t, tau, w, g, y0 = arrays
+    batch, n_t, d = tau.shape, t.shape[-1], w.shape[-1]
+    t = _stamp_rows(t, batch)  # [B, T]
+    if validate:
+        params.validate(config)  # the same checks (and messages) as the general path
+        if _kernels.time_stamp_faults(t):  # NaN or inf, not increasing, below 0
+            return None  # the general path names what is wrong with t
+    flat = (tau.reshape(-1), w.reshape(-1, *w.shape[-2:]), g.reshape(-1, d), y0.reshape(-1, d))
+    y = torch.from_numpy(_forward_kernel(t, *(np.ascontiguousarray(a) for a in flat), config))
+    return y if len(batch) == 1 else y.reshape(*batch, n_t, d)
+
+
+def _host_arrays(params, t) -> tuple | None:
+    """``(t, tau, w, g, y0)`` as NumPy views, when the four fields are CPU tensors of one
+    float dtype the kernels take and nothing needs a gradient (``t`` a tensor or NumPy
+    array of that dtype); else None."""
+    if type(params) is not DMPParams:
+        return None
+    fields = (params.tau, params.w, params.g, params.y0)
+    dtype = getattr(params.w, "dtype", None)
+    if dtype not in _NP_DTYPES:
+        return None
+    if type(t) is np.ndarray and t.dtype == _NP_DTYPES[dtype]:
+        t = torch.from_numpy(t)  # a view: checked below as the tensors are
+    for a in (t, *fields):
+        if type(a) is not torch.Tensor or a.dtype is not dtype or a.requires_grad or not a.is_cpu:
+            return None
+    return tuple(a.numpy() for a in (t, *fields))
+
+
+def _stamp_rows(t: np.ndarray, batch: tuple) -> np.ndarray:
+    """``t`` (``[*batch, T]`` or ``[T]``) as C-contiguous rows ``[B, T]``, a view where
+    it can be (a kernel given another layout would be compiled again for it)."""
+    n_t = t.shape[-1]
+    if t.ndim == 2 and t.flags.c_contiguous and len(batch) == 1:
+        return t
+    if t.ndim == 1 and math.prod(batch) == 1:
+        return np.ascontiguousarray(t).reshape(1, n_t)
+    return np.ascontiguousarray(np.broadcast_to(t, (*batch, n_t)).reshape(-1, n_t))
+
+
+_NP_DTYPES = {torch.float32: np.dtype(np.float32), torch.float64: np.dtype(np.float64)}
+
+
+def _shapes_fit(t, tau, w, g, y0, config: DMPConfig) -> bool:
+    """Shapes the kernels take: those :meth:`DMPParams.validate` accepts for ``config``,
+    ``t`` of the parameters' batch shape or 1-D, at least one time stamp."""
+    batch = w.shape[:-2]
+    fields_fit = (
+        w.ndim >= 2
+        and w.shape[-2:] == (config.n_kernels, config.n_dims)
+        and tau.shape == batch
+        and g.shape == y0.shape == (*batch, config.n_dims)
+    )
+    return fields_fit and (t.ndim == 1 or t.shape[:-1] == batch) and t.shape[-1] > 0
+
+
+def _forward_kernel(t, tau, w, g, y0, config: DMPConfig) -> np.ndarray:
+    """Positions ``[B, T, d]`` from the fused forward kernel; C-contiguous NumPy inputs
+    ``t [B, T]``, ``tau [B]``, ``w [B, N, d]``, ``g``, ``y0 [B, d]`` of one float dtype."""
+    global _fused_loaded
+    _fused_loaded = True
+    inv_h, s_max, one, tab = _kernel_table(config, _TORCH_DTYPES[t.dtype.type])
+    y = np.empty((*t.shape, w.shape[-1]), dtype=tab.dtype)
+    forward = _fused_kernels(tab, t.shape[0], w.shape[-1])[0]
+    forward(t, tau, w, g, y0, tab, inv_h, s_max, one, config.scaling == "goal-start", y)
+    return y
+
+
+_TORCH_DTYPES = {np.float32: torch.float32, np.float64: torch.float64}
 
 
 def _torch_params(params: DMPParams) -> DMPParams:
@@ -478,15 +572,8 @@ class _FusedRollout(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, t, tau, w, g, y0, config):
-        global _fused_loaded
-        _fused_loaded = True
-        dtype = w.dtype
-        inv_h, s_max, one, tab = _kernel_table(config, dtype)
-        y = torch.empty(*t.shape, w.shape[-1], dtype=dtype)
-        forward = _fused_kernels(tab, t.shape[0], w.shape[-1])[0]
-        arrays = [_np(x, dtype) for x in (t, tau, w, g, y0)]
-        scaled = config.scaling == "goal-start"
-        forward(*arrays, tab, inv_h, s_max, one, scaled, y.numpy())
+        arrays = [_np(x, w.dtype) for x in (t, tau, w, g, y0)]
+        y = torch.from_numpy(_forward_kernel(*arrays, config))
         if any(ctx.needs_input_grad[1:5]):
             ctx.save_for_backward(t, tau, w, g, y0)
             ctx.config = config
