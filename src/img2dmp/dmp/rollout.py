@@ -22,8 +22,8 @@ derivatives of that interpolant for w, g, y0 and tau; tau enters only through
 
 Two implementations of that one interpolant (``rollout(..., backend=...)``):
 
-- ``"fused"`` (the default for float32/float64 CPU tensors, but for calls of fewer than
-  4096 time stamps made before any larger one): one compiled loop (numba,
+- ``"fused"`` (the default for float32/float64 CPU tensors, but for the first calls of
+  fewer than 4096 time stamps, see :func:`_use_fused`): one compiled loop (numba,
   :mod:`img2dmp.dmp._kernels`) for the forward and one for the backward pass, over the
   samples, on as many threads as :func:`fused_threads` allows (no more than the idle
   cores); nothing of the batch's size is materialised besides the output. Fastest on
@@ -167,8 +167,10 @@ def rollout(
         pass, float32/float64 on CPU; ``"torch"``: the same maths in torch operations
         (any device and dtype). ``"auto"`` (default) takes the fused kernels where they
         apply, except for calls of fewer than 4096 time stamps (over the batch) until
-        the kernels have run once in the process (loading them takes ~0.3 s). Both give
-        the same numbers to rounding and the same gradients.
+        the kernels have run once in the process or the torch operations have spent
+        0.5 s on such calls (loading the kernels takes 0.3-0.7 s). Both give the same
+        numbers to rounding and the same gradients. Once the kernels are loaded, a call
+        that records no gradient runs the compiled forward loop without autograd.
 
     Returns
     -------
@@ -196,13 +198,23 @@ def rollout(
         flat += (g.reshape(-1, g.shape[-1]), y0.reshape(-1, y0.shape[-1]))
         y = _FusedRollout.apply(*flat, config)
         return y.reshape(*batch, *y.shape[-2:])
+    start = time.perf_counter()
+    y = _torch_rollout(t, params, config)
+    if not _fused_loaded:
+        _unfused["seconds"] += time.perf_counter() - start
+    return y
+
+
+def _torch_rollout(t: torch.Tensor, params: DMPParams, config: DMPConfig) -> torch.Tensor:
+    """The rollout in torch operations; ``t`` of the parameters' batch shape."""
+    w, tau, g, y0 = params.w, params.tau, params.g, params.y0
     s = (t / tau[..., None]).reshape(-1, t.shape[-1])  # [B, T]
     scale = (g - y0) if config.scaling == "goal-start" else torch.ones_like(g)
     # y = g + sum_c coef_c * column_c(s) with columns [a, R_1..R_N] of the response table.
     coef = torch.cat([(y0 - g)[..., None, :], scale[..., None, :] * w], dim=-2)
     coef = coef.reshape(-1, *coef.shape[-2:])  # [B, N+1, d]
     y = _combine_responses(s, coef, config) + g.reshape(-1, 1, g.shape[-1])
-    return y.reshape(*batch, *y.shape[-2:])
+    return y.reshape(*params.batch_shape, *y.shape[-2:])
 
 
 _DEFAULT_CONFIG = DMPConfig()  # frozen: one instance serves every call without a config
@@ -413,7 +425,12 @@ def _use_fused(backend: str, w: torch.Tensor, t: torch.Tensor) -> bool:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if backend == "torch":
         return False
-    if backend == "auto" and not _fused_loaded and t.numel() < _FUSED_MIN_STAMPS:
+    if (
+        backend == "auto"
+        and not _fused_loaded
+        and t.numel() < _FUSED_MIN_STAMPS
+        and _unfused["seconds"] < _KERNEL_LOAD_S
+    ):
         return False  # a small call before any large one: not worth loading the kernels
     ok = (
         _kernels.available()
@@ -435,8 +452,16 @@ def _use_fused(backend: str, w: torch.Tensor, t: torch.Tensor) -> bool:
 # compiled code from its disk cache takes ~0.3 s once per process, which a one-image
 # prediction would feel, while the torch operations roll out a few thousand stamps in
 # about a millisecond. The time-stamp check takes NumPy below this size for that reason.
+# A process that makes many small calls (a controller, a server rolling out one DMP per
+# request) loads the kernels once the torch operations have spent about as long on them
+# as the loading takes (0.3-0.7 s on a 2-core AMD EPYC): it then pays at most about
+# twice what knowing its future would have cost, and ~20 us per B = 1 call after, where
+# the torch operations take 0.3 ms on an idle machine and up to 25 ms on a loaded one
+# (each of their parallel regions waits for a busy core; see fused_threads).
 _FUSED_MIN_STAMPS = 4096
+_KERNEL_LOAD_S = 0.5
 _fused_loaded = False  # set by the first fused rollout
+_unfused = {"seconds": 0.0}  # time of the torch operations' rollouts before that
 
 
 @functools.lru_cache(maxsize=16)
