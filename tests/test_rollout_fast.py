@@ -160,6 +160,19 @@ def _bad_calls():
     }
 
 
+def test_a_zero_dimensional_t_fails_as_on_the_general_path(monkeypatch):
+    cfg, p, t = _one(torch.float64, batch=())
+    for validate in (True, False):
+        errors = []
+        for call in (rollout, lambda *a, **k: _general(*a, monkeypatch, **k)):
+            try:
+                call(p, t[3], cfg, validate=validate)
+                errors.append(None)
+            except Exception as e:  # whatever the general path does, the same
+                errors.append((type(e), str(e)))
+        assert errors[0] == errors[1]
+
+
 @pytest.mark.parametrize("name", list(_bad_calls()))
 def test_bad_input_gets_the_general_path_s_message(name, monkeypatch):
     params, t, cfg, kw = _bad_calls()[name]

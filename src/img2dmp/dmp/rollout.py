@@ -121,7 +121,8 @@ def check_time_stamps(t, name: str = "t", *, non_negative: bool = False) -> None
         x = t.detach().to("cpu", torch.float64).numpy()
     if x.size == 0 or x.shape[-1] == 0:
         raise ValueError(f"{name} is empty: a trajectory needs at least one time stamp")
-    big = x.size >= _FUSED_MIN_STAMPS  # else NumPy: loading compiled code costs ~0.3 s
+    # NumPy below that size until the kernels are loaded: loading compiled code costs ~0.3 s
+    big = x.size >= _FUSED_MIN_STAMPS or _fused_loaded
     if big and _kernels.available() and x.dtype in (np.float32, np.float64):
         faults = _kernels.time_stamp_faults(np.ascontiguousarray(x.reshape(-1, x.shape[-1])))
         if faults == 0 or (faults == 4 and not non_negative):
@@ -290,7 +291,8 @@ def _shapes_fit(t, tau, w, g, y0, config: DMPConfig) -> bool:
         and tau.shape == batch
         and g.shape == y0.shape == (*batch, config.n_dims)
     )
-    return fields_fit and (t.ndim == 1 or t.shape[:-1] == batch) and t.shape[-1] > 0
+    t_fits = t.ndim >= 1 and t.shape[-1] > 0 and (t.ndim == 1 or t.shape[:-1] == batch)
+    return fields_fit and t_fits
 
 
 def _forward_kernel(t, tau, w, g, y0, config: DMPConfig) -> np.ndarray:
