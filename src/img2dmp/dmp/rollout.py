@@ -46,7 +46,7 @@ import torch
 
 from . import _kernels
 from ._table import _cubic_pieces
-from .config import DMPConfig
+from .config import DEFAULT_CONFIG, DMPConfig
 from .params import DMPParams, all_finite, as_host_array
 
 # The table is solved, kept on disk and flushed in ._table, which imports no torch: the
@@ -177,7 +177,7 @@ def rollout(
     -------
     tensor [*batch, T, d]
     """
-    config = _DEFAULT_CONFIG if config is None else config
+    config = config or DEFAULT_CONFIG
     y = _direct_rollout(params, t, config, validate, backend)
     if y is not None:  # a call that records no gradient, once the kernels are loaded
         return y
@@ -216,9 +216,6 @@ def _torch_rollout(t: torch.Tensor, params: DMPParams, config: DMPConfig) -> tor
     coef = coef.reshape(-1, *coef.shape[-2:])  # [B, N+1, d]
     y = _combine_responses(s, coef, config) + g.reshape(-1, 1, g.shape[-1])
     return y.reshape(*params.batch_shape, *y.shape[-2:])
-
-
-_DEFAULT_CONFIG = DMPConfig()  # frozen: one instance serves every call without a config
 
 
 def _direct_rollout(params, t, config: DMPConfig, validate: bool, backend: str):
