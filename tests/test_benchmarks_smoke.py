@@ -158,3 +158,16 @@ def test_peers_benchmark_runs_at_its_smallest_settings(bench, capsys):
     assert out_dict["errors"]["fused"] < 1e-5  # the exact rollout, against solve_ivp
     with pytest.raises(SystemExit):
         bp.parse_args(["--peers", "nope"])
+
+
+def test_small_call_benchmark_times_old_and_new_paths(bench, capsys):
+    bs = bench("bench_small_call")
+    per_call = bs.main(["--calls", "4", "--rounds", "2", "--fresh-calls", "3"])
+    out = capsys.readouterr().out
+    assert out.startswith("CPU: ") and "load average" in out
+    parts = ["rollout(p, t), new", "rollout(p, t), old", "/ 60 us", "old / new"]
+    parts += ["fused forward kernel alone", "3 calls of rollout(p, t) in a new process"]
+    for part in parts:
+        assert part in out, part
+    assert all(len(v) == 4 for v in per_call.values())
+    assert bs._rollout._direct_rollout.__name__ == "_direct_rollout"  # switched back on

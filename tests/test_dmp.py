@@ -644,9 +644,15 @@ def test_auto_backend_takes_torch_operations_for_small_calls_until_the_kernels_r
     w = torch.zeros(2, 25, 2)
     small, big = torch.zeros(2, 100), torch.zeros(64, 100)
     monkeypatch.setattr(rollout_module, "_fused_loaded", False)
+    monkeypatch.setitem(rollout_module._unfused, "seconds", 0.0)
     assert not rollout_module._use_fused("auto", w, small)  # ~0.3 s to load: not worth it
     assert rollout_module._use_fused("auto", w, big)
     assert rollout_module._use_fused("fused", w, small)  # asked for: always
+    rollout(DMPParams(w, torch.ones(2), torch.zeros(2, 2), torch.zeros(2, 2)), torch.arange(100.0))
+    assert rollout_module._unfused["seconds"] > 0  # the torch operations' time counts
+    spent = rollout_module._KERNEL_LOAD_S
+    monkeypatch.setitem(rollout_module._unfused, "seconds", spent)
+    assert rollout_module._use_fused("auto", w, small)  # many small calls: worth loading
     monkeypatch.setattr(rollout_module, "_fused_loaded", True)
     assert rollout_module._use_fused("auto", w, small)  # loaded anyway
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from .._lazy import is_tensor
 from ._table import _cubic_pieces
-from .config import DMPConfig
+from .config import DEFAULT_CONFIG, DMPConfig
 from .params import DMPParams
 
 _FIELDS = ("w", "tau", "g", "y0")
@@ -200,7 +200,7 @@ def rollout_numpy(
     -------
     ndarray [*batch, T, d]
     """
-    config = config or DMPConfig()
+    config = config or DEFAULT_CONFIG
     (w, tau, g, y0), t, batch = _flat_inputs(params, t, config, validate)
     parts = [_Rollout(w[c], tau[c], g[c], y0[c], t[c], config).y for c in _chunks(t.shape)]
     y = parts[0] if len(parts) == 1 else np.concatenate(parts)  # [B, T, d]
@@ -239,7 +239,7 @@ def rollout_numpy_vjp(
         NumPy float64 gradients of the shapes of ``params``' fields (not validated: a
         gradient may be negative or NaN).
     """
-    config = config or DMPConfig()
+    config = config or DEFAULT_CONFIG
     (w, tau, g, y0), t, batch = _flat_inputs(params, t, config, validate)
     gy = np.asarray(grad_y, dtype=np.float64)
     expected = (*batch, t.shape[-1], config.n_dims)

@@ -23,6 +23,8 @@ present.
 from __future__ import annotations
 
 import json
+import math
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -184,6 +186,38 @@ def _swap_last(a):
     return a.transpose(-1, -2) if _is_torch(a) else np.swapaxes(a, -1, -2)
 
 
+def _float_hosts(p) -> list | None:
+    """NumPy views of the four fields when each is a float NumPy array or a CPU tensor
+    of float32 or float64, else None."""
+    torch = sys.modules.get("torch")
+    hosts = []
+    for a in (p.w, p.tau, p.g, p.y0):
+        if type(a) is np.ndarray and a.dtype.kind == "f":
+            hosts.append(a)
+        elif (
+            torch is not None
+            and type(a) is torch.Tensor
+            and a.dtype.is_floating_point
+            and a.dtype.itemsize >= 4
+        ):
+            if not a.is_cpu:
+                return None
+            hosts.append(a.detach().numpy())
+        else:
+            return None
+    return hosts
+
+
+def _finite_and_positive(hosts: list | None) -> bool:
+    """True when ``hosts`` (w, tau, g, y0) hold no NaN or inf and every tau is > 0: one
+    finite total decides finiteness (a few microseconds for a whole batch)."""
+    if hosts is None:
+        return False
+    with np.errstate(all="ignore"):
+        total = sum(float(h.sum()) for h in hosts)
+    return math.isfinite(total) and bool((hosts[1] > 0).all())
+
+
 @dataclass
 class DMPParams:
     """The parameters of a batch of DMPs: weights, duration, goal and start.
@@ -253,6 +287,8 @@ class DMPParams:
         return self
 
     def _check_values(self) -> None:
+        if _finite_and_positive(_float_hosts(self)):
+            return  # the usual case, in one pass: the checks below would all pass
         names = _FIELDS
         for name in names:
             a = getattr(self, name)

@@ -22,8 +22,8 @@ derivatives of that interpolant for w, g, y0 and tau; tau enters only through
 
 Two implementations of that one interpolant (``rollout(..., backend=...)``):
 
-- ``"fused"`` (the default for float32/float64 CPU tensors, but for calls of fewer than
-  4096 time stamps made before any larger one): one compiled loop (numba,
+- ``"fused"`` (the default for float32/float64 CPU tensors, but for the first calls of
+  fewer than 4096 time stamps, see :func:`_use_fused`): one compiled loop (numba,
   :mod:`img2dmp.dmp._kernels`) for the forward and one for the backward pass, over the
   samples, on as many threads as :func:`fused_threads` allows (no more than the idle
   cores); nothing of the batch's size is materialised besides the output. Fastest on
@@ -46,7 +46,7 @@ import torch
 
 from . import _kernels
 from ._table import _cubic_pieces
-from .config import DMPConfig
+from .config import DEFAULT_CONFIG, DMPConfig
 from .params import DMPParams, all_finite, as_host_array
 
 # The table is solved, kept on disk and flushed in ._table, which imports no torch: the
@@ -121,7 +121,8 @@ def check_time_stamps(t, name: str = "t", *, non_negative: bool = False) -> None
         x = t.detach().to("cpu", torch.float64).numpy()
     if x.size == 0 or x.shape[-1] == 0:
         raise ValueError(f"{name} is empty: a trajectory needs at least one time stamp")
-    big = x.size >= _FUSED_MIN_STAMPS  # else NumPy: loading compiled code costs ~0.3 s
+    # NumPy below that size until the kernels are loaded: loading compiled code costs ~0.3 s
+    big = x.size >= _FUSED_MIN_STAMPS or _fused_loaded
     if big and _kernels.available() and x.dtype in (np.float32, np.float64):
         faults = _kernels.time_stamp_faults(np.ascontiguousarray(x.reshape(-1, x.shape[-1])))
         if faults == 0 or (faults == 4 and not non_negative):
@@ -167,14 +168,19 @@ def rollout(
         pass, float32/float64 on CPU; ``"torch"``: the same maths in torch operations
         (any device and dtype). ``"auto"`` (default) takes the fused kernels where they
         apply, except for calls of fewer than 4096 time stamps (over the batch) until
-        the kernels have run once in the process (loading them takes ~0.3 s). Both give
-        the same numbers to rounding and the same gradients.
+        the kernels have run once in the process or the torch operations have spent
+        0.5 s on such calls (loading the kernels takes 0.3-0.7 s). Both give the same
+        numbers to rounding and the same gradients. Once the kernels are loaded, a call
+        that records no gradient runs the compiled forward loop without autograd.
 
     Returns
     -------
     tensor [*batch, T, d]
     """
-    config = config or DMPConfig()
+    config = config or DEFAULT_CONFIG
+    y = _direct_rollout(params, t, config, validate, backend)
+    if y is not None:  # a call that records no gradient, once the kernels are loaded
+        return y
     params = _torch_params(params)
     w, tau, g, y0 = params.w, params.tau, params.g, params.y0
     t = _time_tensor(t, w)
@@ -193,13 +199,112 @@ def rollout(
         flat += (g.reshape(-1, g.shape[-1]), y0.reshape(-1, y0.shape[-1]))
         y = _FusedRollout.apply(*flat, config)
         return y.reshape(*batch, *y.shape[-2:])
+    start = time.perf_counter()
+    y = _torch_rollout(t, params, config)
+    if not _fused_loaded:
+        _unfused["seconds"] += time.perf_counter() - start
+    return y
+
+
+def _torch_rollout(t: torch.Tensor, params: DMPParams, config: DMPConfig) -> torch.Tensor:
+    """The rollout in torch operations; ``t`` of the parameters' batch shape."""
+    w, tau, g, y0 = params.w, params.tau, params.g, params.y0
     s = (t / tau[..., None]).reshape(-1, t.shape[-1])  # [B, T]
     scale = (g - y0) if config.scaling == "goal-start" else torch.ones_like(g)
     # y = g + sum_c coef_c * column_c(s) with columns [a, R_1..R_N] of the response table.
     coef = torch.cat([(y0 - g)[..., None, :], scale[..., None, :] * w], dim=-2)
     coef = coef.reshape(-1, *coef.shape[-2:])  # [B, N+1, d]
     y = _combine_responses(s, coef, config) + g.reshape(-1, 1, g.shape[-1])
-    return y.reshape(*batch, *y.shape[-2:])
+    return y.reshape(*params.batch_shape, *y.shape[-2:])
+
+
+def _direct_rollout(params, t, config: DMPConfig, validate: bool, backend: str):
+    """The fused forward kernel on NumPy views of the inputs, without autograd, or None.
+
+    For calls that record no gradient, once the kernels are loaded: a small batch then
+    pays for its checks and the kernel only (a B = 1 call spent 5 us of its ~50 us in
+    the kernel; the rest went to building an autograd node, converting tensors and
+    checks done as many small NumPy operations). None sends the call down the general
+    path, which gives the same numbers (the same kernel) and raises its own messages:
+    a gradient to record, another device or dtype, a shape that does not fit, or
+    anything the checks would refuse.
+    """
+    if not (_fused_loaded and backend in ("auto", "fused") and _kernels.available()):
+        return None
+    arrays = _host_arrays(params, t)
+    if arrays is None or not _shapes_fit(*arrays, config):
+        return None
+    t, tau, w, g, y0 = arrays
+    batch, n_t, d = tau.shape, t.shape[-1], w.shape[-1]
+    t = _stamp_rows(t, batch)  # [B, T]
+    if validate:
+        params.validate(config)  # the same checks (and messages) as the general path
+        if _kernels.time_stamp_faults(t):  # NaN or inf, not increasing, below 0
+            return None  # the general path names what is wrong with t
+    flat = (tau.reshape(-1), w.reshape(-1, *w.shape[-2:]), g.reshape(-1, d), y0.reshape(-1, d))
+    y = torch.from_numpy(_forward_kernel(t, *(np.ascontiguousarray(a) for a in flat), config))
+    return y if len(batch) == 1 else y.reshape(*batch, n_t, d)
+
+
+def _host_arrays(params, t) -> tuple | None:
+    """``(t, tau, w, g, y0)`` as NumPy views, when the four fields are CPU tensors of one
+    float dtype the kernels take and nothing needs a gradient (``t`` a tensor or NumPy
+    array of that dtype); else None."""
+    if type(params) is not DMPParams:
+        return None
+    fields = (params.tau, params.w, params.g, params.y0)
+    dtype = getattr(params.w, "dtype", None)
+    if dtype not in _NP_DTYPES:
+        return None
+    if type(t) is np.ndarray and t.dtype == _NP_DTYPES[dtype]:
+        t = torch.from_numpy(t)  # a view: checked below as the tensors are
+    for a in (t, *fields):
+        if type(a) is not torch.Tensor or a.dtype is not dtype or a.requires_grad or not a.is_cpu:
+            return None
+    return tuple(a.numpy() for a in (t, *fields))
+
+
+def _stamp_rows(t: np.ndarray, batch: tuple) -> np.ndarray:
+    """``t`` (``[*batch, T]`` or ``[T]``) as C-contiguous rows ``[B, T]``, a view where
+    it can be (a kernel given another layout would be compiled again for it)."""
+    n_t = t.shape[-1]
+    if t.ndim == 2 and t.flags.c_contiguous and len(batch) == 1:
+        return t
+    if t.ndim == 1 and math.prod(batch) == 1:
+        return np.ascontiguousarray(t).reshape(1, n_t)
+    return np.ascontiguousarray(np.broadcast_to(t, (*batch, n_t)).reshape(-1, n_t))
+
+
+_NP_DTYPES = {torch.float32: np.dtype(np.float32), torch.float64: np.dtype(np.float64)}
+
+
+def _shapes_fit(t, tau, w, g, y0, config: DMPConfig) -> bool:
+    """Shapes the kernels take: those :meth:`DMPParams.validate` accepts for ``config``,
+    ``t`` of the parameters' batch shape or 1-D, at least one time stamp."""
+    batch = w.shape[:-2]
+    fields_fit = (
+        w.ndim >= 2
+        and w.shape[-2:] == (config.n_kernels, config.n_dims)
+        and tau.shape == batch
+        and g.shape == y0.shape == (*batch, config.n_dims)
+    )
+    t_fits = t.ndim >= 1 and t.shape[-1] > 0 and (t.ndim == 1 or t.shape[:-1] == batch)
+    return fields_fit and t_fits
+
+
+def _forward_kernel(t, tau, w, g, y0, config: DMPConfig) -> np.ndarray:
+    """Positions ``[B, T, d]`` from the fused forward kernel; C-contiguous NumPy inputs
+    ``t [B, T]``, ``tau [B]``, ``w [B, N, d]``, ``g``, ``y0 [B, d]`` of one float dtype."""
+    global _fused_loaded
+    _fused_loaded = True
+    inv_h, s_max, one, tab = _kernel_table(config, _TORCH_DTYPES[t.dtype.type])
+    y = np.empty((*t.shape, w.shape[-1]), dtype=tab.dtype)
+    forward = _fused_kernels(tab, t.shape[0], w.shape[-1])[0]
+    forward(t, tau, w, g, y0, tab, inv_h, s_max, one, config.scaling == "goal-start", y)
+    return y
+
+
+_TORCH_DTYPES = {np.float32: torch.float32, np.float64: torch.float64}
 
 
 def _torch_params(params: DMPParams) -> DMPParams:
@@ -319,7 +424,12 @@ def _use_fused(backend: str, w: torch.Tensor, t: torch.Tensor) -> bool:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if backend == "torch":
         return False
-    if backend == "auto" and not _fused_loaded and t.numel() < _FUSED_MIN_STAMPS:
+    if (
+        backend == "auto"
+        and not _fused_loaded
+        and t.numel() < _FUSED_MIN_STAMPS
+        and _unfused["seconds"] < _KERNEL_LOAD_S
+    ):
         return False  # a small call before any large one: not worth loading the kernels
     ok = (
         _kernels.available()
@@ -341,8 +451,16 @@ def _use_fused(backend: str, w: torch.Tensor, t: torch.Tensor) -> bool:
 # compiled code from its disk cache takes ~0.3 s once per process, which a one-image
 # prediction would feel, while the torch operations roll out a few thousand stamps in
 # about a millisecond. The time-stamp check takes NumPy below this size for that reason.
+# A process that makes many small calls (a controller, a server rolling out one DMP per
+# request) loads the kernels once the torch operations have spent about as long on them
+# as the loading takes (0.3-0.7 s on a 2-core AMD EPYC): it then pays at most about
+# twice what knowing its future would have cost, and ~20 us per B = 1 call after, where
+# the torch operations take 0.3 ms on an idle machine and up to 25 ms on a loaded one
+# (each of their parallel regions waits for a busy core; see fused_threads).
 _FUSED_MIN_STAMPS = 4096
+_KERNEL_LOAD_S = 0.5
 _fused_loaded = False  # set by the first fused rollout
+_unfused = {"seconds": 0.0}  # time of the torch operations' rollouts before that
 
 
 @functools.lru_cache(maxsize=16)
@@ -478,15 +596,8 @@ class _FusedRollout(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, t, tau, w, g, y0, config):
-        global _fused_loaded
-        _fused_loaded = True
-        dtype = w.dtype
-        inv_h, s_max, one, tab = _kernel_table(config, dtype)
-        y = torch.empty(*t.shape, w.shape[-1], dtype=dtype)
-        forward = _fused_kernels(tab, t.shape[0], w.shape[-1])[0]
-        arrays = [_np(x, dtype) for x in (t, tau, w, g, y0)]
-        scaled = config.scaling == "goal-start"
-        forward(*arrays, tab, inv_h, s_max, one, scaled, y.numpy())
+        arrays = [_np(x, w.dtype) for x in (t, tau, w, g, y0)]
+        y = torch.from_numpy(_forward_kernel(*arrays, config))
         if any(ctx.needs_input_grad[1:5]):
             ctx.save_for_backward(t, tau, w, g, y0)
             ctx.config = config
