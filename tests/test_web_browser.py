@@ -493,6 +493,8 @@ def test_a_stroke_model_writes_a_character_stroke_by_stroke_lifting_the_pen(page
     )
     page.goto(server["url"] + "/")
     page.locator("#model-select").select_option(server["strokes"])
+    assert page.locator("#draw-title").inner_text().endswith("Draw a character")
+    assert page.locator("#draw-placeholder").inner_text().startswith("Draw a character here")
     _strokes_on(page, "#drawing", HOOK_AND_TICK)
     assert page.locator("#drawing").get_attribute("data-strokes") == "2"
     _predicted(page, 1)

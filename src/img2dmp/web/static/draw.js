@@ -29,7 +29,7 @@ const ui = {
   fitNote: $("fit-note"), confNote: $("confidence-note"), bend: $("bend"), speed: $("speed"),
   speedValue: $("speed-value"), bendReset: $("bend-reset"), bendMeta: $("bend-meta"),
   bendError: $("bend-error"), bendOff: $("bend-off"), strokeNote: $("stroke-note"),
-  robotHint: $("robot-hint"),
+  robotHint: $("robot-hint"), drawTitle: $("draw-title"),
   hyps: $("hypotheses"), replay: $("replay"), dlDmp: $("download-dmp"),
   dlCsv: $("download-csv"), write: $("write"), job: $("job"), jobProgress: $("job-progress"),
   jobStatus: $("job-status"), robotError: $("robot-error"), jobResult: $("job-result"),
@@ -216,7 +216,7 @@ function requestBody() {
 async function predict() {
   clearTimeout(state.timer);
   if (!state.upload && state.strokes.length === 0) {
-    showMessage(ui.drawError, "notice", "Draw a digit first (or choose an image file).");
+    showMessage(ui.drawError, "notice", `Draw ${whatToDraw()} first (or choose an image file).`);
     return;
   }
   await models.ready;
@@ -303,6 +303,19 @@ function showStrokes(answer) {
   ui.bendOff.textContent =
     `Bending is for one-DMP models: ${answer.model} is a stroke model, whose character is ` +
     `${n} DMP${n === 1 ? "" : "s"}, one per stroke.`;
+}
+
+/** What the chosen model reads: a character of several strokes, or a digit. */
+function whatToDraw() {
+  const m = models.info();
+  return m && m.kind === "strokes" ? "a character" : "a digit";
+}
+
+/** The Draw card asks for what the chosen model reads. */
+function nameWhatToDraw() {
+  const what = whatToDraw();
+  ui.drawTitle.lastChild.textContent = `Draw ${what}`;
+  ui.placeholder.firstChild.textContent = `Draw ${what} here`;
 }
 
 /** The stroke slots of a served model ("?" if the list does not say). */
@@ -834,7 +847,9 @@ function init() {
     animate();
   });
   setupDrop();
+  models.ready.then(nameWhatToDraw);
   models.onChange(() => {
+    nameWhatToDraw();
     if (state.upload || state.strokes.length) predict();
   });
   window.addEventListener("resize", () => {
