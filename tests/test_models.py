@@ -249,23 +249,14 @@ def _sample_tolerance(values: np.ndarray, n_population: int) -> float:
     return 3.0 * float(np.std(values, ddof=1)) / math.sqrt(n) * correction
 
 
-@pytest.mark.skipif(
-    not (DATA / "mnist").is_dir() or not (DATA / "ijs-mnist-trajectories").is_dir(),
-    reason=f"MNIST and the recorded pen paths are not at {DATA} (../shared/data)",
-)
-def test_the_default_model_reproduces_its_cards_figures_on_a_test_sample(tmp_path):
-    from img2dmp.data.prepare import PrepareOptions, prepare_dataset
+def _evaluate_the_cards_sample(m, data, tmp_path) -> dict:
+    """``img2dmp evaluate`` of shipped model ``m`` on every ``SAMPLE_EVERY``-th sample of
+    its card's test part ``data``, checked against the card's Chamfer distance, ink share
+    and path error (:func:`_sample_tolerance`); the evaluation's result."""
     from img2dmp.data.store import save_dataset
     from img2dmp.evaluate import evaluate
 
-    m = models.default_model()
     f = m.figures
-    # The test part as the card's data set holds it (never augmented: prepare's
-    # augmentation and paper copies touch training digits only).
-    options = PrepareOptions(scaling="none", duration_s=1.0)
-    with warnings.catch_warnings():  # the recordings whose time steps prepare repairs
-        warnings.simplefilter("ignore", UserWarning)
-        data = prepare_dataset(options, data_dir=DATA, progress=False).select_split("test")
     assert len(data) == f["n"]
     sample = data.subset(np.arange(0, len(data), SAMPLE_EVERY))
     path = save_dataset(tmp_path / "sample.safetensors", sample)
@@ -280,6 +271,24 @@ def test_the_default_model_reproduces_its_cards_figures_on_a_test_sample(tmp_pat
         values = np.asarray(res[key], dtype=np.float64)
         tolerance = _sample_tolerance(values, f["n"])
         assert abs(values.mean() - card) <= tolerance, (key, values.mean(), card, tolerance)
+    return res
+
+
+@pytest.mark.skipif(
+    not (DATA / "mnist").is_dir() or not (DATA / "ijs-mnist-trajectories").is_dir(),
+    reason=f"MNIST and the recorded pen paths are not at {DATA} (../shared/data)",
+)
+def test_the_default_model_reproduces_its_cards_figures_on_a_test_sample(tmp_path):
+    from img2dmp.data.prepare import PrepareOptions, prepare_dataset
+
+    m = models.default_model()
+    # The test part as the card's data set holds it (never augmented: prepare's
+    # augmentation and paper copies touch training digits only).
+    options = PrepareOptions(scaling="none", duration_s=1.0)
+    with warnings.catch_warnings():  # the recordings whose time steps prepare repairs
+        warnings.simplefilter("ignore", UserWarning)
+        data = prepare_dataset(options, data_dir=DATA, progress=False).select_split("test")
+    _evaluate_the_cards_sample(m, data, tmp_path)
 
 
 @pytest.mark.skipif(
@@ -287,27 +296,12 @@ def test_the_default_model_reproduces_its_cards_figures_on_a_test_sample(tmp_pat
 )
 def test_the_stroke_model_reproduces_its_cards_figures_on_a_sample_of_the_test_drawers(tmp_path):
     from img2dmp.data.importer import ImportOptions, import_dataset
-    from img2dmp.data.store import save_dataset
-    from img2dmp.evaluate import evaluate
 
     m = models.find_shipped("omniglot-strokes")
     f = m.figures
     data = import_dataset(DATA / "omniglot", ImportOptions(n_times=300), progress=False)
     data = data.select_split("test")
-    assert len(data) == f["n"]
-    sample = data.subset(np.arange(0, len(data), SAMPLE_EVERY))
-    path = save_dataset(tmp_path / "sample.safetensors", sample)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        res = evaluate(m.name, path, split="test", n_figures=0, refine=f["refine"])
-    finally:
-        torch.set_num_threads(threads)
-    for key, card in (("chamfer_px", f["chamfer_px"]), ("on_ink_shares", f["path_on_ink"]),
-                      ("path_errors_px", f["path_error_px"])):  # fmt: skip
-        values = np.asarray(res[key], dtype=np.float64)
-        tolerance = _sample_tolerance(values, f["n"])
-        assert abs(values.mean() - card) <= tolerance, (key, values.mean(), card, tolerance)
+    res = _evaluate_the_cards_sample(m, data, tmp_path)
     right = np.equal(res["strokes"]["predicted_counts"], res["strokes"]["true_counts"])
     tolerance = _sample_tolerance(right.astype(np.float64), f["n"])
     assert abs(right.mean() - f["count_right"]) <= tolerance, (right.mean(), f["count_right"])
