@@ -9,6 +9,9 @@ recorded paths): what the README's commands and the tutorial read.
   (``img2dmp.data.clutter``: ``random_paper``, ``put_ink``, ``photo_finish``).
 - ``page.jpg``: a generated photo of a page with two lines of synthetic digits on
   squared paper (``img2dmp.data.clutter.generate_page``), for ``predict --page``.
+- ``character_f.png``: an "F" of three strokes (the bar down, the top bar, the middle
+  bar), each a minimum-jerk line bent a little at random, as dark ink on white, 160 x 160
+  pixels: for a stroke model (``--model omniglot-strokes``).
 
 Every draw comes from one seeded generator, so the same versions of img2dmp and its
 packages give the same images. Run from the repository's root:
@@ -72,6 +75,27 @@ def page_photo(rng) -> Image.Image:
     return Image.fromarray(page.image)
 
 
+#: The "F": each stroke from its first to its last point (pixels of the 160-px image).
+F_STROKES = (((50, 30), (50, 130)), ((50, 30), (115, 30)), ((50, 80), (100, 80)))
+
+
+def drawn_stroke(rng, a, b, n: int = 40, bend_px: float = 1.5) -> np.ndarray:
+    """A pen's stroke ``[n, 2]`` from ``a`` to ``b``: minimum-jerk progress along the line,
+    bowed sideways by a random few pixels at its middle."""
+    f = np.linspace(0.0, 1.0, n)[:, None]
+    progress = 10 * f**3 - 15 * f**4 + 6 * f**5
+    line = (1 - progress) * np.asarray(a, float) + progress * np.asarray(b, float)
+    return line + np.sin(np.pi * f) * rng.normal(0.0, bend_px, 2)
+
+
+def character_on_white(rng, size: int = 160, pen_px: float = 9.0) -> Image.Image:
+    ink = np.zeros((size, size), np.float32)
+    for a, b in F_STROKES:
+        xy = drawn_stroke(rng, a, b)
+        ink = np.maximum(ink, render_paths(xy[None], (size, size), pen_width_px=pen_px)[0].numpy())
+    return Image.fromarray(np.round(255 * (1 - ink)).astype(np.uint8))
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=HERE / "samples", help="output folder")
@@ -82,6 +106,7 @@ def main(argv: list[str] | None = None) -> int:
         "digit_3.png": digit_on_white(rng),
         "digit_5_photo.jpg": digit_photo(rng),
         "page.jpg": page_photo(rng),
+        "character_f.png": character_on_white(rng),
     }
     for name, image in images.items():
         path = args.out / name

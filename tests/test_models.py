@@ -305,3 +305,20 @@ def test_the_stroke_model_reproduces_its_cards_figures_on_a_sample_of_the_test_d
     right = np.equal(res["strokes"]["predicted_counts"], res["strokes"]["true_counts"])
     tolerance = _sample_tolerance(right.astype(np.float64), f["n"])
     assert abs(right.mean() - f["count_right"]) <= tolerance, (right.mean(), f["count_right"])
+
+
+def test_the_stroke_model_reads_the_sample_f_as_its_three_strokes(tmp_path, capsys):
+    """examples/plot_strokes.py: the shipped stroke model reads the drawn "F" of
+    examples/samples as three strokes, the bar down first, and draws them."""
+    import importlib.util
+
+    script = ROOT / "examples" / "plot_strokes.py"
+    spec = importlib.util.spec_from_file_location("plot_strokes", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert module.main(["--out", str(tmp_path / "strokes.png")]) == 0
+    assert capsys.readouterr().out.strip().endswith(": 3 strokes")
+    assert (tmp_path / "strokes.png").stat().st_size > 10_000
+    pred = img2dmp.load_model("omniglot-strokes").predict(module.SAMPLE)
+    first = pred.path_image[0][pred.stroke_rows(0), :2]
+    assert first[-1, 1] - first[0, 1] > 60  # the bar, top to bottom (image rows)
