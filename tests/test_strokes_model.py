@@ -477,3 +477,16 @@ def test_the_count_readings_compare_views_and_the_pieces_bound(
     truth = [len(data.stroke_spans(int(i))) for i in val]
     assert rows[0]["count_right"] == pytest.approx(np.mean(np.equal(plain, truth)))
     assert predictor.count_views == 8  # left as it was
+
+
+@pytest.mark.parametrize("command", ["predict", "write"])
+def test_a_page_with_a_stroke_model_is_one_line_naming_why(trained, command, tmp_path, capsys):
+    from pathlib import Path
+
+    page = Path(__file__).resolve().parents[1] / "examples" / "samples" / "page.jpg"
+    args = [command, str(page), "--page", "--model", str(trained), "--out", str(tmp_path)]
+    assert cli.main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "reading a page is for one-DMP models" in err[0], err
+    assert "stroke model (8 stroke slots)" in err[0]
+    assert not any(tmp_path.iterdir())

@@ -644,9 +644,16 @@ class Predictor:
         """Every handwritten character of a photo or scan of a page, each a ranked set of
         DMPs where it stands (:func:`img2dmp.page.read_page`): a
         :class:`~img2dmp.page.PagePrediction` in reading order, with fit scores and flags;
-        ``.save(dir, stem)`` writes the page document and its picture."""
+        ``.save(dir, stem)`` writes the page document and its picture. A stroke model
+        is refused (``ValueError``): pages are read with one-DMP models."""
         from .page import read_page
 
+        if self.strokes is not None:
+            raise ValueError(
+                f"reading a page is for one-DMP models (such as {default_model().name}); "
+                f"this is a stroke model ({self.strokes.slots} stroke slots): read each "
+                "character's image alone"
+            )
         return read_page(self, image, n_points=n_points,
                          match_stroke_width=match_stroke_width, name=name)  # fmt: skip
 
