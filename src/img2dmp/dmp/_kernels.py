@@ -9,8 +9,9 @@ y0 from them, and that of tau from the table's derivative at the same place.
 The maths is that of :class:`img2dmp.dmp.rollout._PiecewiseCombination` (the two paths
 are tested against each other and by gradcheck). The table has the layout
 ``tab[piece, power, column]``, its columns padded with zeros to a multiple of 16, so
-that the inner loops run over contiguous columns without a scalar remainder. NaN in
-``t`` or ``tau`` gives NaN positions, as in the torch path.
+that the inner loops run over contiguous columns without a scalar remainder, and it
+starts on a cache line (:func:`piece_table`), so that no vector load of it straddles
+two. NaN in ``t`` or ``tau`` gives NaN positions, as in the torch path.
 
 The kernels are compiled per (table width, number of dimensions, serial or parallel)
 and dtype; the parallel ones spread the samples over numba's threads (OpenMP, the same
@@ -316,11 +317,26 @@ _COLUMN_MULTIPLE = 16
 def piece_table(poly: np.ndarray) -> np.ndarray:
     """The torch path's ``[C, G, 4]`` polynomial table in the kernels' ``[G, 4, C']`` layout.
 
-    ``C'`` is ``C`` rounded up to a multiple of 16; the extra columns are zero.
+    ``C'`` is ``C`` rounded up to a multiple of 16; the extra columns are zero. The
+    table starts on a 64-byte boundary, so every row (a multiple of 64 bytes) does: the
+    kernels load it in 64-byte vectors, and one that straddles two cache lines costs
+    two loads. NumPy aligns to 16 bytes only, so the kernels ran at one of two speeds
+    from one process to the next: at B = 128 float64 on an AMD EPYC (AVX-512) 29 or 40
+    cycles a stamp forward, 51 or 65 backward (``benchmarks/bench_kernel.py``).
     """
     poly = np.asarray(poly)
     n_c = poly.shape[0]
     padded = -(-n_c // _COLUMN_MULTIPLE) * _COLUMN_MULTIPLE
-    tab = np.zeros((poly.shape[1], 4, padded), dtype=poly.dtype)
+    tab = _aligned_zeros((poly.shape[1], 4, padded), poly.dtype)
     tab[:, :, :n_c] = poly.transpose(1, 2, 0)
     return tab
+
+
+def _aligned_zeros(shape: tuple, dtype, alignment: int = 64) -> np.ndarray:
+    """Zeros whose first element starts a cache line (NumPy aligns to 16 bytes only), so
+    that no vector load of a table row straddles two lines."""
+    dtype = np.dtype(dtype)
+    n = int(np.prod(shape))
+    raw = np.zeros(n * dtype.itemsize + alignment, dtype=np.uint8)
+    skip = -raw.ctypes.data % alignment
+    return raw[skip : skip + n * dtype.itemsize].view(dtype).reshape(shape)
