@@ -7,15 +7,18 @@ thread, and prints the time per time stamp (one sample's one stamp) in ns and in
 cycles. Cycles are estimated as ns times the clock that ``/proc/cpuinfo`` reports
 ("cpu MHz"; ``--ghz`` overrides it): on a virtual machine that is the nominal clock, so
 the estimate is only as good as that number. Beside them: the floor the FMA units set
-(the multiply-adds per stamp over 2 pipes of 256-bit FMAs, 8 float64 or 16 float32 per
-cycle, as on AMD Zen 2-4 and Intel's 2-FMA cores) for the table's padded width.
+(5 multiply-adds per column and stamp forward, about 10 backward, over 2 pipes of
+256-bit FMAs: 8 float64 or 16 float32 per cycle, as on AMD Zen 2-4) for the table's
+padded width, and where the table starts relative to a cache line (64 bytes).
 
 ``--before REV`` (default ``main``) times the kernels of that git revision too
 (``src/img2dmp/dmp/_kernels.py`` taken with ``git show`` and imported on its own,
-compiled once into ``~/.cache/img2dmp/bench_kernel``), alternated round by round with
-the current ones, and prints the ratio per round; ``--before ""`` skips it. The
-numbers the two give are compared as well (largest difference relative to the largest
-value).
+compiled once into ``~/.cache/img2dmp/bench_kernel``): with its table where its own
+``piece_table`` puts it, and copied to 16 and to 0 bytes past a cache line. Every
+round builds each variant's inputs afresh and takes the variants in alternation;
+the ratios are taken round by round. The numbers each variant gives are compared with
+the current kernels' (largest difference relative to the largest value; forward:
+positions, backward: the four gradients). ``--before ""`` skips it.
 
 Run pinned to one core on a shared machine::
 
@@ -80,16 +83,17 @@ def kernels_at(rev: str):
     return module
 
 
-def kernel_inputs(module, b: int, dtype: torch.dtype, n_t: int = 301, align: bool = False):
+def kernel_inputs(module, b: int, dtype: torch.dtype, n_t: int = 301, offset=None):
     """Arguments of ``forward`` and ``backward`` of ``module`` for a batch of ``b``; with
-    ``align`` its table copied to a 64-byte boundary."""
+    an ``offset`` its table copied to start that many bytes past a cache line."""
     cfg, p, t = make_batch(b=b, t_count=n_t)
     h, s_max, poly = _response_table(cfg, dtype, "cpu")
     tab = module.piece_table(poly.numpy())
-    if align:
-        aligned = _kernels._aligned_zeros(tab.shape, tab.dtype)
-        aligned[...] = tab
-        tab = aligned
+    if offset is not None:
+        raw = _kernels._aligned_zeros((tab.nbytes + 64,), np.uint8)
+        placed = raw[offset : offset + tab.nbytes].view(tab.dtype).reshape(tab.shape)
+        placed[...] = tab
+        tab = placed
     one = tab.dtype.type(1.0)
     np_dtype = tab.dtype
     arrays = [np.ascontiguousarray(x, dtype=np_dtype) for x in (t, p.tau, p.w, p.g, p.y0)]
@@ -98,11 +102,11 @@ def kernel_inputs(module, b: int, dtype: torch.dtype, n_t: int = 301, align: boo
     return arrays, consts, gy
 
 
-def calls(module, b: int, dtype: torch.dtype, n_t: int = 301, align: bool = False):
+def calls(module, b: int, dtype: torch.dtype, n_t: int = 301, offset=None):
     """``(forward, backward, table offset)``: closures running one kernel call each and
     returning its output, and the table's first byte's address modulo 64."""
     forward, backward = module.kernels(module_width(module, dtype), 2, 1)
-    arrays, consts, gy = kernel_inputs(module, b, dtype, n_t, align)
+    arrays, consts, gy = kernel_inputs(module, b, dtype, n_t, offset)
     out = np.empty((b, n_t, 2), dtype=consts[0].dtype)
     grads = [np.empty_like(x) for x in (arrays[2], arrays[1], arrays[3], arrays[4])]
 
@@ -153,46 +157,61 @@ def largest_difference(a, b) -> float:
 
 
 def run(args) -> list[dict]:
-    modules = {"now": (_kernels, False)}
+    modules = {"now": (_kernels, None)}
     if args.before:
         old = kernels_at(args.before)
-        modules[f"before ({args.before})"] = (old, False)
-        modules[f"before ({args.before}), table aligned"] = (old, True)
+        modules[f"before ({args.before})"] = (old, None)
+        modules[f"before ({args.before}), table at +16 B"] = (old, 16)
+        modules[f"before ({args.before}), table at +0 B"] = (old, 0)
     _kernels.available()
     rows = []
-    for dtype in (torch.float32, torch.float64):
+    for dtype in args.dtypes:
         for b in args.batch:
             rows.extend(time_case(modules, b, dtype, args))
     return rows
 
 
-def time_case(modules, b, dtype, args) -> list[dict]:
-    """Forward and backward of every module at one batch size and dtype, alternated."""
+def time_case(variants, b, dtype, args) -> list[dict]:
+    """Forward and backward of every variant at one batch size and dtype, alternated.
+
+    Every round builds each variant's inputs afresh (new addresses: how the arrays fall
+    relative to each other moves a kernel's time by several per cent) and takes the
+    variants in turn, in reverse order every other round. The outputs of the last
+    round are compared with the first variant's.
+    """
     n_t = args.time_stamps
-    built = {name: calls(m, b, dtype, n_t, align) for name, (m, align) in modules.items()}
+    names = list(variants)
+    ns = {(name, k): [] for name in names for k in range(2)}
+    offsets = {name: set() for name in names}
+    outs = {}
+    for r in range(args.rounds):
+        for name in names if r % 2 == 0 else names[::-1]:
+            module, offset = variants[name]
+            fns = calls(module, b, dtype, n_t, offset)
+            offsets[name].add(fns[2])
+            for k in range(2):
+                ns[name, k].append(time_per_call(fns[k], args.seconds) / (b * n_t) * 1e9)
+            outs[name] = [[np.copy(x) for x in _as_list(fn())] for fn in fns[:2]]
     rows = []
-    for k, pass_name in enumerate(("forward", "backward")):
-        per_round = {name: [] for name in built}
-        for _ in range(args.rounds):
-            for name, fns in built.items():
-                per_round[name].append(time_per_call(fns[k], args.seconds) / (b * n_t))
-        outs = {name: fns[k]() for name, fns in built.items()}
-        outs = {name: [np.copy(x) for x in (o if isinstance(o, list) else [o])] for name, o in outs.items()}
-        first = next(iter(outs.values()))
-        for name, times in per_round.items():
+    for name in names:
+        for k, pass_name in enumerate(("forward", "backward")):
             rows.append(
                 dict(
                     dtype=str(dtype).replace("torch.", ""),
                     b=b,
                     pass_=pass_name,
                     kernels=name,
-                    ns=[x * 1e9 for x in times],
-                    diff=largest_difference(first, outs[name]),
-                    width=module_width(modules[name][0], dtype),
-                    offset=built[name][2],
+                    ns=ns[name, k],
+                    diff=largest_difference(outs[names[0]][k], outs[name][k]),
+                    width=module_width(variants[name][0], dtype),
+                    offset="/".join(str(o) for o in sorted(offsets[name])),
                 )
             )
     return rows
+
+
+def _as_list(out) -> list:
+    return out if isinstance(out, list) else [out]
 
 
 def print_rows(rows, ghz: float, rounds: int) -> None:
@@ -227,12 +246,15 @@ def print_rows(rows, ghz: float, rounds: int) -> None:
 def parse_args(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--batch", type=int, nargs="+", default=[1, 128, 4096])
+    ap.add_argument("--dtypes", nargs="+", default=["float32", "float64"])
     ap.add_argument("--time-stamps", type=int, default=301)
     ap.add_argument("--rounds", type=int, default=5, help="alternated rounds")
     ap.add_argument("--seconds", type=float, default=0.2, help="per timing, about")
     ap.add_argument("--before", default="main", help='git revision to compare ("": none)')
     ap.add_argument("--ghz", type=float, default=0.0, help="clock for the cycle estimate")
-    return ap.parse_args(argv)
+    args = ap.parse_args(argv)
+    args.dtypes = [getattr(torch, name) for name in args.dtypes]
+    return args
 
 
 def main(argv=None) -> list[dict]:
