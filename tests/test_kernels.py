@@ -1,10 +1,12 @@
-"""The fused kernels on their cache-line-aligned table (issue 33 part 4).
+"""The fused kernels on their cache-line-aligned table, stamps in pairs (issue 33 part 4).
 
 :func:`img2dmp.dmp._kernels.piece_table` now starts the table on a 64-byte boundary;
-before, it started wherever NumPy put it (16-byte aligned). The kernels must give the
-numbers they gave on such a table, to 1e-12 relative in float64, positions and
-gradients, and the positions must match an independent NumPy evaluation of the same
-piecewise cubic.
+before, it started wherever NumPy put it (16-byte aligned), and the kernels now take
+the time stamps two at a time. They must give the numbers they gave, to 1e-12 relative
+in float64: the positions those of an independent NumPy evaluation of the same
+piecewise cubic, the gradients those of the torch operations' hand-written backward
+(itself checked by gradcheck in test_dmp.py), on any table placement, for odd and even
+numbers of stamps.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-from img2dmp.dmp import DMPConfig, DMPParams, _kernels
+from img2dmp.dmp import DMPConfig, DMPParams, _kernels, rollout
 from img2dmp.dmp.rollout import _response_table
 
 pytestmark = pytest.mark.skipif(not _kernels.available(), reason="needs numba")
@@ -46,7 +48,7 @@ def _shifted(tab: np.ndarray, offset: int) -> np.ndarray:
     return out
 
 
-def _run(tab, cfg, p, t, gy, dtype):
+def _run(tab, cfg, p, t, gy, dtype, want_s=True):
     """Positions and the gradients (w, tau, g, y0) of ``sum(gy * y)`` from the kernels."""
     np_dtype = DTYPES[dtype]
     h, s_max, _ = _response_table(cfg, dtype, "cpu")
@@ -57,7 +59,7 @@ def _run(tab, cfg, p, t, gy, dtype):
     y = np.empty((*t.shape, cfg.n_dims), dtype=np_dtype)
     forward(*arrays, *consts, y)
     grads = [np.empty_like(arrays[i]) for i in (2, 1, 3, 4)]
-    backward(gy.astype(np_dtype), *arrays, *consts, *grads, True)
+    backward(gy.astype(np_dtype), *arrays, *consts, *grads, want_s)
     return [y, *grads]
 
 
@@ -72,6 +74,16 @@ def _reference_positions(cfg, p, t):
     scale = (p.g - p.y0) if cfg.scaling == "goal-start" else np.ones_like(p.g)
     forced = np.einsum("kbt,bkd->btd", r[1:], p.w) * scale[:, None, :]
     return p.g[:, None, :] + (p.y0 - p.g)[:, None, :] * r[0][..., None] + forced
+
+
+def _reference_gradients(cfg, p, t, gy):
+    """Gradients (w, tau, g, y0) of ``sum(gy * y)`` through the torch operations."""
+    leaves = [
+        torch.tensor(a, dtype=torch.float64, requires_grad=True) for a in (p.w, p.tau, p.g, p.y0)
+    ]
+    y = rollout(DMPParams(*leaves), torch.tensor(t), cfg, backend="torch")
+    (y * torch.tensor(gy)).sum().backward()
+    return [a.grad.numpy() for a in leaves]
 
 
 def test_piece_table_starts_on_a_cache_line_and_holds_the_pieces():
@@ -96,7 +108,7 @@ CASES = [
 
 @pytest.mark.parametrize("dtype", list(DTYPES))
 @pytest.mark.parametrize(("b", "n_t", "n", "d", "scaling"), CASES)
-def test_aligned_table_gives_the_numbers_of_a_misaligned_one(dtype, b, n_t, n, d, scaling):
+def test_kernels_give_the_reference_numbers_on_any_table_placement(dtype, b, n_t, n, d, scaling):
     cfg = DMPConfig(n_kernels=n, n_dims=d, scaling=scaling)
     p, t = _batch(b, n_t, cfg)
     gy = np.random.default_rng(1).normal(size=(b, n_t, d))
@@ -108,8 +120,14 @@ def test_aligned_table_gives_the_numbers_of_a_misaligned_one(dtype, b, n_t, n, d
         for a, b_ in zip(new, old, strict=True):
             np.testing.assert_allclose(a, b_, rtol=0, atol=tol * np.abs(b_).max())
     if dtype == torch.float64:
-        ref = _reference_positions(cfg, p, t)
-        np.testing.assert_allclose(new[0], ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+        refs = [_reference_positions(cfg, p, t), *_reference_gradients(cfg, p, t, gy)]
+        for a, ref in zip(new, refs, strict=True):
+            np.testing.assert_allclose(a, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    # Without the time gradient: the same gradients for w, g and y0, and none for tau.
+    other = _run(tab, cfg, p, t, gy, dtype, want_s=False)
+    for k in (1, 3, 4):
+        np.testing.assert_array_equal(other[k], new[k])
+    assert not other[2].any()
 
 
 @pytest.mark.parametrize("dtype", list(DTYPES))
