@@ -362,9 +362,10 @@ def piece_table(poly: np.ndarray) -> np.ndarray:
     ``C'`` is ``C`` rounded up to a multiple of 16; the extra columns are zero. The
     table starts on a 64-byte boundary, so every row (a multiple of 64 bytes) does: the
     kernels load it in 64-byte vectors, and one that straddles two cache lines costs
-    two loads. NumPy aligns to 16 bytes only, so the kernels ran at one of two speeds
-    from one process to the next: at B = 128 float64 on an AMD EPYC (AVX-512) 29 or 40
-    cycles a stamp forward, 51 or 65 backward (``benchmarks/bench_kernel.py``).
+    two loads. NumPy aligns to 16 bytes only, so the kernels' speed changed from one
+    process to the next: at B = 128 float64 on an AMD EPYC (AVX-512), the table on a
+    line or 16 bytes past one, about 30 or 43 cycles a stamp forward and 53 or 68
+    backward (``benchmarks/bench_kernel.py``, experiments/RESULTS.md 5.6).
     """
     poly = np.asarray(poly)
     n_c = poly.shape[0]
