@@ -171,3 +171,31 @@ def test_small_call_benchmark_times_old_and_new_paths(bench, capsys):
         assert part in out, part
     assert all(len(v) == 4 for v in per_call.values())
     assert bs._rollout._direct_rollout.__name__ == "_direct_rollout"  # switched back on
+
+
+def test_kernel_benchmark_prints_cycles_per_stamp(bench, capsys):
+    bk = bench("bench_kernel")
+    argv = ["--batch", "1", "3", "--time-stamps", "5", "--rounds", "2", "--seconds", "0.001"]
+    rows = bk.main([*argv, "--before", ""])
+    assert {(r["dtype"], r["b"], r["pass_"]) for r in rows} == {
+        (dt, b, p) for dt in ("float32", "float64") for b in (1, 3) for p in ("forward", "backward")
+    }
+    assert all(r["offset"] == "0" and r["diff"] == 0 for r in rows)
+    out = capsys.readouterr().out
+    assert "cycles / stamp" in out and "load average" in out and "CPU: " in out
+
+
+def test_kernel_benchmark_times_a_git_revision_s_kernels(bench):
+    bk = bench("bench_kernel")
+    try:
+        old = bk.kernels_at("HEAD")
+    except Exception as exc:  # not a git checkout
+        pytest.skip(f"no git revision to compare with: {exc}")
+    rows = bk.time_case(
+        {"now": (bk._kernels, None), "HEAD, +16 B": (old, 16)},
+        2,
+        torch.float64,
+        bk.parse_args(["--time-stamps", "4", "--rounds", "1", "--seconds", "0.001"]),
+    )
+    assert [r["offset"] for r in rows[2:]] == ["16", "16"]
+    assert all(r["diff"] < 1e-12 for r in rows)

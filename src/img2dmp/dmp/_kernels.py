@@ -9,8 +9,9 @@ y0 from them, and that of tau from the table's derivative at the same place.
 The maths is that of :class:`img2dmp.dmp.rollout._PiecewiseCombination` (the two paths
 are tested against each other and by gradcheck). The table has the layout
 ``tab[piece, power, column]``, its columns padded with zeros to a multiple of 16, so
-that the inner loops run over contiguous columns without a scalar remainder. NaN in
-``t`` or ``tau`` gives NaN positions, as in the torch path.
+that the inner loops run over contiguous columns without a scalar remainder, and it
+starts on a cache line (:func:`piece_table`), so that no vector load of it straddles
+two. NaN in ``t`` or ``tau`` gives NaN positions, as in the torch path.
 
 The kernels are compiled per (table width, number of dimensions, serial or parallel)
 and dtype; the parallel ones spread the samples over numba's threads (OpenMP, the same
@@ -81,6 +82,45 @@ def _cubic(tab, p, c, u):
     return tab[p, 0, c] + u * (tab[p, 1, c] + u * (tab[p, 2, c] + u * tab[p, 3, c]))
 
 
+def _cubic_and_slope(tab, p, c, u):
+    """Column ``c`` of piece ``p`` at ``u`` and its derivative in ``u``, from one set of
+    loads (the same arithmetic as :func:`_cubic` for the value)."""
+    r1 = tab[p, 1, c]
+    r2 = tab[p, 2, c]
+    r3 = tab[p, 3, c]
+    return tab[p, 0, c] + u * (r1 + u * (r2 + u * r3)), r1 + u * (r2 + r2 + u * (r3 + r3 + r3))
+
+
+def _gy_pair(gy, b, i, jp, zero):
+    """The output gradients of dimensions ``2 jp`` and ``2 jp + 1`` at stamp ``i``
+    (``zero`` for a dimension past the last)."""
+    return gy[b, i, 2 * jp], gy[b, i, 2 * jp + 1] if 2 * jp + 1 < gy.shape[2] else zero
+
+
+def _inside(s, s_max, g_s, zero):
+    """``g_s`` where ``0 < s < s_max``, else exactly 0: the clamp of ``s`` to the table
+    has no time derivative (NaN ``s``: outside)."""
+    return g_s if s > zero and s < s_max else zero
+
+
+def _finish_gradients(b, gc, gy, w, g, y0, scaled, one, gw, gg, gy0):
+    """The gradients of sample ``b``'s w, g and y0 from those of its coefficients ``gc``."""
+    n_t, n_k, d = gy.shape[1], w.shape[1], w.shape[2]
+    zero = one - one
+    for j in range(d):
+        sc = g[b, j] - y0[b, j] if scaled else one
+        through_scale = zero
+        g_sum = zero
+        for i in range(n_t):
+            g_sum += gy[b, i, j]
+        for k in range(n_k):
+            gw[b, k, j] = gc[j, k + 1] * sc
+            if scaled:  # S = g - y0 passes the weights' gradient on to g and y0
+                through_scale += gc[j, k + 1] * w[b, k, j]
+        gg[b, j] = g_sum - gc[j, 0] + through_scale
+        gy0[b, j] = gc[j, 0] - through_scale
+
+
 def _coefficients(b, w, g, y0, scaled, coef, one):
     """This sample's coefficients of the table's columns: ``[y0 - g, S * w_1, ...]``.
 
@@ -121,7 +161,9 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
         N + 1 are zero), out [B, T, d]. ``inv_h``, ``s_max`` and ``one`` are scalars of
         the table's dtype, so every float stays in that dtype (a Python literal would
         promote float32 code to float64). Dimensions go in pairs through one loop over
-        the columns, vectorised with two accumulators.
+        the columns, vectorised with two accumulators per stamp; the stamps go in
+        pairs too (an odd last one paired with itself), so that each coefficient
+        loaded serves two of them.
         """
         n_b, n_t = t.shape
         zero = one - one
@@ -134,26 +176,33 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
             pieces = np.empty(n_t, dtype=np.int64)
             coords = np.empty(n_t, dtype=tab.dtype)
             _locate_row(t, b, one / tau[b], inv_h, s_max, one, pieces, coords)
-            for i in range(n_t):
-                p, u = pieces[i], coords[i]
+            for i in range(0, n_t, 2):
+                i2 = min(i + 1, n_t - 1)
+                p, u, p2, u2 = pieces[i], coords[i], pieces[i2], coords[i2]
                 for jp in range(n_pairs):
-                    acc_a = zero
-                    acc_b = zero
+                    acc_a, acc_b, acc_a2, acc_b2 = zero, zero, zero, zero
                     for c in range(n_c):
                         v = _cubic(tab, p, c, u)
-                        acc_a += coef[2 * jp, c] * v
-                        acc_b += coef[2 * jp + 1, c] * v
+                        v2 = _cubic(tab, p2, c, u2)
+                        ca, cb = coef[2 * jp, c], coef[2 * jp + 1, c]
+                        acc_a += ca * v
+                        acc_b += cb * v
+                        acc_a2 += ca * v2
+                        acc_b2 += cb * v2
                     out[b, i, 2 * jp] = g[b, 2 * jp] + acc_a
+                    out[b, i2, 2 * jp] = g[b, 2 * jp] + acc_a2
                     if 2 * jp + 1 < d:
                         out[b, i, 2 * jp + 1] = g[b, 2 * jp + 1] + acc_b
+                        out[b, i2, 2 * jp + 1] = g[b, 2 * jp + 1] + acc_b2
 
     def backward(gy, t, tau, w, g, y0, tab, inv_h, s_max, one, scaled, gw, gtau, gg, gy0, want_s):
         """Gradients of ``sum(gy * y)`` for w, tau, g and y0, written into gw ... gy0.
 
         ``want_s`` skips the time derivative (and gtau) when tau needs no gradient.
+        Stamps in pairs as in ``forward``: the second of a pair with itself has no
+        weight.
         """
         n_b, n_t = t.shape
-        n_k = w.shape[1]
         zero = one - one
         coefs = np.zeros((n_b, 2 * n_pairs, n_c), dtype=tab.dtype)
         gcs = np.zeros((n_b, 2 * n_pairs, n_c), dtype=tab.dtype)  # gradient of coefs
@@ -165,47 +214,38 @@ def _build(n_columns: int, n_dims: int, parallel: bool):
             coords = np.empty(n_t, dtype=tab.dtype)
             _locate_row(t, b, inv_tau, inv_h, s_max, one, pieces, coords)
             g_tau = zero
-            for i in range(n_t):
-                p, u = pieces[i], coords[i]
-                g_s = zero
-                # The clamp at the ends of the table stops the time gradient outside.
-                s = t[b, i] * inv_tau
-                inside = want_s and s > zero and s < s_max
+            for i in range(0, n_t, 2):
+                i2 = min(i + 1, n_t - 1)
+                p, u, p2, u2 = pieces[i], coords[i], pieces[i2], coords[i2]
+                g_s, g_s2 = zero, zero
                 for jp in range(n_pairs):
-                    ga = gy[b, i, 2 * jp]
-                    gb = gy[b, i, 2 * jp + 1] if 2 * jp + 1 < d else zero
-                    if inside:  # responses and their derivatives from the same loads
-                        acc = zero
+                    ga, gb = _gy_pair(gy, b, i, jp, zero)
+                    ga2, gb2 = _gy_pair(gy, b, i2, jp, zero) if i2 > i else (zero, zero)
+                    if want_s:  # responses and their derivatives from the same loads
+                        acc, acc2 = zero, zero
                         for c in range(n_c):
-                            r1 = tab[p, 1, c]
-                            r2 = tab[p, 2, c]
-                            r3 = tab[p, 3, c]
-                            v = tab[p, 0, c] + u * (r1 + u * (r2 + u * r3))
-                            gc[2 * jp, c] += ga * v
-                            gc[2 * jp + 1, c] += gb * v
-                            dv = r1 + u * (r2 + r2 + u * (r3 + r3 + r3))
-                            acc += (ga * coef[2 * jp, c] + gb * coef[2 * jp + 1, c]) * dv
+                            v, dv = _cubic_and_slope(tab, p, c, u)
+                            v2, dv2 = _cubic_and_slope(tab, p2, c, u2)
+                            gc[2 * jp, c] += ga * v + ga2 * v2
+                            gc[2 * jp + 1, c] += gb * v + gb2 * v2
+                            ca, cb = coef[2 * jp, c], coef[2 * jp + 1, c]
+                            acc += (ga * ca + gb * cb) * dv
+                            acc2 += (ga2 * ca + gb2 * cb) * dv2
                         g_s += acc
+                        g_s2 += acc2
                     else:
                         for c in range(n_c):
                             v = _cubic(tab, p, c, u)
-                            gc[2 * jp, c] += ga * v
-                            gc[2 * jp + 1, c] += gb * v
-                # dy/ds of the interpolant is (dy/du) / h, and s = t / tau.
-                g_tau -= g_s * t[b, i]
+                            v2 = _cubic(tab, p2, c, u2)
+                            gc[2 * jp, c] += ga * v + ga2 * v2
+                            gc[2 * jp + 1, c] += gb * v + gb2 * v2
+                # dy/ds of the interpolant is (dy/du) / h, and s = t / tau; the clamp
+                # at the ends of the table stops the time gradient outside.
+                g_tau -= _inside(t[b, i] * inv_tau, s_max, g_s, zero) * t[b, i]
+                if i2 > i:
+                    g_tau -= _inside(t[b, i2] * inv_tau, s_max, g_s2, zero) * t[b, i2]
             gtau[b] = g_tau * inv_h * inv_tau * inv_tau
-            for j in range(d):
-                sc = g[b, j] - y0[b, j] if scaled else one
-                through_scale = zero
-                g_sum = zero
-                for i in range(n_t):
-                    g_sum += gy[b, i, j]
-                for k in range(n_k):
-                    gw[b, k, j] = gc[j, k + 1] * sc
-                    if scaled:  # S = g - y0 passes the weights' gradient on to g and y0
-                        through_scale += gc[j, k + 1] * w[b, k, j]
-                gg[b, j] = g_sum - gc[j, 0] + through_scale
-                gy0[b, j] = gc[j, 0] - through_scale
+            _finish_gradients(b, gc, gy, w, g, y0, scaled, one, gw, gg, gy0)
 
     return _jit(forward, parallel), _jit(backward, parallel)
 
@@ -236,6 +276,7 @@ def time_stamp_faults(t):
 def available() -> bool:
     """True when numba imports and the fused kernels can be used (imports it once)."""
     global numba, _numba_tried, _locate_row, time_stamp_faults, _cubic, _coefficients
+    global _cubic_and_slope, _gy_pair, _inside, _finish_gradients
     if _numba_tried:
         return numba is not None
     with _import_lock:
@@ -250,6 +291,8 @@ def available() -> bool:
             # The helpers the kernels call, compiled (lazily, on their first call).
             _locate_row, time_stamp_faults = _jit(_locate_row), _jit(time_stamp_faults)
             _cubic, _coefficients = _jit(_cubic), _jit(_coefficients)
+            _cubic_and_slope, _gy_pair = _jit(_cubic_and_slope), _jit(_gy_pair)
+            _inside, _finish_gradients = _jit(_inside), _jit(_finish_gradients)
         _numba_tried = True
     return numba is not None
 
@@ -316,11 +359,27 @@ _COLUMN_MULTIPLE = 16
 def piece_table(poly: np.ndarray) -> np.ndarray:
     """The torch path's ``[C, G, 4]`` polynomial table in the kernels' ``[G, 4, C']`` layout.
 
-    ``C'`` is ``C`` rounded up to a multiple of 16; the extra columns are zero.
+    ``C'`` is ``C`` rounded up to a multiple of 16; the extra columns are zero. The
+    table starts on a 64-byte boundary, so every row (a multiple of 64 bytes) does: the
+    kernels load it in 64-byte vectors, and one that straddles two cache lines costs
+    two loads. NumPy aligns to 16 bytes only, so the kernels' speed changed from one
+    process to the next: at B = 128 float64 on an AMD EPYC (AVX-512), the table on a
+    line or 16 bytes past one, about 30 or 43 cycles a stamp forward and 53 or 68
+    backward (``benchmarks/bench_kernel.py``, experiments/RESULTS.md 5.6).
     """
     poly = np.asarray(poly)
     n_c = poly.shape[0]
     padded = -(-n_c // _COLUMN_MULTIPLE) * _COLUMN_MULTIPLE
-    tab = np.zeros((poly.shape[1], 4, padded), dtype=poly.dtype)
+    tab = _aligned_zeros((poly.shape[1], 4, padded), poly.dtype)
     tab[:, :, :n_c] = poly.transpose(1, 2, 0)
     return tab
+
+
+def _aligned_zeros(shape: tuple, dtype, alignment: int = 64) -> np.ndarray:
+    """Zeros whose first element starts a cache line (NumPy aligns to 16 bytes only), so
+    that no vector load of a table row straddles two lines."""
+    dtype = np.dtype(dtype)
+    n = int(np.prod(shape))
+    raw = np.zeros(n * dtype.itemsize + alignment, dtype=np.uint8)
+    skip = -raw.ctypes.data % alignment
+    return raw[skip : skip + n * dtype.itemsize].view(dtype).reshape(shape)
