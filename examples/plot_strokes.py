@@ -62,6 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     ax.set_axis_off()
     args.out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.out, dpi=110, bbox_inches="tight")
+    plt.close(fig)
     print(f"{args.out}: {pred.n_strokes} strokes")
     return 0
 

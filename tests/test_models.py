@@ -319,6 +319,9 @@ def test_the_stroke_model_reads_the_sample_f_as_its_three_strokes(tmp_path, caps
     assert module.main(["--out", str(tmp_path / "strokes.png")]) == 0
     assert capsys.readouterr().out.strip().endswith(": 3 strokes")
     assert (tmp_path / "strokes.png").stat().st_size > 10_000
+    import matplotlib.pyplot as plt
+
+    assert not plt.get_fignums()  # the figure is closed
     pred = img2dmp.load_model("omniglot-strokes").predict(module.SAMPLE)
     first = pred.path_image[0][pred.stroke_rows(0), :2]
     assert first[-1, 1] - first[0, 1] > 60  # the bar, top to bottom (image rows)
