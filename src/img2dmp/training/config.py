@@ -288,8 +288,8 @@ class StrokesConfig:
     def __post_init__(self) -> None:
         for name in ("presence_weight", "count_weight", "order_weight", "tau_weight"):
             check_positive(f"strokes.{name}", getattr(self, name), allow_zero=True)
-        w = self.count_class_weight
-        if isinstance(w, bool) or not isinstance(w, (int, float)) or not 0 <= w <= 1:
+        w = check_positive("strokes.count_class_weight", self.count_class_weight, allow_zero=True)
+        if w > 1:
             raise ConfigError(f"strokes.count_class_weight must be a number from 0 to 1, got {w!r}")
         from ..nn.strokes import StrokeLayout
 
