@@ -540,3 +540,77 @@ def test_generator_refreshes_its_samples_every_k_epochs(every, drawn):
     assert torch.equal(TrainingData(cfg).train_for_epoch(3).images, epochs[3])
     with pytest.raises(ValueError, match="data.refresh_epochs must be >= 0, got -1"):
         TrainConfig.from_dict({"data": {"refresh_epochs": -1}})
+
+
+def test_train_on_validation_trains_on_both_splits_and_keeps_the_last_epoch(small_data, tmp_path):
+    """The final model's option: the validation rows join the training rows, every epoch is
+    ``best`` (the last is kept, whatever its validation error), evaluate says the figures
+    on the validation split are not a test; the settings that would choose by the
+    validation error are refused by name."""
+    from img2dmp.config import ConfigError
+    from img2dmp.training.data import _split_indices
+
+    a = load_dataset(small_data)
+    plain = tiny_config(small_data)
+    both = tiny_config(small_data)
+    both.data.train_on_validation = True
+    train_idx, val_idx = _split_indices(a, plain)
+    all_idx, val_again = _split_indices(a, both)
+    assert np.array_equal(val_again, val_idx)
+    assert np.array_equal(all_idx, np.union1d(train_idx, val_idx))
+    assert len(all_idx) == len(train_idx) + len(val_idx) > len(train_idx)
+
+    from types import SimpleNamespace
+
+    from img2dmp.training.state import RunState
+
+    s = SimpleNamespace(best_error_px=1.0, best_epoch=0, bad_epochs=0)
+    assert RunState.observe(s, 2.0, 1, last_is_best=True) and s.best_epoch == 1
+    assert not RunState.observe(s, 3.0, 2) and s.best_epoch == 1 and s.bad_epochs == 1
+
+    run = tmp_path / "final"
+    cfg = tiny_config(small_data, epochs=4, lr=2e-2)
+    cfg.data.train_on_validation = True
+    result = train(cfg, run)
+    assert result.best_epoch == 3 == result.epochs_run - 1
+    best = read_checkpoint_meta(run / "checkpoints" / "best.safetensors")
+    assert best["epoch"] == 3 and best["train_config"]["data"]["train_on_validation"] is True
+    ev_val = evaluate(run, small_data, split="validation")
+    ev_test = evaluate(run, small_data, split="test")
+    assert ev_val["trained_on_split"] is True and ev_test["trained_on_split"] is False
+    ev_plain = evaluate(run / "checkpoints" / "best.safetensors", small_data, split="train")
+    assert ev_plain["trained_on_split"] is True
+
+    out = tmp_path / "ev"
+    code = cli.main(["evaluate", "--model", str(run), "--data", str(small_data),
+                     "--split", "validation", "--out", str(out), "--figures", "0"])  # fmt: skip
+    assert code == 0
+
+    for bad, msg in (
+        ({"optim": {"patience": 5}}, "set optim.patience to 0"),
+        ({"optim": {"patience": 0, "schedule": "plateau"}}, "'plateau' schedule"),
+        ({"data": {"path": None}}, "set data.path"),
+        ({"data": {"train_on_validation": "yes"}}, "must be true or false, got 'yes'"),
+    ):
+        d = tiny_config(small_data).to_dict()
+        d["data"]["train_on_validation"] = True
+        for section, values in bad.items():
+            d[section].update(values)
+        with pytest.raises(ConfigError, match=msg):
+            TrainConfig.from_dict(d)
+
+    no_val = tmp_path / "no_val.safetensors"
+    save_dataset(no_val, a.subset(a.split != 1))
+    with pytest.raises(ConfigError, match=r"no_val.safetensors has no validation split"):
+        cfg = tiny_config(no_val)
+        cfg.data.train_on_validation = True
+        _split_indices(load_dataset(no_val), cfg)
+
+
+def test_evaluate_notes_a_split_the_model_trained_on(small_data, trained, capsys, tmp_path):
+    _, run, _ = trained
+    for split, seen in (("validation", False), ("train", True), ("test", False)):
+        code = cli.main(["evaluate", "--model", str(run), "--data", str(small_data), "--split",
+                         split, "--out", str(tmp_path / split), "--figures", "0"])  # fmt: skip
+        assert code == 0
+        assert ("not a test" in capsys.readouterr().out) is seen, split

@@ -381,6 +381,19 @@ def _pick_split(data, split: str):
     return data.select_split(split)
 
 
+def trained_on_split(meta: dict, dataset_sha256: str, splits) -> bool:
+    """Whether a model (its checkpoint's ``meta``) trained on some of the samples of the
+    data set with this digest whose split codes are ``splits``: its training split, and
+    its validation split when it was trained with ``data.train_on_validation``. Its
+    figures there are not a test."""
+    trained = meta.get("dataset") or {}
+    if not dataset_sha256 or trained.get("sha256") != dataset_sha256:
+        return False
+    data_cfg = (meta.get("train_config") or {}).get("data") or {}
+    seen = [SPLITS["train"]] + [SPLITS["validation"]] * bool(data_cfg.get("train_on_validation"))
+    return bool(np.isin(np.asarray(splits), seen).any())
+
+
 def evaluate(
     model_path: str | os.PathLike | Predictor,
     dataset_path: str | os.PathLike,
@@ -442,10 +455,11 @@ def evaluate(
     _, y = top_hypothesis(y_all, probs)  # [M, T, d]
     errors = np.asarray(measures["errors_px"])  # [M], Table I
     result = _headline(measures, names)
+    sha = file_digest(dataset_path)
     result.update(
         model=str(model_path),
         dataset=str(dataset_path),
-        dataset_sha256=file_digest(dataset_path),
+        dataset_sha256=sha,
         split=split,
         digits=digits,
         classes=classes,
@@ -453,6 +467,7 @@ def evaluate(
         cost=predictor.meta.get("train_config", {}).get("cost", {}).get("name"),
         fit_error_px=error_statistics(data.fit_error_px),
         refine_steps=int(refine),
+        trained_on_split=trained_on_split(predictor.meta, sha, data.split),
     )
     result.update(measures)
     result["wall_s"] = time.perf_counter() - t0

@@ -67,6 +67,13 @@ class DataConfig:
         path, with the cost's ink terms alone (``cost.unlabelled_weight``), semi-supervised.
         Only t10k images and training images in the training part of the split rule
         (:func:`img2dmp.data.mnist.unlabelled_images`). None (default): off.
+    train_on_validation : bool
+        Stored mode: train on the validation split too, for the final model once the
+        settings have been chosen on it (``make model-omniglot``). The validation error
+        the run reports is then on samples it trained on, so it says only that training
+        converged: every epoch's checkpoint is ``best`` (the last one is kept), and early
+        stopping (``optim.patience``) and the ``plateau`` schedule, which would choose by
+        it, are refused. The data set must have a validation split. Default False.
     unlabelled_count : int
         How many of those images (a fixed random choice).
     unlabelled_per_batch : int
@@ -85,8 +92,18 @@ class DataConfig:
     unlabelled_mnist: str | None = None
     unlabelled_count: int = 20000
     unlabelled_per_batch: int = 64
+    train_on_validation: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.train_on_validation, bool):
+            raise ConfigError(
+                f"data.train_on_validation must be true or false, got {self.train_on_validation!r}"
+            )
+        if self.train_on_validation and self.path is None:
+            raise ConfigError(
+                "data.train_on_validation trains on a stored data set's validation split: set "
+                "data.path (--data; the generator's validation set is drawn apart)"
+            )
         for name in (
             "samples_per_epoch",
             "val_samples",
@@ -323,6 +340,22 @@ def _check_strokes(cfg) -> None:
         raise ConfigError("data.unlabelled_mnist is not used by a stroke model: leave it out")
 
 
+def _check_train_on_validation(cfg) -> None:
+    """Settings that choose by the validation error, refused when it is trained on."""
+    if not cfg.data.train_on_validation:
+        return
+    if cfg.optim.patience:
+        raise ConfigError(
+            "data.train_on_validation trains on the validation split, so its error cannot "
+            f"stop the run early: set optim.patience to 0 (got {cfg.optim.patience})"
+        )
+    if cfg.optim.schedule == "plateau":
+        raise ConfigError(
+            "data.train_on_validation trains on the validation split, so its error cannot "
+            "drive the 'plateau' schedule: choose optim.schedule cosine, step or none"
+        )
+
+
 @dataclass
 class TrainConfig:
     """Everything :func:`img2dmp.training.train` needs; read by :func:`load_config`.
@@ -366,6 +399,7 @@ class TrainConfig:
         if self.seed < 0:
             raise ConfigError(f"seed must be >= 0, got {self.seed!r}")
         _check_strokes(self)
+        _check_train_on_validation(self)
 
     def to_dict(self) -> dict:
         return _config.to_dict(self)

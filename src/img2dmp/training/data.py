@@ -136,13 +136,20 @@ def count_targets(
 def _split_indices(a: DigitData, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
     """Training and validation rows of a stored data set (labels filtered: ``data.digits``
     are digits, or in a data set with class names the classes named after them;
-    ``data.classes`` are class names)."""
+    ``data.classes`` are class names). With ``data.train_on_validation`` the training
+    rows include the validation rows."""
     d = cfg.data
     wanted = a.labels_selected(d.digits, d.classes)
     keep = np.ones(len(a.labels), dtype=bool) if wanted is None else np.isin(a.labels, wanted)
     train_idx = np.flatnonzero(keep & (a.split == 0))
     val_idx = np.flatnonzero(keep & (a.split == 1))
-    if len(val_idx) == 0:  # no validation split: hold out a share of the training split
+    if d.train_on_validation:
+        if len(val_idx) == 0:
+            raise ConfigError(
+                f"data set {d.path} has no validation split to train on (data.train_on_validation)"
+            )
+        train_idx = np.union1d(train_idx, val_idx)
+    elif len(val_idx) == 0:  # no validation split: hold out a share of the training split
         perm = np.random.default_rng(cfg.seed).permutation(train_idx)
         n_val = max(1, int(round(d.val_fraction * len(perm))))
         val_idx, train_idx = np.sort(perm[:n_val]), np.sort(perm[n_val:])

@@ -146,7 +146,7 @@ def fit(run: Run, t_start: float | None = None) -> TrainResult:
         lr = state.optimizer.param_groups[0]["lr"]
         train_cost, train_error = train_epoch(run, epoch)
         val_error = validate(run, epoch, fallback=train_error)
-        improved = state.observe(val_error, epoch)
+        improved = state.observe(val_error, epoch, run.cfg.data.train_on_validation)
         state.history.append(
             EpochStats(
                 epoch,

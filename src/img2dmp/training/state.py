@@ -58,9 +58,10 @@ class RunState:
     best_epoch: int = -1
     bad_epochs: int = 0  # epochs since the best one (early stopping)
 
-    def observe(self, val_error_px: float, epoch: int) -> bool:
-        """Take an epoch's validation error; True if it is the best so far."""
-        improved = val_error_px < self.best_error_px
+    def observe(self, val_error_px: float, epoch: int, last_is_best: bool = False) -> bool:
+        """Take an epoch's validation error; True if it is the best so far (always, with
+        ``last_is_best``: a run that trains on its validation split keeps its last epoch)."""
+        improved = last_is_best or val_error_px < self.best_error_px
         if improved:
             self.best_error_px, self.best_epoch, self.bad_epochs = val_error_px, epoch, 0
         else:
