@@ -106,6 +106,11 @@ def main(argv: list[str]) -> int:
     predictor = Predictor.load(args.model)
     if predictor.strokes is None:
         parser.error(f"{args.model} is not a stroke model")
+    if predictor.meta.get("train_config", {}).get("data", {}).get("train_on_validation"):
+        parser.error(
+            f"{args.model} trained on the validation split (data.train_on_validation): "
+            "choices measured there would not be measurements; give a run trained without it"
+        )
     rows = []
     print(f"{'steps':>5} {'lr':>5} {'prior':>5} {'Chamfer':>8} {'on ink %':>8} {'path':>6} "
           f"{'count %':>7}")  # fmt: skip

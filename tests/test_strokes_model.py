@@ -490,3 +490,19 @@ def test_a_page_with_a_stroke_model_is_one_line_naming_why(trained, command, tmp
     assert len(err) == 1 and "reading a page is for one-DMP models" in err[0], err
     assert "stroke model (8 stroke slots)" in err[0]
     assert not any(tmp_path.iterdir())
+
+
+def test_stroke_choices_refuses_a_model_that_trained_on_the_validation_drawers(
+    small_omniglot, trained, experiment_script, tmp_path, capsys
+):
+    from img2dmp.checkpoint import load_checkpoint, save_checkpoint
+
+    ck = load_checkpoint(trained)
+    meta = json.loads(json.dumps(ck.meta))
+    meta["train_config"]["data"]["train_on_validation"] = True
+    final = save_checkpoint(tmp_path / "final.safetensors", ck.model_state, meta)
+    mod = experiment_script("stroke_choices")
+    with pytest.raises(SystemExit) as e:
+        mod.main(["--model", str(final), "--data", str(small_omniglot)])
+    assert e.value.code == 2
+    assert "trained on the validation split" in capsys.readouterr().err
