@@ -506,3 +506,41 @@ def test_stroke_choices_refuses_a_model_that_trained_on_the_validation_drawers(
         mod.main(["--model", str(final), "--data", str(small_omniglot)])
     assert e.value.code == 2
     assert "trained on the validation split" in capsys.readouterr().err
+
+
+def test_count_probes_drop_drawers_train_a_class_head_and_read_counts(
+    small_omniglot, trained, experiment_script, tmp_path, capsys
+):
+    from img2dmp.checkpoint import load_checkpoint
+    from img2dmp.nn import strokes as nn_strokes
+    from img2dmp.predict import Predictor
+    from img2dmp.training import data as tdata
+
+    mod = experiment_script("count_probes")
+    data = load_dataset(small_omniglot)
+    who = mod.drawers(data)
+    assert set(who) == set(range(1, 21))
+    fewer = mod.drop_drawers(data, [14, 15])
+    moved = (data.split == 0) & np.isin(who, [14, 15])
+    assert moved.sum() == 8 and (fewer.split[moved] == 2).all()
+    assert np.array_equal(fewer.split[~moved], data.split[~moved])
+
+    run = tmp_path / "head"
+    kept = (tdata.count_targets, nn_strokes.StrokeCost.__call__)
+    assert mod.train_with_class_head(str(small_omniglot), str(run), 1.0, 0, 2) == 0
+    assert (tdata.count_targets, nn_strokes.StrokeCost.__call__) == kept  # patches undone
+    last = load_checkpoint(run / "checkpoints" / "last.safetensors").model_state
+    best = load_checkpoint(run / "checkpoints" / "best.safetensors").model_state
+    assert last["class_head.weight"].shape[0] == 4 and not any("class_head" in k for k in best)
+
+    capsys.readouterr()
+    assert mod.main(["read", "--data", str(small_omniglot), str(trained), str(run)]) == 0
+    out = capsys.readouterr().out
+    assert "all runs averaged" in out and "most common count" in out
+    row = [ln for ln in out.splitlines() if ln.strip().startswith(str(trained)[-40:])]
+    share = float(row[0].split()[1])
+    val = np.flatnonzero(data.split == 1)
+    p = Predictor.load(trained)
+    said = [len(s) for s, _ in p.predict_strokes(data.images[val])]
+    truth = [len(data.stroke_spans(int(i))) for i in val]
+    assert share == pytest.approx(100 * np.mean(np.equal(said, truth)), abs=0.05)

@@ -542,7 +542,9 @@ def test_generator_refreshes_its_samples_every_k_epochs(every, drawn):
         TrainConfig.from_dict({"data": {"refresh_epochs": -1}})
 
 
-def test_train_on_validation_trains_on_both_splits_and_keeps_the_last_epoch(small_data, tmp_path):
+def test_train_on_validation_trains_on_both_splits_and_keeps_the_last_epoch(
+    small_data, tmp_path, capsys
+):
     """The final model's option: the validation rows join the training rows, every epoch is
     ``best`` (the last is kept, whatever its validation error), evaluate says the figures
     on the validation split are not a test; the settings that would choose by the
@@ -571,7 +573,10 @@ def test_train_on_validation_trains_on_both_splits_and_keeps_the_last_epoch(smal
     run = tmp_path / "final"
     cfg = tiny_config(small_data, epochs=4, lr=2e-2)
     cfg.data.train_on_validation = True
+    cfg.progress = True
     result = train(cfg, run)
+    epochs = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("epoch ")]
+    assert len(epochs) == 4 and all("validation (trained on)" in ln for ln in epochs), epochs
     assert result.best_epoch == 3 == result.epochs_run - 1
     best = read_checkpoint_meta(run / "checkpoints" / "best.safetensors")
     assert best["epoch"] == 3 and best["train_config"]["data"]["train_on_validation"] is True

@@ -370,9 +370,10 @@ def _report(run: Run, epochs, s: EpochStats) -> None:
             best=f"{s.best_val_error_px:.3f}",
         )
     else:
+        val = "validation (trained on)" if run.cfg.data.train_on_validation else "validation"
         say(
             f"epoch {s.epoch + 1}/{run.cfg.optim.epochs}: train {s.train_error_px:.4f} px, "
-            f"validation {s.val_error_px:.4f} px (best {s.best_val_error_px:.4f}), "
+            f"{val} {s.val_error_px:.4f} px (best {s.best_val_error_px:.4f}), "
             f"lr {s.lr:.2g}, {s.epoch_time_s:.1f} s"
         )
 

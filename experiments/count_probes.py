@@ -1,0 +1,227 @@
+"""Probes of a stroke model's stroke count on the validation drawers (RESULTS 8.2): does it
+grow with more drawers, with an auxiliary head that names the character, with more views,
+an ensemble or another way of reading the count's probabilities? Three subcommands:
+
+``drop-drawers DATA OUT --drawers 14,15``
+    A copy of an Omniglot data set (``img2dmp import``) whose drawings by these drawers
+    (the ``_NN`` of the image's file name) leave the training split (they become test
+    rows, which no training or validation reads): to see what two drawers more are worth.
+``class-head --data DATA --run-dir RUN --weight W [--seed N] [--epochs E]``
+    ``img2dmp train --config omniglot`` with an auxiliary linear head on the encoder's
+    features that names the character (cross-entropy weight ``W`` beside the stroke cost;
+    training only). A probe, not a feature: it patches the training code for the run, and
+    the head is left out of ``best.safetensors`` so that ``Predictor`` loads the run.
+``read --data DATA RUN [RUN ...]``
+    Per run: the share of the validation drawings whose count is read right (as
+    ``predict`` reads it: 8 views, no fewer than the image's pieces of ink), with 1, 16
+    and 32 views, and by the smallest count whose cumulative probability reaches 0.4
+    (instead of the most probable count); every run's count probabilities averaged (an
+    ensemble); the class-mode ceiling (:func:`stroke_choices.class_mode_shares`); and how
+    often a run's count is its class's most common count among the training drawers.
+
+Run from the repository's root, e.g.::
+
+    python experiments/count_probes.py read --data runs/omniglot/data.safetensors RUN1 RUN2
+
+Each prints the date, the git revision and its command line first. ``class-head`` takes
+as long as a training run (5 minutes for 120 epochs on 2 cores), ``read`` a few seconds
+a run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from img2dmp.data.store import DigitData, load_dataset, save_dataset
+from img2dmp.nn.strokes import ink_pieces
+from img2dmp.predict import Predictor
+
+# isort: split
+# From this script's directory, which Python puts on sys.path when it runs a script.
+from _provenance import format_record, run_record
+from stroke_choices import class_mode_shares
+
+#: The share of the count's probability the ``read`` subcommand's other rule reaches.
+QUANTILE = 0.4
+_DRAWER = re.compile(r"_(\d+)\.png$")
+
+
+def drawers(data: DigitData) -> np.ndarray:
+    """The drawer (1-20) of each row of an Omniglot import, from its image's file name."""
+    names = data.meta.get("rows", {}).get("image")
+    if not names:
+        raise ValueError("the data set records no image file per row: not an Omniglot import")
+    found = [_DRAWER.search(n) for n in names]
+    if not all(found):
+        bad = next(n for n, m in zip(names, found, strict=True) if not m)
+        raise ValueError(f"image {bad!r} does not end in _NN.png (an Omniglot drawer)")
+    return np.array([int(m.group(1)) for m in found])
+
+
+def drop_drawers(data: DigitData, gone: list[int]) -> DigitData:
+    """``data`` with the training rows of the drawers ``gone`` moved to the test split."""
+    arrays = data.arrays()
+    split = arrays["split"].copy()
+    split[np.isin(drawers(data), gone) & (split == 0)] = 2
+    arrays["split"] = split
+    return DigitData(**arrays, meta=data.meta)
+
+
+def train_with_class_head(data: str, run_dir: str, weight: float, seed: int, epochs: int) -> int:
+    """``img2dmp train --config omniglot`` with the auxiliary class head (module docstring).
+
+    The character's class rides beside the count's target (one-hot columns after the S
+    count columns of ``Split.z_target``); the stroke cost adds ``weight`` times the head's
+    cross-entropy on the encoder's features of the batch it was called on."""
+    import torch
+
+    import img2dmp.nn.strokes as strokes
+    import img2dmp.training.data as tdata
+    import img2dmp.training.loop as loop
+    import img2dmp.training.setup as setup
+    from img2dmp import cli
+    from img2dmp.checkpoint import load_checkpoint, save_checkpoint
+
+    n_classes = int(np.asarray(load_dataset(data).labels).max()) + 1
+    features: dict = {}
+    count_targets, build_model = tdata.count_targets, setup.build_model
+    cost_call, train_epoch, validate = strokes.StrokeCost.__call__, loop.train_epoch, loop.validate
+
+    def targets(a, idx, train_idx, slots, w):
+        labels = torch.as_tensor(np.asarray(a.labels)[idx])
+        one_hot = torch.nn.functional.one_hot(labels, n_classes).float()
+        return torch.cat([count_targets(a, idx, train_idx, slots, w), one_hot], 1)
+
+    def model_with_head(cfg, seed=None):
+        model = build_model(cfg, seed=seed)
+        model.class_head = torch.nn.Linear(model.encoder.out_features, n_classes)
+        model.encoder.register_forward_hook(lambda m, i, out: features.__setitem__("x", out))
+        return model
+
+    def cost(self, out, z_target, times, trajectories, images=None):
+        s = self.layout.slots
+        loss, err = cost_call(self, out, z_target[:, :s], times, trajectories, images)
+        logits = features["head"](features["x"][: len(out)])
+        ce = torch.nn.functional.cross_entropy(logits, z_target[:, s:].argmax(1))
+        return loss + weight * ce, err
+
+    def head_first(step):
+        def run_step(run, *args, **kw):
+            features["head"] = run.state.model.class_head
+            return step(run, *args, **kw)
+
+        return run_step
+
+    patches = [
+        (tdata, "count_targets", targets),
+        (setup, "build_model", model_with_head),
+        (strokes.StrokeCost, "__call__", cost),
+        (loop, "train_epoch", head_first(train_epoch)),
+        (loop, "validate", head_first(validate)),
+    ]
+    kept = [(obj, name, getattr(obj, name)) for obj, name, _ in patches]
+    try:
+        for obj, name, new in patches:
+            setattr(obj, name, new)
+        code = cli.main(["train", "--config", "omniglot", "--data", data, "--run-dir", run_dir,
+                         "--seed", str(seed), "--epochs", str(epochs), "--no-progress",
+                         "--force"])  # fmt: skip
+    finally:
+        for obj, name, old in kept:
+            setattr(obj, name, old)
+    if code == 0:
+        best = Path(run_dir) / "checkpoints" / "best.safetensors"
+        ck = load_checkpoint(best)
+        state = {k: v for k, v in ck.model_state.items() if not k.startswith("class_head.")}
+        save_checkpoint(best, state, ck.meta)
+    return code
+
+
+def count_probabilities(run: str, images: np.ndarray, views: int) -> np.ndarray:
+    """A run's count probabilities ``[B, S]`` read from ``views`` views, those below the
+    image's pieces of ink set to 0 (as ``predict`` reads them)."""
+    p = Predictor.load(run)
+    p.count_views = views
+    prob = p.stroke_count_probabilities(images)[:, 0]
+    pieces = np.clip(ink_pieces(images), 1, prob.shape[-1])
+    return np.where(np.arange(1, prob.shape[-1] + 1)[None] >= pieces[:, None], prob, 0.0)
+
+
+def read(data_path: str, runs: list[str]) -> None:
+    data = load_dataset(data_path)
+    idx = np.flatnonzero(data.split == 1)
+    if not len(idx):
+        raise SystemExit(f"{data_path} has no validation split")
+    counts = np.array([len(data.stroke_spans(int(i))) for i in range(len(data))])
+    labels, images, truth = np.asarray(data.labels), data.images[idx], counts[idx]
+    train = data.split == 0
+    mode = {}
+    for c in np.unique(labels[idx]):
+        seen = np.bincount(counts[train & (labels == c)], minlength=counts.max() + 1)
+        mode[int(c)] = int(seen.argmax()) if seen.any() else 0
+    class_mode = np.array([mode[int(labels[i])] for i in idx])
+
+    def right(prob, rule="most probable"):
+        if rule == "most probable":
+            said = prob.argmax(1) + 1
+        else:
+            cum = np.cumsum(prob / prob.sum(1, keepdims=True), 1)
+            said = (cum >= QUANTILE).argmax(1) + 1
+        return 100 * np.mean(said == truth), said
+
+    print(f"validation drawings: {len(idx)}; count right, % (8 views unless said):")
+    print(f"{'run':>40} {'8 views':>8} {'1':>6} {'16':>6} {'32':>6} {'q ' + str(QUANTILE):>6} "
+          f"{'= class mode':>13}")  # fmt: skip
+    eight = []
+    for run in runs:
+        per = {v: count_probabilities(run, images, v) for v in (1, 8, 16, 32)}
+        eight.append(per[8])
+        share, said = right(per[8])
+        as_mode = 100 * np.mean(said == class_mode)
+        others = [right(per[v])[0] for v in (1, 16, 32)] + [right(per[8], "quantile")[0]]
+        print(f"{run[-40:]:>40} {share:>8.1f} " + " ".join(f"{v:>6.1f}" for v in others)
+              + f" {as_mode:>13.1f}")  # fmt: skip
+    if len(runs) > 1:
+        print(f"{'all runs averaged':>40} {right(np.mean(eight, 0))[0]:>8.1f}")
+    shares = class_mode_shares(data)
+    print("a class's most common count (training drawers) is right for: "
+          + ", ".join(f"{k} {100 * v:.1f} %" for k, v in shares.items()))  # fmt: skip
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("drop-drawers")
+    p.add_argument("data")
+    p.add_argument("out")
+    p.add_argument("--drawers", required=True, help="comma-separated, e.g. 14,15")
+    p = sub.add_parser("class-head")
+    p.add_argument("--data", required=True)
+    p.add_argument("--run-dir", required=True)
+    p.add_argument("--weight", type=float, required=True)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--epochs", type=int, default=120)
+    p = sub.add_parser("read")
+    p.add_argument("--data", required=True)
+    p.add_argument("runs", nargs="+")
+    args = parser.parse_args(argv)
+    print(format_record(run_record(__file__, argv)))
+    if args.command == "drop-drawers":
+        gone = [int(d) for d in args.drawers.split(",")]
+        data = drop_drawers(load_dataset(args.data), gone)
+        save_dataset(args.out, data)
+        print(f"written: {args.out} (rows per split: {np.bincount(data.split, minlength=3)})")
+        return 0
+    if args.command == "class-head":
+        return train_with_class_head(args.data, args.run_dir, args.weight, args.seed, args.epochs)
+    read(args.data, args.runs)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
