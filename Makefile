@@ -71,7 +71,7 @@ $(REAL)/evaluation/evaluation.json: $(REAL)/run/checkpoints/best.safetensors
 # The recommended stroke model (each character up to 8 strokes, each its own DMP) from
 # ../shared/data/omniglot: import (every stroke kept, 300 instants), train
 # (--config omniglot, 120 epochs), evaluate on the test drawers refined as recommended;
-# about 9 minutes on 2 cores.
+# about 17 minutes on 2 cores.
 model-omniglot: $(OMNI)/evaluation/evaluation.json
 
 $(OMNI)/data.safetensors: | setup
