@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
     )
     # Table I's table, then (in the same text) the path measures' table.
     print(format_table(res, f"trajectory error (px), {data} [{args.split}]"))
-    if res["trained_on_split"]:
+    if res.get("trained_on_split"):
         seen = f"{data} [{args.split}]"
         print(f"note: the model trained on some of these samples ({seen}): not a test")
     print(f"written: {Path(out) / 'evaluation.json'}, evaluation.txt, examples.png")
