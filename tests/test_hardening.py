@@ -628,6 +628,9 @@ def test_ctrl_c_during_generate_is_one_line(tmp_path):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         start_new_session=True,
+        # as from a terminal: a suite started in the background (a shell's `&` without job
+        # control) runs with SIGINT ignored, which the command would inherit
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
     try:
         deadline = time.monotonic() + 60
