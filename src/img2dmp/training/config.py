@@ -68,8 +68,8 @@ class DataConfig:
         Only t10k images and training images in the training part of the split rule
         (:func:`img2dmp.data.mnist.unlabelled_images`). None (default): off.
     train_on_validation : bool
-        Stored mode: train on the validation split too, for the final model once the
-        settings have been chosen on it (``make model-omniglot``). The validation error
+        Stored mode: train on the validation split too, for a final model once the
+        settings have been chosen on it. The validation error
         the run reports is then on samples it trained on, so it says only that training
         converged: every epoch's checkpoint is ``best`` (the last one is kept), and early
         stopping (``optim.patience``) and the ``plateau`` schedule, which would choose by
