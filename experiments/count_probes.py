@@ -51,7 +51,7 @@ from img2dmp.predict import Predictor
 # isort: split
 # From this script's directory, which Python puts on sys.path when it runs a script.
 from _provenance import format_record, run_record
-from stroke_choices import class_mode_shares
+from stroke_choices import class_mode_shares, class_modes
 
 #: The share of the count's probability the ``read`` subcommand's other rule reaches.
 QUANTILE = 0.4
@@ -207,14 +207,16 @@ def recognise(data_path: str, encoder: str, epochs: int, seed: int = 0) -> tuple
         )
 
 
-def count_probabilities(run: str, images: np.ndarray, views: int) -> np.ndarray:
-    """A run's count probabilities ``[B, S]`` read from ``views`` views, those below the
-    image's pieces of ink set to 0 (as ``predict`` reads them)."""
-    p = Predictor.load(run)
-    p.count_views = views
-    prob = p.stroke_count_probabilities(images)[:, 0]
-    pieces = np.clip(ink_pieces(images), 1, prob.shape[-1])
-    return np.where(np.arange(1, prob.shape[-1] + 1)[None] >= pieces[:, None], prob, 0.0)
+def count_probabilities(
+    predictor: Predictor, images: np.ndarray, pieces: np.ndarray, views: int
+) -> np.ndarray:
+    """A stroke model's count probabilities ``[B, S]`` read from ``views`` views, those
+    below the images' ``pieces`` of ink (:func:`ink_pieces`) set to 0 (as ``predict``
+    reads them)."""
+    predictor.count_views = views
+    prob = predictor.stroke_count_probabilities(images)[:, 0]
+    at_least = np.arange(1, prob.shape[-1] + 1)[None] >= np.clip(pieces, 1, prob.shape[-1])[:, None]
+    return np.where(at_least, prob, 0.0)
 
 
 def read(data_path: str, runs: list[str]) -> None:
@@ -224,12 +226,9 @@ def read(data_path: str, runs: list[str]) -> None:
         raise SystemExit(f"{data_path} has no validation split")
     counts = np.array([len(data.stroke_spans(int(i))) for i in range(len(data))])
     labels, images, truth = np.asarray(data.labels), data.images[idx], counts[idx]
-    train = data.split == 0
-    mode = {}
-    for c in np.unique(labels[idx]):
-        seen = np.bincount(counts[train & (labels == c)], minlength=counts.max() + 1)
-        mode[int(c)] = int(seen.argmax()) if seen.any() else 0
-    class_mode = np.array([mode[int(labels[i])] for i in idx])
+    pieces = ink_pieces(images)
+    mode = class_modes(data, counts)
+    class_mode = np.array([mode.get(int(labels[i]), 0) for i in idx])  # 0: no training row
 
     def right(prob, rule="most probable"):
         if rule == "most probable":
@@ -244,7 +243,8 @@ def read(data_path: str, runs: list[str]) -> None:
           f"{'= class mode':>13}")  # fmt: skip
     eight = []
     for run in runs:
-        per = {v: count_probabilities(run, images, v) for v in (1, 8, 16, 32)}
+        predictor = Predictor.load(run)
+        per = {v: count_probabilities(predictor, images, pieces, v) for v in (1, 8, 16, 32)}
         eight.append(per[8])
         share, said = right(per[8])
         as_mode = 100 * np.mean(said == class_mode)

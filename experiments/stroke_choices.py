@@ -45,15 +45,25 @@ from _provenance import format_record, run_record
 SETTINGS = ((0, 0.0, 0.0), (30, 0.02, 5.0), (60, 0.02, 1.0), (60, 0.04, 0.3), (100, 0.04, 0.3))
 
 
-def class_mode_shares(data) -> dict:
-    """Per split, the share of characters whose stroke count is their class's most
-    common one among the training drawers (ties: the smaller count)."""
-    counts = np.array([len(data.stroke_spans(i)) for i in range(len(data))])
+def class_modes(data, counts: np.ndarray | None = None) -> dict[int, int]:
+    """Each class's most common stroke count among its training drawings (ties: the
+    smaller count); ``counts`` the stroke count of every row, if already read."""
+    if counts is None:
+        counts = np.array([len(data.stroke_spans(i)) for i in range(len(data))])
     labels = np.asarray(data.labels)
     mode = {}
     for c in np.unique(labels[data.split == 0]):
         seen = Counter(counts[(labels == c) & (data.split == 0)].tolist())
         mode[int(c)] = min(seen, key=lambda k: (-seen[k], k))
+    return mode
+
+
+def class_mode_shares(data) -> dict:
+    """Per split, the share of characters whose stroke count is their class's most
+    common one among the training drawers (:func:`class_modes`)."""
+    counts = np.array([len(data.stroke_spans(i)) for i in range(len(data))])
+    labels = np.asarray(data.labels)
+    mode = class_modes(data, counts)
     out = {}
     for s, name in enumerate(("train", "validation", "test")):
         idx = np.flatnonzero((data.split == s) & np.isin(labels, list(mode)))
