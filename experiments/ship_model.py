@@ -15,7 +15,8 @@ a stroke model, whose figures add the share of characters whose stroke count is 
         --summary "handwritten digits 0-9 ..." --provenance train_revision=0d7c727 ...
 
 A field of an existing ``model.json`` that is not given again (summary, provenance,
-recommended settings, default) is kept.
+recommended settings, default) is kept; ``--refine`` and ``--count-views`` set the
+recommended settings of those names.
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ def figures(evaluation: dict, command: str) -> dict:
         out["best_of_k_path_error_px"] = round(best, 4)
     if "strokes" in evaluation:
         out["count_right"] = round(evaluation["strokes"]["count_right"], 5)
+        out["count_views"] = evaluation["strokes"]["count_views"]
     return out
 
 
@@ -70,6 +72,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--summary")
     p.add_argument("--default", action="store_true", help="the model used when none is given")
     p.add_argument("--refine", type=int, help="recommended refinement steps")
+    p.add_argument(
+        "--count-views", type=int, help="a stroke model's recommended views to read the count from"
+    )
     p.add_argument("--provenance", nargs="*", default=[], metavar="KEY=VALUE")
     args = p.parse_args(argv)
     if not is_model_name(args.name):
@@ -88,6 +93,12 @@ def main(argv: list[str] | None = None) -> int:
         f"img2dmp evaluate --model {evaluation['model']} --data {evaluation['dataset']} "
         f"--split {evaluation['split']} --refine {evaluation['refine_steps']}"
     )
+    if "strokes" in evaluation:
+        command += f" --count-views {evaluation['strokes']['count_views']}"
+    recommended = dict(old.get("recommended", {}))
+    for key in ("refine", "count_views"):
+        if getattr(args, key) is not None:
+            recommended[key] = getattr(args, key)
     provenance = dict(old.get("provenance", {}))
     provenance.update(kv.split("=", 1) for kv in args.provenance)
     record = {
@@ -102,9 +113,7 @@ def main(argv: list[str] | None = None) -> int:
             "sha256": file_digest(folder / WEIGHTS_FILE),
             "record_sha256": meta["record_sha256"],
         },
-        "recommended": {"refine": args.refine}
-        if args.refine is not None
-        else old.get("recommended", {}),
+        "recommended": recommended,
         "figures": figures(evaluation, command),
         "provenance": provenance,
         "shipped_by": run_record("ship_model.py", sys.argv[1:] if argv is None else argv),

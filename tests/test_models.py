@@ -20,6 +20,7 @@ from img2dmp import cli, models
 from img2dmp.checkpoint import read_checkpoint_meta
 from img2dmp.commands import _args
 from img2dmp.errors import ShippedModelError, UnknownModelError
+from img2dmp.nn.strokes import COUNT_VIEWS, MAX_COUNT_VIEWS
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / ".." / "shared" / "data"
@@ -72,6 +73,7 @@ def test_exactly_one_default_and_the_help_names_it():
     assert [m.name for m in models.shipped_models() if m.default] == [default.name]
     assert _args.DEFAULT_MODEL_NAME == default.name
     assert _args.DEFAULT_REFINE == default.refine
+    assert (_args.DEFAULT_COUNT_VIEWS, _args.MAX_COUNT_VIEWS) == (COUNT_VIEWS, MAX_COUNT_VIEWS)
 
 
 def test_each_card_states_its_records_figures_commands_and_limits():
@@ -82,6 +84,9 @@ def test_each_card_states_its_records_figures_commands_and_limits():
                       f"{f['path_error_px']:.3f}", m.sha256, f"{m.size_bytes:,}"):  # fmt: skip
             assert value in card, (m.name, value)
         assert f"--refine {f['refine']}" in card and f"--refine {m.refine}" in card
+        if "count_views" in f:  # a stroke model: the views its figures' counts were read from
+            assert f"--count-views {f['count_views']}" in card, m.name
+            assert f"--count-views {m.count_views}" in card, m.name
         for key in ("prepare_command", "train_command"):
             assert m.record["provenance"][key] in " ".join(card.split()).replace("\\ ", ""), key
         for revision in (m.record["provenance"]["prepare_revision"],
@@ -140,6 +145,44 @@ def test_an_unknown_name_lists_the_shipped_models(tmp_path, monkeypatch, capsys)
     # a path stays a path: a missing one is named as a file, not looked up
     with pytest.raises(FileNotFoundError, match="checkpoint runs/nope does not exist"):
         img2dmp.load_model("runs/nope")
+
+
+@pytest.mark.parametrize("value", [0, -1, 2.0, True, "8"])
+def test_a_recommended_count_views_that_is_no_count_is_refused_naming_it(
+    value, tmp_path, monkeypatch
+):
+    root = _copy_of_the_models(tmp_path, monkeypatch)
+    record = root / "omniglot-strokes" / models.RECORD_FILE
+    doc = json.loads(record.read_text(encoding="utf-8"))
+    doc["recommended"]["count_views"] = value
+    record.write_text(json.dumps(doc), encoding="utf-8")
+    with pytest.raises(ShippedModelError, match=r"omniglot-strokes.*recommended setting "
+                       r"'count_views' = "):  # fmt: skip
+        models.find_shipped("omniglot-strokes")
+
+
+def test_a_shipped_stroke_model_reads_its_count_as_its_card_recommends(monkeypatch):
+    from img2dmp import predict
+
+    m = models.find_shipped("omniglot-strokes")
+    assert m.count_views is not None and m.count_views == m.figures["count_views"]
+    predictor = img2dmp.load_model(m.name, refine=0)
+    assert predictor.count_views == m.count_views
+    calls = []
+    real = predict.count_views
+    monkeypatch.setattr(predict, "count_views", lambda x, n: calls.append(n) or real(x, n))
+    predictor.predict(ROOT / "examples" / "samples" / "character_f.png")
+    assert calls == [m.count_views]
+    assert models.default_model().count_views is None  # a one-DMP model reads no count
+
+
+def test_count_views_on_a_one_dmp_model_is_one_line_naming_it(capsys):
+    assert cli.main(["predict", str(SAMPLE), "--count-views", "2"]) == 2
+    line = _one_error_line(capsys.readouterr().err, "predict")
+    assert "--count-views 2: model digits-real predicts one DMP per image" in line, line
+    assert cli.main(["predict", str(SAMPLE), "--count-views", "0"]) == 2
+    line = _one_error_line(capsys.readouterr().err, "predict")
+    assert "--count-views: must be an integer from 1 to 64, got 0" in line, line
 
 
 def test_a_folder_of_the_same_name_wins_over_the_shipped_model(tmp_path, monkeypatch):
@@ -230,6 +273,8 @@ def test_img2dmp_models_lists_each_with_its_figures_and_shows_a_card(capsys):
         assert f"{'*' if m.default else ' '} {m.name}  {m.size_bytes / 1e6:.2f} MB" in out
         assert f"Chamfer {m.figures['chamfer_px']:.4f} px" in out
         assert f"sha256 {m.sha256[:12]}... verified" in out
+        for key, value in m.recommended.items():  # as the command line spells them
+            assert f"--{key.replace('_', '-')} {value}" in out, (m.name, key)
     assert cli.main(["models", models.default_model().name]) == 0
     assert capsys.readouterr().out.startswith("# Model card: digits-real")
 
@@ -263,7 +308,8 @@ def _evaluate_the_cards_sample(m, data, tmp_path) -> dict:
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # small tensors: one thread is twice as fast on 2 busy cores
     try:
-        res = evaluate(m.name, path, split="test", n_figures=0, refine=f["refine"])
+        res = evaluate(m.name, path, split="test", n_figures=0, refine=f["refine"],
+                       count_views=f.get("count_views"))  # fmt: skip
     finally:
         torch.set_num_threads(threads)
     for key, card in (("chamfer_px", f["chamfer_px"]), ("on_ink_shares", f["path_on_ink"]),

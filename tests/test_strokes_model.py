@@ -21,6 +21,7 @@ from img2dmp.config import ConfigError
 from img2dmp.data.store import load_dataset
 from img2dmp.nn.refine import RefineOptions
 from img2dmp.nn.strokes import (
+    COUNT_VIEWS,
     StrokeCost,
     StrokeLayout,
     character_paths,
@@ -369,6 +370,36 @@ def test_evaluate_reports_the_stroke_count_and_the_measures_per_alphabet(small_o
     assert set(st["per_alphabet"]) == {"Alpha", "Beta"}
     assert sum(a["n"] for a in st["per_alphabet"].values()) == len(ok) == res["overall"]["n"]
     assert res["chamfer"]["overall"]["mean"] < 2.0  # learnt shapes, on a 40-px frame
+
+
+def test_evaluate_and_export_read_the_count_from_the_views_asked_for(
+    small_omniglot, trained, tmp_path, monkeypatch
+):
+    from img2dmp import predict
+    from img2dmp.evaluate import evaluate, format_metrics_table
+    from img2dmp.export import export_onnx
+
+    calls = []
+    real = predict.count_views
+    monkeypatch.setattr(predict, "count_views", lambda x, n: calls.append(n) or real(x, n))
+    res = evaluate(trained, small_omniglot, split="validation", n_figures=0)
+    assert res["strokes"]["count_views"] == COUNT_VIEWS and set(calls) == {COUNT_VIEWS}
+    calls.clear()
+    one = evaluate(trained, small_omniglot, split="validation", n_figures=0, count_views=1)
+    assert one["strokes"]["count_views"] == 1 and set(calls) == {1}
+    assert "read from 1 view of each image" in format_metrics_table(one)
+    predictor = predict.Predictor.load(trained)
+    predictor.count_views = 1
+    data = load_dataset(small_omniglot)
+    val = np.flatnonzero(data.split == 1)
+    counts = [len(v) for v, _ in predictor.predict_strokes(data.images[val])]
+    assert one["strokes"]["predicted_counts"] == counts
+    with pytest.raises(ValueError, match=r"count_views \(--count-views\) must be a whole number "
+                       r"in \[1, 64\], got 0"):  # fmt: skip
+        evaluate(trained, small_omniglot, split="validation", n_figures=0, count_views=0)
+    predictor.count_views = 3
+    export_onnx(predictor, tmp_path / "s.onnx", n_check=3)
+    assert json.loads((tmp_path / "s.json").read_text())["strokes"]["count_views"] == 3
 
 
 def test_the_page_document_of_a_characters_strokes_holds_each_stroke_as_its_dmp(omni_root, trained):

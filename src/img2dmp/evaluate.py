@@ -55,6 +55,7 @@ from .metrics import (  # noqa: F401  (arc_fractions, points_at_fractions: re-ex
     start_error_px,
     width_ratio,
 )
+from .nn._stroke_layout import MAX_COUNT_VIEWS
 from .nn.costs import trajectory_error_px
 from .predict import MAX_BATCH_SIZE, MAX_REFINE_STEPS, Predictor, check_count, index_resampled
 
@@ -195,8 +196,10 @@ def format_metrics_table(result: dict) -> str:
 
 def _strokes_lines(strokes: dict) -> str:
     """A stroke model's lines: the stroke count right, and the measures per alphabet."""
-    lines = [f"stroke count right: {100 * strokes['count_right']:.1f} % (TableI of a stroke "
-             "model: its path by index at the demonstration's instants)"]  # fmt: skip
+    views = strokes.get("count_views")
+    read = f"read from {views} view{'s' * (views != 1)} of each image; " if views else ""
+    lines = [f"stroke count right: {100 * strokes['count_right']:.1f} % ({read}TableI of a "
+             "stroke model: its path by index at the demonstration's instants)"]  # fmt: skip
     per = strokes["per_alphabet"]
     if len(per) > 1:
         w = max(len(a) for a in per)
@@ -406,6 +409,7 @@ def evaluate(
     batch_size: int = 2048,
     seed: int = 0,
     refine: int = 0,
+    count_views: int | None = None,
     device: str = "cpu",
 ) -> dict:
     """Table I's statistics and the path measures of a trained network on a data set.
@@ -428,9 +432,10 @@ def evaluate(
     digits, classes : list of int, list of str, optional
         Keep only these digits (with class names: the classes named after them), or the
         classes of these names (e.g. ``["L", "T"]``); not both.
-    refine : int
-        Refine every prediction on its image with this many gradient steps
-        (:func:`img2dmp.nn.refine.refine`, default options); 0 = the network's output.
+    refine, count_views : int, int or None
+        Gradient steps refining each prediction on its image (:func:`img2dmp.nn.refine.refine`;
+        0 = the network's output); a stroke model's views of each image to read its counts
+        from (:attr:`~img2dmp.predict.Predictor.count_views`; None: the predictor's own).
     device : str
         Where the network runs when loaded from a path (``"cpu"``, ``"cuda"``).
 
@@ -443,18 +448,16 @@ def evaluate(
         ``chamfer``, ``on_ink``, ``on_ink_human``, ``start_error``, ``area_ratio``,
         ``width_ratio`` with their per-sample lists; ``best_of_k`` for K > 1 hypotheses).
     """
-    t0 = time.perf_counter()
-    # Checked before anything slow: each bounds work or memory.
+    t0 = time.perf_counter()  # the counts checked before anything slow: each bounds work
     n_figures = check_count("n_figures (--figures)", n_figures, 0, MAX_FIGURES)
     batch_size = check_count("batch_size", batch_size, 1, MAX_BATCH_SIZE)
     refine = check_count("refine (--refine)", refine, 0, MAX_REFINE_STEPS)
-    predictor = _load_predictor(model_path, device, refine)
+    predictor = _load_predictor(model_path, device, refine, count_views)
     data = _evaluation_data(predictor, dataset_path, split, digits, classes)
-    names = data.class_names
     y_all, probs, measures = _measured(predictor, data, batch_size)
     _, y = top_hypothesis(y_all, probs)  # [M, T, d]
     errors = np.asarray(measures["errors_px"])  # [M], Table I
-    result = _headline(measures, names)
+    result = _headline(measures, data.class_names)
     sha = file_digest(dataset_path)
     result.update(
         model=str(model_path),
@@ -479,7 +482,7 @@ def evaluate(
 def _measured(predictor, data, batch_size: int):
     """The hypotheses ``[M, K, T, d]``, their probabilities ``[M, K]`` and the path
     measures of :func:`hypothesis_metrics` (a stroke model's also ``strokes``,
-    :func:`stroke_measures`)."""
+    :func:`stroke_measures`, with the ``count_views`` its counts were read from)."""
     strokes = getattr(predictor, "strokes", None) is not None
     if strokes:
         y_all, probs, counts = _stroke_predictions(predictor, data, batch_size)
@@ -489,7 +492,8 @@ def _measured(predictor, data, batch_size: int):
         y_all, probs, data.trajectories, data.images, data.labels, data.class_names
     )
     if strokes:
-        measures["strokes"] = stroke_measures(counts, data, measures)
+        read = {"count_views": int(predictor.count_views)}
+        measures["strokes"] = {**stroke_measures(counts, data, measures), **read}
     return y_all, probs, measures
 
 
@@ -550,12 +554,21 @@ def _headline(measures: dict, class_names) -> dict:
     return result
 
 
-def _load_predictor(model, device: str = "cpu", refine: int = 0):
+def _load_predictor(model, device: str = "cpu", refine: int = 0, count_views=None):
     """A :class:`Predictor` loaded from a path, or ``model`` itself if it is one already
     (any object with ``trajectories_for_images`` or ``hypothesis_trajectories``), set to
-    refine its predictions with ``refine`` steps (when not 0)."""
+    refine its predictions with ``refine`` steps (when not 0) and, a stroke model, to read
+    its counts from ``count_views`` views (when not None; a one-DMP model refuses it)."""
+    if count_views is not None:  # before the model is read
+        count_views = check_count("count_views (--count-views)", count_views, 1, MAX_COUNT_VIEWS)
+    source = model
     if not (hasattr(model, "trajectories_for_images") or hasattr(model, "hypothesis_trajectories")):
         model = Predictor.load(model, device=device)
+    if count_views is not None and getattr(model, "strokes", None) is None:
+        raise ValueError(f"count_views (--count-views) {count_views}: model {source} "
+                         "predicts one DMP per image, it reads no stroke count")  # fmt: skip
+    if count_views is not None:
+        model.count_views = count_views
     if refine and hasattr(model, "refine_with"):
         model.refine_with(int(refine))
     elif refine:

@@ -287,7 +287,8 @@ def describe(predictor: Predictor, source: str | None = None) -> dict:
         "torch_version": torch.__version__,
     }
     if predictor.strokes is not None:
-        info["strokes"] = {**predictor.strokes.to_dict(), "reading": STROKE_READING}
+        info["strokes"] = {**predictor.strokes.to_dict(), "reading": STROKE_READING,
+                           "count_views": int(predictor.count_views)}  # fmt: skip
     return info
 
 
@@ -297,8 +298,10 @@ STROKE_READING = (
     "c = 1 + argmax(count[b]) strokes; with matching 'best' the c slots of highest "
     "presence, written in increasing order key; with 'order' slots 0 .. c-1 in that "
     "order; each slot's strokes[b, s] is one 2-D DMP vector laid out as vector_layout says. "
-    "img2dmp itself averages count over 8 views of the image (it and 7 small affine "
-    "copies, img2dmp.nn.strokes.count_views) and reads no fewer strokes than the image "
+    "img2dmp itself averages count over count_views views of the image (the field beside "
+    "this: the image and count_views - 1 small affine copies, img2dmp.nn.strokes."
+    "count_views; 1 = the graph's count of the image alone) and reads no fewer strokes "
+    "than the image "
     "has 8-connected pieces of ink (img2dmp.nn.strokes.ink_pieces)"
 )
 

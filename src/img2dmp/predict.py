@@ -84,6 +84,7 @@ from .nn._numpy_net import NumpyNetwork
 from .nn._refine_numpy import MAX_REFINE_STEPS, RefineOptions, refine_numpy
 from .nn._stroke_layout import (
     COUNT_VIEWS,
+    MAX_COUNT_VIEWS,
     STROKE_REFINE,
     StrokeLayout,
     character_paths,
@@ -190,6 +191,11 @@ class Predictor:
         A stroke model's layout (:mod:`img2dmp.nn.strokes`: a character as up to S
         strokes, each its own DMP); None for one DMP per image. A stroke model's
         :meth:`predict` gives a :class:`StrokePrediction`.
+    count_views : int
+        How many views of each image a stroke model reads its stroke count from (the
+        image and ``count_views - 1`` small affine copies,
+        :func:`img2dmp.nn.strokes.count_views`; 1: the image alone): a shipped model's
+        recommended ``count_views``, else :data:`~img2dmp.nn.strokes.COUNT_VIEWS`.
 
     ``Predictor(model, ...)`` with a torch network computes with torch;
     :meth:`Predictor.load` chooses the backend (module docstring, "Backends").
@@ -221,7 +227,8 @@ class Predictor:
         self.refine_options = refine_options
         self.shipped = shipped
         self.strokes = strokes
-        self.count_views = COUNT_VIEWS
+        views = shipped.count_views if shipped is not None else None
+        self.count_views = views if views is not None else COUNT_VIEWS
 
     @property
     def backend(self) -> str:
@@ -497,7 +504,7 @@ class Predictor:
         """The stroke count's probabilities ``[B, K, S]`` of images ``x`` whose network
         outputs are ``out``, averaged over ``count_views`` views of each image
         (:func:`img2dmp.nn.strokes.count_views`)."""
-        views = check_count("count_views", self.count_views, 1, 64)
+        views = check_count("count_views (--count-views)", self.count_views, 1, MAX_COUNT_VIEWS)
         logits = [split_slots_numpy(out, self.strokes, self.n_hypotheses)[3]]  # [B, K, S]
         for view in count_views(x, views):
             view_out = self._raw_outputs(view, batch_size)[1]

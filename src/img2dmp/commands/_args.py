@@ -29,6 +29,10 @@ DIGITS_EXAMPLES = '2, 2,3, "1 4 7", 0-9 or 0-3,8'
 #: them (img2dmp.models.default_model(); a test keeps them equal).
 DEFAULT_MODEL_NAME = "digits-real"
 DEFAULT_REFINE = 30
+#: The views a stroke model reads its count from unless its card recommends others, and
+#: the most it may (img2dmp.nn.strokes.COUNT_VIEWS and MAX_COUNT_VIEWS; a test keeps
+#: them equal).
+DEFAULT_COUNT_VIEWS, MAX_COUNT_VIEWS = 8, 64
 
 
 # --- digits ---------------------------------------------------------------------------
@@ -530,6 +534,32 @@ def add_refine(p: argparse.ArgumentParser) -> None:
         f"{DEFAULT_MODEL_NAME}), 0 for "
         "a run directory or checkpoint",
     )
+
+
+def add_count_views(p: argparse.ArgumentParser) -> None:
+    """``--count-views N``: how many views of each image a stroke model reads its stroke
+    count from (:attr:`img2dmp.predict.Predictor.count_views`; :func:`set_count_views`)."""
+    p.add_argument(
+        "--count-views",
+        metavar="N",
+        type=int_at_least(1, MAX_COUNT_VIEWS),
+        default=None,
+        help="a stroke model reads each character's stroke count from N views of its image "
+        "(the image and N-1 small affine copies, their count probabilities averaged; 1 = "
+        "the image alone); default: what a shipped model's card recommends, else "
+        f"{DEFAULT_COUNT_VIEWS}",
+    )
+
+
+def set_count_views(args, predictor, model) -> None:
+    """Read ``predictor``'s stroke counts from ``--count-views`` views when given; a
+    ``ValueError`` naming ``model`` if it is not a stroke model."""
+    if args.count_views is None:
+        return
+    if predictor.strokes is None:
+        raise ValueError(f"--count-views {args.count_views}: model {model} predicts one DMP "
+                         "per image, it reads no stroke count")  # fmt: skip
+    predictor.count_views = args.count_views
 
 
 def add_dmp_fit_options(add, dims_default: str) -> None:

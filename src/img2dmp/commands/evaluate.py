@@ -63,6 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="samples drawn in examples.png (0 = no picture)",
     )
     _args.add_refine(p)
+    _args.add_count_views(p)
     _args.add_device(p, "the network")
 
 
@@ -114,6 +115,7 @@ def run(args: argparse.Namespace) -> int:
         digits=list(args.digits) if args.digits is not None else None,
         classes=list(args.classes) if args.classes is not None else None,
         refine=refine,
+        count_views=args.count_views,
         device=args.device,
     )
     # Table I's table, then (in the same text) the path measures' table.

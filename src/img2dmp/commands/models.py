@@ -28,7 +28,9 @@ def _figures(f: dict) -> str:
     strokes = "count_right" in f  # a stroke model's: characters, and their stroke count
     return (
         f"{f['split']} part ({f['n']} {'characters' if strokes else 'digits'}, "
-        f"--refine {f['refine']}): Chamfer {f['chamfer_px']:.4f} px, path on the ink "
+        f"--refine {f['refine']}"
+        + (f", --count-views {f['count_views']}" if "count_views" in f else "")
+        + f"): Chamfer {f['chamfer_px']:.4f} px, path on the ink "
         f"{100 * f['path_on_ink']:.1f} %, path error {f['path_error_px']:.3f} px "
         + (
             f"(stroke count right {100 * f['count_right']:.1f} %)"
@@ -47,7 +49,8 @@ def _describe(model) -> list[str]:
         check = f"sha256 {model.sha256[:12]}... verified"
     except ShippedModelError as e:
         check = f"DAMAGED: {e}"
-    settings = ", ".join(f"--{k} {v}" for k, v in model.recommended.items()) or "none"
+    settings = ", ".join(f"--{k.replace('_', '-')} {v}" for k, v in model.recommended.items())
+    settings = settings or "none"
     mark = "*" if model.default else " "
     return [
         f"{mark} {model.name}  {model.size_bytes / 1e6:.2f} MB  {model.summary}",

@@ -80,6 +80,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="trajectory samples over [0, tau]",
     )
     _args.add_refine(p)
+    _args.add_count_views(p)
     _args.add_device(p, "the network")
     _args.add_backend(p)
     p.add_argument(
@@ -193,6 +194,7 @@ def run(args: argparse.Namespace) -> int:
     _args.check_images(args.images)
     predictor = Predictor.load(model, device=_args.check_device(args.device),
                                backend=args.backend)  # fmt: skip
+    _args.set_count_views(args, predictor, model)
     refine = _args.refine_steps(args, model, "predict")
     if refine:
         predictor.refine_with(refine)

@@ -119,6 +119,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--frame-interval-s", type=float, default=0.1, help="simulated time between frames"
     )
     _args.add_refine(parser)
+    _args.add_count_views(parser)
     _args.add_backend(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -255,11 +256,12 @@ def _inputs(args, predictor=None) -> list[tuple[str, object, object, tuple, obje
 
 def _predictor(args):
     """The network of ``--model``, refined as ``--refine`` says (or as a shipped model's
-    card recommends)."""
+    card recommends), a stroke model's count read from ``--count-views`` views."""
     from img2dmp.predict import Predictor
 
     _args.one_thread()
     predictor = Predictor.load(args.model, backend=args.backend)
+    _args.set_count_views(args, predictor, args.model)
     refine = _args.refine_steps(args, args.model, "write")
     if refine:
         predictor.refine_with(refine)

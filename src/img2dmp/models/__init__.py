@@ -9,7 +9,8 @@ A shipped model is a folder ``img2dmp/models/NAME/`` of three files:
 ``model.json``
     The shipping record (format ``img2dmp-shipped-model``, version 1): the name, whether
     it is the default, a one-line summary, the weights file's size and SHA-256, the
-    settings its card recommends (``{"refine": 30}``), the test-part figures it was
+    settings its card recommends (``{"refine": 30}``; a stroke model's also
+    ``"count_views"``), the test-part figures it was
     measured at and where it came from (commands, revisions).
 ``CARD.md``
     The model card for people: data, commands, revisions, figures, recommended settings
@@ -46,8 +47,10 @@ RECORD_FILE = "model.json"
 CARD_FILE = "CARD.md"
 #: What a model's name looks like (and a ``--model`` word looked up here).
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
-#: Settings a card may recommend, with their types (``refine``: refinement steps).
-RECOMMENDED_KEYS = {"refine": int}
+#: Settings a card may recommend, with their types and least values (``refine``:
+#: refinement steps; ``count_views``: the views of an image a stroke model reads its
+#: stroke count from, :attr:`img2dmp.predict.Predictor.count_views`).
+RECOMMENDED_KEYS = {"refine": (int, 0), "count_views": (int, 1)}
 
 
 @dataclass(frozen=True)
@@ -98,6 +101,13 @@ class ShippedModel:
         """The refinement steps its card recommends (0 if it recommends none)."""
         return int(self.recommended.get("refine", 0))
 
+    @property
+    def count_views(self) -> int | None:
+        """The views a stroke model's card recommends reading the stroke count from (None:
+        it recommends none, :data:`img2dmp.nn.strokes.COUNT_VIEWS` is read)."""
+        views = self.recommended.get("count_views")
+        return int(views) if views is not None else None
+
 
 def models_root() -> Path:
     """The folder that holds the shipped models (``img2dmp/models``)."""
@@ -141,8 +151,8 @@ def _read(folder: Path) -> ShippedModel:
     size = _field(weights, "bytes", int, where)
     recommended = _field(record, "recommended", dict, where)
     for key, value in recommended.items():
-        kind = RECOMMENDED_KEYS.get(key)
-        if kind is None or not isinstance(value, kind) or isinstance(value, bool):
+        kind, least = RECOMMENDED_KEYS.get(key, (None, 0))
+        if kind is None or not isinstance(value, kind) or isinstance(value, bool) or value < least:
             raise ShippedModelError(f"{where}: recommended setting {key!r} = {show(value)}")
     return ShippedModel(
         name=name,

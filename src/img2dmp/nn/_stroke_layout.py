@@ -25,6 +25,8 @@ MAX_SLOTS = 32
 #: ``COUNT_VIEWS - 1`` small affine copies of it (:data:`COUNT_VIEW_RANGES`), whose count
 #: probabilities are averaged (chosen on Omniglot's validation drawers, RESULTS 8.1).
 COUNT_VIEWS = 8
+#: The most views a count may be read from.
+MAX_COUNT_VIEWS = 64
 #: The copies' transforms (:class:`~img2dmp.data.affine.AffineRanges` fields), drawn once
 #: from a fixed seed: the same views of every image, every run.
 COUNT_VIEW_RANGES = {"translation_rel": (-0.03, 0.03), "rotation_deg": (-6.0, 6.0),

@@ -33,6 +33,7 @@ from ._stroke_layout import (  # noqa: F401 (re-exported: the torch-free names)
     COUNT_VIEW_RANGES,
     COUNT_VIEWS,
     MATCHINGS,
+    MAX_COUNT_VIEWS,
     MAX_SLOTS,
     MIN_STROKE_S,
     STROKE_REFINE,
