@@ -1,6 +1,7 @@
 """Probes of a stroke model's stroke count on the validation drawers (RESULTS 8.2): does it
 grow with more drawers, with an auxiliary head that names the character, with more views,
-an ensemble or another way of reading the count's probabilities? Three subcommands:
+an ensemble or another way of reading the count's probabilities, or by the refined
+strokes' fit to the ink; what is the ceiling of a count learnt per character? Subcommands:
 
 ``drop-drawers DATA OUT --drawers 14,15``
     A copy of an Omniglot data set (``img2dmp import``) whose drawings by these drawers
@@ -17,13 +18,25 @@ an ensemble or another way of reading the count's probabilities? Three subcomman
     classes) trained on the training drawers with the stroke models' augmentation, its
     accuracy on the training and validation drawers. The count can only be the class's
     where the class is recognised.
+``ceilings --data DATA``
+    Per split, what a reader that recognised every character and knew nothing else could
+    score: the share of drawings whose count is their class's most common count among the
+    training drawers, and the same with the image's pieces of ink seen too (the most
+    common count among the class's training drawings of as many pieces, never fewer than
+    the pieces). No model: the ceilings of a count learnt per character.
+``fit --data DATA RUN``
+    Whether the image settles the count where the network hesitates: per validation
+    drawing the two most probable counts (1 view, no fewer than the pieces of ink), each
+    read and refined on the image as ``predict`` does (60 steps), and the count taken as
+    the larger one when its strokes write more of the ink than the smaller one's by more
+    than a margin (``ink_written_share``, several margins).
 ``read --data DATA RUN [RUN ...]``
-    Per run: the share of the validation drawings whose count is read right (as
-    ``predict`` reads it: 8 views, no fewer than the image's pieces of ink), with 1, 16
-    and 32 views, and by the smallest count whose cumulative probability reaches 0.4
-    (instead of the most probable count); every run's count probabilities averaged (an
-    ensemble); the class-mode ceiling (:func:`stroke_choices.class_mode_shares`); and how
-    often a run's count is its class's most common count among the training drawers.
+    Per run: the share of the validation drawings whose count is read right (from 8
+    views, no fewer than the image's pieces of ink), with 1, 16 and 32 views, and by the
+    smallest count whose cumulative probability reaches 0.4 (instead of the most
+    probable count); every run's count probabilities averaged (an ensemble, from 8 views
+    and from 1); the class-mode ceiling (:func:`stroke_choices.class_mode_shares`); and
+    how often a run's count is its class's most common count among the training drawers.
 
 Run from the repository's root, e.g.::
 
@@ -40,6 +53,7 @@ import argparse
 import re
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -241,21 +255,87 @@ def read(data_path: str, runs: list[str]) -> None:
     print(f"validation drawings: {len(idx)}; count right, % (8 views unless said):")
     print(f"{'run':>40} {'8 views':>8} {'1':>6} {'16':>6} {'32':>6} {'q ' + str(QUANTILE):>6} "
           f"{'= class mode':>13}")  # fmt: skip
-    eight = []
+    eight, one = [], []
     for run in runs:
         predictor = Predictor.load(run)
         per = {v: count_probabilities(predictor, images, pieces, v) for v in (1, 8, 16, 32)}
         eight.append(per[8])
+        one.append(per[1])
         share, said = right(per[8])
         as_mode = 100 * np.mean(said == class_mode)
         others = [right(per[v])[0] for v in (1, 16, 32)] + [right(per[8], "quantile")[0]]
         print(f"{run[-40:]:>40} {share:>8.1f} " + " ".join(f"{v:>6.1f}" for v in others)
               + f" {as_mode:>13.1f}")  # fmt: skip
     if len(runs) > 1:
-        print(f"{'all runs averaged':>40} {right(np.mean(eight, 0))[0]:>8.1f}")
+        print(f"{'all runs averaged':>40} {right(np.mean(eight, 0))[0]:>8.1f} "
+              f"{right(np.mean(one, 0))[0]:>6.1f}")  # fmt: skip
     shares = class_mode_shares(data)
     print("a class's most common count (training drawers) is right for: "
           + ", ".join(f"{k} {100 * v:.1f} %" for k, v in shares.items()))  # fmt: skip
+
+
+def ceilings(data_path: str) -> None:
+    data = load_dataset(data_path)
+    counts = np.array([len(data.stroke_spans(i)) for i in range(len(data))])
+    labels, pieces = np.asarray(data.labels), ink_pieces(data.images)
+    mode = class_modes(data, counts)
+    train = data.split == 0
+    by_pieces: dict[tuple[int, int], int] = {}
+    for c, k in {(int(labels[i]), int(pieces[i])) for i in np.flatnonzero(train)}:
+        seen = Counter(counts[train & (labels == c) & (pieces == k)].tolist())
+        by_pieces[c, k] = min(seen, key=lambda n: (-seen[n], n))
+    print(f"{'split':>10} {'n':>5} {'class mode':>11} {'class mode, pieces seen':>24}")
+    for s, name in ((1, "validation"), (2, "test")):
+        idx = np.flatnonzero((data.split == s) & np.isin(labels, list(mode)))
+        plain = [mode[int(labels[i])] for i in idx]
+        seen = [max(by_pieces.get((int(labels[i]), int(pieces[i])), mode[int(labels[i])]),
+                    int(pieces[i])) for i in idx]  # fmt: skip
+        print(
+            f"{name:>10} {len(idx):>5} {100 * np.mean(plain == counts[idx]):>10.1f}% "
+            f"{100 * np.mean(seen == counts[idx]):>23.1f}%"
+        )
+
+
+#: The ink-written margins :func:`fit` tries.
+FIT_MARGINS = (0.0, 0.02, 0.05, 0.1, 0.2)
+
+
+def fit(data_path: str, run: str, steps: int = 60) -> None:
+    from img2dmp.metrics import ink_written_share
+    from img2dmp.nn.strokes import character_paths, read_strokes, refine_strokes
+
+    data = load_dataset(data_path)
+    idx = np.flatnonzero(data.split == 1)
+    truth = np.array([len(data.stroke_spans(int(i))) for i in idx])
+    predictor = Predictor.load(run)
+    predictor.refine_with(steps)
+    images, pieces = data.images[idx], ink_pieces(data.images[idx])
+    prob = count_probabilities(predictor, images, pieces, 1)
+    x, out = predictor._raw_outputs(images, 4096)
+    first, second = np.argsort(-prob, 1, kind="stable")[:, :2].T + 1
+
+    def written(c):
+        onehot = np.eye(prob.shape[1])[c - 1][:, None]  # [B, 1, S]
+        strokes = read_strokes(out, predictor.strokes, 1, count_probs=onehot)
+        strokes = refine_strokes(strokes, x, predictor.normaliser, predictor.strokes,
+                                 predictor.refine_options)  # fmt: skip
+        paths = character_paths(strokes, predictor.normaliser, predictor.strokes)
+        width = predictor.stroke_width or 2.0
+        return np.array([ink_written_share(x[b : b + 1], p[None], 0.5 * width + 0.5)[0]
+                         for b, p in enumerate(paths)])  # fmt: skip
+
+    w1, w2 = written(first), written(second)
+    right = {"the most probable": first == truth, "the second": second == truth,
+             "one of the two": (first == truth) | (second == truth)}  # fmt: skip
+    print(f"validation drawings: {len(idx)}; count right: "
+          + ", ".join(f"{k} {100 * np.mean(v):.1f} %" for k, v in right.items()))  # fmt: skip
+    for margin in FIT_MARGINS:
+        up = (second > first) & (w2 - w1 > margin)
+        said = np.where(up, second, first)
+        print(
+            f"  the larger count where it writes > {margin:.2f} more of the ink: "
+            f"{up.sum():>3} taken, count right {100 * np.mean(said == truth):.1f} %"
+        )
 
 
 def main(argv: list[str]) -> int:
@@ -275,6 +355,11 @@ def main(argv: list[str]) -> int:
     p.add_argument("--data", required=True)
     p.add_argument("--encoders", nargs="+", default=list(ENCODERS), choices=list(ENCODERS))
     p.add_argument("--epochs", type=int, default=60)
+    p = sub.add_parser("ceilings")
+    p.add_argument("--data", required=True)
+    p = sub.add_parser("fit")
+    p.add_argument("--data", required=True)
+    p.add_argument("run")
     p = sub.add_parser("read")
     p.add_argument("--data", required=True)
     p.add_argument("runs", nargs="+")
@@ -299,7 +384,12 @@ def main(argv: list[str]) -> int:
                   f"validation drawers {100 * acc_val:.1f} % ({time.perf_counter() - t0:.0f} s)",
                   flush=True)  # fmt: skip
         return 0
-    read(args.data, args.runs)
+    if args.command == "ceilings":
+        ceilings(args.data)
+    elif args.command == "fit":
+        fit(args.data, args.run)
+    else:
+        read(args.data, args.runs)
     return 0
 
 

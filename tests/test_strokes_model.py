@@ -582,3 +582,30 @@ def test_count_probes_drop_drawers_train_a_class_head_and_read_counts(
     said = [len(s) for s, _ in p.predict_strokes(data.images[val])]
     truth = [len(data.stroke_spans(int(i))) for i in val]
     assert share == pytest.approx(100 * np.mean(np.equal(said, truth)), abs=0.05)
+
+
+def test_count_probes_ceilings_and_the_count_chosen_by_its_fit_to_the_ink(
+    small_omniglot, trained, experiment_script, capsys
+):
+    import re
+
+    from img2dmp.predict import Predictor
+
+    mod = experiment_script("count_probes")
+    data = load_dataset(small_omniglot)
+    assert mod.main(["ceilings", "--data", str(small_omniglot)]) == 0
+    rows = {ln.split()[0]: ln.split() for ln in capsys.readouterr().out.splitlines()[2:]}
+    # the tree's characters are drawn with one count each: a reader that knew the
+    # character would always be right
+    assert rows["validation"][2:] == ["100.0%", "100.0%"] and rows["test"][2] == "100.0%"
+    assert int(rows["test"][1]) == int(np.sum(data.split == 2))
+    assert mod.main(["fit", "--data", str(small_omniglot), str(trained)]) == 0
+    out = capsys.readouterr().out
+    first = float(re.search(r"the most probable ([\d.]+) %", out).group(1))
+    val = np.flatnonzero(data.split == 1)
+    p = Predictor.load(trained)
+    p.count_views = 1
+    said = [len(s) for s, _ in p.predict_strokes(data.images[val])]
+    truth = [len(data.stroke_spans(int(i))) for i in val]
+    assert first == pytest.approx(100 * np.mean(np.equal(said, truth)), abs=0.05)
+    assert len(re.findall(r"taken, count right", out)) == len(mod.FIT_MARGINS)
