@@ -329,6 +329,10 @@ def test_predict_writes_a_stroke_document_with_the_whole_characters_path_and_pen
     starts = [s["t_start_s"] for s in doc["strokes"]]
     assert starts == sorted(starts) and starts[0] == 0.0
     assert xy[:, 0].max() > 40  # the image frame: the 105-px image, not the model's 40
+    assert doc["count"] == {"views": COUNT_VIEWS}  # a run directory's default
+    argv = ["predict", str(image), "--model", str(trained), "--out", str(out), "--force"]
+    assert cli.main([*argv, "--count-views", "1"]) == 0
+    assert json.loads((out / "0102_20_dmp.json").read_text())["count"] == {"views": 1}
     pred = load_model(trained).predict(image)
     assert isinstance(pred, StrokePrediction) and pred.n_strokes == len(doc["strokes"])
     with pytest.raises(ValueError, match="one per stroke"):

@@ -626,7 +626,7 @@ class Predictor:
                 source=str(image) if isinstance(image, (str, os.PathLike)) else None,
                 refine_steps=0 if o is None else int(o.steps), user_image=image,
                 stroke_width_px=self.stroke_width, n_characters=count_characters(mask),
-                n_per_stroke=n_points,
+                n_per_stroke=n_points, count_views=self.count_views,
             )  # fmt: skip
         params, probs = self.predict_hypotheses(prepared[None])  # [1, K], ranked
         times, path = self.trajectories(params[0], n_points=n_points)  # [K, T], [K, T, d]
@@ -891,12 +891,16 @@ class StrokePrediction:
         "hypothesis" as :class:`Prediction` has K; ``probabilities`` is ``[1.0]``.
     frame, image, source, refine_steps, user_image, fit, flags
         As :class:`Prediction`.
+    count_views : int
+        The views of the image its stroke count was read from
+        (:attr:`Predictor.count_views`).
     """
 
     def __init__(self, strokes, normaliser, layout, frame, image, *, source=None,
                  refine_steps=0, user_image=None, stroke_width_px=None, n_characters=1,
-                 n_per_stroke: int = 100):  # fmt: skip
+                 n_per_stroke: int = 100, count_views: int = COUNT_VIEWS):  # fmt: skip
         vectors, presence = strokes
+        self.count_views = int(count_views)
         self.dmp_config, self.frame, self.image = layout.config, frame, image
         self.presence = np.asarray(presence, dtype=np.float64)
         self.strokes = stroke_params(vectors, normaliser)
@@ -941,7 +945,8 @@ class StrokePrediction:
             "image_size": list(self.frame.model_size), "frame": "model", "strokes": strokes,
             "hypotheses": [{"rank": 1, "probability": 1.0, "trajectory": trajectory}],
             "image_frame": {"image": self.source, **self.frame.to_dict()},
-            "refinement": {"steps": self.refine_steps}, "fit": self.fit, "flags": self.flags,
+            "refinement": {"steps": self.refine_steps}, "count": {"views": self.count_views},
+            "fit": self.fit, "flags": self.flags,
         }  # fmt: skip
 
     def stroke_rows(self, j: int) -> slice:
