@@ -208,6 +208,7 @@ def test_evaluate_passes_the_digits_to_the_library(monkeypatch, tmp_path, capsys
             "refine": 0,
             "count_views": None,
             "device": "cpu",
+            "progress": True,
         }
 
 

@@ -11,6 +11,7 @@ that must learn the stroke counts.
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -406,6 +407,27 @@ def test_evaluate_and_export_read_the_count_from_the_views_asked_for(
     assert json.loads((tmp_path / "s.json").read_text())["strokes"]["count_views"] == 3
 
 
+def test_evaluate_refines_in_parts_with_the_numbers_of_one_batch_and_says_its_progress(
+    small_omniglot, trained, tmp_path, monkeypatch, capsys
+):
+    from img2dmp import evaluate as ev
+
+    whole = ev.evaluate(trained, small_omniglot, split="test", n_figures=0, refine=5)
+    monkeypatch.setattr(ev, "REFINE_PART", 5)  # 12 test rows: parts of 5, 5 and 2
+    parts = ev.evaluate(trained, small_omniglot, split="test", n_figures=0, refine=5)
+    assert parts["strokes"]["predicted_counts"] == whole["strokes"]["predicted_counts"]
+    for key in ("chamfer_px", "on_ink_shares", "path_errors_px", "errors_px"):
+        np.testing.assert_allclose(parts[key], whole[key], atol=1e-4, err_msg=key)
+    capsys.readouterr()
+    argv = ["evaluate", "--model", str(trained), "--data", str(small_omniglot), "--split",
+            "test", "--figures", "0", "--refine", "5", "--out", str(tmp_path / "e")]  # fmt: skip
+    monkeypatch.setenv("IMG2DMP_PROGRESS", "lines")
+    assert cli.main(argv) == 0
+    assert re.search(r"^evaluate: 12 samples in [\d.]+ s$", capsys.readouterr().err, re.M)
+    assert cli.main([*argv, "--force", "--no-progress"]) == 0
+    assert "evaluate:" not in capsys.readouterr().err
+
+
 def test_the_page_document_of_a_characters_strokes_holds_each_stroke_as_its_dmp(omni_root, trained):
     from img2dmp.predict import load_model
     from img2dmp.robot.pagefile import check_page_document
@@ -591,8 +613,6 @@ def test_count_probes_drop_drawers_train_a_class_head_and_read_counts(
 def test_count_probes_ceilings_and_the_count_chosen_by_its_fit_to_the_ink(
     small_omniglot, trained, experiment_script, capsys
 ):
-    import re
-
     from img2dmp.predict import Predictor
 
     mod = experiment_script("count_probes")

@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ._progress import bar
 from .checkpoint import atomic_write_text, file_digest
 from .data.store import SPLITS, load_dataset
 from .metrics import (  # noqa: F401  (arc_fractions, points_at_fractions: re-exported)
@@ -62,6 +63,9 @@ from .predict import MAX_BATCH_SIZE, MAX_REFINE_STEPS, Predictor, check_count, i
 #: Most samples drawn in ``examples.png`` (``--figures``): the most one grid holds
 #: (:data:`img2dmp.data.plotting.MAX_GRID_CELLS`, not imported here: matplotlib).
 MAX_FIGURES = 1000
+#: Samples predicted together when every prediction is refined (slow: a progress bar
+#: moves part by part); without refinement a part is ``batch_size`` samples.
+REFINE_PART = 64
 
 
 def error_statistics(errors_px) -> dict:
@@ -411,6 +415,7 @@ def evaluate(
     refine: int = 0,
     count_views: int | None = None,
     device: str = "cpu",
+    progress: bool = False,
 ) -> dict:
     """Table I's statistics and the path measures of a trained network on a data set.
 
@@ -436,8 +441,8 @@ def evaluate(
         Gradient steps refining each prediction on its image (:func:`img2dmp.nn.refine.refine`;
         0 = the network's output); a stroke model's views of each image to read its counts
         from (:attr:`~img2dmp.predict.Predictor.count_views`; None: the predictor's own).
-    device : str
-        Where the network runs when loaded from a path (``"cpu"``, ``"cuda"``).
+    device, progress : str, bool
+        Where the network runs when loaded from a path (``"cpu"``, ``"cuda"``); a bar.
 
     Returns
     -------
@@ -454,12 +459,23 @@ def evaluate(
     refine = check_count("refine (--refine)", refine, 0, MAX_REFINE_STEPS)
     predictor = _load_predictor(model_path, device, refine, count_views)
     data = _evaluation_data(predictor, dataset_path, split, digits, classes)
-    y_all, probs, measures = _measured(predictor, data, batch_size)
+    y_all, probs, measures = _measured(predictor, data, batch_size, progress)
     _, y = top_hypothesis(y_all, probs)  # [M, T, d]
     errors = np.asarray(measures["errors_px"])  # [M], Table I
     result = _headline(measures, data.class_names)
+    result.update(_described(predictor, model_path, dataset_path, data, split, digits, classes))
+    result.update(refine_steps=int(refine), **measures)
+    result["wall_s"] = time.perf_counter() - t0
+    if out_dir is not None:
+        _write_evaluation(Path(out_dir), result, data, y, errors, n_figures, seed)
+    return result
+
+
+def _described(predictor, model_path, dataset_path, data, split, digits, classes) -> dict:
+    """What :func:`evaluate` measured: the model, the data set (and its digest), the
+    samples chosen, and whether the model trained on them."""
     sha = file_digest(dataset_path)
-    result.update(
+    return dict(
         model=str(model_path),
         dataset=str(dataset_path),
         dataset_sha256=sha,
@@ -469,25 +485,34 @@ def evaluate(
         trained_on=predictor.meta.get("dataset"),
         cost=predictor.meta.get("train_config", {}).get("cost", {}).get("name"),
         fit_error_px=error_statistics(data.fit_error_px),
-        refine_steps=int(refine),
         trained_on_split=trained_on_split(predictor.meta, sha, data.split),
     )
-    result.update(measures)
-    result["wall_s"] = time.perf_counter() - t0
-    if out_dir is not None:
-        _write_evaluation(Path(out_dir), result, data, y, errors, n_figures, seed)
-    return result
 
 
-def _measured(predictor, data, batch_size: int):
+def _measured(predictor, data, batch_size: int, progress: bool = False):
     """The hypotheses ``[M, K, T, d]``, their probabilities ``[M, K]`` and the path
     measures of :func:`hypothesis_metrics` (a stroke model's also ``strokes``,
-    :func:`stroke_measures`, with the ``count_views`` its counts were read from)."""
+    :func:`stroke_measures`, with the ``count_views`` its counts were read from).
+
+    Predicted in parts of ``batch_size`` samples, or of :data:`REFINE_PART` when the
+    predictor refines (slow work: the bar of ``progress`` moves part by part)."""
     strokes = getattr(predictor, "strokes", None) is not None
+    refining = getattr(getattr(predictor, "refine_options", None), "steps", 0)
+    step = min(batch_size, REFINE_PART) if refining else batch_size
+    parts = []
+    with bar(desc="evaluate", total=len(data), unit="sample", enabled=progress) as shown:
+        for a in range(0, len(data), step):
+            part = slice(a, a + step)
+            if strokes:
+                t = data.trajectories.shape[1]
+                parts.append(_stroke_predictions(predictor, data.images[part], t, batch_size))
+            else:
+                parts.append(predict_hypotheses(predictor, data.images[part], data.times[part],
+                                                batch_size))  # fmt: skip
+            shown.update(len(parts[-1][0]))
+    y_all, probs, *counts = (np.concatenate(v) for v in zip(*parts, strict=True))
     if strokes:
-        y_all, probs, counts = _stroke_predictions(predictor, data, batch_size)
-    else:
-        y_all, probs = predict_hypotheses(predictor, data.images, data.times, batch_size)
+        counts = counts[0]
     measures = hypothesis_metrics(
         y_all, probs, data.trajectories, data.images, data.labels, data.class_names
     )
@@ -497,15 +522,14 @@ def _measured(predictor, data, batch_size: int):
     return y_all, probs, measures
 
 
-def _stroke_predictions(predictor, data, batch_size: int):
-    """A stroke model's characters ``[M, 1, T, 3]`` (the path by its instants' index at
-    the data's T, :meth:`~img2dmp.predict.Predictor.stroke_paths`), probabilities 1 and
-    the predicted stroke counts ``[M]``."""
+def _stroke_predictions(predictor, images, t: int, batch_size: int):
+    """A stroke model's characters ``[M, 1, t, 3]`` of prepared images ``[M, H, W]`` (the
+    path by its instants' index at t, :meth:`~img2dmp.predict.Predictor.stroke_paths`),
+    probabilities 1 and the predicted stroke counts ``[M]``."""
     from .nn.strokes import character_paths
 
-    strokes = predictor.predict_strokes(data.images, batch_size)
+    strokes = predictor.predict_strokes(images, batch_size)
     paths = character_paths(strokes, predictor.normaliser, predictor.strokes)
-    t = data.trajectories.shape[1]
     y = np.stack([index_resampled(p, t) for p in paths])[:, None]
     return y, np.ones((len(y), 1)), np.array([len(v) for v, _ in strokes])
 

@@ -65,6 +65,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     _args.add_refine(p)
     _args.add_count_views(p)
     _args.add_device(p, "the network")
+    _args.add_no_progress(p)
 
 
 def model_and_data(args: argparse.Namespace) -> tuple[str, str]:
@@ -117,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
         refine=refine,
         count_views=args.count_views,
         device=args.device,
+        progress=not args.no_progress,
     )
     # Table I's table, then (in the same text) the path measures' table.
     print(format_table(res, f"trajectory error (px), {data} [{args.split}]"))
