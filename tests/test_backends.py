@@ -55,6 +55,26 @@ def test_a_refined_prediction_is_the_same_on_numpy_and_torch(both, sample):
     assert a.refine_steps == b.refine_steps == 30
 
 
+@pytest.mark.parametrize("backend", ["numpy", "torch"])
+def test_many_images_are_refined_in_parts_with_the_numbers_of_one_batch(both, backend, monkeypatch):
+    from img2dmp import predict
+
+    m = both[backend]
+    images = np.stack([m.prepare(SAMPLES / s)[0] for s in ("digit_3.png", "digit_5_photo.jpg")])
+    images = np.concatenate([images, images[:, ::-1], images[:, :, ::-1]])  # 6 images, 24 DMPs
+    whole, probs = m.predict_hypotheses(images)
+    calls = []
+    refined = type(m)._refined
+    monkeypatch.setattr(predict, "REFINE_ROWS", 5)
+    monkeypatch.setattr(
+        type(m), "_refined", lambda self, z, x: calls.append(len(z)) or refined(self, z, x)
+    )
+    parts, probs_parts = m.predict_hypotheses(images)
+    assert calls[0] == 24 and calls[1:] == [5, 5, 5, 5, 4]  # the batch, then its parts
+    np.testing.assert_allclose(parts.to_vector(), whole.to_vector(), rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(probs_parts, probs)
+
+
 def test_the_network_s_output_is_the_same_on_numpy_and_torch(both):
     images = np.stack([both["numpy"].prepare(SAMPLES / s)[0] for s in ("digit_3.png",
                        "digit_5_photo.jpg")])  # fmt: skip

@@ -101,6 +101,10 @@ from .nn.normalise import ParamNormaliser
 #: How a loaded model computes (module docstring, "Backends").
 BACKENDS = ("auto", "numpy", "torch")
 
+#: The most DMPs refined in one batch (a stroke model's characters: this many slots).
+#: Each is refined on its own, so parts give the numbers of one batch; the work arrays
+#: grow with the batch (about 1 MiB a DMP) and parts of 256 were the fastest (RESULTS 5.8).
+REFINE_ROWS = 256
 #: Instants over a DMP's duration at which refinement compares its path with the ink.
 REFINE_POINTS = 100
 #: Largest batch the network is run on at once.
@@ -387,11 +391,16 @@ class Predictor:
     def _refined(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
         """``z [N, P]`` refined on images ``x [N, H, W]`` (unchanged without refinement),
         compared with the ink at 100 instants over each DMP's own duration; the result
-        in ``z``'s dtype."""
+        in ``z``'s dtype. At most :data:`REFINE_ROWS` DMPs at once (each is refined on
+        its own: the parts give the numbers of one batch, in bounded memory)."""
         o = self.refine_options
         if o is None or o.steps == 0 or len(z) == 0:
             return z
         check_count("refine steps (--refine)", o.steps, 0, MAX_REFINE_STEPS)
+        if len(z) > REFINE_ROWS:
+            parts = range(0, len(z), REFINE_ROWS)
+            return np.concatenate([self._refined(z[a : a + REFINE_ROWS], x[a : a + REFINE_ROWS])
+                                   for a in parts])  # fmt: skip
         z64 = z.astype(np.float64)
         tau = self.normaliser.denormalise_numpy(z64)[:, self.normaliser.tau_index]
         t = tau[:, None] * np.linspace(0.0, 1.0, REFINE_POINTS)  # [N, T]
@@ -487,8 +496,10 @@ class Predictor:
         if self.refine_options is not None and self.refine_options.steps:
             from .nn.strokes import refine_strokes
 
-            strokes = refine_strokes(strokes, x, self.normaliser, self.strokes,
-                                     self.refine_options)  # fmt: skip
+            n = REFINE_ROWS // self.strokes.slots  # characters: at most REFINE_ROWS strokes
+            strokes = [s for a in range(0, len(strokes), n)
+                       for s in refine_strokes(strokes[a : a + n], x[a : a + n], self.normaliser,
+                                               self.strokes, self.refine_options)]  # fmt: skip
         return strokes
 
     def stroke_count_probabilities(self, images, batch_size: int = 4096) -> np.ndarray:
