@@ -179,7 +179,7 @@ def test_a_shipped_stroke_model_reads_its_count_as_its_card_recommends(monkeypat
 def test_count_views_on_a_one_dmp_model_is_one_line_naming_it(capsys):
     assert cli.main(["predict", str(SAMPLE), "--count-views", "2"]) == 2
     line = _one_error_line(capsys.readouterr().err, "predict")
-    assert "--count-views 2: model digits-real predicts one DMP per image" in line, line
+    assert "(--count-views) 2: model digits-real predicts one DMP per image" in line, line
     assert cli.main(["predict", str(SAMPLE), "--count-views", "0"]) == 2
     line = _one_error_line(capsys.readouterr().err, "predict")
     assert "--count-views: must be an integer from 1 to 64, got 0" in line, line

@@ -584,15 +584,11 @@ def _load_predictor(model, device: str = "cpu", refine: int = 0, count_views=Non
     refine its predictions with ``refine`` steps (when not 0) and, a stroke model, to read
     its counts from ``count_views`` views (when not None; a one-DMP model refuses it)."""
     if count_views is not None:  # before the model is read
-        count_views = check_count("count_views (--count-views)", count_views, 1, MAX_COUNT_VIEWS)
-    source = model
+        check_count("count_views (--count-views)", count_views, 1, MAX_COUNT_VIEWS)
     if not (hasattr(model, "trajectories_for_images") or hasattr(model, "hypothesis_trajectories")):
         model = Predictor.load(model, device=device)
-    if count_views is not None and getattr(model, "strokes", None) is None:
-        raise ValueError(f"count_views (--count-views) {count_views}: model {source} "
-                         "predicts one DMP per image, it reads no stroke count")  # fmt: skip
     if count_views is not None:
-        model.count_views = count_views
+        model.count_with(count_views)
     if refine and hasattr(model, "refine_with"):
         model.refine_with(int(refine))
     elif refine:

@@ -326,6 +326,17 @@ class Predictor:
         extra = STROKE_REFINE if self.strokes is not None else {}
         self.refine_options = RefineOptions(steps=steps, **extra) if steps else None
 
+    def count_with(self, views: int) -> None:
+        """Read a stroke model's stroke counts from ``views`` views of each image (the
+        image and ``views - 1`` small affine copies; 1: the image alone). ``ValueError``
+        for a one-DMP model or ``views`` outside ``[1, MAX_COUNT_VIEWS]``."""
+        views = check_count("count_views (--count-views)", views, 1, MAX_COUNT_VIEWS)
+        if self.strokes is None:
+            model = f"model {self.shipped.name}" if self.shipped is not None else "this model"
+            raise ValueError(f"count_views (--count-views) {views}: {model} predicts one DMP "
+                             "per image, it reads no stroke count")  # fmt: skip
+        self.count_views = views
+
     @property
     def margin(self) -> float:
         """Framing of the training images, used by :func:`prepare_image`."""

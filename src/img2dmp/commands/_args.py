@@ -551,15 +551,11 @@ def add_count_views(p: argparse.ArgumentParser) -> None:
     )
 
 
-def set_count_views(args, predictor, model) -> None:
-    """Read ``predictor``'s stroke counts from ``--count-views`` views when given; a
-    ``ValueError`` naming ``model`` if it is not a stroke model."""
-    if args.count_views is None:
-        return
-    if predictor.strokes is None:
-        raise ValueError(f"--count-views {args.count_views}: model {model} predicts one DMP "
-                         "per image, it reads no stroke count")  # fmt: skip
-    predictor.count_views = args.count_views
+def set_count_views(args, predictor) -> None:
+    """Read ``predictor``'s stroke counts from ``--count-views`` views when given
+    (:meth:`~img2dmp.predict.Predictor.count_with`: a ``ValueError`` for a one-DMP model)."""
+    if args.count_views is not None:
+        predictor.count_with(args.count_views)
 
 
 def add_dmp_fit_options(add, dims_default: str) -> None:

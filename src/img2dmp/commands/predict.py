@@ -194,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
     _args.check_images(args.images)
     predictor = Predictor.load(model, device=_args.check_device(args.device),
                                backend=args.backend)  # fmt: skip
-    _args.set_count_views(args, predictor, model)
+    _args.set_count_views(args, predictor)
     refine = _args.refine_steps(args, model, "predict")
     if refine:
         predictor.refine_with(refine)

@@ -261,7 +261,7 @@ def _predictor(args):
 
     _args.one_thread()
     predictor = Predictor.load(args.model, backend=args.backend)
-    _args.set_count_views(args, predictor, args.model)
+    _args.set_count_views(args, predictor)
     refine = _args.refine_steps(args, args.model, "write")
     if refine:
         predictor.refine_with(refine)
