@@ -227,6 +227,22 @@ def test_predict_without_a_model_writes_the_sample_digit(tmp_path, capsys):
     assert json.loads((out / "digit_3_dmp.json").read_text())["refinement"] == {"steps": 0}
 
 
+def test_predict_of_several_images_shows_a_bar_on_a_terminal_only(tmp_path, monkeypatch, capsys):
+    from img2dmp import _progress
+
+    photo = SAMPLE.with_name("digit_5_photo.jpg")
+    argv = ["predict", str(SAMPLE), str(photo), "--out", str(tmp_path / "a"), "--refine", "0"]
+    assert cli.main(argv) == 0
+    assert "predict:" not in capsys.readouterr().err  # a log: nothing
+    monkeypatch.setattr(_progress, "live", lambda: True)
+    assert cli.main([*argv, "--force"]) == 0
+    assert re.search(r"\rpredict: +0%.* 0/2 \[", capsys.readouterr().err)  # drawn, then cleared
+    assert cli.main([*argv, "--force", "--no-progress"]) == 0
+    assert "predict:" not in capsys.readouterr().err
+    assert cli.main([*argv[:2], *argv[3:], "--force"]) == 0  # one image: no bar
+    assert "predict:" not in capsys.readouterr().err
+
+
 def test_write_without_a_model_has_the_arm_write_the_sample(tmp_path, capsys):
     from img2dmp.robot import available
 

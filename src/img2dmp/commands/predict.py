@@ -83,6 +83,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     _args.add_count_views(p)
     _args.add_device(p, "the network")
     _args.add_backend(p)
+    _args.add_no_progress(p)
     p.add_argument(
         "--keep-stroke-width",
         action="store_true",
@@ -153,9 +154,18 @@ def _explain(args, path, layout_boxes=None) -> Path:
     return paper_steps_figure(out, found, boxes, title=f"{path}: from the photo to the ink")
 
 
+def _images_bar(args, unit: str = "image"):
+    """``args.images``, with a live bar on a terminal when there are several (it leaves
+    nothing behind, and prints nothing into a log: :func:`img2dmp._progress.bar`)."""
+    from .._progress import bar
+
+    several = len(args.images) > 1 and not args.no_progress
+    return bar(args.images, desc="predict", unit=unit, enabled=several, leave=False)
+
+
 def _run_pages(args, predictor) -> int:
     pages = []
-    for path in args.images:  # all read before anything is written
+    for path in _images_bar(args, "page"):  # all read before anything is written
         with _args.reading_image(path):
             pages.append((path, predictor.predict_page(path, n_points=args.points,
                           match_stroke_width=not args.keep_stroke_width)))  # fmt: skip
@@ -201,7 +211,7 @@ def run(args: argparse.Namespace) -> int:
     if args.page:
         return _run_pages(args, predictor)
     predictions = []
-    for path in args.images:  # all predicted and checked before anything is written
+    for path in _images_bar(args):  # all predicted and checked before anything is written
         with _args.reading_image(path):
             pred = predictor.predict(
                 path, n_points=args.points, match_stroke_width=not args.keep_stroke_width
