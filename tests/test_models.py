@@ -241,6 +241,18 @@ def test_predict_of_several_images_shows_a_bar_on_a_terminal_only(tmp_path, monk
     assert "predict:" not in capsys.readouterr().err
     assert cli.main([*argv[:2], *argv[3:], "--force"]) == 0  # one image: no bar
     assert "predict:" not in capsys.readouterr().err
+    from img2dmp.predict import Predictor
+
+    def fails_on_the_photo(self, path, **kwargs):  # an error met inside the loop
+        if str(path) == str(photo):
+            raise ValueError(f"{path}: no ink found")
+        return predict(self, path, **kwargs)
+
+    predict = Predictor.predict
+    monkeypatch.setattr(Predictor, "predict", fails_on_the_photo)
+    assert cli.main([*argv, "--force"]) == 2
+    err = capsys.readouterr().err
+    assert re.search(r"\r +\rimg2dmp predict: error: .*no ink found", err), err  # bar cleared
 
 
 def test_write_without_a_model_has_the_arm_write_the_sample(tmp_path, capsys):
