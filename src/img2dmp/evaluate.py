@@ -499,26 +499,24 @@ def _measured(predictor, data, batch_size: int, progress: bool = False):
     strokes = getattr(predictor, "strokes", None) is not None
     refining = getattr(getattr(predictor, "refine_options", None), "steps", 0)
     step = min(batch_size, REFINE_PART) if refining else batch_size
-    parts = []
+    t, parts = data.trajectories.shape[1], []
     with bar(desc="evaluate", total=len(data), unit="sample", enabled=progress) as shown:
         for a in range(0, len(data), step):
             part = slice(a, a + step)
-            if strokes:
-                t = data.trajectories.shape[1]
+            if strokes:  # (y, probs, counts)
                 parts.append(_stroke_predictions(predictor, data.images[part], t, batch_size))
-            else:
+            else:  # (y, probs)
                 parts.append(predict_hypotheses(predictor, data.images[part], data.times[part],
                                                 batch_size))  # fmt: skip
             shown.update(len(parts[-1][0]))
-    y_all, probs, *counts = (np.concatenate(v) for v in zip(*parts, strict=True))
-    if strokes:
-        counts = counts[0]
+    joined = [np.concatenate(v) for v in zip(*parts, strict=True)]
+    y_all, probs = joined[0], joined[1]
     measures = hypothesis_metrics(
         y_all, probs, data.trajectories, data.images, data.labels, data.class_names
     )
     if strokes:
         read = {"count_views": int(predictor.count_views)}
-        measures["strokes"] = {**stroke_measures(counts, data, measures), **read}
+        measures["strokes"] = {**stroke_measures(joined[2], data, measures), **read}
     return y_all, probs, measures
 
 
