@@ -247,8 +247,23 @@ def test_dropout_acts_in_training_only_after_the_hidden_layers_of_the_fc_encoder
     for bad in (1.0, -0.1, "0.2", True):
         with pytest.raises(ValueError, match="model.dropout must be a number in"):
             ModelConfig(dropout=bad)
-    with pytest.raises(ValueError, match="the 'conv' encoder has none"):
-        ModelConfig(encoder="conv", dropout=0.2)
+
+
+def test_dropout_of_the_conv_encoder_drops_the_code_in_training_only_and_adds_no_weights():
+    from img2dmp.nn.model import ModelConfig, build_model
+
+    cfg = {"encoder": "conv", "conv_channels": [4, 8], "encoder_layers": [16]}
+    net = build_model(ModelConfig(**cfg, dropout=0.5), seed=0)
+    assert [type(m).__name__ for m in net.encoder.head] == ["Linear", "ReLU", "Dropout"]
+    plain = build_model(ModelConfig(**cfg), seed=0).eval()
+    assert net.state_dict().keys() == plain.state_dict().keys()  # checkpoints unchanged
+    x = torch.rand(4, 40, 40)
+    with torch.no_grad():
+        net.train()
+        assert not torch.equal(net(x), net(x))
+        net.eval()
+        assert torch.equal(net(x), net(x))
+        assert torch.allclose(net(x), plain(x))
 
 
 def test_conv_batch_norm_trains_saves_and_reloads(tmp_path):

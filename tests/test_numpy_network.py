@@ -47,6 +47,7 @@ CONFIGS = {
     "conv-batch-norm": {**CONV, "conv_norm": "batch", "hypotheses": 4},
     "conv-batch-strides": {**SMALL_CONV, "conv_norm": "batch", "conv_strides": [1, 3],
                            "image_size": [28, 28]},
+    "conv-dropout": {**SMALL_CONV, "dropout": 0.3, "image_size": [28, 28]},
     "conv-odd-size": {**SMALL_CONV, "conv_strides": [2, 3], "image_size": [29, 41]},
     "conv-impulse-28": {**CONV, "input_filter": "impulse", "image_size": [28, 28]},
     "fc-impulse-40": {"encoder_layers": [64, 20], "input_filter": "impulse"},

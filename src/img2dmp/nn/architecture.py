@@ -77,10 +77,11 @@ class ModelConfig:
         (:func:`~img2dmp.nn.model.split_hypotheses`). 1 (default) is the paper's network:
         one DMP, no score.
     dropout : float
-        Share of the fully connected encoder's hidden units dropped at random in
-        training (after each activation but the code's; Srivastava et al. 2014), in
-        [0, 1); 0 (default, the paper's network as described): none. Prediction never
-        drops units.
+        Share of units dropped at random in training (Srivastava et al. 2014), in
+        [0, 1); 0 (default, the paper's network as described): none. The fully
+        connected encoder drops its hidden units (after each activation but the code's);
+        the convolutional encoder its code's units (after its one fully connected
+        layer). Prediction never drops units; no weights are added.
     init : {"torch", "he"}
         How the weights start. ``"torch"`` (default): PyTorch's default for each layer,
         under which the paper's deep ReLU stack shrinks the images' variation (its
@@ -153,12 +154,6 @@ class ModelConfig:
         if not number or not 0 <= self.dropout < 1:
             raise ValueError(f"model.dropout must be a number in [0, 1), got {self.dropout!r}")
         self.dropout = float(self.dropout)
-        if self.dropout > 0 and self.encoder != "fc":
-            raise ValueError(
-                f"model.dropout ({self.dropout}) acts on the fully connected encoder's hidden "
-                f"layers; the {self.encoder!r} encoder has none (set model.encoder: fc or "
-                "model.dropout: 0)"
-            )
         if self.init not in INITS:
             raise ValueError(f"model.init must be one of {INITS}, got {self.init!r}")
         check_weights(self)

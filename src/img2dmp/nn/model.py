@@ -136,6 +136,7 @@ class ConvEncoder(nn.Module):
         activation: str = "relu",
         strides: list[int] | None = None,
         norm: str = "none",
+        dropout: float = 0.0,
     ):
         super().__init__()
         self.in_shape = tuple(image_size)
@@ -152,7 +153,10 @@ class ConvEncoder(nn.Module):
             layers += [_activation(activation)]
             c_in, h, w = c, (h - 1) // st + 1, (w - 1) // st + 1
         self.conv = nn.Sequential(*layers)
-        self.head = nn.Sequential(nn.Linear(c_in * h * w, latent), _activation(activation))
+        head: list[nn.Module] = [nn.Linear(c_in * h * w, latent), _activation(activation)]
+        if dropout > 0:  # the code's units, in training only; no weights, the same keys
+            head.append(nn.Dropout(dropout))
+        self.head = nn.Sequential(*head)
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:  # [B, H, W] -> [B, latent]
         return self.head(self.conv(images[:, None]).flatten(1))
@@ -234,6 +238,7 @@ def _build(config: ModelConfig) -> EncoderDecoder:
             config.activation,
             config.conv_strides,
             config.conv_norm,
+            config.dropout,
         )
     filt = ImpulseFilter() if config.input_filter == "impulse" else None
     return EncoderDecoder(
