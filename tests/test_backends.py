@@ -3,7 +3,8 @@
 The NumPy backend computes what the torch backend does: whole predictions and pages of
 the shipped model, refined as its card recommends, agree to 1e-5 of each parameter's
 spread over the training set (the network's output units). A prediction, a page and the
-DMP file's check run in a fresh process without importing torch at all.
+DMP file's check, and a stroke model's refined character, run in a fresh process without
+importing torch at all.
 """
 
 from __future__ import annotations
@@ -100,6 +101,35 @@ def test_a_page_is_read_the_same_on_numpy_and_torch(both):
         assert normalised_difference(norm, _vectors(pa)[:1], _vectors(pb)[:1]) <= TOLERANCE
 
 
+def test_a_stroke_models_refined_character_is_the_same_on_numpy_and_torch():
+    """The shipped stroke model's strokes refined as its card recommends: the same paths
+    on both backends (tau, which shapes no stroke, left as the network gave it)."""
+    import torch
+
+    from img2dmp.nn._refine_numpy import refine_strokes_numpy
+    from img2dmp.nn._stroke_layout import character_paths
+    from img2dmp.nn.strokes import refine_strokes
+
+    pred = {b: img2dmp.load_model("omniglot-strokes", backend=b) for b in ("numpy", "torch")}
+    a, b = (pred[k].predict(SAMPLES / "character_f.png") for k in ("numpy", "torch"))
+    assert a.n_strokes == b.n_strokes >= 2
+    assert np.abs(a.path_image - b.path_image).max() <= 1e-3  # px; the networks differ ~1e-6
+    p = pred["numpy"]
+    x = np.asarray(a.image, dtype=np.float32)  # the prepared image the network read
+    p.refine_options, o = None, p.refine_options
+    raw = p.predict_strokes(x[None])
+    via_numpy = refine_strokes_numpy(raw, x[None], p.normaliser, p.strokes, o)
+    with torch.no_grad():
+        via_torch = refine_strokes(raw, x[None], p.normaliser, p.strokes, o)
+    (v0, _), (v1, _), (v2, _) = raw[0], via_numpy[0], via_torch[0]
+    tau = p.normaliser.tau_index
+    assert np.abs(v1 - v0).max() > 0.1  # refinement moved the strokes ...
+    assert np.array_equal(v1[:, tau], v0[:, tau]) and np.array_equal(v2[:, tau], v0[:, tau])
+    assert np.abs(v1 - v2).max() <= 1e-9  # ... the same way on both backends
+    paths = [character_paths(s, p.normaliser, p.strokes)[0] for s in (via_numpy, via_torch)]
+    assert np.abs(paths[0] - paths[1]).max() <= 1e-9
+
+
 def test_bad_backends_are_one_line_errors(capsys):
     with pytest.raises(ValueError, match="backend must be one of auto, numpy, torch, got 'jax'"):
         img2dmp.load_model(backend="jax")
@@ -119,6 +149,7 @@ out = sys.argv[1]
 assert main(["predict", sys.argv[2], "--out", out]) == 0
 assert main(["predict", sys.argv[3], "--page", "--out", out]) == 0
 read_dmp_file(out + "/digit_3_dmp.json")  # checked, its rollout included
+assert main(["predict", sys.argv[4], "--model", "omniglot-strokes", "--out", out]) == 0
 pred = img2dmp.load_model().predict(sys.argv[2])
 print(json.dumps({"tau": float(pred.dmp.tau), "backend": "numpy"}))
 """
@@ -126,8 +157,10 @@ print(json.dumps({"tau": float(pred.dmp.tau), "backend": "numpy"}))
 
 def test_predict_and_a_page_run_without_torch(tmp_path):
     code = [sys.executable, "-c", _NO_TORCH, str(tmp_path),
-            str(SAMPLES / "digit_3.png"), str(SAMPLES / "page.jpg")]  # fmt: skip
+            str(SAMPLES / "digit_3.png"), str(SAMPLES / "page.jpg"),
+            str(SAMPLES / "character_f.png")]  # fmt: skip
     proc = subprocess.run(code, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert json.loads(proc.stdout.strip().splitlines()[-1])["tau"] > 0
     assert (tmp_path / "page_page.json").exists() and (tmp_path / "digit_3_dmp.json").exists()
+    assert json.loads((tmp_path / "character_f_dmp.json").read_text())["refinement"]["steps"] == 60

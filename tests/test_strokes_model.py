@@ -412,14 +412,13 @@ def test_evaluate_refines_in_parts_with_the_numbers_of_one_batch_and_says_its_pr
 ):
     from img2dmp import evaluate as ev
     from img2dmp import predict
-    from img2dmp.nn import strokes as nn_strokes
 
     whole = ev.evaluate(trained, small_omniglot, split="test", n_figures=0, refine=5)
     monkeypatch.setattr(ev, "REFINE_PART", 5)  # 12 test rows: parts of 5, 5 and 2
     monkeypatch.setattr(predict, "REFINE_ROWS", 16)  # 8 slots: 2 characters refined at once
-    sizes, real = [], nn_strokes.refine_strokes
+    sizes, real = [], predict.refine_strokes_numpy  # the NumPy backend's (auto on the CPU)
     spy = lambda strokes, *a: sizes.append(len(strokes)) or real(strokes, *a)  # noqa: E731
-    monkeypatch.setattr(nn_strokes, "refine_strokes", spy)
+    monkeypatch.setattr(predict, "refine_strokes_numpy", spy)
     parts = ev.evaluate(trained, small_omniglot, split="test", n_figures=0, refine=5)
     assert sizes == [2, 2, 1, 2, 2, 1, 2]  # evaluate's parts of 5, 5 and 2, refined 2 by 2
     assert parts["strokes"]["predicted_counts"] == whole["strokes"]["predicted_counts"]

@@ -81,7 +81,12 @@ from .dmp.affine import affine_dmp
 from .models import ShippedModel, default_model
 from .models import resolve as resolve_shipped
 from .nn._numpy_net import NumpyNetwork
-from .nn._refine_numpy import MAX_REFINE_STEPS, RefineOptions, refine_numpy
+from .nn._refine_numpy import (
+    MAX_REFINE_STEPS,
+    RefineOptions,
+    refine_numpy,
+    refine_strokes_numpy,
+)
 from .nn._stroke_layout import (
     COUNT_VIEWS,
     MAX_COUNT_VIEWS,
@@ -497,21 +502,26 @@ class Predictor:
         """A stroke model's strokes of prepared images ``[B, H, W]``: per image the top
         hypothesis' strokes in writing order, (normalised vectors ``[c, P]``, presence
         probabilities ``[c]``) (:func:`img2dmp.nn.strokes.read_strokes`), refined on the
-        image if asked (:func:`img2dmp.nn.strokes.refine_strokes`, in torch)."""
+        image if asked (:func:`img2dmp.nn.strokes.refine_strokes` on the torch backend,
+        :func:`img2dmp.nn._refine_numpy.refine_strokes_numpy` on NumPy's)."""
         if self.strokes is None:
             raise ValueError("predict_strokes needs a stroke model; this one predicts one DMP")
         x, out = self._raw_outputs(images, batch_size)
         strokes = read_strokes(out, self.strokes, self.n_hypotheses,
                                count_probs=self._count_probabilities(x, out, batch_size),
                                min_counts=ink_pieces(x))  # fmt: skip
-        if self.refine_options is not None and self.refine_options.steps:
-            from .nn.strokes import refine_strokes
-
-            n = REFINE_ROWS // self.strokes.slots  # characters: at most REFINE_ROWS strokes
-            strokes = [s for a in range(0, len(strokes), n)
-                       for s in refine_strokes(strokes[a : a + n], x[a : a + n], self.normaliser,
-                                               self.strokes, self.refine_options)]  # fmt: skip
-        return strokes
+        o = self.refine_options
+        if o is None or not o.steps:
+            return strokes
+        check_count("refine steps (--refine)", o.steps, 0, MAX_REFINE_STEPS)
+        if self.network is not None:
+            refine = refine_strokes_numpy
+        else:
+            from .nn.strokes import refine_strokes as refine
+        n = REFINE_ROWS // self.strokes.slots  # characters: at most REFINE_ROWS strokes
+        return [s for a in range(0, len(strokes), n)
+                for s in refine(strokes[a : a + n], x[a : a + n], self.normaliser, self.strokes,
+                                o)]  # fmt: skip
 
     def stroke_count_probabilities(self, images, batch_size: int = 4096) -> np.ndarray:
         """A stroke model's probabilities ``[B, K, S]`` of 1 to S strokes per hypothesis

@@ -1,4 +1,5 @@
-"""The refinement of :func:`img2dmp.nn.refine.refine` in NumPy, with hand-derived gradients.
+"""The refinement of :func:`img2dmp.nn.refine.refine` in NumPy, with hand-derived gradients
+(and a stroke model's, :func:`refine_strokes_numpy`).
 
 For a one-image prediction that never imports torch. The same computation in float64:
 Adam steps on the normalised DMP vectors ``z`` ``[B, P]`` that minimise, per sample,
@@ -309,10 +310,90 @@ def refine_numpy(
     return z
 
 
+def refine_strokes_numpy(strokes: list, images, normaliser: ParamNormaliser, layout,
+                         options: RefineOptions | None = None) -> list:  # fmt: skip
+    """:func:`img2dmp.nn.strokes.refine_strokes` without torch, in NumPy float64.
+
+    Per character, Adam steps on all of its stroke vectors at once (padded to the
+    batch's most strokes, ``z [B, S, P]``) that minimise
+
+        J = lambda mean_s |z_s - z0_s|^2 / P + a A(y) + c C(y),
+
+    the prior averaged over the character's strokes and the ink terms (module
+    docstring) on the union of its strokes: each stroke rolled out at
+    ``layout.n_points`` instants over its own tau (``t = u tau``), pen down on its
+    strokes, up on the padding. A stroke's shape does not depend on its tau (the DMP
+    runs on ``t / tau``), so tau gets no gradient, as torch's (to rounding) gets none.
+
+    Parameters
+    ----------
+    strokes : list of (vectors [c_i, P], presence [c_i])
+        :func:`~img2dmp.nn._stroke_layout.read_strokes`' characters.
+    images : array [B, H, W]
+        Their prepared images (ink = 1).
+    normaliser : ParamNormaliser
+        Maps a stroke vector to its DMP's parameters.
+    layout : StrokeLayout
+        The stroke model's layout (``n_points``, its 2-D DMP constants).
+    options : RefineOptions
+        Default ``RefineOptions()``.
+
+    Returns
+    -------
+    list
+        The same shape, each character's vectors replaced (float64).
+    """
+    o = options or RefineOptions()
+    if o.steps == 0 or not strokes:
+        return strokes
+    p, n, cfg = layout.n_params, layout.n_points, layout.config
+    s_max = max(len(v) for v, _ in strokes)
+    imgs = np.asarray(images, dtype=np.float64)
+    if imgs.ndim != 3 or len(imgs) != len(strokes):
+        raise ValueError(f"images must be [B, H, W] with B = {len(strokes)} characters, "
+                         f"got shape {imgs.shape}")  # fmt: skip
+    if s_max == 0:
+        return strokes
+    b, k, d = len(strokes), cfg.n_kernels, cfg.n_dims
+    ti = k * d
+    z0, mask = np.zeros((b, s_max, p)), np.zeros((b, s_max))
+    for i, (v, _) in enumerate(strokes):
+        z0[i, : len(v)] = np.asarray(v, dtype=np.float64)
+        mask[i, : len(v)] = 1.0
+    pen = np.repeat(mask, n, axis=1)[..., None]  # [B, S n, 1]: up on the padding
+    prior = 2.0 * o.prior_weight / p * (mask / np.maximum(mask.sum(-1, keepdims=True), 1.0))
+    dist = ink_distance_map_numpy(imgs).astype(np.float64) if o.ink_weight else None
+    ink = _InkPixels(imgs, INK_THRESHOLD) if o.coverage_weight else None
+    u = np.linspace(0.0, 1.0, n)
+    z = z0.copy()
+    adam = _Adam(z.shape, o.lr)
+    for _ in range(int(o.steps)):
+        flat = z.reshape(b * s_max, p)
+        v = normaliser.denormalise_numpy(flat)  # [B S, P]
+        w = v[:, :ti].reshape(-1, d, k).transpose(0, 2, 1)  # [B S, N, d]
+        tau = v[:, ti]
+        roll = _Rollout(w, tau, v[:, ti + 1 : ti + 1 + d], v[:, ti + 1 + d :],
+                        u[None] * tau[:, None], cfg)  # fmt: skip
+        y = np.concatenate([roll.y.reshape(b, s_max * n, d), pen], -1)  # [B, S n, 3]
+        grad_y = np.zeros((b, s_max * n, d))
+        if o.ink_weight:
+            grad_y[..., :2] += o.ink_weight * _ink_attraction(y, dist)[1]
+        if o.coverage_weight:
+            grad_y[..., :2] += o.coverage_weight * _ink_coverage(y, ink, o.coverage_tolerance_px)[1]
+        gw, _, gg, gy0 = roll.vjp(grad_y.reshape(b * s_max, n, d))
+        grad_v = np.concatenate(
+            [gw.transpose(0, 2, 1).reshape(-1, ti), np.zeros((len(v), 1)), gg, gy0], 1
+        )
+        grad_z = normaliser.denormalise_numpy_vjp(flat, grad_v).reshape(b, s_max, p)
+        z = adam.step(z, grad_z + prior[..., None] * (z - z0))
+    return [(z[i, : len(v)], pr) for i, (v, pr) in enumerate(strokes)]
+
+
 __all__ = [
     "INK_THRESHOLD",
     "MAX_REFINE_STEPS",
     "RefineOptions",
     "ink_distance_map_numpy",
     "refine_numpy",
+    "refine_strokes_numpy",
 ]

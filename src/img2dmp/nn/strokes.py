@@ -376,7 +376,11 @@ def refine_strokes(strokes: list, images, normaliser, layout: StrokeLayout, opti
     """:func:`read_strokes`' characters refined on their images ``[B, H, W]``: the
     :mod:`img2dmp.nn.refine` objective (ink attraction and coverage of the union of a
     character's strokes, prior ``|z - z_0|^2 / P``) over all of its strokes' vectors at
-    once, Adam for ``options.steps`` steps. The same list shape, vectors replaced."""
+    once, Adam for ``options.steps`` steps. A stroke's shape does not depend on its tau
+    (the DMP runs on ``t / tau``): tau is left as the network gave it (its gradient,
+    zero but for rounding, would otherwise drift it under Adam's normalised steps).
+    The same list shape, vectors replaced; :func:`img2dmp.nn._refine_numpy.
+    refine_strokes_numpy` is the same in NumPy."""
     from .ink import ink_distance_map
     from .refine import RefineOptions, _Adam, ink_terms
 
@@ -398,6 +402,7 @@ def refine_strokes(strokes: list, images, normaliser, layout: StrokeLayout, opti
             j = o.prior_weight * prior + ink_terms(y, dist, imgs, o)
             z.grad = None
             j.sum().backward()
+            z.grad[..., normaliser.tau_index] = 0.0
             adam.step()
     z = z.detach().numpy()
     return [(z[i, : len(v)], p) for i, (v, p) in enumerate(strokes)]
