@@ -542,17 +542,79 @@ def test_the_count_readings_compare_views_and_the_pieces_bound(
     assert predictor.count_views == 8  # left as it was
 
 
-@pytest.mark.parametrize("command", ["predict", "write"])
-def test_a_page_with_a_stroke_model_is_one_line_naming_why(trained, command, tmp_path, capsys):
-    from pathlib import Path
+def _two_characters_page(omni_root, path):
+    """A page of two Omniglot characters side by side on white paper, saved at ``path``."""
+    from PIL import Image
 
-    page = Path(__file__).resolve().parents[1] / "examples" / "samples" / "page.jpg"
-    args = [command, str(page), "--page", "--model", str(trained), "--out", str(tmp_path)]
-    assert cli.main(args) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "reading a page is for one-DMP models" in err[0], err
-    assert "stroke model (8 stroke slots)" in err[0]
-    assert not any(tmp_path.iterdir())
+    chars = [omni_root / "images_test" / "Alpha" / "character02" / "0102_20.png",
+             omni_root / "images_test" / "Beta" / "character02" / "0202_19.png"]  # fmt: skip
+    ink = [np.asarray(Image.open(c).convert("L")) for c in chars]
+    page = np.full((140, 300), 255, np.uint8)
+    page[15:120, 20:125] = ink[0]
+    page[15:120, 170:275] = ink[1]
+    Image.fromarray(page).save(path)
+    return path
+
+
+def test_a_page_read_by_a_stroke_model_lists_every_stroke_in_the_photos_pixels(
+    omni_root, trained, tmp_path, capsys
+):
+    from img2dmp.dmp import DMPParams
+    from img2dmp.dmp._numpy_rollout import rollout_numpy
+    from img2dmp.predict import StrokePrediction, load_model
+    from img2dmp.robot.pagefile import check_page_document
+
+    photo = _two_characters_page(omni_root, tmp_path / "two.png")
+    page = load_model(trained, refine=5).predict_page(photo)
+    assert len(page.characters) == 2 and len(page.lines) == 1
+    preds = [c.prediction for c in page.characters]
+    assert all(isinstance(p, StrokePrediction) for p in preds)
+    assert preds[0].path_image[0, :, 0].max() < 150 < preds[1].path_image[0, :, 0].min()
+    doc = page.to_document()
+    n = [p.n_strokes for p in preds]
+    assert doc["entries"] == "strokes" and doc["n_characters"] == 2
+    entries = doc["characters"]
+    assert [e["index"] for e in entries] == list(range(sum(n)))
+    assert doc["lines"] == [{"index": 0, "characters": list(range(sum(n)))}]
+    assert [(e["character"], e["stroke"]) for e in entries] == [
+        (k, j + 1) for k in range(2) for j in range(n[k])
+    ]  # fmt: skip
+    checked = check_page_document(json.loads(json.dumps(doc)), "two_page.json")
+    for e, c in zip(entries, checked.characters, strict=True):
+        k, j = e["character"], e["stroke"] - 1
+        rows = preds[k].stroke_rows(j)
+        assert np.allclose(e["path_image_px"], preds[k].path_image[0, rows, :2], atol=1e-3)
+        assert list(c.box_image_px) == list(page.characters[k].box_image)
+        # each entry's DMP, in the photo's pixels, rolls out to its path
+        p = DMPParams.from_dict(e["dmp"]["params"])
+        t = np.asarray(e["times_s"])
+        y = rollout_numpy(p.to_numpy(), t, preds[k].dmp_config)
+        assert np.abs(y - np.asarray(e["path_image_px"])).max() < 2e-3
+    out = tmp_path / "out"
+    assert cli.main(["predict", str(photo), "--page", "--model", str(trained), "--refine",
+                     "5", "--out", str(out)]) == 0  # fmt: skip
+    assert "2 characters in 1 lines" in capsys.readouterr().out
+    written = json.loads((out / "two_page.json").read_text())
+    assert len(written["characters"]) == sum(n) and (out / "two_page.png").exists()
+
+
+@pytest.mark.skipif(
+    not __import__("img2dmp.robot", fromlist=["available"]).available(),
+    reason="pybullet is not installed (pip install img2dmp[robot])",
+)
+def test_write_page_with_a_stroke_model_writes_every_stroke_and_lifts_the_pen(
+    omni_root, trained, tmp_path, capsys
+):
+    photo = _two_characters_page(omni_root, tmp_path / "two.png")
+    out = tmp_path / "robot"
+    argv = ["write", str(photo), "--page", "--model", str(trained), "--refine", "5",
+            "--out-dir", str(out), "--no-progress"]  # fmt: skip
+    assert cli.main(argv) == 0
+    printed = capsys.readouterr().out
+    m = re.search(r"two: (\d+) of (\d+) strokes written", printed)
+    assert m and m.group(1) == m.group(2) and int(m.group(1)) >= 2, printed
+    assert "no ink between strokes" in printed and "  stroke 0 (line 0)" in printed
+    assert (out / "two_paper.png").exists() and (out / "two_characters.csv").exists()
 
 
 def test_stroke_choices_refuses_a_model_that_trained_on_the_validation_drawers(

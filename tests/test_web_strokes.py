@@ -142,8 +142,8 @@ def test_what_is_for_one_dmp_is_refused_in_one_line(client, drawn):
     r = client.post("/api/predict_page", content=b"\x89PNG", headers={"Content-Type": "image/png"})
     name = drawn["model"]
     assert _one_line_error(r, 422) == (
-        f"model {name}: reading a page is for one-DMP models; {name} is a stroke model (a "
-        "character as up to 8 DMPs)"
+        f"model {name}: reading a page in the browser is for one-DMP models; {name} is a "
+        "stroke model (a character as up to 8 DMPs)"
     )
 
 

@@ -88,6 +88,22 @@ class CharacterPrediction:
             return np.ones(len(path), np.int64)
         return (path[:, 2] >= 0.5).astype(np.int64)
 
+    def stroke_entries(self, dmp: bool = True) -> list[dict]:
+        """A stroke model's character as page-document entries, one per stroke in writing
+        order (without ``index`` and ``line``): its path and DMP in the photo's pixels,
+        the character's box, fit and flags, and notes of which character and stroke it
+        is (``character``, ``stroke``, ``n_strokes``)."""
+        c, p = self.character, self.prediction
+        notes = {"character": c.index, "n_strokes": p.n_strokes, "position": c.position,
+                 "word": c.word, "parts": c.parts, "split": c.split}  # fmt: skip
+        entries = []
+        for e in p.stroke_entries(in_image=True, box=self.box_image):
+            e.update(flags=list(self.flags), **notes)
+            if not dmp:
+                del e["dmp"]
+            entries.append(e)
+        return entries
+
     def to_dict(self, dmp: bool = True) -> dict:
         """The character's entry of the page document (without its ``"dmp"`` unless
         ``dmp``: a tenth of the size, for a quick look at the page)."""
@@ -165,9 +181,21 @@ class PagePrediction:
 
     def to_document(self, dmps: bool = True) -> dict:
         """The page document (format ``img2dmp-page`` version 1; docs/PAGE.md); without
-        the characters' ``"dmp"`` documents unless ``dmps``."""
+        the characters' ``"dmp"`` documents unless ``dmps``. Read by a stroke model, its
+        entries are the characters' strokes (``"entries": "strokes"``, each entry's
+        ``character`` and ``stroke`` say which), so that ``img2dmp write --page`` lifts
+        the pen between them."""
         h, w = self.image_size
-        return {
+        strokes = any(hasattr(c.prediction, "n_strokes") for c in self.characters)
+        if strokes:  # a stroke model's: one entry per stroke, each its own DMP
+            entries, lines = [], [[] for _ in self.lines]
+            for c in self.characters:
+                for e in c.stroke_entries(dmps):
+                    lines[c.character.line].append(len(entries))
+                    entries.append({"index": len(entries), "line": c.character.line, **e})
+        else:
+            entries, lines = [c.to_dict(dmps) for c in self.characters], self.lines
+        doc = {
             "format": PAGE_FORMAT,
             "version": PAGE_VERSION,
             "image": self.source,
@@ -177,9 +205,13 @@ class PagePrediction:
             "refinement": {"steps": self.refine_steps},
             "flags": self.flags,
             "removed": self.removed,
-            "lines": [{"index": i, "characters": idx} for i, idx in enumerate(self.lines)],
-            "characters": [c.to_dict(dmps) for c in self.characters],
+            "lines": [{"index": i, "characters": idx} for i, idx in enumerate(lines)],
+            "characters": entries,
         }
+        if strokes:
+            doc["entries"] = "strokes"
+            doc["n_characters"] = len(self.characters)
+        return doc
 
     def to_json(self) -> str:
         """The page document as compact JSON text (a page of 60 characters with four
@@ -337,7 +369,7 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
     name : str, optional
         Names an array or PIL image in messages.
     """
-    from .predict import MAX_POINTS, Prediction, check_count
+    from .predict import MAX_POINTS, check_count
 
     n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
     seg = segment_page(image, name=name)
@@ -352,19 +384,44 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
         return page
     inputs, frames = _frame_characters(predictor, found, page.layout, reduction, size, label,
                                        match_stroke_width)  # fmt: skip
-    # refined: the top hypothesis, the one written (PAGE_REFINE_TOP_ONLY)
-    params, probs = predictor.predict_hypotheses(np.stack(inputs),
-                                                 refine_top_only=PAGE_REFINE_TOP_ONLY)  # fmt: skip
-    times, paths = predictor.trajectories(params, n_points=n_points)  # [N, K, T], [N, K, T, d]
-    for i, c in enumerate(page.layout.characters):
-        pred = Prediction(params[i], probs[i], times[i], paths[i], frames[i], predictor.dmp_config,
-                          inputs[i], source=source, refine_steps=steps,
-                          stroke_width_px=predictor.stroke_width)  # fmt: skip
+    if predictor.strokes is not None:
+        preds = _stroke_predictions(predictor, inputs, frames, source, steps, n_points)
+    else:
+        preds = _dmp_predictions(predictor, inputs, frames, source, steps, n_points)
+    for c, pred in zip(page.layout.characters, preds, strict=True):
         border = _touches_border(c.box, found.ink.shape, reduction)
         flags = list(pred.flags) + (["cut_by_border"] if border else [])
         box = _box_in_image(c.box, reduction, size)
         page.characters.append(CharacterPrediction(c, box, pred, flags))
     return page
+
+
+def _stroke_predictions(predictor, inputs, frames, source, steps, n_points) -> list:
+    """A stroke model's characters (:class:`~img2dmp.predict.StrokePrediction`), all read
+    (and refined) in one batch."""
+    from .predict import StrokePrediction
+
+    strokes = predictor.predict_strokes(np.stack(inputs))
+    return [StrokePrediction(s, predictor.normaliser, predictor.strokes, frame, x,
+                             source=source, refine_steps=steps,
+                             stroke_width_px=predictor.stroke_width, n_per_stroke=n_points,
+                             count_views=predictor.count_views)
+            for s, frame, x in zip(strokes, frames, inputs, strict=True)]  # fmt: skip
+
+
+def _dmp_predictions(predictor, inputs, frames, source, steps, n_points) -> list:
+    """A one-DMP model's characters (:class:`~img2dmp.predict.Prediction`, ranked
+    hypotheses), all in one batch."""
+    from .predict import Prediction
+
+    # refined: the top hypothesis, the one written (PAGE_REFINE_TOP_ONLY)
+    params, probs = predictor.predict_hypotheses(np.stack(inputs),
+                                                 refine_top_only=PAGE_REFINE_TOP_ONLY)  # fmt: skip
+    times, paths = predictor.trajectories(params, n_points=n_points)  # [N, K, T], [N, K, T, d]
+    return [Prediction(params[i], probs[i], times[i], paths[i], frames[i], predictor.dmp_config,
+                       inputs[i], source=source, refine_steps=steps,
+                       stroke_width_px=predictor.stroke_width)
+            for i in range(len(inputs))]  # fmt: skip
 
 
 def _grow(pen_width_px: float) -> int:

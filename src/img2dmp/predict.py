@@ -684,15 +684,10 @@ class Predictor:
         DMPs where it stands (:func:`img2dmp.page.read_page`): a
         :class:`~img2dmp.page.PagePrediction` in reading order, with fit scores and flags;
         ``.save(dir, stem)`` writes the page document and its picture. A stroke model
-        is refused (``ValueError``): pages are read with one-DMP models."""
+        reads each character as its strokes (:class:`StrokePrediction`), and the page
+        document lists every stroke as an entry (docs/PAGE.md)."""
         from .page import read_page
 
-        if self.strokes is not None:
-            raise ValueError(
-                f"reading a page is for one-DMP models (such as {default_model().name}); "
-                f"this is a stroke model ({self.strokes.slots} stroke slots): read each "
-                "character's image alone"
-            )
         return read_page(self, image, n_points=n_points,
                          match_stroke_width=match_stroke_width, name=name)  # fmt: skip
 
@@ -994,22 +989,34 @@ class StrokePrediction:
         (:func:`img2dmp.robot.plan_page`): each stroke pen down, the pen lifted and
         carried to the next one's start."""
         h, w = self.frame.model_size
-        entries = []
-        for j in range(self.n_strokes):
-            rows = self.stroke_rows(j)
-            xy, t = self.path_model[0, rows, :2], self.times[rows]
-            dmp = dmp_document(self.strokes[j], self.dmp_config, (h, w), frame="image")
-            entries.append({
-                "index": j, "line": 0, "box_image_px": _box_px(xy, (h, w)),
-                "path_image_px": np.round(xy, 3).tolist(), "pen": [1] * len(xy),
-                "times_s": np.round(t - t[0], 6).tolist(),
-                "confidence": round(float(self.presence[j]), 6), "fit": dict(self.fit),
-                "flags": [], "dmp": dmp, "stroke": j + 1,
-            })  # fmt: skip
+        entries = [{"index": j, "line": 0, **e} for j, e in enumerate(self.stroke_entries())]
         return {"format": "img2dmp-page", "version": 1, "image": None,
                 "image_size_px": [int(w), int(h)], "frame": "model", "source": self.source,
                 "lines": [{"index": 0, "characters": list(range(self.n_strokes))}],
                 "characters": entries}  # fmt: skip
+
+    def stroke_entries(self, in_image: bool = False, box=None) -> list[dict]:
+        """One page-document entry per stroke, in writing order, without ``index`` and
+        ``line``: its path (pen down), times from its start, its 2-D DMP (``"frame":
+        "image"``) and ``"stroke"`` (1-based), in the model's frame or (``in_image``) the
+        user's image; ``box`` (``[x0, y0, x1, y1]``) for every stroke, else each
+        stroke's own."""
+        size = self.frame.image_size if in_image else self.frame.model_size
+        path, params = (self.path_image, self.strokes_image) if in_image else (
+            self.path_model, self.strokes)  # fmt: skip
+        entries = []
+        for j in range(self.n_strokes):
+            rows = self.stroke_rows(j)
+            xy, t = path[0, rows, :2], self.times[rows]
+            entries.append({
+                "box_image_px": list(box) if box is not None else _box_px(xy, size),
+                "path_image_px": np.round(xy, 3).tolist(), "pen": [1] * len(xy),
+                "times_s": np.round(t - t[0], 6).tolist(),
+                "confidence": round(float(self.presence[j]), 6), "fit": dict(self.fit),
+                "flags": [], "dmp": dmp_document(params[j], self.dmp_config, size, frame="image"),
+                "stroke": j + 1,
+            })  # fmt: skip
+        return entries
 
     def to_json(self, name: str | os.PathLike = "stroke document") -> str:
         """The document's text; ``ValueError`` naming ``name`` for a value JSON cannot

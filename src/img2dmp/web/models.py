@@ -167,9 +167,9 @@ def _stroke_hypotheses(pred: StrokePrediction, document: dict) -> list[dict]:
 
 
 def warm_up(model: LoadedModel) -> None:
-    """One prediction of a drawn "1" and (but for a stroke model, which reads no pages)
-    one page of two, so that the first request does not pay for the caches (numba's
-    compiled rollout, the DMP response table, the page reading's first run)."""
+    """One prediction of a drawn "1" and (but for a stroke model, whose pages the browser
+    does not read) one page of two, so that the first request does not pay for the caches
+    (numba's compiled rollout, the DMP response table, the page reading's first run)."""
     image = np.full((64, 64), 255, np.uint8)
     image[12:52, 29:35] = 0
     predict_with(model, image, 100, "warm-up")
