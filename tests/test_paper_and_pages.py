@@ -121,6 +121,11 @@ def test_touching_characters_are_cut_apart():
     assert len(layout.characters) == 6
     assert sum(c.split for c in layout.characters) == 2
     assert _matches(layout, boxes, tol=6.0)
+    # cut=False (a stroke model's page): every mark stays whole, the touching pair one
+    whole = find_characters(mask, cut=False)
+    assert len(whole.characters) == 5 and not any(c.split for c in whole.characters)
+    pair = whole.characters[2].box
+    assert abs(pair[0] - boxes[2][0]) <= 4 and abs(pair[2] - boxes[3][2]) <= 4
 
 
 def test_a_1_touching_a_7_is_cut_though_no_wider_than_a_character():

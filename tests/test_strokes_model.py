@@ -557,15 +557,20 @@ def _two_characters_page(omni_root, path):
 
 
 def test_a_page_read_by_a_stroke_model_lists_every_stroke_in_the_photos_pixels(
-    omni_root, trained, tmp_path, capsys
+    omni_root, trained, tmp_path, capsys, monkeypatch
 ):
+    from img2dmp import page as page_module
     from img2dmp.dmp import DMPParams
     from img2dmp.dmp._numpy_rollout import rollout_numpy
     from img2dmp.predict import StrokePrediction, load_model
     from img2dmp.robot.pagefile import check_page_document
 
     photo = _two_characters_page(omni_root, tmp_path / "two.png")
+    cuts, segment = [], page_module.segment_page
+    spy = lambda *a, **k: cuts.append(k["cut"]) or segment(*a, **k)  # noqa: E731
+    monkeypatch.setattr(page_module, "segment_page", spy)
     page = load_model(trained, refine=5).predict_page(photo)
+    assert cuts == [False]  # a stroke model's letters keep their waists (STROKE_PAGE_CUT)
     assert len(page.characters) == 2 and len(page.lines) == 1
     preds = [c.prediction for c in page.characters]
     assert all(isinstance(p, StrokePrediction) for p in preds)
@@ -615,6 +620,25 @@ def test_write_page_with_a_stroke_model_writes_every_stroke_and_lifts_the_pen(
     assert m and m.group(1) == m.group(2) and int(m.group(1)) >= 2, printed
     assert "no ink between strokes" in printed and "  stroke 0 (line 0)" in printed
     assert (out / "two_paper.png").exists() and (out / "two_characters.csv").exists()
+
+
+def test_the_stroke_page_experiment_reads_a_drawers_page_and_counts_its_strokes(
+    omni_root, trained, experiment_script, tmp_path, capsys
+):
+    mod = experiment_script("stroke_page")
+    argv = ["--omniglot", str(omni_root), "--model", str(trained), "--drawer", "18",
+            "--n", "4", "--per-line", "2", "--out", str(tmp_path)]  # fmt: skip
+    assert mod.main(argv) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"4 characters placed, \d+ found in \d+ lines", out), out
+    # the tree's strokes do not touch: each is found as a character of its own
+    cells = [line for line in out.splitlines() if line.startswith("  cell ")]
+    assert len(cells) == 4 and all("found as" in c for c in cells), out
+    chosen = mod.characters(omni_root, 18)
+    assert len(chosen) == 4 and {n for _, _, n in chosen} <= {2, 3}  # the tree's strokes
+    assert (tmp_path / "drawer18_page_page.json").exists()
+    with pytest.raises(SystemExit, match="fewer than --n"):
+        mod.main([*argv[:-4], "--n", "9", "--out", str(tmp_path)])
 
 
 def test_stroke_choices_refuses_a_model_that_trained_on_the_validation_drawers(

@@ -43,6 +43,11 @@ PAGE_WORK_PIXELS = 2_000_000
 #: On a page only each character's top hypothesis is refined (the one the robot writes and
 #: the fit scores; alternatives as the network gave them): a quarter of the work.
 PAGE_REFINE_TOP_ONLY = True
+#: Whether a page read by a stroke model has its wide marks cut into characters and at
+#: their waists, as a one-DMP model's digits are: not, since letters such as n, m and W
+#: have the waists of two touching digits (chosen on Omniglot's validation drawers,
+#: RESULTS 8.5).
+STROKE_PAGE_CUT = False
 #: Pixels of paper kept around a character's ink before it is framed.
 _CROP_PAD_PX = 2
 #: Longest side of the page picture, pixels (a smaller photo is enlarged to it, up to
@@ -332,7 +337,7 @@ class PageSegmentation:
         return _box_in_image(c.box, self.reduction, self.size)
 
 
-def segment_page(image, *, name: str | None = None) -> PageSegmentation:
+def segment_page(image, *, name: str | None = None, cut: bool = True) -> PageSegmentation:
     """The page read upright at most ``PAGE_WORK_PIXELS``, its ink separated from the paper
     and its characters found (:func:`read_page`'s steps 1 and 2, without a model).
 
@@ -342,12 +347,16 @@ def segment_page(image, *, name: str | None = None) -> PageSegmentation:
         As :func:`read_page` takes it.
     name : str, optional
         Names an array or PIL image in messages.
+    cut : bool
+        Cut wide marks into characters and at their waists (touching digits; default);
+        False keeps each mark whole (:func:`img2dmp.data.pages.find_characters`).
     """
     levels, reduction, size, label = _images._levels_framed(image, name, PAGE_WORK_PIXELS)
     found = paper_ink(levels)
     layout = PageLayout(shape=levels.shape[:2])
     if found is not None:
-        layout = find_characters(found.mask, core=found.core, grow=_grow(found.pen_width_px))
+        layout = find_characters(found.mask, core=found.core, grow=_grow(found.pen_width_px),
+                                 cut=cut)  # fmt: skip
     return PageSegmentation(levels, reduction, size, label, found, layout)
 
 
@@ -372,7 +381,8 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
     from .predict import MAX_POINTS, check_count
 
     n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
-    seg = segment_page(image, name=name)
+    cut = predictor.strokes is None or STROKE_PAGE_CUT
+    seg = segment_page(image, name=name, cut=cut)
     levels, reduction, size, label, found = seg.levels, seg.reduction, seg.size, seg.label, seg.ink
     source = str(image) if isinstance(image, (str, os.PathLike)) else None
     steps = 0 if predictor.refine_options is None else int(predictor.refine_options.steps)

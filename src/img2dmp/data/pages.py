@@ -458,7 +458,7 @@ def _objects(labels: np.ndarray, n: int):
 
 
 def find_characters(mask, *, angle_deg: float | None = None, core=None,
-                    grow: int = 4) -> PageLayout:  # fmt: skip
+                    grow: int = 4, cut: bool = True) -> PageLayout:  # fmt: skip
     """The characters of a page's ink mask, in reading order (module docstring).
 
     Parameters
@@ -470,6 +470,11 @@ def find_characters(mask, *, angle_deg: float | None = None, core=None,
     core : bool array [H, W], optional
         The strokes' cores (:attr:`img2dmp.data.paper.PaperInk.core`): the characters are
         found on them, then each takes the pixels of ``mask`` within ``grow`` pixels.
+    cut : bool
+        Cut a mark wider than one character into the characters it holds, and at its
+        waists (step 4; default): touching digits. False keeps every mark (joined
+        parts included) whole: letters such as n, m and W have waists a touching pair
+        of digits also has (what a stroke model reads, RESULTS 8.5).
 
     Returns
     -------
@@ -480,17 +485,17 @@ def find_characters(mask, *, angle_deg: float | None = None, core=None,
     if mask.ndim != 2:
         raise ValueError(f"mask must be a 2-D array [H, W], got shape {mask.shape}")
     if core is not None:
-        layout = _find(np.asarray(core, bool) & mask, angle_deg)
+        layout = _find(np.asarray(core, bool) & mask, angle_deg, cut)
         _own_ink(layout, mask, grow)  # small parts joined to their characters first
     else:
-        layout = _find(mask, angle_deg)
+        layout = _find(mask, angle_deg, cut)
     small = MIN_CHARACTER * layout.height_px
     _renumber(layout, [c for c in layout.characters
                        if max(c.box[2] - c.box[0], c.box[3] - c.box[1]) >= small])  # fmt: skip
     return layout
 
 
-def _find(mask: np.ndarray, angle_deg: float | None) -> PageLayout:
+def _find(mask: np.ndarray, angle_deg: float | None, cut: bool = True) -> PageLayout:
     """:func:`find_characters` on one mask, before the marks too small to be characters
     are left out."""
     from .paper import dominant_angle
@@ -520,7 +525,9 @@ def _find(mask: np.ndarray, angle_deg: float | None) -> PageLayout:
     for n, idx in enumerate(by_line):
         chars = []
         for i in idx:
-            pieces = _split(marks[i], pixels[i], pitch, width, height)
+            m = marks[i]
+            whole = [((m.x0, m.y0, m.x1, m.y1), pixels[i])]
+            pieces = _split(marks[i], pixels[i], pitch, width, height) if cut else whole
             chars += [PageCharacter(box, px, line=n, parts=len(marks[i].labels),
                                     split=len(pieces) > 1) for box, px in pieces]  # fmt: skip
         _words(chars, height)

@@ -1,0 +1,155 @@
+"""A page of Omniglot characters read by a stroke model (RESULTS 8.5).
+
+Puts ``--n`` characters drawn by one drawer (``--drawer``, the ``_NN`` of the image's
+file name; 18-20 are the test drawers of ``make model-omniglot``) on a white page, as
+they are in Omniglot's images (105 x 105, in cells of 130 px, rows of ``--per-line``),
+reads the page with ``--model`` as ``img2dmp predict PAGE --page`` does, and prints how
+many characters were found (each assigned to the cell its box's centre lies in: a
+character of pieces side by side is found as several), and of those found as one
+character how many were read with the stroke count their drawer drew (from the stroke
+files, :func:`img2dmp.data.sources.omniglot.parse_strokes`) and the path's fit to the
+ink. Writes the page, its document and its picture into ``--out``. ``--cut yes|no``
+reads the page with or without the digits' cutting of wide marks (the choice of
+:data:`img2dmp.page.STROKE_PAGE_CUT`).
+
+Run from the repository's root::
+
+    python experiments/stroke_page.py --omniglot ../shared/data/omniglot --out stroke_page
+
+It prints the date, the git revision and its command line first. A few seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import re
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from img2dmp.data.sources.omniglot import parse_strokes
+from img2dmp.predict import load_model
+
+# isort: split
+# From this script's directory, which Python puts on sys.path when it runs a script.
+from _provenance import format_record, run_record
+
+#: The page's cell around each character, pixels (Omniglot's images are 105 x 105).
+CELL = 130
+
+
+def _members(path: Path) -> dict:
+    """Every file of an archive or a folder: its name (the folder's own name first, as
+    in Omniglot's zips) -> a function that reads its bytes."""
+    if path.is_dir():
+        return {p.relative_to(path.parent).as_posix(): p.read_bytes
+                for p in sorted(path.rglob("*")) if p.is_file()}  # fmt: skip
+    z = zipfile.ZipFile(path)
+    return {n: (lambda n=n: z.read(n)) for n in z.namelist()}
+
+
+def characters(root: Path, drawer: int) -> list[tuple[str, np.ndarray, int]]:
+    """Every character of ``drawer`` under ``root`` (Omniglot's ``images_*`` and
+    ``strokes_*``, zipped or unzipped): (``alphabet/character``, its image (ink dark),
+    its drawer's stroke count)."""
+    images = sorted(p for p in root.glob("images_*") if p.is_dir() or p.suffix == ".zip")
+    if not images:
+        raise SystemExit(f"{root}: no images_* archive or folder (Omniglot, as it unzips)")
+    found = []
+    for archive in images:
+        partner = archive.with_name(archive.name.replace("images_", "strokes_", 1))
+        if not partner.exists():
+            raise SystemExit(f"{archive}: no {partner.name} beside it")
+        pictures, texts = _members(archive), _members(partner)
+        strokes = {Path(n).stem: n for n in texts if n.endswith(".txt")}
+        for name in pictures:
+            m = re.search(r"([^/]+)/([^/]+)/([^/]+)_(\d+)\.png$", name)
+            if not m or "__MACOSX" in name or int(m.group(4)) != drawer:
+                continue
+            stem = Path(name).stem
+            if stem not in strokes:
+                continue
+            pen = parse_strokes(texts[strokes[stem]]().decode(), strokes[stem])
+            image = np.asarray(Image.open(io.BytesIO(pictures[name]())).convert("L"))
+            found.append((f"{m.group(1)}/{m.group(2)}", image, len(np.unique(pen.stroke))))
+    return found
+
+
+def main(argv: list[str]) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--omniglot", type=Path, required=True, help="the folder of the zips")
+    p.add_argument("--model", default="omniglot-strokes", help="a stroke model (name or run)")
+    p.add_argument("--drawer", type=int, default=18)
+    p.add_argument("--n", type=int, default=24, help="characters on the page")
+    p.add_argument("--per-line", type=int, default=8)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--cut", choices=("yes", "no"), default=None,
+                   help="cut wide marks at their waists as for digits (default: the "
+                   "library's img2dmp.page.STROKE_PAGE_CUT)")  # fmt: skip
+    args = p.parse_args(argv)
+    if args.cut is not None:
+        import img2dmp.page
+
+        img2dmp.page.STROKE_PAGE_CUT = args.cut == "yes"
+    print(format_record(run_record(__file__, argv)))
+    chars = characters(args.omniglot, args.drawer)
+    if len(chars) < args.n:
+        raise SystemExit(f"drawer {args.drawer} drew {len(chars)} characters, fewer than --n")
+    rng = np.random.default_rng(args.seed)
+    chosen = [chars[i] for i in rng.choice(len(chars), args.n, replace=False)]
+    lines = -(-args.n // args.per_line)
+    page = np.full((lines * CELL + 40, args.per_line * CELL + 40), 255, np.uint8)
+    for k, (name, image, _) in enumerate(chosen):
+        h, w = image.shape
+        if max(h, w) > CELL - 10:
+            raise SystemExit(f"{name}: an image of {w} x {h} px does not fit a {CELL}-px cell")
+        r, c = divmod(k, args.per_line)
+        page[20 + r * CELL : 20 + r * CELL + h, 20 + c * CELL : 20 + c * CELL + w] = image
+    args.out.mkdir(parents=True, exist_ok=True)
+    photo = args.out / f"drawer{args.drawer}_page.png"
+    Image.fromarray(page).save(photo)
+    model = load_model(args.model)  # its card's refinement and count views
+    read = model.predict_page(photo)
+    files = read.save(args.out, photo.stem)
+    per_cell: dict[int, list] = {}
+    for c in read.characters:  # each character found goes to the cell of its box's centre
+        x0, y0, x1, y1 = c.box_image
+        row, col = int(((y0 + y1) / 2 - 20) // CELL), int(((x0 + x1) / 2 - 20) // CELL)
+        per_cell.setdefault(row * args.per_line + col, []).append(c)
+    print(f"{photo}: {args.n} characters placed, {len(read.characters)} found in "
+          f"{len(read.lines)} lines; {sum(len(v) == 1 for v in per_cell.values())} of the "
+          f"characters found as one, {sum(len(v) > 1 for v in per_cell.values())} in pieces "
+          f"(side by side: read as several), {args.n - len(per_cell)} not found")  # fmt: skip
+    whole = [(k, v[0]) for k, v in sorted(per_cell.items()) if len(v) == 1 and k < args.n]
+    truth = np.array([chosen[k][2] for k, _ in whole])
+    said = np.array([c.prediction.n_strokes for _, c in whole])
+    on_ink = np.array([c.prediction.fit["path_on_ink"] for _, c in whole])
+    written = np.array([c.prediction.fit["ink_written"] for _, c in whole])
+    if not whole:
+        print("none was found as one character: no stroke counts to compare")
+    else:
+        print(f"of the {len(whole)} found as one: stroke count right {np.sum(said == truth)} "
+              f"({100 * np.mean(said == truth):.1f} %); strokes drawn {truth.sum()}, read "
+              f"{said.sum()}; path on the ink {100 * on_ink.mean():.1f} %, ink written "
+              f"{100 * written.mean():.1f} % (means over the characters)")  # fmt: skip
+    for k in range(args.n):
+        name, _, n = chosen[k]
+        got = per_cell.get(k, [])
+        if len(got) != 1:
+            print(f"  cell {k:>2} {name:<32} drawn {n}: found as {len(got)} characters")
+            continue
+        c = got[0]
+        mark = "" if c.prediction.n_strokes == n else "  <- count"
+        print(f"  cell {k:>2} {name:<32} drawn {n}, read {c.prediction.n_strokes}, on ink "
+              f"{100 * c.prediction.fit['path_on_ink']:.0f} %{mark}")  # fmt: skip
+    print("wrote " + ", ".join(str(f) for f in [photo, *files]))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
