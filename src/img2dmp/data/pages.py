@@ -527,8 +527,8 @@ def _find(mask: np.ndarray, angle_deg: float | None, cut: bool = True) -> PageLa
         for i in idx:
             m = marks[i]
             whole = [((m.x0, m.y0, m.x1, m.y1), pixels[i])]
-            pieces = _split(marks[i], pixels[i], pitch, width, height) if cut else whole
-            chars += [PageCharacter(box, px, line=n, parts=len(marks[i].labels),
+            pieces = _split(m, pixels[i], pitch, width, height) if cut else whole
+            chars += [PageCharacter(box, px, line=n, parts=len(m.labels),
                                     split=len(pieces) > 1) for box, px in pieces]  # fmt: skip
         _words(chars, height)
         first = len(layout.characters)
