@@ -12,6 +12,9 @@ recorded paths): what the README's commands and the tutorial read.
 - ``character_f.png``: an "F" of three strokes (the bar down, the top bar, the middle
   bar), each a minimum-jerk line bent a little at random, as dark ink on white, 160 x 160
   pixels: for a stroke model (``--model omniglot-strokes``).
+- ``letters_page.png``: two lines of capitals (A H T X, L E K V) drawn stroke by stroke
+  with the same pen, for a stroke model's page (``predict --page --model
+  omniglot-strokes``).
 
 Every draw comes from one seeded generator, so the same versions of img2dmp and its
 packages give the same images. Run from the repository's root:
@@ -96,6 +99,48 @@ def character_on_white(rng, size: int = 160, pen_px: float = 9.0) -> Image.Image
     return Image.fromarray(np.round(255 * (1 - ink)).astype(np.uint8))
 
 
+#: Capital letters as their strokes, each from its first to its last point, in a unit box
+#: (x right, y down), in a common writing order.
+LETTER_STROKES = {
+    "A": (((0.0, 1.0), (0.5, 0.0)), ((0.5, 0.0), (1.0, 1.0)), ((0.22, 0.6), (0.78, 0.6))),
+    "H": (((0.0, 0.0), (0.0, 1.0)), ((1.0, 0.0), (1.0, 1.0)), ((0.0, 0.5), (1.0, 0.5))),
+    "T": (((0.0, 0.0), (1.0, 0.0)), ((0.5, 0.0), (0.5, 1.0))),
+    "X": (((0.0, 0.0), (1.0, 1.0)), ((1.0, 0.0), (0.0, 1.0))),
+    "L": (((0.0, 0.0), (0.0, 1.0), (0.8, 1.0)),),
+    "E": (((0.0, 0.0), (0.0, 1.0)), ((0.0, 0.0), (0.8, 0.0)), ((0.0, 0.5), (0.65, 0.5)),
+          ((0.0, 1.0), (0.8, 1.0))),
+    "K": (((0.0, 0.0), (0.0, 1.0)), ((0.9, 0.0), (0.0, 0.55)), ((0.3, 0.4), (0.95, 1.0))),
+    "V": (((0.0, 0.0), (0.5, 1.0), (1.0, 0.0)),),
+}  # fmt: skip
+#: The letters page: two lines.
+LETTER_LINES = ("AHTX", "LEKV")
+
+
+def letters_page(rng, height_px: float = 70.0, pen_px: float = 6.0) -> Image.Image:
+    """Two lines of capitals (:data:`LETTER_LINES`), each stroke a pen's minimum-jerk
+    line through its corners with a small random bend, on white paper."""
+    width_px, gap_px, margin = 0.7 * height_px, 0.6 * height_px, 40
+    size = (margin * 2 + int(2 * height_px + gap_px),
+            margin * 2 + int(4 * width_px + 3 * gap_px))  # fmt: skip
+    ink = np.zeros(size, np.float32)
+    for r, line in enumerate(LETTER_LINES):
+        for c, letter in enumerate(line):
+            x0 = margin + c * (width_px + gap_px) + rng.uniform(-4, 4)
+            y0 = margin + r * (height_px + gap_px) + rng.uniform(-4, 4)
+            scale = np.array([width_px, height_px]) * rng.uniform(0.9, 1.1)
+            for stroke in LETTER_STROKES[letter]:
+                corners = np.asarray(stroke) * scale + (x0, y0)
+                xy = np.concatenate(
+                    [
+                        drawn_stroke(rng, a, b, n=30)
+                        for a, b in zip(corners[:-1], corners[1:], strict=True)
+                    ]
+                )
+                path = render_paths(xy[None], size, pen_width_px=pen_px)[0].numpy()
+                ink = np.maximum(ink, path)
+    return Image.fromarray(np.round(255 * (1 - ink)).astype(np.uint8))
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=HERE / "samples", help="output folder")
@@ -107,6 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         "digit_5_photo.jpg": digit_photo(rng),
         "page.jpg": page_photo(rng),
         "character_f.png": character_on_white(rng),
+        "letters_page.png": letters_page(rng),
     }
     for name, image in images.items():
         path = args.out / name
