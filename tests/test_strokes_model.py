@@ -589,7 +589,11 @@ def test_a_page_read_by_a_stroke_model_lists_every_stroke_in_the_photos_pixels(
         k, j = e["character"], e["stroke"] - 1
         rows = preds[k].stroke_rows(j)
         assert np.allclose(e["path_image_px"], preds[k].path_image[0, rows, :2], atol=1e-3)
-        assert list(c.box_image_px) == list(page.characters[k].box_image)
+        assert e["character_box_image_px"] == list(page.characters[k].box_image)
+        x0, y0, x1, y1 = c.box_image_px  # the stroke's own box holds its path
+        xy = np.asarray(e["path_image_px"])
+        assert (xy[:, 0] >= x0 - 0.5).all() and (xy[:, 0] < x1 + 0.5).all()
+        assert (xy[:, 1] >= y0 - 0.5).all() and (xy[:, 1] < y1 + 0.5).all()
         # each entry's DMP, in the photo's pixels, rolls out to its path
         p = DMPParams.from_dict(e["dmp"]["params"])
         t = np.asarray(e["times_s"])

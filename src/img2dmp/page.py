@@ -95,14 +95,16 @@ class CharacterPrediction:
 
     def stroke_entries(self, dmp: bool = True) -> list[dict]:
         """A stroke model's character as page-document entries, one per stroke in writing
-        order (without ``index`` and ``line``): its path and DMP in the photo's pixels,
-        the character's box, fit and flags, and notes of which character and stroke it
-        is (``character``, ``stroke``, ``n_strokes``)."""
+        order (without ``index`` and ``line``): its path, box and DMP in the photo's
+        pixels, the character's fit and flags, and notes of which character and stroke
+        it is (``character``, ``stroke``, ``n_strokes``, ``character_box_image_px``)."""
         c, p = self.character, self.prediction
-        notes = {"character": c.index, "n_strokes": p.n_strokes, "position": c.position,
-                 "word": c.word, "parts": c.parts, "split": c.split}  # fmt: skip
+        notes = {"character": c.index, "n_strokes": p.n_strokes,
+                 "character_box_image_px": [int(v) for v in self.box_image],
+                 "position": c.position, "word": c.word, "parts": c.parts,
+                 "split": c.split}  # fmt: skip
         entries = []
-        for e in p.stroke_entries(in_image=True, box=self.box_image):
+        for e in p.stroke_entries(in_image=True):
             e.update(flags=list(self.flags), **notes)
             if not dmp:
                 del e["dmp"]

@@ -995,12 +995,11 @@ class StrokePrediction:
                 "lines": [{"index": 0, "characters": list(range(self.n_strokes))}],
                 "characters": entries}  # fmt: skip
 
-    def stroke_entries(self, in_image: bool = False, box=None) -> list[dict]:
+    def stroke_entries(self, in_image: bool = False) -> list[dict]:
         """One page-document entry per stroke, in writing order, without ``index`` and
-        ``line``: its path (pen down), times from its start, its 2-D DMP (``"frame":
-        "image"``) and ``"stroke"`` (1-based), in the model's frame or (``in_image``) the
-        user's image; ``box`` (``[x0, y0, x1, y1]``) for every stroke, else each
-        stroke's own."""
+        ``line``: its box and path (pen down), times from its start, its 2-D DMP
+        (``"frame": "image"``) and ``"stroke"`` (1-based), in the model's frame or
+        (``in_image``) the user's image."""
         size = self.frame.image_size if in_image else self.frame.model_size
         path, params = (self.path_image, self.strokes_image) if in_image else (
             self.path_model, self.strokes)  # fmt: skip
@@ -1009,7 +1008,7 @@ class StrokePrediction:
             rows = self.stroke_rows(j)
             xy, t = path[0, rows, :2], self.times[rows]
             entries.append({
-                "box_image_px": list(box) if box is not None else _box_px(xy, size),
+                "box_image_px": _box_px(xy, size),
                 "path_image_px": np.round(xy, 3).tolist(), "pen": [1] * len(xy),
                 "times_s": np.round(t - t[0], 6).tolist(),
                 "confidence": round(float(self.presence[j]), 6), "fit": dict(self.fit),
