@@ -34,6 +34,7 @@ import base64
 import importlib.util
 import json
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -620,6 +621,41 @@ def test_a_page_photo_dropped_on_the_page_view_is_read(page, server, tmp_path, h
     )
     page.locator(f'#page-card[data-characters="{len(boxes)}"]').wait_for()
     assert page.locator("#boxes .box").count() == len(boxes)
+
+
+def test_a_page_read_by_a_stroke_model_boxes_each_character_once_and_plays_its_strokes(
+    page, server, shots, tmp_path
+):
+    from PIL import Image, ImageDraw
+
+    # the hook and tick twice, side by side, in dark ink on white
+    im = Image.new("L", (520, 240), 255)
+    draw = ImageDraw.Draw(im)
+    for x0 in (20, 280):
+        for stroke in HOOK_AND_TICK:
+            pts = [(x0 + 220 * x, 10 + 220 * y) for x, y in stroke]
+            draw.line(pts, fill=0, width=14, joint="curve")
+    photo = tmp_path / "hooks.png"
+    im.save(photo)
+    page.goto(server["url"] + "/page")
+    page.locator("#model-select").select_option(server["strokes"])
+    page.locator("#photo-file").set_input_files(str(photo))
+    page.locator('#page-card[data-characters="2"]').wait_for()
+    card = page.locator("#page-card")
+    n = int(card.get_attribute("data-strokes"))  # a stroke model's page: its strokes
+    assert n >= 2
+    strokes = f"{n}\u00a0stroke" + ("s" if n != 1 else "")
+    assert (
+        page.locator("#page-count").inner_text() == f"2\u00a0characters ({strokes}) in 1\u00a0line"
+    )
+    assert page.locator("#boxes .box").count() == 2  # one box a character, not a stroke
+    title = page.locator('#boxes .box[data-index="0"]').get_attribute("title")
+    assert re.match(r"#0: \d+\u00a0strokes?, path on ink", title), title
+    page.select_option("#speed", "10")
+    page.locator('#page-card[data-state="done"]').wait_for()
+    assert page.locator("#play-status").inner_text() == f"{n} of {n} strokes written"
+    assert _paths_drawn(page) > 0
+    page.screenshot(path=str(shots / "page-strokes.png"), full_page=True)
 
 
 def test_the_arm_writes_the_page_shown_and_a_new_reading_clears_it(

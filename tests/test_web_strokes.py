@@ -7,9 +7,11 @@ FastAPI's TestClient.
   path with the pen lifted between the strokes in both frames, each stroke's DMP, tau
   and presence, the stroke document ``img2dmp predict`` writes and the page document of
   its strokes;
-- what is for one DMP (bending, ``dmp`` for the arm, reading a page) is a one-line 422
-  naming what to do or the model; the arm writes the strokes' page document stroke by
-  stroke, the pen lifted between them, as ``img2dmp write`` does;
+- what is for one DMP (bending, ``dmp`` for the arm) is a one-line 422 naming what to do
+  or the model; the arm writes the strokes' page document stroke by stroke, the pen
+  lifted between them, as ``img2dmp write`` does;
+- ``POST /api/predict_page`` reads a page stroke by stroke, as the library does, and the
+  arm writes it, lifting the pen between the strokes;
 - ``img2dmp serve``'s warm-up takes a stroke model.
 
 Everything runs on the tiny stroke model of conftest's ``stroke_run`` (about 15 s).
@@ -139,12 +141,38 @@ def test_what_is_for_one_dmp_is_refused_in_one_line(client, drawn):
     for body in (both, {}):
         r = client.post("/api/write", json=body)
         assert _one_line_error(r, 422) == "body: give exactly one of dmp and strokes_page"
-    r = client.post("/api/predict_page", content=b"\x89PNG", headers={"Content-Type": "image/png"})
-    name = drawn["model"]
-    assert _one_line_error(r, 422) == (
-        f"model {name}: reading a page in the browser is for one-DMP models; {name} is a "
-        "stroke model (a character as up to 8 DMPs)"
-    )
+
+
+def _hook_and_tick_page() -> bytes:
+    """A PNG page with the hook and tick written twice, side by side."""
+    one = render_strokes([np.asarray(a) for a in HOOK_AND_TICK], CANVAS)
+    page = np.full((one.shape[0], 2 * one.shape[1] + 40), 255, np.uint8)
+    page[:, : one.shape[1]] = one
+    page[:, one.shape[1] + 40 :] = one
+    buf = io.BytesIO()
+    Image.fromarray(page).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def test_a_page_read_by_a_stroke_model_lists_its_strokes_as_the_library_does(client, stroke_run):
+    raw = _hook_and_tick_page()
+    r = client.post("/api/predict_page", content=raw, headers={"Content-Type": "image/png"},
+                    params={"name": "hooks.png"})  # fmt: skip
+    assert r.status_code == 200, r.text
+    a = r.json()
+    page = a["page"]
+    ref = load_model(stroke_run).predict_page(np.asarray(Image.open(io.BytesIO(raw))))
+    assert page["entries"] == "strokes" and page["n_characters"] == len(ref.characters) == 2
+    entries = ref.to_document(dmps=False)["characters"]
+    assert [(e["character"], e["stroke"]) for e in page["characters"]] == [
+        (e["character"], e["stroke"]) for e in entries
+    ]  # fmt: skip
+    for e, f in zip(page["characters"], entries, strict=True):
+        np.testing.assert_allclose(e["path_image_px"], f["path_image_px"], atol=1e-3)
+        assert "dmp" not in e
+    whole = client.get(a["document"]).json()  # every stroke's DMP, as predict --page writes
+    checked = check_page_document(whole, "hooks_page.json")
+    assert len(checked.characters) == len(entries)
 
 
 @pytest.mark.skipif(not available(), reason="needs pybullet (img2dmp[robot])")
@@ -163,7 +191,23 @@ def test_the_arm_writes_each_stroke_and_lifts_the_pen_between(client, drawn):
     assert paper.status_code == 200 and paper.headers["content-type"] == "image/png"
 
 
+@pytest.mark.skipif(not available(), reason="needs pybullet (img2dmp[robot])")
+def test_the_arm_writes_a_page_read_by_a_stroke_model_stroke_by_stroke(client):
+    png = {"Content-Type": "image/png"}
+    r = client.post("/api/predict_page", content=_hook_and_tick_page(), headers=png,
+                    params={"name": "hooks.png"})  # fmt: skip
+    assert r.status_code == 200, r.text
+    a = r.json()
+    n = len(a["page"]["characters"])
+    r = client.post(f"/api/pages/{a['id']}/write", json={"width_mm": 80, "video": False})
+    assert r.status_code == 202, r.text
+    job = client.app.state.img2dmp.jobs.wait(r.json()["id"], 120)
+    assert job["status"] == "done", job["error"]
+    assert job["summary"][0].startswith(f"hooks_page: {n} of {n} strokes written"), job["summary"]
+    assert "no ink between strokes" in job["summary"][0]
+
+
 def test_the_warm_up_of_img2dmp_serve_takes_a_stroke_model(stroke_run):
     (model,) = load_models([stroke_run]).values()
-    warm_up(model)  # predicts; reads no page, which a stroke model cannot
+    warm_up(model)  # predicts a character and reads a page of two
     assert model.describe()["kind"] == "strokes"

@@ -541,7 +541,6 @@ def _page_routes(app: FastAPI, state: ServerState, max_page_mb: float) -> None:
         """Every handwritten character of a photo of a page, in reading order: the page
         document without the characters' DMPs; ``document`` is the whole one's URL."""
         loaded = state.model(model)
-        loaded.refuse_strokes("reading a page in the browser")
         check_page_type(request.headers.get("content-type"))
         raw = await request.body()
         answer = await run_in_threadpool(read, loaded, raw, n_points, name)

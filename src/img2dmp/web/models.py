@@ -21,7 +21,6 @@ import numpy as np
 
 from ..data.dmpfile import TRAJECTORY_DECIMALS
 from ..predict import Prediction, Predictor, StrokePrediction, load_model
-from .errors import WebError
 from .strokes import grey_png
 
 
@@ -64,16 +63,6 @@ class LoadedModel:
             "n_hypotheses": self.predictor.n_hypotheses,
             "image_size": list(self.predictor.image_size),
         }
-
-    def refuse_strokes(self, what: str) -> None:
-        """422 naming this model when it is a stroke model: ``what`` (e.g. "reading a
-        page") is for one-DMP models."""
-        if self.stroke_slots is not None:
-            raise WebError(
-                422,
-                f"model {self.id}: {what} is for one-DMP models; {self.id} is a stroke "
-                f"model (a character as up to {self.stroke_slots} DMPs)",
-            )
 
 
 def model_id(path: str | os.PathLike) -> str:
@@ -167,14 +156,12 @@ def _stroke_hypotheses(pred: StrokePrediction, document: dict) -> list[dict]:
 
 
 def warm_up(model: LoadedModel) -> None:
-    """One prediction of a drawn "1" and (but for a stroke model, whose pages the browser
-    does not read) one page of two, so that the first request does not pay for the caches
-    (numba's compiled rollout, the DMP response table, the page reading's first run)."""
+    """One prediction of a drawn "1" and one page of two, so that the first request does
+    not pay for the caches (numba's compiled rollout, the DMP response table, the page
+    reading's first run)."""
     image = np.full((64, 64), 255, np.uint8)
     image[12:52, 29:35] = 0
     predict_with(model, image, 100, "warm-up")
-    if model.stroke_slots is not None:
-        return
     with model.lock:
         model.predictor.predict_page(np.tile(image, (1, 2)), name="warm-up page")
 

@@ -159,6 +159,11 @@ def _write_page(d: Path, options: dict, report) -> dict:
     result = _run(plan, expected, report)
     report[SHARE] = SIMULATION_SHARE
     what = "a page" if noun is None else f"{len(plan.characters)} {noun}s"
+    if noun is None and doc.get("entries") == "strokes":  # a page read by a stroke model
+        noun = "stroke"
+        what = (
+            f"a page of {doc.get('n_characters', '?')} characters in {len(plan.characters)} strokes"
+        )
     _save_outputs(result, d, f"{name}: KUKA iiwa writes {what}", video=interval_s is not None)
     report[SHARE] = 1.0
     speed = None if interval_s is None else interval_s / FRAME_INTERVAL_S

@@ -11,6 +11,16 @@ const COLOURS = { path: "rgba(224, 0, 122, 0.85)", travel: "rgba(29,35,48,0.55)"
 // Seconds (at 1x) the lifted pen takes from one character to the next.
 const TRAVEL_S = 0.25;
 
+// A stroke model's page lists every stroke as an entry (docs/PAGE.md): its character's
+// box, index and flags are shown once, on the character's first stroke.
+const isStrokes = (page) => page.entries === "strokes";
+/** The box an entry belongs to: its own, or on a stroke model's page its character's. */
+const boxKey = (c) => (c.character === undefined ? c.index : c.character);
+/** One entry per box: every entry, or each character's first stroke. */
+const owners = (page) => (isStrokes(page) ? page.characters.filter((c) => c.stroke === 1)
+  : page.characters);
+const unit = (page) => (isStrokes(page) ? "stroke" : "character");
+
 const $ = (id) => document.getElementById(id);
 const ui = {
   card: $("page-card"), choose: $("choose-photo"), file: $("photo-file"), replay: $("replay"),
@@ -124,7 +134,9 @@ function clearResult() {
   ui.legend.hidden = true;
   ui.playLine.hidden = true;
   for (const b of [ui.replay, ui.showAll]) b.disabled = true;
-  Object.assign(ui.card.dataset, { characters: "0", lines: "0", flagged: "0", drawn: "0" });
+  Object.assign(ui.card.dataset, {
+    characters: "0", strokes: "", lines: "0", flagged: "0", drawn: "0",
+  });
   for (const c of [ui.paths, ui.live]) clearCanvas(c);
 }
 
@@ -132,12 +144,12 @@ function showPage(answer) {
   state.answer = answer;
   const page = answer.page;
   const chars = page.characters;
-  const flagged = chars.filter((c) => c.flags.length > 0);
+  const flagged = owners(page).filter((c) => c.flags.length > 0);
   const [w, h] = page.image_size_px;
   ui.stage.style.setProperty("--aspect", String(w / h));
   Object.assign(ui.card.dataset, {
-    characters: String(chars.length), lines: String(page.lines.length),
-    flagged: String(flagged.length),
+    characters: String(owners(page).length), lines: String(page.lines.length),
+    strokes: isStrokes(page) ? String(chars.length) : "", flagged: String(flagged.length),
   });
   showSummary(answer, flagged.length);
   ui.download.href = answer.document;
@@ -156,15 +168,17 @@ function showPage(answer) {
   play();
 }
 
-/** "65 characters in 3 lines · 45 flagged", then the photo, the model and the time. */
+/** "65 characters in 3 lines · 45 flagged" (a stroke model's page: "8 characters (16
+ * strokes) in 2 lines"), then the photo, the model and the time. */
 function showSummary(answer, nFlagged) {
   const page = answer.page;
-  const n = page.characters.length;
+  const n = owners(page).length;
   const lines = page.lines.length;
   const [w, h] = page.image_size_px;
   const plural = (k, word) => `${k}\u00a0${word}${k === 1 ? "" : "s"}`;
+  const strokes = isStrokes(page) ? ` (${plural(page.characters.length, "stroke")})` : "";
   const counts = el("strong", { id: "page-count" },
-    `${plural(n, "character")} in ${plural(lines, "line")}`);
+    `${plural(n, "character")}${strokes} in ${plural(lines, "line")}`);
   const flags = n ? el("strong", { class: nFlagged ? "flag-count" : "" }, `${nFlagged} flagged`) : "";
   const refined = page.refinement.steps ? ` \u00b7 refined ${page.refinement.steps} steps` : "";
   const rest = ` \u00b7 photo ${w}\u00d7${h}\u00a0px \u00b7 model ${answer.model}${refined}` +
@@ -192,7 +206,9 @@ function placeBox(node, box, w, h) {
 
 function boxTitle(c) {
   const pct = (v) => `${Math.round(100 * v)}\u00a0%`;
-  const head = `#${c.index}: probability ${pct(c.probability)}, path on ink ` +
+  const read = c.stroke === undefined ? `probability ${pct(c.probability)}`
+    : `${c.n_strokes}\u00a0stroke${c.n_strokes === 1 ? "" : "s"}`;
+  const head = `#${boxKey(c)}: ${read}, path on ink ` +
     `${pct(c.fit.path_on_ink)}, ink written ${pct(c.fit.ink_written)}`;
   return c.flags.length ? `${head}\nFlagged: ${flagText(c.flags, c.fit)}` : head;
 }
@@ -200,16 +216,16 @@ function boxTitle(c) {
 function drawBoxes(page) {
   const [w, h] = page.image_size_px;
   ui.boxes.replaceChildren(
-    ...page.characters.map((c) => {
+    ...owners(page).map((c) => {
       const flagged = c.flags.length > 0;
       const box = el(
         "div",
-        { class: flagged ? "box flagged" : "box", title: boxTitle(c), "data-index": c.index,
+        { class: flagged ? "box flagged" : "box", title: boxTitle(c), "data-index": boxKey(c),
           "data-flags": c.flags.join(" ") },
-        el("span", { class: "index" }, String(c.index)),
+        el("span", { class: "index" }, String(boxKey(c))),
       );
       if (!flagged) box.style.setProperty("--line-colour", lineColour(c.line));
-      placeBox(box, c.box_image_px, w, h);
+      placeBox(box, isStrokes(page) ? c.character_box_image_px : c.box_image_px, w, h);
       return box;
     }),
   );
@@ -229,16 +245,16 @@ function listFlagged(flagged) {
     ...flagged.map((c) => {
       const item = el(
         "button",
-        { type: "button", class: "flag-item", "data-index": c.index },
-        el("span", { class: "index" }, `#${c.index}`),
+        { type: "button", class: "flag-item", "data-index": boxKey(c) },
+        el("span", { class: "index" }, `#${boxKey(c)}`),
         el("span", {}, flagText(c.flags, c.fit)),
       );
-      const mark = (on) => boxOf(c.index)?.classList.toggle("focus", on);
+      const mark = (on) => boxOf(boxKey(c))?.classList.toggle("focus", on);
       item.addEventListener("mouseenter", () => mark(true));
       item.addEventListener("mouseleave", () => mark(false));
       item.addEventListener("focus", () => mark(true));
       item.addEventListener("blur", () => mark(false));
-      item.addEventListener("click", () => boxOf(c.index)?.scrollIntoView({ block: "center" }));
+      item.addEventListener("click", () => boxOf(boxKey(c))?.scrollIntoView({ block: "center" }));
       return el("li", {}, item);
     }),
   );
@@ -368,7 +384,7 @@ function drawLive(i, t) {
   const map = photoMap(ui.live);
   const width = lineWidth(ui.live);
   const c = state.answer.page.characters[i];
-  markCurrent(c.index);
+  markCurrent(boxKey(c));
   if (t < 0) {
     drawTravel(ctx, i, 1 + t / TRAVEL_S, map, width);
     return;
@@ -399,10 +415,12 @@ function drawTravel(ctx, i, u, map, width) {
   drawPen(ctx, at, false, width);
 }
 
-/** Mark the box of the character the arm is writing (null: none). */
+/** Mark the box of the character the arm is writing, entry `index` of the page
+ * document (null: none). */
 function markArm(index) {
   for (const b of ui.boxes.querySelectorAll(".box.arm")) b.classList.remove("arm");
-  if (index !== null) boxOf(index)?.classList.add("arm");
+  const c = index === null ? undefined : state.answer?.page.characters[index];
+  if (c) boxOf(boxKey(c))?.classList.add("arm");
 }
 
 function markCurrent(index) {
@@ -416,7 +434,7 @@ function showProgress(done) {
   const n = state.answer.page.characters.length;
   ui.card.dataset.drawn = String(done);
   ui.progress.value = done;
-  ui.status.textContent = `${done} of ${n} characters written`;
+  ui.status.textContent = `${done} of ${n} ${unit(state.answer.page)}s written`;
 }
 
 function finish() {

@@ -138,7 +138,8 @@ export function armCard(markArm) {
       ui.paperOpen.href = files.paper;
     }
     showVideo(files.animation, job.page.video_speed);
-    showTotals(job.page.totals);
+    const strokes = state.answer?.page.entries === "strokes"; // a stroke model's page
+    showTotals(job.page.totals, strokes ? "stroke" : "character");
     showTable(job.page.characters);
     // Saved under the names img2dmp write --page gives them (<stem>_characters.csv).
     const stem = (state.answer?.filename || "page.json").replace(/\.json$/, "");
@@ -161,13 +162,14 @@ export function armCard(markArm) {
       : "The arm writing the page";
   }
 
-  /** "5 of 5 characters written · inked 99.9 % · force 5.00 ± 0.02 N" and the rest. */
-  function showTotals(t) {
+  /** "5 of 5 characters written · inked 99.9 % · force 5.00 ± 0.02 N" and the rest
+   * (`unit`: what the page's entries are, a stroke model's page's "stroke"). */
+  function showTotals(t, unit) {
     const pct = (v) => (v === null ? "\u2013" : `${(100 * v).toFixed(1)}\u00a0%`);
     const num = (v, digits) => (v === null ? "\u2013" : v.toFixed(digits));
     const strong = (text) => el("strong", {}, text);
     ui.totals.replaceChildren(
-      strong(`${t.characters_written} of ${t.characters} characters written`),
+      strong(`${t.characters_written} of ${t.characters} ${unit}s written`),
       ` on ${num(t.width_mm, 1)}\u00a0\u00d7\u00a0${num(t.height_mm, 1)}\u00a0mm \u00b7 `,
       "commanded paths inked ", strong(pct(t.ink_share)),
       `, ink on the paths ${pct(t.ink_on_path_share)} \u00b7 force `,
@@ -175,7 +177,7 @@ export function armCard(markArm) {
       ` (set ${t.force_set_n}\u00a0N) \u00b7 tracking ${num(t.tracking_error_mean_mm, 3)}` +
         `\u00a0mm mean \u00b7 ${num(t.simulated_s, 1)}\u00a0s simulated`,
       t.travel_contact_s > 0
-        ? ` \u00b7 the pen touched the paper between characters for ` +
+        ? ` \u00b7 the pen touched the paper between ${unit}s for ` +
           `${num(t.travel_contact_s, 3)}\u00a0s`
         : "",
     );
