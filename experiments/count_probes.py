@@ -183,6 +183,8 @@ ENCODERS = {
                        "strides": [1, 1, 2, 2, 2], "norm": "batch"},
     "chosen-elastic": {"channels": [32, 64, 128, 128], "latent": 96, "strides": [1, 2, 2, 2],
                        "norm": "batch", "elastic": (2.0, 4.0)},
+    "chosen-stride2": {"channels": [32, 64, 128, 128], "latent": 96, "strides": [2, 2, 2, 2],
+                       "norm": "batch"},
     "wide-batchnorm": {"channels": [48, 96, 160, 160], "latent": 96, "strides": [1, 2, 2, 2],
                        "norm": "batch"},
 }  # fmt: skip
