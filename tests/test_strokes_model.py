@@ -623,6 +623,20 @@ def test_write_page_with_a_stroke_model_writes_every_stroke_and_lifts_the_pen(
     m = re.search(r"two: (\d+) of (\d+) strokes written", printed)
     assert m and m.group(1) == m.group(2) and int(m.group(1)) >= 2, printed
     assert "no ink between strokes" in printed and "  stroke 0 (line 0)" in printed
+    # the pen rises less between two strokes of one character than between characters
+    from img2dmp.predict import load_model
+    from img2dmp.robot import check_page_document, plan_page
+    from img2dmp.robot.controller import ControllerConfig
+    from img2dmp.robot.page import STROKE_LIFT_M, TRAVEL_HEIGHT_M
+
+    doc = load_model(trained, refine=5).predict_page(photo).to_document()
+    plan = plan_page(check_page_document(json.loads(json.dumps(doc)), "two_page.json"))
+    owners = [e["character"] for e in doc["characters"]]
+    low = ControllerConfig().lift_height_m + STROKE_LIFT_M
+    assert plan.travel_heights_m() == [
+        low if a == b else TRAVEL_HEIGHT_M for a, b in zip(owners[:-1], owners[1:], strict=True)
+    ]  # fmt: skip
+    assert TRAVEL_HEIGHT_M in plan.travel_heights_m()  # between the two characters
     assert (out / "two_paper.png").exists() and (out / "two_characters.csv").exists()
 
 

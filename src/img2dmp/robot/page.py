@@ -16,10 +16,11 @@ trajectory and the video are continuous:
    on the sheet (``ValueError`` naming the character, by how many mm it sticks out and
    the widest page that fits), the arm must reach it with the pen vertical on the paper
    and at the lift height (:func:`img2dmp.robot.writing.check_path`), and the travels
-   between characters at ``travel_height_m``.
+   between characters at ``travel_height_m`` (between two strokes of one character of a
+   stroke model's page, lower: :meth:`PagePlan.travel_heights_m`).
 3. **Write** (:class:`PageRun`, a :class:`WritingRun`): for each character the stages of
    one DMP (approach, write with the stroke gate, lift), then a **travel** to the next
-   character's first point: the pen rises to ``travel_height_m`` above the paper, moves
+   character's first point: the pen rises to its travel's height above the paper, moves
    in a straight line (minimum-jerk, at most ``TRAVEL_SPEED_M_S``), comes down to the
    lift height and waits ``TRAVEL_SETTLE_S``, so that every approach starts as the first
    one does. The DMP runs online, one step per control period, as in :func:`write_dmp`.
@@ -140,12 +141,30 @@ class PagePlan:
             (a.plan.xy_m[-1], b.plan.xy_m[0]) for a, b in zip(chars[:-1], chars[1:], strict=True)
         ]
 
+    def travel_heights_m(self) -> list[float]:
+        """The height of each travel above the paper: ``travel_height_m``, but between
+        two strokes of one character on a stroke model's page (``"entries": "strokes"``,
+        the entries' ``character`` notes) the controller's lift height plus
+        :data:`STROKE_LIFT_M`, as ``img2dmp write`` lifts the pen within one character."""
+        doc = self.page.document
+        raw = doc.get("characters") if doc.get("entries") == "strokes" else None
+        low = min(self.travel_height_m,
+                  self.options.controller_config.lift_height_m + STROKE_LIFT_M)  # fmt: skip
+
+        def owner(cp):
+            entry = raw[cp.character.index] if raw and cp.character.index < len(raw) else {}
+            return entry.get("character") if isinstance(entry, dict) else None
+
+        chars = self.characters
+        return [low if owner(a) is not None and owner(a) == owner(b) else self.travel_height_m
+                for a, b in zip(chars[:-1], chars[1:], strict=True)]  # fmt: skip
+
     def travel_steps(self) -> int:
         """Control steps of all the travels (up, across, down, rest)."""
         dt_s, cfg = self.options.dt_s, self.options.controller_config
         moving = sum(len(travel_targets(a, b, dt_s)) for a, b in self.travels())
-        per_travel = 2 * _rise_steps(self.travel_height_m, cfg, dt_s) + _settle_steps(dt_s)
-        return moving + per_travel * len(self.travels())
+        ups = sum(2 * _rise_steps(h, cfg, dt_s) for h in self.travel_heights_m())
+        return moving + ups + _settle_steps(dt_s) * len(self.travels())
 
     def estimated_steps(self) -> int:
         """About how many control steps the page takes (for a progress bar): each DMP's
@@ -304,7 +323,7 @@ def check_page_fits(plan: PagePlan, scene_config) -> None:
 
 def check_page_reach(scene: WritingScene, plan: PagePlan, controller_config) -> np.ndarray:
     """``ValueError`` naming the character (or the travel) if the arm cannot reach a
-    character's path (:func:`check_path`) or a travel at ``plan.travel_height_m``, the
+    character's path (:func:`check_path`) or a travel at its height, the
     pen vertical; returns the start posture (the tip above the first point)."""
     q_start = None
     for cp in plan.characters:
@@ -313,9 +332,10 @@ def check_page_reach(scene: WritingScene, plan: PagePlan, controller_config) -> 
         except ValueError as e:
             raise ValueError(f"{plan.page.path}: {cp.label}: {e}") from None
         q_start = q if q_start is None else q_start
-    z_m = scene.config.paper_top_z + plan.travel_height_m
     q = q_start
+    heights = plan.travel_heights_m()
     for k, (a, b) in enumerate(plan.travels(), start=1):
+        z_m = scene.config.paper_top_z + heights[k - 1]
         n = max(2, math.ceil(float(np.linalg.norm(b - a)) / 1e-3) + 1)  # 1 mm apart
         for xy in np.linspace(a, b, n):
             q, residual = scene.solve_ik([*xy, z_m], PEN_DOWN_ROTATION, q, max_iterations=100)
@@ -323,7 +343,7 @@ def check_page_reach(scene: WritingScene, plan: PagePlan, controller_config) -> 
                 prev, nxt = plan.characters[k - 1].label, plan.characters[k].label
                 raise ValueError(
                     f"{plan.page.path}: the arm cannot reach the travel from {prev} to {nxt} "
-                    f"{plan.travel_height_m * 1e3:g} mm above the paper: at world "
+                    f"{heights[k - 1] * 1e3:g} mm above the paper: at world "
                     f"({xy[0]:.3f}, {xy[1]:.3f}) m the pen tip misses by "
                     f"{residual * 1e3:.1f} mm with the pen vertical; move the writing area "
                     "closer or lower the travel height"
@@ -494,9 +514,10 @@ class PageRun(WritingRun):
         """Write every character, travelling between them; return the page's result."""
         wall0 = time.perf_counter()
         chars = self.page_plan.characters
+        heights = self.page_plan.travel_heights_m()
         for k, cp in enumerate(chars):
             if k:
-                self.travel(cp.plan.xy_m[0])
+                self.travel(cp.plan.xy_m[0], heights[k - 1])
             self.write_character(cp, last=k == len(chars) - 1)
         self._report_progress()
         return self.result(time.perf_counter() - wall0)
@@ -514,11 +535,11 @@ class PageRun(WritingRun):
         self.spans.append((first, self.n_steps))
         self.approach_times_s.append(self.approach_s)
 
-    def travel(self, to_xy_m) -> None:
+    def travel(self, to_xy_m, up_m: float) -> None:
         """From the lifted pen at the current DMP's end point to rest ``lift_height_m``
-        above ``to_xy_m``: up to the travel height, a straight line, down, a short rest."""
+        above ``to_xy_m``: up to ``up_m`` above the paper, a straight line, down, a short
+        rest."""
         cfg, dt_s = self.options.controller_config, self.dt_s
-        up_m = self.page_plan.travel_height_m
         here = self.mapping.to_table(self.dmp.y[:2])
         rise = _rise_steps(up_m, cfg, dt_s)
         for _ in range(rise):
