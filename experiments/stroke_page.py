@@ -8,9 +8,10 @@ many characters were found (each assigned to the cell its box's centre lies in: 
 character of pieces side by side is found as several), and of those found as one
 character how many were read with the stroke count their drawer drew (from the stroke
 files, :func:`img2dmp.data.sources.omniglot.parse_strokes`) and the path's fit to the
-ink. Writes the page, its document and its picture into ``--out``. ``--cut yes|no``
-reads the page with or without the digits' cutting of wide marks (the choice of
-:data:`img2dmp.page.STROKE_PAGE_CUT`).
+ink. ``--paper ruled`` (plain, squared, dotted) writes the ink on generated paper and
+photographs it first. Writes the page, its document and its picture into ``--out``.
+``--cut yes|no`` reads the page with or without the digits' cutting of wide marks (the
+choice of :data:`img2dmp.page.STROKE_PAGE_CUT`).
 
 Run from the repository's root::
 
@@ -31,6 +32,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from img2dmp.data.clutter import KINDS, PaperOptions, photo_finish, put_ink, random_paper
 from img2dmp.data.sources.omniglot import parse_strokes
 from img2dmp.predict import load_model
 
@@ -79,6 +81,17 @@ def characters(root: Path, drawer: int) -> list[tuple[str, np.ndarray, int]]:
     return found
 
 
+def on_paper(rng, page: np.ndarray, kind: str) -> np.ndarray:
+    """The white page's ink (dark) written in blue on generated paper of ``kind`` with a
+    rule or grid about as far apart as a character is tall, then photographed (blur,
+    noise, JPEG): uint8 ``[H, W, 3]``."""
+    ink = 1.0 - page.astype(np.float32) / 255.0
+    options = PaperOptions(spacing_px=(0.5 * CELL, 0.7 * CELL), margin_probability=0.0)
+    paper = random_paper(rng, page.shape, kind, options=options)
+    scene = put_ink(paper.rgb, ink, (0.1, 0.15, 0.55), opacity=0.95)
+    return photo_finish(rng, scene, jpeg_quality=85, blur_px=0.6, noise=0.01)
+
+
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--omniglot", type=Path, required=True, help="the folder of the zips")
@@ -88,6 +101,9 @@ def main(argv: list[str]) -> int:
     p.add_argument("--per-line", type=int, default=8)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--paper", choices=("white", *KINDS), default="white",
+                   help="white: the images as they are; else the ink written on generated "
+                   "paper of that kind and photographed (img2dmp.data.clutter)")  # fmt: skip
     p.add_argument("--cut", choices=("yes", "no"), default=None,
                    help="cut wide marks at their waists as for digits (default: the "
                    "library's img2dmp.page.STROKE_PAGE_CUT)")  # fmt: skip
@@ -112,6 +128,8 @@ def main(argv: list[str]) -> int:
         page[20 + r * CELL : 20 + r * CELL + h, 20 + c * CELL : 20 + c * CELL + w] = image
     args.out.mkdir(parents=True, exist_ok=True)
     photo = args.out / f"drawer{args.drawer}_page.png"
+    if args.paper != "white":
+        page = on_paper(rng, page, args.paper)
     Image.fromarray(page).save(photo)
     model = load_model(args.model)  # its card's refinement and count views
     read = model.predict_page(photo)
@@ -121,11 +139,14 @@ def main(argv: list[str]) -> int:
         x0, y0, x1, y1 = c.box_image
         row, col = int(((y0 + y1) / 2 - 20) // CELL), int(((x0 + x1) / 2 - 20) // CELL)
         per_cell.setdefault(row * args.per_line + col, []).append(c)
+    placed = {k: v for k, v in per_cell.items() if 0 <= k < args.n}
+    extra = sum(len(v) for k, v in per_cell.items() if k not in placed)
     print(f"{photo}: {args.n} characters placed, {len(read.characters)} found in "
-          f"{len(read.lines)} lines; {sum(len(v) == 1 for v in per_cell.values())} of the "
-          f"characters found as one, {sum(len(v) > 1 for v in per_cell.values())} in pieces "
-          f"(side by side: read as several), {args.n - len(per_cell)} not found")  # fmt: skip
-    whole = [(k, v[0]) for k, v in sorted(per_cell.items()) if len(v) == 1 and k < args.n]
+          f"{len(read.lines)} lines; {sum(len(v) == 1 for v in placed.values())} of the "
+          f"characters found as one, {sum(len(v) > 1 for v in placed.values())} in pieces "
+          f"(side by side: read as several), {args.n - len(placed)} not found; {extra} "
+          "found outside every character's cell")  # fmt: skip
+    whole = [(k, v[0]) for k, v in sorted(placed.items()) if len(v) == 1]
     truth = np.array([chosen[k][2] for k, _ in whole])
     said = np.array([c.prediction.n_strokes for _, c in whole])
     on_ink = np.array([c.prediction.fit["path_on_ink"] for _, c in whole])

@@ -657,6 +657,13 @@ def test_the_stroke_page_experiment_reads_a_drawers_page_and_counts_its_strokes(
     assert (tmp_path / "drawer18_page_page.json").exists()
     with pytest.raises(SystemExit, match="fewer than --n"):
         mod.main([*argv[:-4], "--n", "9", "--out", str(tmp_path)])
+    from PIL import Image
+
+    capsys.readouterr()
+    assert mod.main([*argv, "--paper", "ruled"]) == 0  # the ink on photographed paper
+    photo = np.asarray(Image.open(tmp_path / "drawer18_page.png"))
+    assert photo.ndim == 3 and len(np.unique(photo.reshape(-1, 3), axis=0)) > 100
+    assert "4 characters placed" in capsys.readouterr().out
 
 
 def test_stroke_choices_refuses_a_model_that_trained_on_the_validation_drawers(
