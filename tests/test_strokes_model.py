@@ -602,7 +602,7 @@ def test_a_page_read_by_a_stroke_model_lists_every_stroke_in_the_photos_pixels(
     out = tmp_path / "out"
     assert cli.main(["predict", str(photo), "--page", "--model", str(trained), "--refine",
                      "5", "--out", str(out)]) == 0  # fmt: skip
-    assert "2 characters in 1 lines" in capsys.readouterr().out
+    assert f"2 characters ({sum(n)} strokes) in 1 lines" in capsys.readouterr().out
     written = json.loads((out / "two_page.json").read_text())
     assert len(written["characters"]) == sum(n) and (out / "two_page.png").exists()
 

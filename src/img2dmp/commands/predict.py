@@ -185,7 +185,9 @@ def _run_pages(args, predictor) -> int:
         files = page.save(args.out, Path(path).stem)
         if args.explain:
             files.append(_explain(args, path, [c.character.box for c in page.characters]))
-        print(f"{path}: {len(page.characters)} characters in {len(page.lines)} lines, "
+        strokes = [getattr(c.prediction, "n_strokes", None) for c in page.characters]
+        n = "" if None in strokes or not strokes else f" ({sum(strokes)} strokes)"
+        print(f"{path}: {len(page.characters)} characters{n} in {len(page.lines)} lines, "
               f"{len(flagged)} flagged -> " + ", ".join(str(f) for f in files))  # fmt: skip
     return 0
 
