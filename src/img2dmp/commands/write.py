@@ -541,11 +541,8 @@ def _run_page(args, scene_cfg, ctl_cfg) -> int:
     name, page, photo = _page_input(args)
     width_mm = DEFAULT_PAGE_WIDTH_MM if args.width_mm is None else args.width_mm
     plan = plan_page(page, options, width_mm=width_mm, skip_flagged=args.skip_flagged)
-    if page.document.get("entries") == "strokes":  # a stroke model's page: each entry a stroke
-        n = page.document.get("n_characters", "?")
-        what = f"a page of {n} characters in {len(page.characters)} strokes"
-        return _write_plan(args, name, plan, photo, what, "_characters.csv", "stroke")
-    return _write_plan(args, name, plan, photo, "a page", "_characters.csv")
+    what, noun = plan.words()  # a stroke model's page: each entry a stroke
+    return _write_plan(args, name, plan, photo, what, "_characters.csv", noun)
 
 
 def _run_strokes(args, scene_cfg, ctl_cfg, predictor) -> int:

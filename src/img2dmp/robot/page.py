@@ -159,6 +159,16 @@ class PagePlan:
         return [low if owner(a) is not None and owner(a) == owner(b) else self.travel_height_m
                 for a, b in zip(chars[:-1], chars[1:], strict=True)]  # fmt: skip
 
+    def words(self) -> tuple[str, str]:
+        """``(what, noun)`` for the figure's title and the summary: ``("a page",
+        "character")``, or for a stroke model's page ``("a page of N characters in M
+        strokes", "stroke")`` (M the strokes planned)."""
+        doc = self.page.document
+        if doc.get("entries") != "strokes":
+            return "a page", "character"
+        n, m = doc.get("n_characters", "?"), len(self.characters)
+        return f"a page of {n} characters in {m} strokes", "stroke"
+
     def travel_steps(self) -> int:
         """Control steps of all the travels (up, across, down, rest)."""
         dt_s, cfg = self.options.dt_s, self.options.controller_config

@@ -158,16 +158,12 @@ def _write_page(d: Path, options: dict, report) -> dict:
     )
     result = _run(plan, expected, report)
     report[SHARE] = SIMULATION_SHARE
-    what = "a page" if noun is None else f"{len(plan.characters)} {noun}s"
-    if noun is None and doc.get("entries") == "strokes":  # a page read by a stroke model
-        noun = "stroke"
-        what = (
-            f"a page of {doc.get('n_characters', '?')} characters in {len(plan.characters)} strokes"
-        )
+    # a stroke model's character names its strokes; a page its characters (or strokes)
+    what, noun = plan.words() if noun is None else (f"{len(plan.characters)} {noun}s", noun)
     _save_outputs(result, d, f"{name}: KUKA iiwa writes {what}", video=interval_s is not None)
     report[SHARE] = 1.0
     speed = None if interval_s is None else interval_s / FRAME_INTERVAL_S
-    lines = page_summary_lines(name, result, noun or "character")
+    lines = page_summary_lines(name, result, noun)
     return {"summary": lines, "page": page_measures(result, speed)}
 
 
