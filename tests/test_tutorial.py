@@ -51,11 +51,12 @@ def test_every_cell_of_the_tutorial_runs(monkeypatch):
     assert "digits-real" in text and "refinement steps: 30" in text
     assert "flags: []" in text  # the sample photo is read as one digit
     assert "shifted: off a translation by" in text
+    assert "StrokePrediction(" in text and "strokes per letter: [" in text  # section 6
     figures = sum(
         "image/png" in o.get("data", {})
         for c in nb.cells
         if c.cell_type == "code"
         for o in c.outputs
     )
-    assert figures >= 2, figures
+    assert figures >= 3, figures
     assert not NOTEBOOK.with_name("tutorial.nbconvert.ipynb").exists()
