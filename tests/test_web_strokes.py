@@ -205,6 +205,7 @@ def test_the_arm_writes_a_page_read_by_a_stroke_model_stroke_by_stroke(client):
     assert job["status"] == "done", job["error"]
     assert job["summary"][0].startswith(f"hooks_page: {n} of {n} strokes written"), job["summary"]
     assert "no ink between strokes" in job["summary"][0]
+    assert any(", character 0: 1 of " in line for line in job["summary"])
 
 
 def test_the_warm_up_of_img2dmp_serve_takes_a_stroke_model(stroke_run):

@@ -611,6 +611,6 @@ def _write_plan(args, name: str, plan, photo, what: str, table: str, noun="chara
     plot_page(result, base + "_paper.png", image=photo, title=f"{name}: KUKA iiwa writes {what}")
     save_characters_csv(result, base + table)
     written = [base + "_paper.png", base + table] + _save_run(args, result, name, 1)
-    print("\n".join(page_summary_lines(name, result, noun)))
+    print("\n".join(page_summary_lines(name, result, noun, plan.entry_labels())))
     print("  wrote " + ", ".join(written))
     return 0

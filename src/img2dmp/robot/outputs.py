@@ -441,9 +441,10 @@ def save_characters_csv(result, path) -> None:
     atomic_write_text(path, f.getvalue())
 
 
-def page_summary_lines(name: str, result, noun: str = "character") -> list[str]:
+def page_summary_lines(name: str, result, noun: str = "character", labels=None) -> list[str]:
     """A page's measures in words: the totals, then one line per character (``noun``:
-    what its entries are called, e.g. a stroke model's ``"stroke"``)."""
+    what its entries are called, e.g. a stroke model's ``"stroke"``; ``labels``: a
+    name per entry index to add, :meth:`img2dmp.robot.page.PagePlan.entry_labels`)."""
     m = result.metrics
     between = (
         f"no ink between {noun}s"
@@ -464,7 +465,8 @@ def page_summary_lines(name: str, result, noun: str = "character") -> list[str]:
     ]
     for r in result.characters:
         c, cm = r.character, r.metrics
-        head = f"  {noun} {c.index} (line {c.line}"
+        label = (labels or {}).get(c.index)
+        head = f"  {noun} {c.index}" + (f", {label}" if label else "") + f" (line {c.line}"
         head += f", flags {' '.join(c.flags)})" if c.flags else ")"
         if not r.written:
             lines.append(f"{head}: skipped")

@@ -169,6 +169,19 @@ class PagePlan:
         n, m = doc.get("n_characters", "?"), len(self.characters)
         return f"a page of {n} characters in {m} strokes", "stroke"
 
+    def entry_labels(self) -> dict[int, str]:
+        """On a stroke model's page, each entry's ``"character C: S of N"`` (its stroke S
+        of the character's N, from its notes), by entry index; empty for a page of
+        characters."""
+        doc = self.page.document
+        if doc.get("entries") != "strokes" or not isinstance(doc.get("characters"), list):
+            return {}
+        out = {}
+        for i, e in enumerate(doc["characters"]):
+            if isinstance(e, dict) and {"character", "stroke", "n_strokes"} <= e.keys():
+                out[i] = f"character {e['character']}: {e['stroke']} of {e['n_strokes']}"
+        return out
+
     def travel_steps(self) -> int:
         """Control steps of all the travels (up, across, down, rest)."""
         dt_s, cfg = self.options.dt_s, self.options.controller_config

@@ -163,7 +163,7 @@ def _write_page(d: Path, options: dict, report) -> dict:
     _save_outputs(result, d, f"{name}: KUKA iiwa writes {what}", video=interval_s is not None)
     report[SHARE] = 1.0
     speed = None if interval_s is None else interval_s / FRAME_INTERVAL_S
-    lines = page_summary_lines(name, result, noun)
+    lines = page_summary_lines(name, result, noun, plan.entry_labels())
     return {"summary": lines, "page": page_measures(result, speed)}
 
 
