@@ -141,13 +141,19 @@ class PagePlan:
             (a.plan.xy_m[-1], b.plan.xy_m[0]) for a, b in zip(chars[:-1], chars[1:], strict=True)
         ]
 
+    def _stroke_entries(self) -> list | None:
+        """The raw entries (notes included) of a stroke model's page (``"entries":
+        "strokes"``, docs/PAGE.md), in entry order; None for a page of characters."""
+        doc = self.page.document
+        raw = doc.get("characters")
+        return raw if doc.get("entries") == "strokes" and isinstance(raw, list) else None
+
     def travel_heights_m(self) -> list[float]:
         """The height of each travel above the paper: ``travel_height_m``, but between
         two strokes of one character on a stroke model's page (``"entries": "strokes"``,
         the entries' ``character`` notes) the controller's lift height plus
         :data:`STROKE_LIFT_M`, as ``img2dmp write`` lifts the pen within one character."""
-        doc = self.page.document
-        raw = doc.get("characters") if doc.get("entries") == "strokes" else None
+        raw = self._stroke_entries()
         low = min(self.travel_height_m,
                   self.options.controller_config.lift_height_m + STROKE_LIFT_M)  # fmt: skip
 
@@ -163,21 +169,17 @@ class PagePlan:
         """``(what, noun)`` for the figure's title and the summary: ``("a page",
         "character")``, or for a stroke model's page ``("a page of N characters in M
         strokes", "stroke")`` (M the strokes planned)."""
-        doc = self.page.document
-        if doc.get("entries") != "strokes":
+        if self._stroke_entries() is None:
             return "a page", "character"
-        n, m = doc.get("n_characters", "?"), len(self.characters)
+        n, m = self.page.document.get("n_characters", "?"), len(self.characters)
         return f"a page of {n} characters in {m} strokes", "stroke"
 
     def entry_labels(self) -> dict[int, str]:
         """On a stroke model's page, each entry's ``"character C: S of N"`` (its stroke S
         of the character's N, from its notes), by entry index; empty for a page of
         characters."""
-        doc = self.page.document
-        if doc.get("entries") != "strokes" or not isinstance(doc.get("characters"), list):
-            return {}
         out = {}
-        for i, e in enumerate(doc["characters"]):
+        for i, e in enumerate(self._stroke_entries() or []):
             if isinstance(e, dict) and {"character", "stroke", "n_strokes"} <= e.keys():
                 out[i] = f"character {e['character']}: {e['stroke']} of {e['n_strokes']}"
         return out
