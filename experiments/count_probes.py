@@ -59,13 +59,14 @@ from pathlib import Path
 import numpy as np
 
 from img2dmp.data.store import DigitData, load_dataset, save_dataset
+from img2dmp.evaluate import class_modes
 from img2dmp.nn.strokes import ink_pieces
 from img2dmp.predict import Predictor
 
 # isort: split
 # From this script's directory, which Python puts on sys.path when it runs a script.
 from _provenance import format_record, run_record
-from stroke_choices import class_mode_shares, class_modes
+from stroke_choices import class_mode_shares
 
 #: The share of the count's probability the ``read`` subcommand's other rule reaches.
 QUANTILE = 0.4

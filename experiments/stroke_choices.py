@@ -26,13 +26,12 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
 from img2dmp.data.store import load_dataset
-from img2dmp.evaluate import evaluate
+from img2dmp.evaluate import class_modes, evaluate, stroke_counts
 from img2dmp.nn.refine import RefineOptions
 from img2dmp.nn.strokes import COUNT_VIEWS, ink_pieces
 from img2dmp.predict import Predictor
@@ -45,23 +44,11 @@ from _provenance import format_record, run_record
 SETTINGS = ((0, 0.0, 0.0), (30, 0.02, 5.0), (60, 0.02, 1.0), (60, 0.04, 0.3), (100, 0.04, 0.3))
 
 
-def class_modes(data, counts: np.ndarray | None = None) -> dict[int, int]:
-    """Each class's most common stroke count among its training drawings (ties: the
-    smaller count); ``counts`` the stroke count of every row, if already read."""
-    if counts is None:
-        counts = np.array([len(data.stroke_spans(i)) for i in range(len(data))])
-    labels = np.asarray(data.labels)
-    mode = {}
-    for c in np.unique(labels[data.split == 0]):
-        seen = Counter(counts[(labels == c) & (data.split == 0)].tolist())
-        mode[int(c)] = min(seen, key=lambda k: (-seen[k], k))
-    return mode
-
-
 def class_mode_shares(data) -> dict:
     """Per split, the share of characters whose stroke count is their class's most
-    common one among the training drawers (:func:`class_modes`)."""
-    counts = np.array([len(data.stroke_spans(i)) for i in range(len(data))])
+    common one among the training drawers (:func:`img2dmp.evaluate.class_modes`; for
+    one split of an evaluation: :func:`img2dmp.evaluate.count_ceiling`)."""
+    counts = stroke_counts(data)
     labels = np.asarray(data.labels)
     mode = class_modes(data, counts)
     out = {}

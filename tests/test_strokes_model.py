@@ -375,6 +375,42 @@ def test_evaluate_reports_the_stroke_count_and_the_measures_per_alphabet(small_o
     assert set(st["per_alphabet"]) == {"Alpha", "Beta"}
     assert sum(a["n"] for a in st["per_alphabet"].values()) == len(ok) == res["overall"]["n"]
     assert res["chamfer"]["overall"]["mean"] < 2.0  # learnt shapes, on a 40-px frame
+    # every character of the tree is drawn with one count: its class's mode is always right
+    assert st["count_mode_right"] == 1.0 and st["count_mode_n"] == len(ok)
+    assert st["count_mode_right_per_alphabet"] == {"Alpha": 1.0, "Beta": 1.0}
+
+
+def test_the_count_ceiling_is_the_class_mode_of_the_training_drawings_only(small_omniglot):
+    from img2dmp.data.store import STROKE_SPANS_KEY, DigitData
+    from img2dmp.evaluate import _strokes_lines, class_modes, count_ceiling
+
+    data = load_dataset(small_omniglot)
+    spans = [list(v) for v in data.meta[STROKE_SPANS_KEY]]
+    labels, split = np.asarray(data.labels), np.asarray(data.split)
+    # class 0: two of its test drawings one stroke more (the mode, from training, stays)
+    extra = np.flatnonzero((labels == 0) & (split == 2))[:2]
+    for i in extra:
+        spans[i] = spans[i] + [spans[i][-1]]
+    # class 1: its training drawings made validation rows: no mode, left out of the ceiling
+    arrays = data.arrays()
+    arrays["split"] = np.where((labels == 1) & (split == 0), 1, split).astype(split.dtype)
+    fake = DigitData(**arrays, meta={**data.meta, STROKE_SPANS_KEY: spans})
+    assert 1 not in class_modes(fake) and class_modes(fake)[0] == len(spans[extra[0]]) - 1
+    test = fake.subset(arrays["split"] == 2)
+    got = count_ceiling(fake, test)
+    seen = np.asarray(test.labels) != 1
+    assert got["count_mode_n"] == int(seen.sum())
+    assert got["count_mode_right"] == pytest.approx(1 - 2 / seen.sum())
+    alpha = [c for c in range(len(data.class_names)) if data.class_names[c].startswith("Alpha")]
+    assert 0 in alpha and got["count_mode_right_per_alphabet"]["Alpha"] < 1.0
+    # characters never seen in training: no ceiling, and the table says so
+    unseen = fake.subset((np.asarray(fake.labels) == 1) & (arrays["split"] == 2))
+    none = count_ceiling(fake, unseen)
+    assert none["count_mode_right"] is None and none["count_mode_n"] == 0
+    assert "never seen" in _strokes_lines({"count_right": 0.5, "per_alphabet": {}, **none})
+    line = _strokes_lines({"count_right": 0.5, "per_alphabet": {}, **got}).splitlines()[1]
+    assert f"{100 * got['count_mode_right']:.1f} %" in line
+    assert f"{100 * 0.5 / got['count_mode_right']:.1f} % of it" in line
 
 
 def test_evaluate_and_export_read_the_count_from_the_views_asked_for(

@@ -36,6 +36,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -204,15 +205,26 @@ def _strokes_lines(strokes: dict) -> str:
     read = f"read from {views} view{'s' * (views != 1)} of each image; " if views else ""
     lines = [f"stroke count right: {100 * strokes['count_right']:.1f} % ({read}TableI of a "
              "stroke model: its path by index at the demonstration's instants)"]  # fmt: skip
-    per = strokes["per_alphabet"]
+    mode = strokes.get("count_mode_right")  # absent from evaluations written before it
+    if mode is not None:
+        right = strokes["count_right"]
+        lines.append(
+            f"its ceiling, each class's most common count among its training drawings: "
+            f"{100 * mode:.1f} % (of the {strokes['count_mode_n']} characters whose class has "
+            f"training drawings; the count right is {100 * right / mode:.1f} % of it)"
+        )
+    elif "count_mode_right" in strokes:
+        lines.append("its ceiling: none of these classes has training drawings (never seen)")
+    per, modes = strokes["per_alphabet"], strokes.get("count_mode_right_per_alphabet", {})
     if len(per) > 1:
         w = max(len(a) for a in per)
         lines.append(f"{'alphabet':>{w}} {'n':>5} {'path':>7} {'Chamfer':>8} {'ink %':>6} "
-                     f"{'count %':>7}")  # fmt: skip
+                     f"{'count %':>7} {'mode %':>6}")  # fmt: skip
         for a, m in per.items():
+            ceiling = f"{100 * modes[a]:>6.1f}" if a in modes else f"{'-':>6}"
             lines.append(
                 f"{a:>{w}} {m['n']:>5} {_cell(m, 'path_error', 7)} {_cell(m, 'chamfer', 8)} "
-                f"{_cell(m, 'on_ink', 6, 100, 1)} {100 * m['count_right']:>7.1f}"
+                f"{_cell(m, 'on_ink', 6, 100, 1)} {100 * m['count_right']:>7.1f} {ceiling}"
             )
     return "\n".join(lines)
 
@@ -458,8 +470,11 @@ def evaluate(
     batch_size = check_count("batch_size", batch_size, 1, MAX_BATCH_SIZE)
     refine = check_count("refine (--refine)", refine, 0, MAX_REFINE_STEPS)
     predictor = _load_predictor(model_path, device, refine, count_views)
-    data = _evaluation_data(predictor, dataset_path, split, digits, classes)
+    whole = load_dataset(dataset_path)
+    data = _evaluation_data(predictor, dataset_path, split, digits, classes, whole)
     y_all, probs, measures = _measured(predictor, data, batch_size, progress)
+    if "strokes" in measures:
+        measures["strokes"].update(count_ceiling(whole, data))
     _, y = top_hypothesis(y_all, probs)  # [M, T, d]
     errors = np.asarray(measures["errors_px"])  # [M], Table I
     result = _headline(measures, data.class_names)
@@ -541,7 +556,7 @@ def stroke_measures(counts, data, measures: dict) -> dict:
     count is right (overall, per class, per alphabet: the class name's part before
     ``/``, as Omniglot's ``alphabet/character``), the true and predicted counts, and the
     path measures per alphabet."""
-    truth = np.array([len(data.stroke_spans(i)) for i in range(len(data))])
+    truth = stroke_counts(data)
     ok = np.asarray(counts) == truth
     names = data.label_names
     alphabet = np.array([str(names[int(c)]).split("/")[0] for c in data.labels])
@@ -562,6 +577,49 @@ def stroke_measures(counts, data, measures: dict) -> dict:
         "per_alphabet": per_alphabet,
         "true_counts": truth.tolist(),
         "predicted_counts": np.asarray(counts).tolist(),
+    }
+
+
+def stroke_counts(data) -> np.ndarray:
+    """The stroke count of every row of a data set ``[N]`` (its recorded stroke spans)."""
+    return np.array([len(data.stroke_spans(i)) for i in range(len(data))], dtype=np.int64)
+
+
+def class_modes(data, counts: np.ndarray | None = None) -> dict[int, int]:
+    """Each class's most common stroke count among its training drawings (ties: the
+    smaller count), for the classes that have training drawings; ``counts`` the stroke
+    count of every row (:func:`stroke_counts`), if already read."""
+    counts = stroke_counts(data) if counts is None else np.asarray(counts)
+    labels = np.asarray(data.labels)
+    train = np.asarray(data.split) == SPLITS["train"]
+    mode = {}
+    for c in np.unique(labels[train]):
+        seen = Counter(counts[(labels == c) & train].tolist())
+        mode[int(c)] = min(seen, key=lambda k: (-seen[k], k))
+    return mode
+
+
+def count_ceiling(whole, data) -> dict:
+    """What a reader that recognised every character and answered its class's most
+    common count among the training drawings of ``whole`` (:func:`class_modes`) would
+    score on the rows of ``data`` (a selection of ``whole``: the same labels): the count
+    right's ceiling for a count learnt per character (RESULTS 8.3).
+
+    ``count_mode_right`` (overall, ``None`` when no evaluated class has training
+    drawings: characters never seen in training) over the ``count_mode_n`` rows whose
+    class has training drawings, and per alphabet (``count_mode_right_per_alphabet``)."""
+    modes = class_modes(whole)
+    truth, labels = stroke_counts(data), np.asarray(data.labels)
+    seen = np.isin(labels, list(modes))
+    ok = np.array([seen[i] and truth[i] == modes[int(labels[i])] for i in range(len(data))])
+    names = data.label_names
+    alphabet = np.array([str(names[int(c)]).split("/")[0] for c in labels])
+    per = {str(a): float(ok[(alphabet == a) & seen].mean())
+           for a in np.unique(alphabet) if ((alphabet == a) & seen).any()}  # fmt: skip
+    return {
+        "count_mode_right": float(ok[seen].mean()) if seen.any() else None,
+        "count_mode_n": int(seen.sum()),
+        "count_mode_right_per_alphabet": per,
     }
 
 
@@ -596,10 +654,11 @@ def _load_predictor(model, device: str = "cpu", refine: int = 0, count_views=Non
     return model
 
 
-def _evaluation_data(predictor: Predictor, dataset_path, split: str, digits, classes=None):
-    """The samples of ``split`` (and ``digits`` or ``classes``) of a data set, checked
-    against the model."""
-    data = _pick_split(load_dataset(dataset_path), split)
+def _evaluation_data(predictor: Predictor, dataset_path, split: str, digits, classes=None,
+                     whole=None):  # fmt: skip
+    """The samples of ``split`` (and ``digits`` or ``classes``) of a data set (``whole``
+    if already read), checked against the model."""
+    data = _pick_split(load_dataset(dataset_path) if whole is None else whole, split)
     wanted = data.labels_selected(digits, classes)
     if wanted is not None:
         data = data.subset(np.isin(data.labels, wanted))
