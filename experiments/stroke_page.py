@@ -11,7 +11,12 @@ files, :func:`img2dmp.data.sources.omniglot.parse_strokes`) and the path's fit t
 ink. ``--paper ruled`` (plain, squared, dotted) writes the ink on generated paper and
 photographs it first. Writes the page, its document and its picture into ``--out``.
 ``--cut yes|no`` reads the page with or without the digits' cutting of wide marks (the
-choice of :data:`img2dmp.page.STROKE_PAGE_CUT`).
+choice of :data:`img2dmp.page.STROKE_PAGE_CUT`); ``--join yes|no`` with or without
+joining neighbours of pieces side by side (:data:`img2dmp.page.STROKE_PAGE_JOIN`,
+``--side-gap`` for :data:`img2dmp.data.pages.SIDE_GAP`). ``--gap G`` places the
+characters ``G`` character heights apart, ink to ink, as handwriting spaces them,
+instead of in cells (the characters are then matched by their ink boxes: a character
+found over two placed ones is "joined to a neighbour").
 
 Run from the repository's root::
 
@@ -92,6 +97,79 @@ def on_paper(rng, page: np.ndarray, kind: str) -> np.ndarray:
     return photo_finish(rng, scene, jpeg_quality=85, blur_px=0.6, noise=0.01)
 
 
+def _ink_box(image: np.ndarray) -> tuple[int, int, int, int]:
+    rows, cols = np.nonzero(image < 128)
+    if rows.size == 0:
+        return 0, 0, image.shape[1], image.shape[0]
+    return int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1
+
+
+def layout(chosen, per_line: int, gap: float | None):
+    """The white page (uint8, ink dark) of the ``chosen`` characters in rows of
+    ``per_line``, and each character's ink box on it ``(x0, y0, x1, y1)``.
+
+    ``gap`` None: each image in a cell of :data:`CELL` px (the characters about a
+    character's width apart); else each character's ink ``gap`` times the median ink
+    height after the previous one's along its line (handwriting's spacing), the ink of a
+    line on one middle row, lines :data:`CELL` px apart."""
+    ink = [_ink_box(image) for _, image, _ in chosen]
+    lines = -(-len(chosen) // per_line)
+    height = float(np.median([b[3] - b[1] for b in ink]))
+    if gap is None:
+        width = per_line * CELL + 40
+    else:
+        rows = [ink[i : i + per_line] for i in range(0, len(ink), per_line)]
+        longest = max(sum(b[2] - b[0] for b in r) + gap * height * (len(r) - 1) for r in rows)
+        width = int(longest) + 2 * CELL  # an image's white beyond its ink on either end
+    page = np.full((lines * CELL + 40, width), 255, np.uint8)
+    boxes, x = [], float(CELL)
+    for k, (name, image, _) in enumerate(chosen):
+        h, w = image.shape
+        if max(h, w) > CELL - 10:
+            raise SystemExit(f"{name}: an image of {w} x {h} px does not fit a {CELL}-px cell")
+        r, c = divmod(k, per_line)
+        x0, y0, x1, y1 = ink[k]
+        if gap is None:
+            top, left = 20 + r * CELL, 20 + c * CELL
+        else:
+            x = float(CELL) if c == 0 else x
+            top = int(20 + r * CELL + (CELL - 10) / 2 - (y0 + y1) / 2)
+            left = int(round(x)) - x0
+            x += (x1 - x0) + gap * height
+        # the ink is written over the page (a neighbour's white margin hides nothing)
+        view = page[top : top + h, left : left + w]
+        np.minimum(view, image, out=view)
+        boxes.append((left + x0, top + y0, left + x1, top + y1))
+    return page, boxes
+
+
+def match(found, boxes):
+    """Which placed character each character found is: the one whose ink box holds most
+    of its box (none: found outside every character), and whether it also holds most of
+    another's (joined). Returns ``({placed: [found, ...]}, joined placed characters,
+    found outside)``."""
+    per: dict[int, list] = {k: [] for k in range(len(boxes))}
+    b = np.asarray(boxes, float)
+    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    joined, extra = set(), 0
+    for c in found:
+        x0, y0, x1, y1 = c.box_image
+        w = np.clip(np.minimum(b[:, 2], x1) - np.maximum(b[:, 0], x0), 0, None)
+        h = np.clip(np.minimum(b[:, 3], y1) - np.maximum(b[:, 1], y0), 0, None)
+        inter = w * h
+        if inter.max() <= 0:
+            extra += 1
+            continue
+        covers = np.flatnonzero(inter >= 0.5 * area)
+        if len(covers) > 1:
+            joined.update(int(k) for k in covers)
+            continue
+        per[int(np.argmax(inter))].append(c)
+    for k in joined:
+        per[k] = []
+    return per, len(joined), extra
+
+
 def main(argv: list[str]) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--omniglot", type=Path, required=True, help="the folder of the zips")
@@ -104,28 +182,35 @@ def main(argv: list[str]) -> int:
     p.add_argument("--paper", choices=("white", *KINDS), default="white",
                    help="white: the images as they are; else the ink written on generated "
                    "paper of that kind and photographed (img2dmp.data.clutter)")  # fmt: skip
+    p.add_argument("--gap", type=float, default=None,
+                   help="characters this many character heights apart (ink to ink) along "
+                   "a line, as handwriting spaces them (default: in cells of 130 px)")  # fmt: skip
     p.add_argument("--cut", choices=("yes", "no"), default=None,
                    help="cut wide marks at their waists as for digits (default: the "
                    "library's img2dmp.page.STROKE_PAGE_CUT)")  # fmt: skip
+    p.add_argument("--join", choices=("yes", "no"), default=None,
+                   help="join neighbours of pieces side by side into one character (default: "
+                   "the library's img2dmp.page.STROKE_PAGE_JOIN)")  # fmt: skip
+    p.add_argument("--side-gap", type=float, default=None,
+                   help="the largest gap between neighbours joined, as a share of their "
+                   "line's usual gap (default: img2dmp.data.pages.SIDE_GAP)")  # fmt: skip
     args = p.parse_args(argv)
-    if args.cut is not None:
-        import img2dmp.page
+    import img2dmp.data.pages
+    import img2dmp.page
 
+    if args.cut is not None:
         img2dmp.page.STROKE_PAGE_CUT = args.cut == "yes"
+    if args.join is not None:
+        img2dmp.page.STROKE_PAGE_JOIN = args.join == "yes"
+    if args.side_gap is not None:
+        img2dmp.data.pages.SIDE_GAP = args.side_gap
     print(format_record(run_record(__file__, argv)))
     chars = characters(args.omniglot, args.drawer)
     if len(chars) < args.n:
         raise SystemExit(f"drawer {args.drawer} drew {len(chars)} characters, fewer than --n")
     rng = np.random.default_rng(args.seed)
     chosen = [chars[i] for i in rng.choice(len(chars), args.n, replace=False)]
-    lines = -(-args.n // args.per_line)
-    page = np.full((lines * CELL + 40, args.per_line * CELL + 40), 255, np.uint8)
-    for k, (name, image, _) in enumerate(chosen):
-        h, w = image.shape
-        if max(h, w) > CELL - 10:
-            raise SystemExit(f"{name}: an image of {w} x {h} px does not fit a {CELL}-px cell")
-        r, c = divmod(k, args.per_line)
-        page[20 + r * CELL : 20 + r * CELL + h, 20 + c * CELL : 20 + c * CELL + w] = image
+    page, boxes = layout(chosen, args.per_line, args.gap)
     args.out.mkdir(parents=True, exist_ok=True)
     photo = args.out / f"drawer{args.drawer}_page.png"
     if args.paper != "white":
@@ -134,18 +219,14 @@ def main(argv: list[str]) -> int:
     model = load_model(args.model)  # its card's refinement and count views
     read = model.predict_page(photo)
     files = read.save(args.out, photo.stem)
-    per_cell: dict[int, list] = {}
-    for c in read.characters:  # each character found goes to the cell of its box's centre
-        x0, y0, x1, y1 = c.box_image
-        row, col = int(((y0 + y1) / 2 - 20) // CELL), int(((x0 + x1) / 2 - 20) // CELL)
-        per_cell.setdefault(row * args.per_line + col, []).append(c)
-    placed = {k: v for k, v in per_cell.items() if 0 <= k < args.n}
-    extra = sum(len(v) for k, v in per_cell.items() if k not in placed)
+    per_cell, joined, extra = match(read.characters, boxes)
+    placed = {k: v for k, v in per_cell.items() if v}
     print(f"{photo}: {args.n} characters placed, {len(read.characters)} found in "
           f"{len(read.lines)} lines; {sum(len(v) == 1 for v in placed.values())} of the "
           f"characters found as one, {sum(len(v) > 1 for v in placed.values())} in pieces "
-          f"(side by side: read as several), {args.n - len(placed)} not found; {extra} "
-          "found outside every character's cell")  # fmt: skip
+          f"(side by side: read as several), {joined} found joined to a neighbour, "
+          f"{args.n - len(placed) - joined} not found; {extra} found outside every "
+          "character")  # fmt: skip
     whole = [(k, v[0]) for k, v in sorted(placed.items()) if len(v) == 1]
     truth = np.array([chosen[k][2] for k, _ in whole])
     said = np.array([c.prediction.n_strokes for _, c in whole])

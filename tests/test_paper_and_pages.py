@@ -128,6 +128,25 @@ def test_touching_characters_are_cut_apart():
     assert abs(pair[0] - boxes[2][0]) <= 4 and abs(pair[2] - boxes[3][2]) <= 4
 
 
+def test_pieces_side_by_side_join_only_when_much_closer_than_the_lines_spacing():
+    # two strokes 13 px apart where the line's neighbours are ~46 px apart: one character
+    # of pieces side by side (a Korean syllable's); 27 px apart: two; two 0s as close:
+    # too wide together for one character (pages.SIDE_GAP, SIDE_WIDTH)
+    def boxes_of(line, join):
+        ink, _ = _page([line])
+        return [c.box for c in find_characters(ink > 0.5, cut=False, join_sides=join).characters]
+
+    close = [("0", 40), ("7", 110), ("1", 180), ("1", 196), ("0", 250), ("7", 320)]
+    apart = [("0", 40), ("7", 110), ("1", 180), ("1", 210), ("0", 264), ("7", 334)]
+    zeros = [("0", 40), ("7", 110), ("0", 170), ("0", 202), ("0", 264), ("7", 334)]
+    assert len(boxes_of(close, False)) == 6
+    joined = boxes_of(close, True)
+    assert len(joined) == 5 and joined[2][0] < 195 and joined[2][2] > 205  # both strokes
+    assert len(boxes_of(apart, True)) == 6
+    assert len(boxes_of(zeros, True)) == 6
+    assert boxes_of(close, True)[:2] == boxes_of(close, False)[:2]
+
+
 def test_a_1_touching_a_7_is_cut_though_no_wider_than_a_character():
     # the 1's top meets the 7's bar: one mark as narrow as a 0, two characters tall on
     # either side of the single stroke between them (pages.WAIST_TALL)

@@ -603,10 +603,14 @@ def test_a_page_read_by_a_stroke_model_lists_every_stroke_in_the_photos_pixels(
 
     photo = _two_characters_page(omni_root, tmp_path / "two.png")
     cuts, segment = [], page_module.segment_page
-    spy = lambda *a, **k: cuts.append(k["cut"]) or segment(*a, **k)  # noqa: E731
+    spy = lambda *a, **k: cuts.append((k["cut"], k["join_sides"])) or segment(*a, **k)  # noqa: E731
     monkeypatch.setattr(page_module, "segment_page", spy)
     page = load_model(trained, refine=5).predict_page(photo)
-    assert cuts == [False]  # a stroke model's letters keep their waists (STROKE_PAGE_CUT)
+    # a stroke model's letters keep their waists (STROKE_PAGE_CUT) and join pieces side by
+    # side (STROKE_PAGE_JOIN)
+    assert cuts == [(False, True)]
+    load_model("digits-real").predict_page(photo)  # digits: cut, never joined side by side
+    assert cuts[1:] == [(True, False)]
     assert len(page.characters) == 2 and len(page.lines) == 1
     preds = [c.prediction for c in page.characters]
     assert all(isinstance(p, StrokePrediction) for p in preds)

@@ -48,6 +48,10 @@ PAGE_REFINE_TOP_ONLY = True
 #: have the waists of two touching digits (chosen on Omniglot's validation drawers,
 #: RESULTS 8.5).
 STROKE_PAGE_CUT = False
+#: Whether a page read by a stroke model joins neighbours that nearly touch side by side
+#: and together are about one character wide into one character (a Korean syllable's
+#: pieces; :data:`img2dmp.data.pages.SIDE_GAP`); a one-DMP model's digits never.
+STROKE_PAGE_JOIN = True
 #: Pixels of paper kept around a character's ink before it is framed.
 _CROP_PAD_PX = 2
 #: Longest side of the page picture, pixels (a smaller photo is enlarged to it, up to
@@ -339,7 +343,8 @@ class PageSegmentation:
         return _box_in_image(c.box, self.reduction, self.size)
 
 
-def segment_page(image, *, name: str | None = None, cut: bool = True) -> PageSegmentation:
+def segment_page(image, *, name: str | None = None, cut: bool = True,
+                 join_sides: bool = False) -> PageSegmentation:  # fmt: skip
     """The page read upright at most ``PAGE_WORK_PIXELS``, its ink separated from the paper
     and its characters found (:func:`read_page`'s steps 1 and 2, without a model).
 
@@ -352,13 +357,16 @@ def segment_page(image, *, name: str | None = None, cut: bool = True) -> PageSeg
     cut : bool
         Cut wide marks into characters and at their waists (touching digits; default);
         False keeps each mark whole (:func:`img2dmp.data.pages.find_characters`).
+    join_sides : bool
+        Join neighbours that nearly touch side by side into one character when together
+        they are about one character wide (letters of pieces side by side; default False).
     """
     levels, reduction, size, label = _images._levels_framed(image, name, PAGE_WORK_PIXELS)
     found = paper_ink(levels)
     layout = PageLayout(shape=levels.shape[:2])
     if found is not None:
         layout = find_characters(found.mask, core=found.core, grow=_grow(found.pen_width_px),
-                                 cut=cut)  # fmt: skip
+                                 cut=cut, join_sides=join_sides)  # fmt: skip
     return PageSegmentation(levels, reduction, size, label, found, layout)
 
 
@@ -383,8 +391,9 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
     from .predict import MAX_POINTS, check_count
 
     n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
-    cut = predictor.strokes is None or STROKE_PAGE_CUT
-    seg = segment_page(image, name=name, cut=cut)
+    letters = predictor.strokes is not None
+    seg = segment_page(image, name=name, cut=not letters or STROKE_PAGE_CUT,
+                       join_sides=letters and STROKE_PAGE_JOIN)  # fmt: skip
     levels, reduction, size, label, found = seg.levels, seg.reduction, seg.size, seg.label, seg.ink
     source = str(image) if isinstance(image, (str, os.PathLike)) else None
     steps = 0 if predictor.refine_options is None else int(predictor.refine_options.steps)

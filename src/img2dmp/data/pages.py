@@ -21,6 +21,10 @@ into text lines and ordered for reading:
    cross the fewest strokes, at least ``MIN_CUT_PITCH`` divisions apart; and a mark (or
    piece) of any width is cut at a column that crosses a single stroke with ink at least
    ``WAIST_TALL`` of its height tall on either side (two characters that touch);
+   On a page of letters (``join_sides``: a stroke model's) nothing is cut, and instead
+   neighbours in a line whose boxes overlap or lie apart by at most ``SIDE_GAP`` of the
+   line's usual gap, together at most ``SIDE_WIDTH`` character widths wide, are one
+   character of pieces side by side (a Korean syllable);
 5. **reading order**: lines top to bottom, characters left to right; words where the
    gap is wider than ``WORD_GAP`` heights and twice the line's usual gap; marks smaller
    than ``MIN_CHARACTER`` heights on their longer side are left out.
@@ -76,6 +80,20 @@ WAIST_SIDE = 0.08
 #: 0.45, not 0.6: from 0.6 a 4 leaning 8 degrees is cut where its bar meets the
 #: downstroke (the column's run there is 0.45 to 0.5 character heights).
 WAIST_RUN = 0.45
+#: On a page of letters (``find_characters(..., join_sides=True)``) two neighbours in a
+#: line are one character of pieces side by side (a Korean syllable's consonant and
+#: vowel) when their boxes overlap, touch, or lie apart by at most this share of the
+#: line's usual gap between neighbours (the writer's own spacing), ``SIDE_WIDTH``. Chosen
+#: with ``experiments/stroke_page.py`` on the validation drawers 16 and 17 (136
+#: characters each, in cells or 0.3 / 0.15 / 0.05 character heights apart: 1,088 placed):
+#: 0 (boxes touching) / 0.3 / 0.5 / 0.7 found 1,030 / 1,048 / 1,054 / 1,045 whole (not
+#: joining: 1,016), and joined two neighbours as one 0 / 0 / 0 / 14 times (at 0.05
+#: heights); 0.5 joined two 1s of ``../shared/data/photos``' yellow page (3 px apart), 0.3
+#: nothing there. ``SIDE_WIDTH`` was not scanned.
+SIDE_GAP = 0.3
+#: ... and together they are at most this many usual character widths wide (the upper
+#: quartile of the page's characters' widths, as for ``SPLIT_WIDTHS``).
+SIDE_WIDTH = 1.3
 #: A mark smaller than this share of a character height on its longer side is not a
 #: character (what the paper left: a rule's crossing, a speck at the page's scale).
 MIN_CHARACTER = 0.3
@@ -457,8 +475,8 @@ def _objects(labels: np.ndarray, n: int):
     return found + [None] * (n - len(found))
 
 
-def find_characters(mask, *, angle_deg: float | None = None, core=None,
-                    grow: int = 4, cut: bool = True) -> PageLayout:  # fmt: skip
+def find_characters(mask, *, angle_deg: float | None = None, core=None, grow: int = 4,
+                    cut: bool = True, join_sides: bool = False) -> PageLayout:  # fmt: skip
     """The characters of a page's ink mask, in reading order (module docstring).
 
     Parameters
@@ -475,6 +493,10 @@ def find_characters(mask, *, angle_deg: float | None = None, core=None,
         waists (step 4; default): touching digits. False keeps every mark (joined
         parts included) whole: letters such as n, m and W have waists a touching pair
         of digits also has (what a stroke model reads, RESULTS 8.5).
+    join_sides : bool
+        Join neighbours in a line that nearly touch side by side and together are about
+        one character wide (``SIDE_GAP``, ``SIDE_WIDTH``): characters of pieces side by
+        side, as Korean syllables are (a stroke model's pages; default False: digits).
 
     Returns
     -------
@@ -485,17 +507,36 @@ def find_characters(mask, *, angle_deg: float | None = None, core=None,
     if mask.ndim != 2:
         raise ValueError(f"mask must be a 2-D array [H, W], got shape {mask.shape}")
     if core is not None:
-        layout = _find(np.asarray(core, bool) & mask, angle_deg, cut)
+        layout = _find(np.asarray(core, bool) & mask, angle_deg, cut, join_sides)
         _own_ink(layout, mask, grow)  # small parts joined to their characters first
     else:
-        layout = _find(mask, angle_deg, cut)
+        layout = _find(mask, angle_deg, cut, join_sides)
     small = MIN_CHARACTER * layout.height_px
     _renumber(layout, [c for c in layout.characters
                        if max(c.box[2] - c.box[0], c.box[3] - c.box[1]) >= small])  # fmt: skip
     return layout
 
 
-def _find(mask: np.ndarray, angle_deg: float | None, cut: bool = True) -> PageLayout:
+def _join_sides(line: list[int], marks: list[_Mark], width: float) -> list[int]:
+    """One line's marks (indices, left to right), each run of neighbours that are one
+    character of pieces side by side (``SIDE_GAP``, ``SIDE_WIDTH``) merged into a new
+    mark appended to ``marks``."""
+    gaps = [marks[b].x0 - marks[a].x1 for a, b in zip(line, line[1:], strict=False)]
+    limit = SIDE_GAP * max(0.0, float(np.median(gaps))) if gaps else 0.0
+    out: list[int] = []
+    for i in line:
+        if out:
+            a, b = marks[out[-1]], marks[i]
+            if b.x0 - a.x1 <= limit and max(a.x1, b.x1) - min(a.x0, b.x0) <= SIDE_WIDTH * width:
+                marks.append(_merge(a, b))
+                out[-1] = len(marks) - 1
+                continue
+        out.append(i)
+    return out
+
+
+def _find(mask: np.ndarray, angle_deg: float | None, cut: bool = True,
+          join_sides: bool = False) -> PageLayout:  # fmt: skip
     """:func:`find_characters` on one mask, before the marks too small to be characters
     are left out."""
     from .paper import dominant_angle
@@ -521,6 +562,10 @@ def _find(mask: np.ndarray, angle_deg: float | None, cut: bool = True) -> PageLa
     pitch = _pitch(by_line, along, height)
     tall = [m.width for m in marks if m.height >= 0.5 * height]
     width = float(np.percentile(tall, 75)) if tall else height
+    if join_sides:
+        n_before = len(marks)
+        by_line = [_join_sides(idx, marks, width) for idx in by_line]
+        pixels += [_own_pixels(labels, m) for m in marks[n_before:]]
     layout = PageLayout(angle_deg=angle, height_px=height, shape=mask.shape)
     for n, idx in enumerate(by_line):
         chars = []
