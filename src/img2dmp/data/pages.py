@@ -20,7 +20,7 @@ into text lines and ordered for reading:
    characters a wide mark holds; it is cut near equal divisions at the columns that
    cross the fewest strokes, at least ``MIN_CUT_PITCH`` divisions apart; and a mark (or
    piece) of any width is cut at a column that crosses a single stroke with ink at least
-   ``WAIST_TALL`` of its height tall on either side (two characters that touch);
+   ``WAIST_TALL`` of its height tall on either side (two characters that touch).
    On a page of letters (``join_sides``: a stroke model's) nothing is cut, and instead
    neighbours in a line whose boxes overlap or lie apart by at most ``SIDE_GAP`` of the
    line's usual gap, together at most ``SIDE_WIDTH`` character widths wide, are one
