@@ -1,11 +1,12 @@
-"""A page of Omniglot characters read by a stroke model (RESULTS 8.5).
+"""A page of Omniglot characters read by a stroke model (RESULTS 8.5, 8.6).
 
 Puts ``--n`` characters drawn by one drawer (``--drawer``, the ``_NN`` of the image's
 file name; 18-20 are the test drawers of ``make model-omniglot``) on a white page, as
 they are in Omniglot's images (105 x 105, in cells of 130 px, rows of ``--per-line``),
 reads the page with ``--model`` as ``img2dmp predict PAGE --page`` does, and prints how
-many characters were found (each assigned to the cell its box's centre lies in: a
-character of pieces side by side is found as several), and of those found as one
+many characters were found (each assigned to the placed character whose ink box holds
+most of its box; one holding most of two placed characters' boxes joined them; a
+character of pieces side by side may be found as several), and of those found as one
 character how many were read with the stroke count their drawer drew (from the stroke
 files, :func:`img2dmp.data.sources.omniglot.parse_strokes`) and the path's fit to the
 ink. ``--paper ruled`` (plain, squared, dotted) writes the ink on generated paper and
@@ -15,8 +16,7 @@ choice of :data:`img2dmp.page.STROKE_PAGE_CUT`); ``--join yes|no`` with or witho
 joining neighbours of pieces side by side (:data:`img2dmp.page.STROKE_PAGE_JOIN`,
 ``--side-gap`` for :data:`img2dmp.data.pages.SIDE_GAP`). ``--gap G`` places the
 characters ``G`` character heights apart, ink to ink, as handwriting spaces them,
-instead of in cells (the characters are then matched by their ink boxes: a character
-found over two placed ones is "joined to a neighbour").
+instead of in cells.
 
 Run from the repository's root::
 
