@@ -705,6 +705,16 @@ def test_the_stroke_page_experiment_reads_a_drawers_page_and_counts_its_strokes(
     photo = np.asarray(Image.open(tmp_path / "drawer18_page.png"))
     assert photo.ndim == 3 and len(np.unique(photo.reshape(-1, 3), axis=0)) > 100
     assert "4 characters placed" in capsys.readouterr().out
+    # spaced as handwriting: each line's ink boxes G character heights apart, ink to ink
+    page, boxes = mod.layout(chosen, 2, 0.3)
+    height = float(np.median([b[3] - b[1] for b in boxes]))
+    for a, b in ((0, 1), (2, 3)):
+        assert abs((boxes[b][0] - boxes[a][2]) - 0.3 * height) <= 1.0, boxes
+    for x0, y0, x1, y1 in boxes:  # every placed box holds ink at its edges
+        assert (page[y0:y1, x0:x1] < 128).any(axis=0)[[0, -1]].all()
+    assert mod.main([*argv, "--gap", "0.3", "--join", "no"]) == 0
+    said = capsys.readouterr().out
+    assert re.search(r"4 characters placed.*\d+ found joined to a neighbour", said), said
 
 
 def test_stroke_choices_refuses_a_model_that_trained_on_the_validation_drawers(
