@@ -801,3 +801,33 @@ def test_count_probes_ceilings_and_the_count_chosen_by_its_fit_to_the_ink(
     truth = [len(data.stroke_spans(int(i))) for i in val]
     assert first == pytest.approx(100 * np.mean(np.equal(said, truth)), abs=0.05)
     assert len(re.findall(r"taken, count right", out)) == len(mod.FIT_MARGINS)
+
+
+def test_the_stroke_jitter_probe_moves_each_stroke_and_its_ink_together(
+    small_omniglot, experiment_script
+):
+    mod = experiment_script("count_probes")
+    data = load_dataset(small_omniglot)
+    images, paths = torch.as_tensor(data.images[:6]), torch.as_tensor(data.trajectories[:6])
+    rng = np.random.default_rng(0)
+    same_images, same_paths = mod.stroke_jitter(images, paths, 0.0, 0.0, 0.0, rng)
+    assert torch.allclose(same_images, images, atol=1e-5) and torch.equal(same_paths, paths)
+    moved_images, moved = mod.stroke_jitter(images, paths, 0.0, 0.0, 2.0, rng)
+    pen = paths[..., 2] > 0.5
+    shifts = set()
+    for i in range(len(paths)):  # a pure shift: one vector per stroke, within 2 px
+        for s, e in data.stroke_spans(i):
+            d = (moved[i, s : e + 1, :2] - paths[i, s : e + 1, :2]).numpy()
+            assert np.allclose(d, d[0], atol=1e-4) and np.abs(d[0]).max() <= 2.0
+            shifts.add(tuple(np.round(d[0], 3)))
+    assert len(shifts) > len(paths)  # the strokes of a character move apart
+    assert torch.equal(moved[..., 2], paths[..., 2])
+
+    def ink_at(images, paths):  # the image's ink under the pen-down instants, 0-1
+        x, y = (paths[..., k].round().long().clamp(0, images.shape[-1] - 1) for k in (0, 1))
+        return float(images[torch.arange(len(images))[:, None], y, x][pen].mean())
+
+    # the ink went with its stroke: under the moved paths in the moved images, not in
+    # the images as they were
+    kept, left = ink_at(moved_images, moved), ink_at(images, moved)
+    assert kept > ink_at(images, paths) - 0.15 and kept > left + 0.1, (kept, left)
