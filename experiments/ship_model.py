@@ -40,7 +40,8 @@ MAX_BYTES = 3 * 1024 * 1024
 def figures(evaluation: dict, command: str) -> dict:
     """The card's figures from an ``evaluation.json`` (means over its samples); a one-DMP
     model's best of its hypotheses, a stroke model's share of characters whose stroke
-    count is right."""
+    count is right (and its ceiling, the share whose count is their class's most common
+    one among the training drawings, when the evaluation has it)."""
     out = {
         "data": evaluation["dataset"],
         "dataset_sha256": evaluation["dataset_sha256"],
@@ -61,6 +62,8 @@ def figures(evaluation: dict, command: str) -> dict:
     if "strokes" in evaluation:
         out["count_right"] = round(evaluation["strokes"]["count_right"], 5)
         out["count_views"] = evaluation["strokes"]["count_views"]
+        if evaluation["strokes"].get("count_mode_right") is not None:  # its ceiling
+            out["count_mode_right"] = round(evaluation["strokes"]["count_mode_right"], 5)
     return out
 
 

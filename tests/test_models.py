@@ -87,6 +87,10 @@ def test_each_card_states_its_records_figures_commands_and_limits():
         if "count_views" in f:  # a stroke model: the views its figures' counts were read from
             assert f"--count-views {f['count_views']}" in card, m.name
             assert f"--count-views {m.count_views}" in card, m.name
+        if f.get("count_mode_right"):  # and the count's ceiling, with the share of it read
+            mode = f["count_mode_right"]
+            for value in (f"{100 * mode:.1f} %", f"{100 * f['count_right'] / mode:.1f} %"):
+                assert value in card, (m.name, value)
         for key in ("prepare_command", "train_command"):
             assert m.record["provenance"][key] in " ".join(card.split()).replace("\\ ", ""), key
         for revision in (m.record["provenance"]["prepare_revision"],
@@ -397,12 +401,18 @@ def test_the_stroke_model_reproduces_its_cards_figures_on_a_sample_of_the_test_d
 
     m = models.find_shipped("omniglot-strokes")
     f = m.figures
-    data = import_dataset(DATA / "omniglot", ImportOptions(n_times=300), progress=False)
-    data = data.select_split("test")
+    whole = import_dataset(DATA / "omniglot", ImportOptions(n_times=300), progress=False)
+    data = whole.select_split("test")
     res = _evaluate_the_cards_sample(m, data, tmp_path)
     right = np.equal(res["strokes"]["predicted_counts"], res["strokes"]["true_counts"])
     tolerance = _sample_tolerance(right.astype(np.float64), f["n"])
     assert abs(right.mean() - f["count_right"]) <= tolerance, (right.mean(), f["count_right"])
+    # its ceiling: the test drawers' share whose count is their class's most common one
+    # among the training drawers, from the stroke files alone (no model)
+    from img2dmp.evaluate import count_ceiling
+
+    ceiling = count_ceiling(whole, whole.select_split("test"))["count_mode_right"]
+    assert f["count_mode_right"] == pytest.approx(ceiling, abs=1e-5)
 
 
 def test_the_stroke_model_reads_the_sample_f_as_its_three_strokes(tmp_path, capsys):

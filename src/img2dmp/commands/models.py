@@ -32,12 +32,18 @@ def _figures(f: dict) -> str:
         + (f", --count-views {f['count_views']}" if "count_views" in f else "")
         + f"): Chamfer {f['chamfer_px']:.4f} px, path on the ink "
         f"{100 * f['path_on_ink']:.1f} %, path error {f['path_error_px']:.3f} px "
-        + (
-            f"(stroke count right {100 * f['count_right']:.1f} %)"
-            if strokes
-            else "(top hypothesis)"
-        )
+        + (_count(f) if strokes else "(top hypothesis)")
     )
+
+
+def _count(f: dict) -> str:
+    """A stroke model's count right, and beside it its ceiling when recorded."""
+    said = f"stroke count right {100 * f['count_right']:.1f} %"
+    if f.get("count_mode_right"):
+        mode = f["count_mode_right"]
+        said += (f"; a class's most common count {100 * mode:.1f} %: "
+                 f"{100 * f['count_right'] / mode:.1f} % of it")  # fmt: skip
+    return f"({said})"
 
 
 def _describe(model) -> list[str]:
