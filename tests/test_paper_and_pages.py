@@ -273,3 +273,17 @@ def test_a_stroke_along_a_lighter_rule_keeps_its_pixels_on_it_where_no_rules_cro
     removed, _ = rules(mask, np.ones(mask.shape, bool), dark, 3.0)
     assert removed[99:102, 200:290].all(), "the rule away from the stroke stays a rule"
     assert not removed[99:102, 125:158].any(), "the stroke along the rule is kept"
+
+
+def test_one_image_counts_its_characters_as_digits_or_as_a_stroke_models_letters():
+    from img2dmp.predict import count_characters
+
+    # two 0s that touch (an "m"'s waist): two digits, one letter whole
+    line = [("0", 40), ("7", 100), ("0", 160), ("0", 183), ("7", 260), ("0", 320)]
+    ink, _ = _page([line])
+    assert count_characters(ink > 0.5) == 6
+    assert count_characters(ink > 0.5, letters=True) == 5
+    # two strokes much closer than the line's spacing: one letter of pieces side by side
+    ink, _ = _page([[("0", 40), ("7", 110), ("1", 180), ("1", 196), ("0", 250), ("7", 320)]])
+    assert count_characters(ink > 0.5) == 6
+    assert count_characters(ink > 0.5, letters=True) == 5

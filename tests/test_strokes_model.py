@@ -831,3 +831,22 @@ def test_the_stroke_jitter_probe_moves_each_stroke_and_its_ink_together(
     # the images as they were
     kept, left = ink_at(moved_images, moved), ink_at(images, moved)
     assert kept > ink_at(images, paths) - 0.15 and kept > left + 0.1, (kept, left)
+
+
+def test_one_character_is_checked_for_others_as_its_model_reads_them(
+    omni_root, trained, tmp_path, monkeypatch
+):
+    from PIL import Image
+
+    import img2dmp.predict as predict_module
+
+    seen, count = [], predict_module.count_characters
+    spy = lambda mask, letters=False: seen.append(letters) or count(mask, letters)  # noqa: E731
+    monkeypatch.setattr(predict_module, "count_characters", spy)
+    photo = _two_characters_page(omni_root, tmp_path / "two.png")
+    image = np.asarray(Image.open(photo).convert("L"))
+    one = image[:, :150]  # the first character alone
+    assert "several_characters" not in predict_module.load_model(trained).predict(one).flags
+    predict_module.load_model("digits-real").predict(one)
+    # a stroke model's letters keep their waists and pieces (as its pages), digits are cut
+    assert seen == [True, False]

@@ -142,12 +142,20 @@ def fit_score(image: np.ndarray, path: np.ndarray, stroke_width_px: float | None
     }
 
 
-def count_characters(mask) -> int:
+def count_characters(mask, letters: bool = False) -> int:
     """Characters in an ink mask ``bool [H, W]`` at least half as tall as the tallest
-    (:func:`img2dmp.data.pages.find_characters`; specks and fragments do not count)."""
+    (:func:`img2dmp.data.pages.find_characters`; specks and fragments do not count).
+    ``letters``: found as a stroke model's page finds them (no mark cut at its waists,
+    pieces side by side joined: :data:`img2dmp.page.STROKE_PAGE_CUT`,
+    :data:`~img2dmp.page.STROKE_PAGE_JOIN`), not as digits."""
     from .data.pages import find_characters
 
-    chars = find_characters(mask).characters
+    if letters:
+        from .page import STROKE_PAGE_CUT, STROKE_PAGE_JOIN
+
+        chars = find_characters(mask, cut=STROKE_PAGE_CUT, join_sides=STROKE_PAGE_JOIN).characters
+    else:
+        chars = find_characters(mask).characters
     tallest = max((c.box[3] - c.box[1] for c in chars), default=0)
     return int(sum(c.box[3] - c.box[1] >= 0.5 * tallest for c in chars))
 
@@ -657,7 +665,8 @@ class Predictor:
                 strokes, self.normaliser, self.strokes, frame, prepared,
                 source=str(image) if isinstance(image, (str, os.PathLike)) else None,
                 refine_steps=0 if o is None else int(o.steps), user_image=image,
-                stroke_width_px=self.stroke_width, n_characters=count_characters(mask),
+                stroke_width_px=self.stroke_width,
+                n_characters=count_characters(mask, letters=True),
                 n_per_stroke=n_points, count_views=self.count_views,
             )  # fmt: skip
         params, probs = self.predict_hypotheses(prepared[None])  # [1, K], ranked
