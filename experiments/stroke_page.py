@@ -195,6 +195,10 @@ def main(argv: list[str]) -> int:
                    help="the largest gap between neighbours joined, as a share of their "
                    "line's usual gap (default: img2dmp.data.pages.SIDE_GAP)")  # fmt: skip
     args = p.parse_args(argv)
+    for name in ("gap", "side_gap"):
+        value = getattr(args, name)
+        if value is not None and not 0 <= value < 10:
+            p.error(f"--{name.replace('_', '-')} must be at least 0 and under 10, got {value}")
     import img2dmp.data.pages
     import img2dmp.page
 

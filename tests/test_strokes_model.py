@@ -715,6 +715,10 @@ def test_the_stroke_page_experiment_reads_a_drawers_page_and_counts_its_strokes(
     assert mod.main([*argv, "--gap", "0.3", "--join", "no"]) == 0
     said = capsys.readouterr().out
     assert re.search(r"4 characters placed.*\d+ found joined to a neighbour", said), said
+    for bad in (["--gap", "-1"], ["--side-gap", "nan"]):
+        with pytest.raises(SystemExit):
+            mod.main([*argv, *bad])
+        assert f"{bad[0]} must be at least 0" in capsys.readouterr().err
 
 
 def test_stroke_choices_refuses_a_model_that_trained_on_the_validation_drawers(
