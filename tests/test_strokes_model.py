@@ -679,6 +679,17 @@ def test_write_page_with_a_stroke_model_writes_every_stroke_and_lifts_the_pen(
     ]  # fmt: skip
     assert TRAVEL_HEIGHT_M in plan.travel_heights_m()  # between the two characters
     assert (out / "two_paper.png").exists() and (out / "two_characters.csv").exists()
+    # the robot's table names each stroke's character and its place in it
+    import csv
+
+    with open(out / "two_characters.csv", newline="") as f:
+        rows = [r for r in csv.DictReader(f) if r["index"] != "page"]
+    assert [(int(r["character"]), int(r["stroke"])) for r in rows] == [
+        (e["character"], e["stroke"]) for e in doc["characters"]
+    ]  # fmt: skip
+    assert plan.entry_owners() == {
+        i: (e["character"], e["stroke"], e["n_strokes"]) for i, e in enumerate(doc["characters"])
+    }  # fmt: skip
 
 
 def test_the_stroke_page_experiment_reads_a_drawers_page_and_counts_its_strokes(

@@ -20,6 +20,7 @@ Everything runs on the tiny stroke model of conftest's ``stroke_run`` (about 15 
 from __future__ import annotations
 
 import base64
+import csv
 import io
 import json
 import warnings
@@ -206,6 +207,12 @@ def test_the_arm_writes_a_page_read_by_a_stroke_model_stroke_by_stroke(client):
     assert job["summary"][0].startswith(f"hooks_page: {n} of {n} strokes written"), job["summary"]
     assert "no ink between strokes" in job["summary"][0]
     assert any(", character 0: 1 of " in line for line in job["summary"])
+    table = client.get(job["files"]["characters"])  # each stroke's character and place
+    assert table.status_code == 200
+    rows = [r for r in csv.DictReader(io.StringIO(table.text)) if r["index"] != "page"]
+    assert [(int(r["character"]), int(r["stroke"])) for r in rows] == [
+        (e["character"], e["stroke"]) for e in a["page"]["characters"]
+    ]  # fmt: skip
 
 
 def test_the_warm_up_of_img2dmp_serve_takes_a_stroke_model(stroke_run):

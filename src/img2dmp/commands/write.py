@@ -609,7 +609,7 @@ def _write_plan(args, name: str, plan, photo, what: str, table: str, noun="chara
         bar.total = bar.n
     base = os.path.join(args.out_dir, name)
     plot_page(result, base + "_paper.png", image=photo, title=f"{name}: KUKA iiwa writes {what}")
-    save_characters_csv(result, base + table)
+    save_characters_csv(result, base + table, plan.entry_owners())
     written = [base + "_paper.png", base + table] + _save_run(args, result, name, 1)
     print("\n".join(page_summary_lines(name, result, noun, plan.entry_labels())))
     print("  wrote " + ", ".join(written))

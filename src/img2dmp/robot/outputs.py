@@ -408,9 +408,12 @@ def _character_row(r) -> list:
     ]  # fmt: skip
 
 
-def save_characters_csv(result, path) -> None:
+def save_characters_csv(result, path, owners: dict | None = None) -> None:
     """One row per character of a page (a ``PageResult``), in reading order, then a row
-    ``page`` of the totals.
+    ``page`` of the totals. ``owners``: on a stroke model's page, each entry's
+    ``(character, stroke, n_strokes)`` by index
+    (:meth:`img2dmp.robot.page.PagePlan.entry_owners`), written as two more columns
+    ``character, stroke`` (its stroke, from 1, of that character).
 
     Columns (``CHARACTERS_CSV_HEADER``): ``index, line, written`` (1/0), ``flags``
     (space-separated), ``confidence``, ``start_s, end_s`` (page time), ``strokes``,
@@ -425,9 +428,11 @@ def save_characters_csv(result, path) -> None:
     m = result.metrics
     f = io.StringIO(newline="")
     w = csv.writer(f)
-    w.writerow(CHARACTERS_CSV_HEADER)
+    extra = ("character", "stroke") if owners else ()
+    w.writerow(CHARACTERS_CSV_HEADER + extra)
     for r in result.characters:
-        w.writerow(_character_row(r))
+        owner = owners.get(r.character.index) if owners else None
+        w.writerow(_character_row(r) + (list(owner[:2]) if owner else [""] * len(extra)))
     total = {k: f"{m[k]:.4f}" for k in _PAGE_TOTALS}
     total.update(
         index="page",
@@ -437,7 +442,7 @@ def save_characters_csv(result, path) -> None:
         end_s=f"{m['simulated_s']:.4f}",
         placement_error_mm=f"{m['placement_error_max_mm']:.4f}",  # the worst character's
     )
-    w.writerow([total.get(k, "") for k in CHARACTERS_CSV_HEADER])
+    w.writerow([total.get(k, "") for k in CHARACTERS_CSV_HEADER] + [""] * len(extra))
     atomic_write_text(path, f.getvalue())
 
 

@@ -174,15 +174,20 @@ class PagePlan:
         n, m = self.page.document.get("n_characters", "?"), len(self.characters)
         return f"a page of {n} characters in {m} strokes", "stroke"
 
-    def entry_labels(self) -> dict[int, str]:
-        """On a stroke model's page, each entry's ``"character C: S of N"`` (its stroke S
-        of the character's N, from its notes), by entry index; empty for a page of
-        characters."""
+    def entry_owners(self) -> dict[int, tuple[int, int, int]]:
+        """On a stroke model's page, each entry's ``(character, stroke, n_strokes)`` (its
+        stroke, from 1, of the character's n, from its notes), by entry index; empty for a
+        page of characters."""
         out = {}
         for i, e in enumerate(self._stroke_entries() or []):
             if isinstance(e, dict) and {"character", "stroke", "n_strokes"} <= e.keys():
-                out[i] = f"character {e['character']}: {e['stroke']} of {e['n_strokes']}"
+                out[i] = (int(e["character"]), int(e["stroke"]), int(e["n_strokes"]))
         return out
+
+    def entry_labels(self) -> dict[int, str]:
+        """On a stroke model's page, each entry's ``"character C: S of N"``
+        (:meth:`entry_owners`), by entry index; empty for a page of characters."""
+        return {i: f"character {c}: {s} of {n}" for i, (c, s, n) in self.entry_owners().items()}
 
     def travel_steps(self) -> int:
         """Control steps of all the travels (up, across, down, rest)."""

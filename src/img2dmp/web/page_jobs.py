@@ -160,7 +160,8 @@ def _write_page(d: Path, options: dict, report) -> dict:
     report[SHARE] = SIMULATION_SHARE
     # a stroke model's character names its strokes; a page its characters (or strokes)
     what, noun = plan.words() if noun is None else (f"{len(plan.characters)} {noun}s", noun)
-    _save_outputs(result, d, f"{name}: KUKA iiwa writes {what}", video=interval_s is not None)
+    _save_outputs(result, d, f"{name}: KUKA iiwa writes {what}", video=interval_s is not None,
+                  owners=plan.entry_owners())  # fmt: skip
     report[SHARE] = 1.0
     speed = None if interval_s is None else interval_s / FRAME_INTERVAL_S
     lines = page_summary_lines(name, result, noun, plan.entry_labels())
@@ -183,11 +184,11 @@ def _run(plan, expected_steps: int, report):
     return write_page_plan(plan, progress=advance, on_character=begin)
 
 
-def _save_outputs(result, d: Path, title: str, video: bool) -> None:
+def _save_outputs(result, d: Path, title: str, video: bool, owners=None) -> None:
     from ..robot import plot_page, save_characters_csv, save_log_csv, save_video
 
     plot_page(result, d / PAGE_FILES["paper"], title=title)
-    save_characters_csv(result, d / PAGE_FILES["characters"])
+    save_characters_csv(result, d / PAGE_FILES["characters"], owners)
     save_log_csv(result, d / PAGE_FILES["log"])
     if video:
         # Every frame shown FRAME_INTERVAL_S: a long page plays as a time lapse.
