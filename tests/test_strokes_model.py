@@ -690,6 +690,11 @@ def test_write_page_with_a_stroke_model_writes_every_stroke_and_lifts_the_pen(
     assert plan.entry_owners() == {
         i: (e["character"], e["stroke"], e["n_strokes"]) for i, e in enumerate(doc["characters"])
     }  # fmt: skip
+    edited = json.loads(json.dumps(doc))  # a hand-edited note names nothing, breaks nothing
+    edited["characters"][0]["character"] = "first"
+    odd = plan_page(check_page_document(edited, "edited_page.json"))
+    assert set(odd.entry_owners()) == set(plan.entry_owners()) - {0}
+    assert 0 not in odd.entry_labels() and len(odd.travel_heights_m()) == len(owners) - 1
 
 
 def test_the_stroke_page_experiment_reads_a_drawers_page_and_counts_its_strokes(

@@ -180,8 +180,12 @@ class PagePlan:
         page of characters."""
         out = {}
         for i, e in enumerate(self._stroke_entries() or []):
-            if isinstance(e, dict) and {"character", "stroke", "n_strokes"} <= e.keys():
-                out[i] = (int(e["character"]), int(e["stroke"]), int(e["n_strokes"]))
+            if not isinstance(e, dict):
+                continue
+            notes = tuple(e.get(k) for k in ("character", "stroke", "n_strokes"))
+            # whole numbers only: an edited document's odd note leaves its entry unnamed
+            if all(isinstance(v, int) and not isinstance(v, bool) for v in notes):
+                out[i] = notes
         return out
 
     def entry_labels(self) -> dict[int, str]:
