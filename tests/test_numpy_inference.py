@@ -302,12 +302,13 @@ def test_refine_numpy_is_refine(config, units):
     assert z.shape == z0.shape and z.dtype == np.float64
     assert np.abs(z_torch - z0).max() > 0.1  # the refinement moved: the comparison means something
     # The one place the two can part by more than rounding is the argmin of the coverage
-    # term: the NumPy version takes exact squared distances, torch's cdist a matrix-
-    # product form that rounds them to ~1e-13 px^2, so an ink pixel that is equally near
-    # two path points to that precision may pull on different points (and through them on
-    # different stamps' Jacobians). These paths are random curves sampled at generic
-    # points, never on a grid, so such near-ties (a chance of ~1e-12 per pixel and step)
-    # do not occur; a run that hit one would differ far above rounding, not by ~1e-16.
+    # term: both take squared distances in a matrix-product form that rounds them to
+    # ~1e-13 px^2, each with its own product (NumPy's matmul, torch's cdist), so an ink
+    # pixel that is equally near two path points to that precision may pull on different
+    # points (and through them on different stamps' Jacobians). These paths are random
+    # curves sampled at generic points, never on a grid, so such near-ties (a chance of
+    # ~1e-12 per pixel and step) do not occur; a run that hit one would differ far above
+    # rounding, not by ~1e-16.
     # (Exact ties, e.g. stamps past the table's end, which all give the same point, are
     # broken alike: both argmins take the first.)
     assert np.abs(z - z_torch).max() <= 1e-6

@@ -154,18 +154,20 @@ def _ink_coverage(y: np.ndarray, ink: _InkPixels, tolerance_px: float):
 
     ``dC/dy_n(i) += 2 a_i relu(r_i - tol) (y_n(i) - p_i) / (r_i sum a)`` with ``r_i`` the
     smoothed distance to the nearest pen-down point ``n(i)``; nothing where no point is
-    pen-down. The nearest point comes from exact squared distances: torch's
-    ``cdist`` (matrix-product form) rounds them differently, so the two can pick different
-    points where two are equally near to ~1e-13 px^2 (see tests/test_numpy_inference.py).
+    pen-down. The nearest point is found from squared distances in the matrix-product
+    form ``|p|^2 + |y|^2 - 2 p.y`` (one batched product: three times faster than the
+    exact differences, RESULTS 8.6), as torch's ``cdist`` finds it; the two may still
+    round a product differently and so pick different points where two are equally near
+    to ~1e-13 px^2 (see tests/test_numpy_inference.py). The distance itself is then taken
+    exactly, from the point's offset.
     """
     b, n_t = y.shape[:2]
     pts = y[..., :2]  # [B, T, 2]
     up = _pen_down(y) < 0.5  # [B, T]
-    dx = ink.xy[:, :, None, 0] - pts[:, None, :, 0]  # [B, M, T]
-    dy = ink.xy[:, :, None, 1] - pts[:, None, :, 1]
-    d2 = dx * dx + dy * dy  # [B, M, T]
-    if up.any():  # a 2-D path is all pen-down: no masked copy
-        d2 = np.where(up[:, None, :], np.inf, d2)
+    d2 = np.matmul(ink.xy, pts.transpose(0, 2, 1))  # [B, M, T], as torch's cdist: one product
+    d2 *= -2.0
+    d2 += (ink.xy * ink.xy).sum(-1)[:, :, None]
+    d2 += np.where(up, np.inf, (pts * pts).sum(-1))[:, None, :]  # pen-up points never nearest
     idx = np.argmin(d2, axis=-1)  # [B, M]; the first of equal ones, as torch's argmin
     none_down = up.all(-1)  # [B]
     near = np.take_along_axis(pts, idx[..., None], 1)  # [B, M, 2]
