@@ -150,12 +150,12 @@ def count_characters(mask, letters: bool = False) -> int:
     :data:`~img2dmp.page.STROKE_PAGE_JOIN`), not as digits."""
     from .data.pages import find_characters
 
+    rules = {}
     if letters:
         from .page import STROKE_PAGE_CUT, STROKE_PAGE_JOIN
 
-        chars = find_characters(mask, cut=STROKE_PAGE_CUT, join_sides=STROKE_PAGE_JOIN).characters
-    else:
-        chars = find_characters(mask).characters
+        rules = {"cut": STROKE_PAGE_CUT, "join_sides": STROKE_PAGE_JOIN}
+    chars = find_characters(mask, **rules).characters
     tallest = max((c.box[3] - c.box[1] for c in chars), default=0)
     return int(sum(c.box[3] - c.box[1] >= 0.5 * tallest for c in chars))
 
