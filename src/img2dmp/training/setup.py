@@ -17,7 +17,13 @@ import torch
 import yaml
 
 from .._files import atomic_write_text
-from ..checkpoint import CHECKPOINT_DIR, Checkpoint, load_checkpoint, load_weights_into
+from ..checkpoint import (
+    CHECKPOINT_DIR,
+    Checkpoint,
+    CheckpointError,
+    load_checkpoint,
+    load_weights_into,
+)
 from ..nn import Cost, ParamNormaliser, build_model
 from ..nn.costs import ParameterWeighting
 from ..nn.device import place_model
@@ -72,7 +78,7 @@ def open_run(
     opt = torch.optim.Adam(model.parameters(), lr=cfg.optim.lr, weight_decay=cfg.optim.weight_decay)
     state = RunState(model, opt, make_scheduler(opt, cfg.optim))
     if init is not None:
-        load_weights_into(model, init)
+        _load_init(model, init, cfg)
     if last is not None:
         state.restore(last, cfg.optim.epochs)
     cost = make_cost(cfg, data.normaliser, data.dmp_config, weighting)
@@ -84,6 +90,27 @@ def open_run(
             write_metrics_csv(run_dir / "metrics.csv", state.history_dicts())
     augment = Augmenter.from_config(cfg, data)
     return Run(cfg, run_dir, data, weighting, cost, augment, state, net, rank, world)
+
+
+def _load_init(model: torch.nn.Module, init: Checkpoint, cfg: TrainConfig) -> None:
+    """``init``'s weights into ``model``; when they do not fit, the error names the
+    ``model`` settings in which the checkpoint's run differs from this one."""
+    try:
+        load_weights_into(model, init)
+    except CheckpointError as e:
+        theirs = (init.meta.get("train_config") or {}).get("model") or {}
+        ours = cfg.model.to_dict()
+        differ = [
+            f"model.{k} {theirs[k]!r} (this run: {ours[k]!r})"
+            for k in ours
+            if k in theirs and theirs[k] != ours[k]
+        ]
+        if not differ:
+            raise
+        raise CheckpointError(
+            f"{e}; the run it comes from differs in {', '.join(differ)}: give --init-from a "
+            "run of this configuration's architecture"
+        ) from None
 
 
 def _configuration(config, run_dir, resume, overwrite, epochs):
