@@ -11,6 +11,9 @@ DATA   ?= ../shared/data
 REAL   ?= runs/real
 # make model-omniglot: the recommended stroke model of Omniglot's characters (issue 32).
 OMNI   ?= runs/omniglot
+# ... from this Omniglot folder (the images_NAME and strokes_NAME zips or folders of any
+# alphabets: docs/DATASET.md), e.g. make model-omniglot OMNIGLOT=~/omniglot OMNI=runs/mine
+OMNIGLOT ?= $(DATA)/omniglot
 # ... its stroke count read from this many views of each image (chosen on the validation
 # drawers for --config omniglot: RESULTS 8.3).
 OMNI_VIEWS ?= 1
@@ -72,13 +75,13 @@ $(REAL)/evaluation/evaluation.json: $(REAL)/run/checkpoints/best.safetensors
 	  --refine 30 --out $(REAL)/evaluation --force
 
 # The recommended stroke model (each character up to 8 strokes, each its own DMP) from
-# ../shared/data/omniglot: import (every stroke kept, 300 instants), train
+# $(OMNIGLOT) (../shared/data/omniglot): import (every stroke kept, 300 instants), train
 # (--config omniglot, 120 epochs), evaluate on the test drawers refined and counted as
 # recommended; about 17 minutes on 2 cores.
 model-omniglot: $(OMNI)/evaluation/evaluation.json
 
 $(OMNI)/data.safetensors: | setup
-	$(BIN)/img2dmp import $(DATA)/omniglot --n-times 300 --out $@ --force --no-progress
+	$(BIN)/img2dmp import $(OMNIGLOT) --n-times 300 --out $@ --force --no-progress
 
 $(OMNI)/run/checkpoints/best.safetensors: $(OMNI)/data.safetensors src/img2dmp/configs/omniglot.yaml | setup
 	if [ -f $(OMNI)/run/checkpoints/last.safetensors ]; then \
