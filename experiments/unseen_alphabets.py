@@ -1,0 +1,197 @@
+"""How the recommended stroke recipe does on an alphabet it never saw: leave one alphabet
+out.
+
+For each alphabet of an Omniglot import (``img2dmp import``, split by drawer), a copy of
+the data set in which that alphabet's drawings, all 20 drawers, are the test split; the
+other alphabets' drawers 1-15 stay the training split and their drawers 16-20 are the
+validation split (which only picks the best epoch). The recommended configuration
+(``--config omniglot``) is trained on it from random weights and evaluated on the
+held-out alphabet as ``make model-omniglot`` evaluates (refined 60 steps, the count from
+one view). The table gives, per held-out alphabet, the measures ``img2dmp evaluate``
+reports: Chamfer and path on the ink against the image, path error against the drawer's
+own pen path, and the share of characters read with as many strokes as their drawer drew.
+
+Run from the repository's root::
+
+    python experiments/unseen_alphabets.py --data runs/omniglot/data.safetensors \\
+        --out runs/unseen-alphabets [--alphabets Greek Latin] [--jobs 2] [--epochs N]
+
+Resumable: an alphabet whose evaluation is written is not run again, a training that
+was stopped resumes from its last checkpoint. Writes ``OUT/ALPHABET/`` (data set, run,
+evaluation) and ``OUT/results.md`` (the table with the date, revision and command).
+About 6 minutes of training an alphabet on one core; ``--jobs 2`` trains two at once.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from img2dmp._files import atomic_write_text
+from img2dmp.data.store import DigitData, load_dataset, save_dataset
+
+# isort: split
+# From this script's directory, which Python puts on sys.path when it runs a script.
+from _provenance import format_record, run_record
+
+#: Drawers whose drawings (of the alphabets kept) only pick the best epoch.
+VALIDATION_DRAWERS = (16, 17, 18, 19, 20)
+
+
+def alphabets_of(data: DigitData) -> np.ndarray:
+    """The alphabet of every row (``alphabet/character`` class names)."""
+    names = data.label_names
+    if names is None:
+        raise ValueError("the data set has no class names: not an Omniglot import")
+    return np.array([str(names[int(c)]).split("/")[0] for c in data.labels])
+
+
+def drawers_of(data: DigitData) -> np.ndarray:
+    """The drawer (1-20) of every row, from its image's file name (``<id>_<drawer>.png``)."""
+    names = (data.meta.get("rows") or {}).get("image")
+    if not names or len(names) != len(data):
+        raise ValueError("the data set records no image file per row: not an Omniglot import")
+    return np.array([int(Path(str(n)).stem.rsplit("_", 1)[-1]) for n in names])
+
+
+def held_out(data: DigitData, alphabet: str) -> DigitData:
+    """``data`` with ``alphabet``'s rows as the test split, the others' drawers 1-15 as
+    training and :data:`VALIDATION_DRAWERS` as validation."""
+    alpha, drawer = alphabets_of(data), drawers_of(data)
+    if alphabet not in set(alpha):
+        raise ValueError(f"no alphabet {alphabet!r} in the data set; it has {sorted(set(alpha))}")
+    split = np.where(np.isin(drawer, VALIDATION_DRAWERS), 1, 0).astype(data.split.dtype)
+    split[alpha == alphabet] = 2
+    arrays = data.arrays()
+    arrays["split"] = split
+    meta = dict(data.meta)
+    names = ("train", "validation", "test")
+    meta["counts_by_split"] = {n: int((split == i).sum()) for i, n in enumerate(names)}
+    meta["held_out_alphabet"] = alphabet
+    return DigitData(**arrays, meta=meta)
+
+
+def _commands(folder: Path, epochs: int | None) -> tuple[list[str], list[str]]:
+    data, run = folder / "data.safetensors", folder / "run"
+    if (run / "checkpoints" / "last.safetensors").is_file():
+        train = ["img2dmp", "train", "--run-dir", str(run), "--resume", "--no-progress"]
+    else:
+        train = ["img2dmp", "train", "--config", "omniglot", "--data", str(data)]
+        train += ["--run-dir", str(run), "--force", "--no-progress"]
+        if epochs:
+            train += ["--epochs", str(epochs)]
+    evaluate = ["img2dmp", "evaluate", "--model", str(run), "--data", str(data), "--split"]
+    evaluate += ["test", "--refine", "60", "--count-views", "1", "--figures", "0"]
+    evaluate += ["--out", str(folder / "evaluation"), "--force", "--no-progress"]
+    return train, evaluate
+
+
+def _run_alphabet(folder: Path, epochs: int | None) -> subprocess.Popen:
+    """Train then evaluate in one child shell, its output in ``folder/log.txt``."""
+    train, evaluate = _commands(folder, epochs)
+    script = f"{subprocess.list2cmdline(train)} && {subprocess.list2cmdline(evaluate)}"
+    log = open(folder / "log.txt", "a")  # noqa: SIM115 - closed when the child is reaped
+    return subprocess.Popen(["sh", "-c", script], stdout=log, stderr=subprocess.STDOUT)
+
+
+def _row(alphabet: str, ev: dict) -> dict:
+    st = ev["strokes"]
+    return {
+        "alphabet": alphabet,
+        "n": int(ev["overall"]["n"]),
+        "chamfer_px": float(ev["chamfer"]["overall"]["mean"]),
+        "on_ink": float(ev["on_ink"]["overall"]["mean"]),
+        "path_px": float(ev["path_error"]["overall"]["mean"]),
+        "count_right": float(st["count_right"]),
+    }
+
+
+def format_table(rows: list[dict]) -> str:
+    out = ["| held-out alphabet | n | Chamfer (px) | on ink | path (px) | count right |"]
+    out.append("|---|---|---|---|---|---|")
+    for r in rows:
+        out.append(
+            f"| {r['alphabet']} | {r['n']} | {r['chamfer_px']:.3f} | {100 * r['on_ink']:.1f} % "
+            f"| {r['path_px']:.2f} | {100 * r['count_right']:.1f} % |"
+        )
+    if rows:
+        n = np.array([r["n"] for r in rows], float)
+        mean = {k: float(np.average([r[k] for r in rows], weights=n))
+                for k in ("chamfer_px", "on_ink", "path_px", "count_right")}  # fmt: skip
+        out.append(
+            f"| all ({len(rows)}) | {int(n.sum())} | {mean['chamfer_px']:.3f} | "
+            f"{100 * mean['on_ink']:.1f} % | {mean['path_px']:.2f} | "
+            f"{100 * mean['count_right']:.1f} % |"
+        )
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", required=True, help="an Omniglot import split by drawer")
+    ap.add_argument("--out", required=True, help="folder for the data sets, runs and table")
+    ap.add_argument("--alphabets", nargs="+", help="only these (default: every alphabet)")
+    ap.add_argument("--jobs", type=int, default=2, help="trainings at once (default 2)")
+    ap.add_argument("--epochs", type=int, help="training epochs (default: the config's)")
+    args = ap.parse_args(argv)
+    if args.jobs < 1:
+        ap.error(f"--jobs must be >= 1, got {args.jobs}")
+    if args.epochs is not None and args.epochs < 1:
+        ap.error(f"--epochs must be >= 1, got {args.epochs}")
+    record = run_record(__file__, argv)
+    print(format_record(record), flush=True)
+    data = load_dataset(args.data)
+    every = sorted(set(alphabets_of(data)))
+    chosen = args.alphabets or every
+    unknown = sorted(set(chosen) - set(every))
+    if unknown:
+        ap.error(f"no alphabet {unknown[0]!r} in {args.data}; it has {every}")
+    out = Path(args.out)
+    todo = []
+    for a in chosen:
+        folder = out / a
+        if (folder / "evaluation" / "evaluation.json").is_file():
+            print(f"{a}: done before", flush=True)
+            continue
+        folder.mkdir(parents=True, exist_ok=True)
+        if not (folder / "data.safetensors").is_file():
+            save_dataset(folder / "data.safetensors", held_out(data, a))
+        todo.append(a)
+    running: dict[str, subprocess.Popen] = {}
+    failed = []
+    start = time.monotonic()
+    while todo or running:
+        while todo and len(running) < args.jobs:
+            a = todo.pop(0)
+            print(f"{a}: training and evaluating (log {out / a / 'log.txt'})", flush=True)
+            running[a] = _run_alphabet(out / a, args.epochs)
+        for a, proc in list(running.items()):
+            if proc.poll() is not None:
+                del running[a]
+                took = time.monotonic() - start
+                if proc.returncode:
+                    failed.append(a)
+                    print(f"{a}: failed (exit {proc.returncode}); see {out / a / 'log.txt'}")
+                else:
+                    print(f"{a}: done, {took / 60:.1f} min since start", flush=True)
+        time.sleep(2)
+    rows = []
+    for a in chosen:
+        path = out / a / "evaluation" / "evaluation.json"
+        if path.is_file():
+            rows.append(_row(a, json.loads(path.read_text())))
+    table = format_table(rows)
+    print(table)
+    atomic_write_text(out / "results.md", f"{format_record(record)}\n\n{table}\n")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
