@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import subprocess
 import sys
 import time
@@ -40,13 +41,15 @@ from img2dmp.data.store import DigitData, load_dataset, save_dataset
 # From this script's directory, which Python puts on sys.path when it runs a script.
 from _provenance import format_record, run_record
 
+#: The command line's start: this Python's img2dmp, whatever is on PATH.
+IMG2DMP = (sys.executable, "-m", "img2dmp")
 #: Drawers whose drawings (of the alphabets kept) only pick the best epoch.
 VALIDATION_DRAWERS = (16, 17, 18, 19, 20)
 
 
 def alphabets_of(data: DigitData) -> np.ndarray:
     """The alphabet of every row (``alphabet/character`` class names)."""
-    names = data.label_names
+    names = data.class_names
     if names is None:
         raise ValueError("the data set has no class names: not an Omniglot import")
     return np.array([str(names[int(c)]).split("/")[0] for c in data.labels])
@@ -80,13 +83,13 @@ def held_out(data: DigitData, alphabet: str) -> DigitData:
 def _commands(folder: Path, epochs: int | None) -> tuple[list[str], list[str]]:
     data, run = folder / "data.safetensors", folder / "run"
     if (run / "checkpoints" / "last.safetensors").is_file():
-        train = ["img2dmp", "train", "--run-dir", str(run), "--resume", "--no-progress"]
+        train = [*IMG2DMP, "train", "--run-dir", str(run), "--resume", "--no-progress"]
     else:
-        train = ["img2dmp", "train", "--config", "omniglot", "--data", str(data)]
+        train = [*IMG2DMP, "train", "--config", "omniglot", "--data", str(data)]
         train += ["--run-dir", str(run), "--force", "--no-progress"]
         if epochs:
             train += ["--epochs", str(epochs)]
-    evaluate = ["img2dmp", "evaluate", "--model", str(run), "--data", str(data), "--split"]
+    evaluate = [*IMG2DMP, "evaluate", "--model", str(run), "--data", str(data), "--split"]
     evaluate += ["test", "--refine", "60", "--count-views", "1", "--figures", "0"]
     evaluate += ["--out", str(folder / "evaluation"), "--force", "--no-progress"]
     return train, evaluate
@@ -95,9 +98,9 @@ def _commands(folder: Path, epochs: int | None) -> tuple[list[str], list[str]]:
 def _run_alphabet(folder: Path, epochs: int | None) -> subprocess.Popen:
     """Train then evaluate in one child shell, its output in ``folder/log.txt``."""
     train, evaluate = _commands(folder, epochs)
-    script = f"{subprocess.list2cmdline(train)} && {subprocess.list2cmdline(evaluate)}"
-    log = open(folder / "log.txt", "a")  # noqa: SIM115 - closed when the child is reaped
-    return subprocess.Popen(["sh", "-c", script], stdout=log, stderr=subprocess.STDOUT)
+    script = f"{shlex.join(train)} && {shlex.join(evaluate)}"
+    with open(folder / "log.txt", "a") as log:  # the child keeps its own descriptor
+        return subprocess.Popen(["sh", "-c", script], stdout=log, stderr=subprocess.STDOUT)
 
 
 def _row(alphabet: str, ev: dict) -> dict:

@@ -870,3 +870,36 @@ def test_one_character_is_checked_for_others_as_its_model_reads_them(
     predict_module.load_model("digits-real").predict(one)
     # a stroke model's letters keep their waists and pieces (as its pages), digits are cut
     assert seen == [True, False]
+
+
+def test_the_unseen_alphabets_experiment_holds_one_alphabet_out_and_evaluates_on_it(
+    small_omniglot, experiment_script, tmp_path, capsys
+):
+    mod = experiment_script("unseen_alphabets")
+    data = load_dataset(small_omniglot)
+    alphabets, drawers = mod.alphabets_of(data), mod.drawers_of(data)
+    first = sorted(set(alphabets))[0]
+    held = mod.held_out(data, first)
+    # every drawing of the alphabet is a test drawing; of the others none is
+    assert (held.split[alphabets == first] == 2).all()
+    assert (held.split[alphabets != first] != 2).all()
+    others = alphabets != first
+    assert (held.split[others & (drawers <= 15)] == 0).all()
+    assert (held.split[others & (drawers >= 16)] == 1).all()
+    with pytest.raises(ValueError, match="no alphabet 'Klingon'"):
+        mod.held_out(data, "Klingon")
+
+    out = tmp_path / "ua"
+    args = ["--data", str(small_omniglot), "--out", str(out), "--alphabets", first,
+            "--epochs", "1", "--jobs", "1"]  # fmt: skip
+    assert mod.main(args) == 0
+    ev = json.loads((out / first / "evaluation" / "evaluation.json").read_text())
+    assert ev["overall"]["n"] == int((alphabets == first).sum())
+    table = (out / "results.md").read_text()
+    assert f"| {first} | {ev['overall']['n']} |" in table
+    assert f"{100 * ev['strokes']['count_right']:.1f} %" in table
+    capsys.readouterr()
+    assert mod.main(args) == 0  # resumable: done before, not run again
+    assert f"{first}: done before" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        mod.main(["--data", str(small_omniglot), "--out", str(out), "--alphabets", "Klingon"])
