@@ -40,6 +40,7 @@ from img2dmp.data.store import DigitData, load_dataset, save_dataset
 # isort: split
 # From this script's directory, which Python puts on sys.path when it runs a script.
 from _provenance import format_record, run_record
+from count_probes import drawers
 
 #: The command line's start: this Python's img2dmp, whatever is on PATH.
 IMG2DMP = (sys.executable, "-m", "img2dmp")
@@ -55,18 +56,10 @@ def alphabets_of(data: DigitData) -> np.ndarray:
     return np.array([str(names[int(c)]).split("/")[0] for c in data.labels])
 
 
-def drawers_of(data: DigitData) -> np.ndarray:
-    """The drawer (1-20) of every row, from its image's file name (``<id>_<drawer>.png``)."""
-    names = (data.meta.get("rows") or {}).get("image")
-    if not names or len(names) != len(data):
-        raise ValueError("the data set records no image file per row: not an Omniglot import")
-    return np.array([int(Path(str(n)).stem.rsplit("_", 1)[-1]) for n in names])
-
-
 def held_out(data: DigitData, alphabet: str) -> DigitData:
     """``data`` with ``alphabet``'s rows as the test split, the others' drawers 1-15 as
     training and :data:`VALIDATION_DRAWERS` as validation."""
-    alpha, drawer = alphabets_of(data), drawers_of(data)
+    alpha, drawer = alphabets_of(data), drawers(data)
     if alphabet not in set(alpha):
         raise ValueError(f"no alphabet {alphabet!r} in the data set; it has {sorted(set(alpha))}")
     split = np.where(np.isin(drawer, VALIDATION_DRAWERS), 1, 0).astype(data.split.dtype)

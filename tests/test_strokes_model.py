@@ -877,7 +877,7 @@ def test_the_unseen_alphabets_experiment_holds_one_alphabet_out_and_evaluates_on
 ):
     mod = experiment_script("unseen_alphabets")
     data = load_dataset(small_omniglot)
-    alphabets, drawers = mod.alphabets_of(data), mod.drawers_of(data)
+    alphabets, drawers = mod.alphabets_of(data), mod.drawers(data)
     first = sorted(set(alphabets))[0]
     held = mod.held_out(data, first)
     # every drawing of the alphabet is a test drawing; of the others none is
