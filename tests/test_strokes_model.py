@@ -330,12 +330,24 @@ def test_predict_writes_a_stroke_document_with_the_whole_characters_path_and_pen
     starts = [s["t_start_s"] for s in doc["strokes"]]
     assert starts == sorted(starts) and starts[0] == 0.0
     assert xy[:, 0].max() > 40  # the image frame: the 105-px image, not the model's 40
-    assert doc["count"] == {"views": COUNT_VIEWS}  # a run directory's default
+    count = doc["count"]
+    assert count["views"] == COUNT_VIEWS  # a run directory's default
+    # the probabilities of 1 .. S strokes the count was read from, and the one read
+    p = np.asarray(count["probabilities"])
+    assert p.shape == (8,) and p.sum() == pytest.approx(1.0, abs=1e-5)
+    assert count["probability"] == p[len(doc["strokes"]) - 1]
     argv = ["predict", str(image), "--model", str(trained), "--out", str(out), "--force"]
     assert cli.main([*argv, "--count-views", "1"]) == 0
-    assert json.loads((out / "0102_20_dmp.json").read_text())["count"] == {"views": 1}
+    one_view = json.loads((out / "0102_20_dmp.json").read_text())["count"]
+    assert one_view["views"] == 1
     pred = load_model(trained).predict(image)
     assert isinstance(pred, StrokePrediction) and pred.n_strokes == len(doc["strokes"])
+    # ... the network's own count probabilities of the prepared image, one view
+    predictor = load_model(trained)
+    predictor.count_with(1)
+    prepared, _ = predictor.prepare(image)
+    own = predictor.stroke_count_probabilities(prepared[None])[0, 0]
+    np.testing.assert_allclose(one_view["probabilities"], np.round(own, 6), atol=2e-6)
     with pytest.raises(ValueError, match="one per stroke"):
         pred.dmp  # noqa: B018 (the robot's one DMP is refused by name)
 
@@ -366,7 +378,7 @@ def test_a_stroke_model_reads_a_character_without_torch_as_with_it(omni_root, tr
 
 
 def test_evaluate_reports_the_stroke_count_and_the_measures_per_alphabet(small_omniglot, trained):
-    from img2dmp.evaluate import evaluate
+    from img2dmp.evaluate import evaluate, format_metrics_table
 
     res = evaluate(trained, small_omniglot, split="validation", n_figures=0)
     st = res["strokes"]
@@ -378,6 +390,30 @@ def test_evaluate_reports_the_stroke_count_and_the_measures_per_alphabet(small_o
     # every character of the tree is drawn with one count: its class's mode is always right
     assert st["count_mode_right"] == 1.0 and st["count_mode_n"] == len(ok)
     assert st["count_mode_right_per_alphabet"] == {"Alpha": 1.0, "Beta": 1.0}
+    # the count right by how sure the network was of each count read
+    sure = np.asarray(st["count_probabilities"])
+    assert sure.shape == ok.shape and ((sure > 0) & (sure <= 1)).all()
+    bands = st["count_right_by_probability"]
+    assert sum(b["n"] for b in bands) == len(ok)
+    for b in bands:
+        sel = (sure >= b["low"]) & ((sure < b["high"]) if b["high"] < 1 else (sure <= 1))
+        assert b["n"] == sel.sum() and b["count_right"] == pytest.approx(ok[sel].mean())
+    assert "the count right by the network's probability of it" in format_metrics_table(res)
+
+
+def test_the_count_right_by_probability_bands_a_hand_made_case():
+    from img2dmp.evaluate import count_right_by_probability
+
+    ok = [True, False, True, True, False, True]
+    sure = [0.3, 0.45, 0.6, 0.95, 0.92, 1.0]
+    bands = count_right_by_probability(ok, sure)
+    assert [(b["low"], b["high"], b["n"]) for b in bands] == [
+        (0.0, 0.5, 2),
+        (0.5, 0.7, 1),
+        (0.9, 1.0, 3),
+    ]  # the empty band 0.7-0.9 is left out; 1.0 falls in the last, closed band
+    assert [b["count_right"] for b in bands] == pytest.approx([0.5, 1.0, 2 / 3])
+    assert bands[2]["mean_probability"] == pytest.approx((0.95 + 0.92 + 1.0) / 3)
 
 
 def test_the_count_ceiling_is_the_class_mode_of_the_training_drawings_only(small_omniglot):
@@ -624,6 +660,10 @@ def test_a_page_read_by_a_stroke_model_lists_every_stroke_in_the_photos_pixels(
     assert [(e["character"], e["stroke"]) for e in entries] == [
         (k, j + 1) for k in range(2) for j in range(n[k])
     ]  # fmt: skip
+    assert [e["count_probability"] for e in entries] == [
+        round(preds[k].count_probability, 6) for k in range(2) for _ in range(n[k])
+    ]  # fmt: skip
+    assert all(0 < p.count_probability <= 1 for p in preds)
     checked = check_page_document(json.loads(json.dumps(doc)), "two_page.json")
     for e, c in zip(entries, checked.characters, strict=True):
         k, j = e["character"], e["stroke"] - 1

@@ -506,6 +506,8 @@ def test_a_stroke_model_writes_a_character_stroke_by_stroke_lifting_the_pen(page
     assert page.locator("#result").get_attribute("data-strokes") == str(n)
     note = page.locator("#stroke-note").inner_text()
     assert note.startswith(f"{n} strokes read (this model reads up to 8)")
+    sure = round(100 * a["dmp"]["count"]["probability"])
+    assert note.endswith(f"; of the count: {sure}\u00a0%.")
     assert page.locator("#bend").is_hidden()
     assert page.locator("#bend-off").inner_text().startswith("Bending is for one-DMP models")
     assert page.locator("#download-dmp").inner_text() == "Download strokes"
@@ -650,7 +652,7 @@ def test_a_page_read_by_a_stroke_model_boxes_each_character_once_and_plays_its_s
     )
     assert page.locator("#boxes .box").count() == 2  # one box a character, not a stroke
     title = page.locator('#boxes .box[data-index="0"]').get_attribute("title")
-    assert re.match(r"#0: \d+\u00a0strokes?, path on ink", title), title
+    assert re.match(r"#0: \d+\u00a0strokes? \(\d+\u00a0% sure\), path on ink", title), title
     page.select_option("#speed", "10")
     page.locator('#page-card[data-state="done"]').wait_for()
     assert page.locator("#play-status").inner_text() == f"{n} of {n} strokes written"

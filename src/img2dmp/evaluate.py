@@ -215,6 +215,13 @@ def _strokes_lines(strokes: dict) -> str:
         )
     elif "count_mode_right" in strokes:
         lines.append("its ceiling: none of these classes has training drawings (never seen)")
+    bands = strokes.get("count_right_by_probability")
+    if bands:
+        said = "; ".join(
+            f"{b['low']:.1f}-{b['high']:.1f}: {b['n']}, {100 * b['count_right']:.1f} % right"
+            for b in bands
+        )
+        lines.append(f"the count right by the network's probability of it: {said}")
     per, modes = strokes["per_alphabet"], strokes.get("count_mode_right_per_alphabet", {})
     if len(per) > 1:
         w = max(len(a) for a in per)
@@ -518,7 +525,7 @@ def _measured(predictor, data, batch_size: int, progress: bool = False):
     with bar(desc="evaluate", total=len(data), unit="sample", enabled=progress) as shown:
         for a in range(0, len(data), step):
             part = slice(a, a + step)
-            if strokes:  # (y, probs, counts)
+            if strokes:  # (y, probs, counts, the counts' probabilities)
                 parts.append(_stroke_predictions(predictor, data.images[part], t, batch_size))
             else:  # (y, probs)
                 parts.append(predict_hypotheses(predictor, data.images[part], data.times[part],
@@ -531,31 +538,35 @@ def _measured(predictor, data, batch_size: int, progress: bool = False):
     )
     if strokes:
         read = {"count_views": int(predictor.count_views)}
-        measures["strokes"] = {**stroke_measures(joined[2], data, measures), **read}
+        measures["strokes"] = {**stroke_measures(joined[2], data, measures, joined[3]), **read}
     return y_all, probs, measures
 
 
 def _stroke_predictions(predictor, images, t: int, batch_size: int):
     """A stroke model's characters ``[M, 1, t, 3]`` of prepared images ``[M, H, W]`` (the
     path by its instants' index at t, :meth:`~img2dmp.predict.Predictor.stroke_paths`),
-    probabilities 1 and the predicted stroke counts ``[M]``."""
+    probabilities 1, the predicted stroke counts ``[M]`` and the network's probability
+    of each count read ``[M]``."""
     from .nn.strokes import character_paths
 
-    strokes = predictor.predict_strokes(images, batch_size)
+    strokes, probs = predictor.predict_strokes(images, batch_size, return_counts=True)
     paths = character_paths(strokes, predictor.normaliser, predictor.strokes)
     y = np.stack([index_resampled(p, t) for p in paths])[:, None]
-    return y, np.ones((len(y), 1)), np.array([len(v) for v, _ in strokes])
+    counts = np.array([len(v) for v, _ in strokes])
+    return y, np.ones((len(y), 1)), counts, probs[np.arange(len(counts)), counts - 1]
 
 
 def _share(ok: np.ndarray, groups: np.ndarray, names) -> dict:
     return {str(names[g]): float(np.mean(ok[groups == g])) for g in np.unique(groups)}
 
 
-def stroke_measures(counts, data, measures: dict) -> dict:
+def stroke_measures(counts, data, measures: dict, sure=None) -> dict:
     """What a stroke model adds to the evaluation: the share of characters whose stroke
     count is right (overall, per class, per alphabet: the class name's part before
     ``/``, as Omniglot's ``alphabet/character``), the true and predicted counts, and the
-    path measures per alphabet."""
+    path measures per alphabet; with ``sure`` (the network's probability of each count
+    read ``[M]``) those probabilities and the count right by them
+    (:func:`count_right_by_probability`)."""
     truth = stroke_counts(data)
     ok = np.asarray(counts) == truth
     names = data.label_names
@@ -571,13 +582,41 @@ def stroke_measures(counts, data, measures: dict) -> dict:
     for g, a in enumerate(alphabets):
         sel = groups == g
         per_alphabet[str(a)].update(n=int(sel.sum()), count_right=float(ok[sel].mean()))
-    return {
+    result = {
         "count_right": float(ok.mean()),
         "count_right_per_class": _share(ok, np.asarray(data.labels), names),
         "per_alphabet": per_alphabet,
         "true_counts": truth.tolist(),
         "predicted_counts": np.asarray(counts).tolist(),
     }
+    if sure is not None:
+        sure = np.asarray(sure, dtype=np.float64)
+        result["count_probabilities"] = [round(float(p), 6) for p in sure]
+        result["count_right_by_probability"] = count_right_by_probability(ok, sure)
+    return result
+
+
+#: The edges of the bands of the count's probability in which the evaluation reports the
+#: count right (:func:`count_right_by_probability`).
+COUNT_SURE_EDGES = (0.5, 0.7, 0.9)
+
+
+def count_right_by_probability(ok, sure, edges=COUNT_SURE_EDGES) -> list[dict]:
+    """How often counts said with a probability in each band are right: per band
+    ``[low, high)`` of ``edges`` (from 0 to 1, the last band closed) the number of
+    characters, the share whose count is right (``ok [M]``) and their mean probability
+    (``sure [M]``); empty bands are left out. A calibrated count is right about as often
+    as its probability says."""
+    ok, sure = np.asarray(ok, dtype=bool), np.asarray(sure, dtype=np.float64)
+    bounds = [0.0, *edges, 1.0]
+    rows = []
+    for low, high in zip(bounds[:-1], bounds[1:], strict=True):
+        sel = (sure >= low) & ((sure < high) if high < 1.0 else (sure <= high))
+        if sel.any():
+            rows.append({"low": low, "high": high, "n": int(sel.sum()),
+                         "count_right": float(ok[sel].mean()),
+                         "mean_probability": float(sure[sel].mean())})  # fmt: skip
+    return rows
 
 
 def stroke_counts(data) -> np.ndarray:

@@ -101,9 +101,12 @@ class CharacterPrediction:
         """A stroke model's character as page-document entries, one per stroke in writing
         order (without ``index`` and ``line``): its path, box and DMP in the photo's
         pixels, the character's fit and flags, and notes of which character and stroke
-        it is (``character``, ``stroke``, ``n_strokes``, ``character_box_image_px``)."""
+        it is (``character``, ``stroke``, ``n_strokes``, ``count_probability``: how sure
+        the network is of that count, ``character_box_image_px``)."""
         c, p = self.character, self.prediction
+        sure = p.count_probability
         notes = {"character": c.index, "n_strokes": p.n_strokes,
+                 "count_probability": None if sure is None else round(sure, 6),
                  "character_box_image_px": [int(v) for v in self.box_image],
                  "position": c.position, "word": c.word, "parts": c.parts,
                  "split": c.split}  # fmt: skip
@@ -422,12 +425,12 @@ def _stroke_predictions(predictor, inputs, frames, source, steps, n_points) -> l
     (and refined) in one batch."""
     from .predict import StrokePrediction
 
-    strokes = predictor.predict_strokes(np.stack(inputs))
+    strokes, counts = predictor.predict_strokes(np.stack(inputs), return_counts=True)
     return [StrokePrediction(s, predictor.normaliser, predictor.strokes, frame, x,
                              source=source, refine_steps=steps,
                              stroke_width_px=predictor.stroke_width, n_per_stroke=n_points,
-                             count_views=predictor.count_views)
-            for s, frame, x in zip(strokes, frames, inputs, strict=True)]  # fmt: skip
+                             count_views=predictor.count_views, count_probabilities=p)
+            for s, p, frame, x in zip(strokes, counts, frames, inputs, strict=True)]  # fmt: skip
 
 
 def _dmp_predictions(predictor, inputs, frames, source, steps, n_points) -> list:

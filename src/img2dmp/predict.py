@@ -506,30 +506,38 @@ class Predictor:
         y = rollout_outputs(z, t, self.normaliser, self.dmp_config, batch_size)
         return y.numpy(), _softmax(logits).astype(np.float32)
 
-    def predict_strokes(self, images, batch_size: int = 4096) -> list:
+    def predict_strokes(self, images, batch_size: int = 4096, return_counts: bool = False):
         """A stroke model's strokes of prepared images ``[B, H, W]``: per image the top
         hypothesis' strokes in writing order, (normalised vectors ``[c, P]``, presence
         probabilities ``[c]``) (:func:`img2dmp.nn.strokes.read_strokes`), refined on the
         image if asked (:func:`img2dmp.nn.strokes.refine_strokes` on the torch backend,
-        :func:`img2dmp.nn._refine_numpy.refine_strokes_numpy` on NumPy's)."""
+        :func:`img2dmp.nn._refine_numpy.refine_strokes_numpy` on NumPy's).
+
+        With ``return_counts`` also the probabilities ``[B, S]`` of 1 to S strokes that
+        the count was read from (that hypothesis', averaged over :attr:`count_views`
+        views; the count read is the most probable one of at least the image's pieces of
+        ink): ``(strokes, count_probabilities)``."""
         if self.strokes is None:
             raise ValueError("predict_strokes needs a stroke model; this one predicts one DMP")
         x, out = self._raw_outputs(images, batch_size)
-        strokes = read_strokes(out, self.strokes, self.n_hypotheses,
-                               count_probs=self._count_probabilities(x, out, batch_size),
+        counts = self._count_probabilities(x, out, batch_size)  # [B, K, S]
+        strokes = read_strokes(out, self.strokes, self.n_hypotheses, count_probs=counts,
                                min_counts=ink_pieces(x))  # fmt: skip
         o = self.refine_options
-        if o is None or not o.steps:
+        if o is not None and o.steps:
+            check_count("refine steps (--refine)", o.steps, 0, MAX_REFINE_STEPS)
+            if self.network is not None:
+                refine = refine_strokes_numpy
+            else:
+                from .nn.strokes import refine_strokes as refine
+            n = REFINE_ROWS // self.strokes.slots  # characters: at most REFINE_ROWS strokes
+            strokes = [s for a in range(0, len(strokes), n)
+                       for s in refine(strokes[a : a + n], x[a : a + n], self.normaliser,
+                                       self.strokes, o)]  # fmt: skip
+        if not return_counts:
             return strokes
-        check_count("refine steps (--refine)", o.steps, 0, MAX_REFINE_STEPS)
-        if self.network is not None:
-            refine = refine_strokes_numpy
-        else:
-            from .nn.strokes import refine_strokes as refine
-        n = REFINE_ROWS // self.strokes.slots  # characters: at most REFINE_ROWS strokes
-        return [s for a in range(0, len(strokes), n)
-                for s in refine(strokes[a : a + n], x[a : a + n], self.normaliser, self.strokes,
-                                o)]  # fmt: skip
+        top = split_slots_numpy(out, self.strokes, self.n_hypotheses)[4].argmax(1)  # [B]
+        return strokes, counts[np.arange(len(counts)), top]
 
     def stroke_count_probabilities(self, images, batch_size: int = 4096) -> np.ndarray:
         """A stroke model's probabilities ``[B, K, S]`` of 1 to S strokes per hypothesis
@@ -660,7 +668,7 @@ class Predictor:
         )
         o = self.refine_options
         if self.strokes is not None:
-            (strokes,) = self.predict_strokes(prepared[None])
+            (strokes,), (counts,) = self.predict_strokes(prepared[None], return_counts=True)
             return StrokePrediction(
                 strokes, self.normaliser, self.strokes, frame, prepared,
                 source=str(image) if isinstance(image, (str, os.PathLike)) else None,
@@ -668,6 +676,7 @@ class Predictor:
                 stroke_width_px=self.stroke_width,
                 n_characters=count_characters(mask, letters=True),
                 n_per_stroke=n_points, count_views=self.count_views,
+                count_probabilities=counts,
             )  # fmt: skip
         params, probs = self.predict_hypotheses(prepared[None])  # [1, K], ranked
         times, path = self.trajectories(params[0], n_points=n_points)  # [K, T], [K, T, d]
@@ -930,13 +939,24 @@ class StrokePrediction:
     count_views : int
         The views of the image its stroke count was read from
         (:attr:`Predictor.count_views`).
+    count_probabilities : ndarray [S] or None
+        The probabilities of 1 to S strokes the count was read from (the network's,
+        averaged over the views; :meth:`Predictor.predict_strokes`), when given.
+    count_probability : float or None
+        Of those, the probability of the count read (``n_strokes``): how sure the
+        network is of it (RESULTS 8.8 measures how often such counts are right).
     """
 
     def __init__(self, strokes, normaliser, layout, frame, image, *, source=None,
                  refine_steps=0, user_image=None, stroke_width_px=None, n_characters=1,
-                 n_per_stroke: int = 100, count_views: int = COUNT_VIEWS):  # fmt: skip
+                 n_per_stroke: int = 100, count_views: int = COUNT_VIEWS,
+                 count_probabilities=None):  # fmt: skip
         vectors, presence = strokes
         self.count_views = int(count_views)
+        self.count_probabilities = (
+            None if count_probabilities is None
+            else np.asarray(count_probabilities, dtype=np.float64).reshape(-1)
+        )  # fmt: skip
         self.dmp_config, self.frame, self.image = layout.config, frame, image
         self.presence = np.asarray(presence, dtype=np.float64)
         self.strokes = stroke_params(vectors, normaliser)
@@ -957,6 +977,13 @@ class StrokePrediction:
     @property
     def n_strokes(self) -> int:
         return int(self.strokes.batch_shape[0])
+
+    @property
+    def count_probability(self) -> float | None:
+        p = self.count_probabilities
+        if p is None or not 1 <= self.n_strokes <= len(p):
+            return None
+        return float(p[self.n_strokes - 1])
 
     @property
     def dmp(self):
@@ -981,9 +1008,18 @@ class StrokePrediction:
             "image_size": list(self.frame.model_size), "frame": "model", "strokes": strokes,
             "hypotheses": [{"rank": 1, "probability": 1.0, "trajectory": trajectory}],
             "image_frame": {"image": self.source, **self.frame.to_dict()},
-            "refinement": {"steps": self.refine_steps}, "count": {"views": self.count_views},
+            "refinement": {"steps": self.refine_steps}, "count": self._count_entry(),
             "fit": self.fit, "flags": self.flags,
         }  # fmt: skip
+
+    def _count_entry(self) -> dict:
+        """The stroke document's ``count``: the views, and when known the probability of
+        the count read and of every count 1 .. S."""
+        entry: dict = {"views": self.count_views}
+        if self.count_probability is not None:
+            entry["probability"] = round(self.count_probability, 6)
+            entry["probabilities"] = [round(float(p), 6) for p in self.count_probabilities]
+        return entry
 
     def stroke_rows(self, j: int) -> slice:
         """The rows of stroke ``j`` (0-based) in :attr:`path_model` and :attr:`times`."""

@@ -234,5 +234,8 @@ def run(args: argparse.Namespace) -> int:
         n = getattr(pred, "n_strokes", None)  # a stroke model's: its strokes' durations
         tau = float(pred.dmp.tau) if n is None else float(pred.strokes.tau.sum())
         what = f"tau = {tau:.3f} s" if n is None else f"{n} strokes, {tau:.3f} s of writing"
+        sure = getattr(pred, "count_probability", None)
+        if sure is not None:
+            what += f" (the count's probability {sure:.2f})"
         print(f"{path}: {what} -> " + ", ".join(str(f) for f in files))
     return 0

@@ -297,9 +297,12 @@ function showStrokes(answer) {
   const sure = strokes.map((s) => `${Math.round(100 * s.presence)}\u00a0%`).join(", ");
   const order = n > 1
     ? ", written in the order numbered, the pen lifted between them (dashed)" : "";
+  const count = answer.dmp.count || {};
+  const ofCount = count.probability === undefined ? ""
+    : `; of the count: ${Math.round(100 * count.probability)}\u00a0%`;
   ui.strokeNote.textContent =
     `${n} stroke${n === 1 ? "" : "s"} read (this model reads up to ` +
-    `${modelSlots(answer.model)})${order}; how sure it is of each: ${sure}.`;
+    `${modelSlots(answer.model)})${order}; how sure it is of each: ${sure}${ofCount}.`;
   ui.bendOff.textContent =
     `Bending is for one-DMP models: ${answer.model} is a stroke model, whose character is ` +
     `${n} DMP${n === 1 ? "" : "s"}, one per stroke.`;

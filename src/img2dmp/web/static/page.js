@@ -206,8 +206,9 @@ function placeBox(node, box, w, h) {
 
 function boxTitle(c) {
   const pct = (v) => `${Math.round(100 * v)}\u00a0%`;
+  const sure = c.count_probability == null ? "" : ` (${pct(c.count_probability)} sure)`;
   const read = c.stroke === undefined ? `probability ${pct(c.probability)}`
-    : `${c.n_strokes}\u00a0stroke${c.n_strokes === 1 ? "" : "s"}`;
+    : `${c.n_strokes}\u00a0stroke${c.n_strokes === 1 ? "" : "s"}${sure}`;
   const head = `#${boxKey(c)}: ${read}, path on ink ` +
     `${pct(c.fit.path_on_ink)}, ink written ${pct(c.fit.ink_written)}`;
   return c.flags.length ? `${head}\nFlagged: ${flagText(c.flags, c.fit)}` : head;
