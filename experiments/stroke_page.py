@@ -14,7 +14,8 @@ photographs it first. Writes the page, its document and its picture into ``--out
 ``--cut yes|no`` reads the page with or without the digits' cutting of wide marks (the
 choice of :data:`img2dmp.page.STROKE_PAGE_CUT`); ``--join yes|no`` with or without
 joining neighbours of pieces side by side (:data:`img2dmp.page.STROKE_PAGE_JOIN`,
-``--side-gap`` for :data:`img2dmp.data.pages.SIDE_GAP`). ``--gap G`` places the
+``--side-gap`` for :data:`img2dmp.data.pages.SIDE_GAP`, ``--side-width`` for
+:data:`~img2dmp.data.pages.SIDE_WIDTH`). ``--gap G`` places the
 characters ``G`` character heights apart, ink to ink, as handwriting spaces them,
 instead of in cells.
 
@@ -28,6 +29,7 @@ It prints the date, the git revision and its command line first. A few seconds.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import io
 import re
 import sys
@@ -194,20 +196,47 @@ def main(argv: list[str]) -> int:
     p.add_argument("--side-gap", type=float, default=None,
                    help="the largest gap between neighbours joined, as a share of their "
                    "line's usual gap (default: img2dmp.data.pages.SIDE_GAP)")  # fmt: skip
+    p.add_argument("--side-width", type=float, default=None,
+                   help="the widest two neighbours joined may be together, in the line's "
+                   "usual character widths (default: img2dmp.data.pages.SIDE_WIDTH)")  # fmt: skip
     args = p.parse_args(argv)
-    for name in ("gap", "side_gap"):
+    for name in ("gap", "side_gap", "side_width"):
         value = getattr(args, name)
         if value is not None and not 0 <= value < 10:
             p.error(f"--{name.replace('_', '-')} must be at least 0 and under 10, got {value}")
-    import img2dmp.data.pages
-    import img2dmp.page
+    with library_settings(args):
+        return _read_page(args, argv)
 
-    if args.cut is not None:
-        img2dmp.page.STROKE_PAGE_CUT = args.cut == "yes"
-    if args.join is not None:
-        img2dmp.page.STROKE_PAGE_JOIN = args.join == "yes"
-    if args.side_gap is not None:
-        img2dmp.data.pages.SIDE_GAP = args.side_gap
+
+@contextlib.contextmanager
+def library_settings(args):
+    """The page reading's settings as ``--cut``, ``--join``, ``--side-gap`` and
+    ``--side-width`` ask, for the run; the library's own again afterwards (the tests call
+    :func:`main` in their process)."""
+    import img2dmp.data.pages as pages
+    import img2dmp.page as page
+
+    def yes(value):
+        return None if value is None else value == "yes"
+
+    asked = [
+        (page, "STROKE_PAGE_CUT", yes(args.cut)),
+        (page, "STROKE_PAGE_JOIN", yes(args.join)),
+        (pages, "SIDE_GAP", args.side_gap),
+        (pages, "SIDE_WIDTH", args.side_width),
+    ]
+    kept = [(module, name, getattr(module, name)) for module, name, _ in asked]
+    try:
+        for module, name, value in asked:
+            if value is not None:
+                setattr(module, name, value)
+        yield
+    finally:
+        for module, name, value in kept:
+            setattr(module, name, value)
+
+
+def _read_page(args, argv: list[str]) -> int:
     print(format_record(run_record(__file__, argv)))
     chars = characters(args.omniglot, args.drawer)
     if len(chars) < args.n:

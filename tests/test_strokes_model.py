@@ -738,7 +738,7 @@ def test_write_page_with_a_stroke_model_writes_every_stroke_and_lifts_the_pen(
 
 
 def test_the_stroke_page_experiment_reads_a_drawers_page_and_counts_its_strokes(
-    omni_root, trained, experiment_script, tmp_path, capsys
+    omni_root, trained, experiment_script, tmp_path, capsys, monkeypatch
 ):
     mod = experiment_script("stroke_page")
     argv = ["--omniglot", str(omni_root), "--model", str(trained), "--drawer", "18",
@@ -771,7 +771,20 @@ def test_the_stroke_page_experiment_reads_a_drawers_page_and_counts_its_strokes(
     assert mod.main([*argv, "--gap", "0.3", "--join", "no"]) == 0
     said = capsys.readouterr().out
     assert re.search(r"4 characters placed.*\d+ found joined to a neighbour", said), said
-    for bad in (["--gap", "-1"], ["--side-gap", "nan"]):
+    import img2dmp.data.pages as pages
+    import img2dmp.page
+
+    # the join's limits are the options' for the run, the library's again after it
+    kept = (pages.SIDE_WIDTH, pages.SIDE_GAP, img2dmp.page.STROKE_PAGE_JOIN)
+    seen, join = [], pages._join_sides
+    spy = lambda *a: seen.append((pages.SIDE_WIDTH, pages.SIDE_GAP)) or join(*a)  # noqa: E731
+    monkeypatch.setattr(pages, "_join_sides", spy)
+    args = ["--gap", "0.3", "--side-width", "1.6", "--side-gap", "0.4", "--join", "yes"]
+    assert mod.main([*argv, *args]) == 0
+    assert seen and set(seen) == {(1.6, 0.4)}
+    assert (pages.SIDE_WIDTH, pages.SIDE_GAP, img2dmp.page.STROKE_PAGE_JOIN) == kept
+    capsys.readouterr()
+    for bad in (["--gap", "-1"], ["--side-gap", "nan"], ["--side-width", "inf"]):
         with pytest.raises(SystemExit):
             mod.main([*argv, *bad])
         assert f"{bad[0]} must be at least 0" in capsys.readouterr().err

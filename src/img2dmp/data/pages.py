@@ -89,10 +89,13 @@ WAIST_RUN = 0.45
 #: 0 (boxes touching) / 0.3 / 0.5 / 0.7 found 1,030 / 1,048 / 1,054 / 1,045 whole (not
 #: joining: 1,016), and joined two neighbours as one 0 / 0 / 0 / 14 times (at 0.05
 #: heights); 0.5 joined two 1s of ``../shared/data/photos``' yellow page (3 px apart), 0.3
-#: nothing there. ``SIDE_WIDTH`` was not scanned.
+#: nothing there.
 SIDE_GAP = 0.3
 #: ... and together they are at most this many usual character widths wide (the upper
-#: quartile of the page's characters' widths, as for ``SPLIT_WIDTHS``).
+#: quartile of the page's characters' widths, as for ``SPLIT_WIDTHS``). Scanned on the same
+#: pages (RESULTS 8.10): 1.1 / 1.3 / 1.6 / 2.0 found 1,027 / 1,048 / 1,058 / 1,054 whole,
+#: joined two neighbours 0 / 0 / 0 / 4 times; 1.6 joined two more pairs of digits on the
+#: yellow photo (61 characters found with 1.3, 59 with 1.6; it has 63 digits and a mark).
 SIDE_WIDTH = 1.3
 #: A mark smaller than this share of a character height on its longer side is not a
 #: character (what the paper left: a rule's crossing, a speck at the page's scale).
