@@ -36,6 +36,7 @@ import numpy as np
 
 from img2dmp._files import atomic_write_text
 from img2dmp.data.store import DigitData, load_dataset, save_dataset
+from img2dmp.evaluate import row_alphabets
 
 # isort: split
 # From this script's directory, which Python puts on sys.path when it runs a script.
@@ -50,10 +51,9 @@ VALIDATION_DRAWERS = (16, 17, 18, 19, 20)
 
 def alphabets_of(data: DigitData) -> np.ndarray:
     """The alphabet of every row (``alphabet/character`` class names)."""
-    names = data.class_names
-    if names is None:
+    if data.class_names is None:
         raise ValueError("the data set has no class names: not an Omniglot import")
-    return np.array([str(names[int(c)]).split("/")[0] for c in data.labels])
+    return row_alphabets(data)
 
 
 def held_out(data: DigitData, alphabet: str) -> DigitData:

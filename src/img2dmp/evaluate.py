@@ -570,8 +570,7 @@ def stroke_measures(counts, data, measures: dict, sure=None) -> dict:
     truth = stroke_counts(data)
     ok = np.asarray(counts) == truth
     names = data.label_names
-    alphabet = np.array([str(names[int(c)]).split("/")[0] for c in data.labels])
-    alphabets, groups = np.unique(alphabet, return_inverse=True)
+    alphabets, groups = np.unique(row_alphabets(data), return_inverse=True)
     per_alphabet = {}
     for key, name in (("path_errors_px", "path_error"), ("chamfer_px", "chamfer"),
                       ("on_ink_shares", "on_ink")):  # fmt: skip
@@ -619,6 +618,13 @@ def count_right_by_probability(ok, sure, edges=COUNT_SURE_EDGES) -> list[dict]:
     return rows
 
 
+def row_alphabets(data) -> np.ndarray:
+    """The alphabet of every row ``[N]``: its class name's part before ``/``, as
+    Omniglot's ``alphabet/character`` (a digit's name, ``"3"``, is its own)."""
+    names = data.label_names
+    return np.array([str(names[int(c)]).split("/")[0] for c in data.labels])
+
+
 def stroke_counts(data) -> np.ndarray:
     """The stroke count of every row of a data set ``[N]`` (its recorded stroke spans)."""
     return np.array([len(data.stroke_spans(i)) for i in range(len(data))], dtype=np.int64)
@@ -651,8 +657,7 @@ def count_ceiling(whole, data) -> dict:
     truth, labels = stroke_counts(data), np.asarray(data.labels)
     seen = np.isin(labels, list(modes))
     ok = np.array([seen[i] and truth[i] == modes[int(labels[i])] for i in range(len(data))])
-    names = data.label_names
-    alphabet = np.array([str(names[int(c)]).split("/")[0] for c in labels])
+    alphabet = row_alphabets(data)
     per = {str(a): float(ok[(alphabet == a) & seen].mean())
            for a in np.unique(alphabet) if ((alphabet == a) & seen).any()}  # fmt: skip
     return {
