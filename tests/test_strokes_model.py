@@ -38,7 +38,7 @@ from img2dmp.nn.strokes import (
     stroke_targets,
 )
 from img2dmp.training.config import load_config
-from img2dmp.training.data import count_targets
+from img2dmp.training.data import count_targets, slots_note
 
 
 def _path(strokes: list[np.ndarray], gap: int = 3) -> tuple[np.ndarray, np.ndarray]:
@@ -224,6 +224,15 @@ def test_the_count_target_mixes_a_drawing_s_count_with_its_class_s_among_trainin
     np.testing.assert_allclose(mixed[0], 0.5 * np.eye(4)[2] + 0.5 * class0, atol=1e-7)
     np.testing.assert_allclose(mixed[1], 0.5 * np.eye(4)[3] + 0.5 * class0, atol=1e-7)
     np.testing.assert_allclose(mixed[2], np.eye(4)[3])  # class 2 has no training row
+
+
+def test_training_notes_drawings_of_more_strokes_than_slots_and_is_silent_without():
+    a = _Drawings([0, 0, 1, 1, 2], [2, 9, 4, 5, 12])
+    assert slots_note(a, np.array([0, 2, 3]), slots=5) is None
+    note = slots_note(a, np.arange(5), slots=5)
+    assert note.startswith("note: 2 of 5 training drawings (40.0 %) have more than")
+    assert "strokes.slots = 5 strokes (up to 12)" in note and "\n" not in note
+    assert slots_note(a, np.arange(5), slots=12) is None
 
 
 def test_a_one_count_target_is_the_count_s_own_cross_entropy_and_a_class_s_pulls_its_mode():

@@ -9,6 +9,7 @@ normalisation, cost (9)'s parameter weighting, and how the images frame their in
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -133,6 +134,23 @@ def count_targets(
     return torch.as_tensor(mixed, dtype=torch.float32)
 
 
+def slots_note(a: DigitData, idx: np.ndarray, slots: int) -> str | None:
+    """A one-line note when some of the rows ``idx`` have more strokes than a stroke
+    model's ``slots`` (None when none has): how many, the most strokes, and what it means.
+    Such a row trains on its first ``slots`` strokes and its count is taught as ``slots``
+    (:func:`count_targets`), so no prediction of it can have its count right."""
+    counts = np.array([len(a.stroke_spans(int(i))) for i in idx], dtype=np.int64)
+    over = counts > slots
+    if not over.any():
+        return None
+    return (
+        f"note: {int(over.sum())} of {len(counts)} training drawings ({100 * over.mean():.1f} %) "
+        f"have more than strokes.slots = {slots} strokes (up to {int(counts.max())}); the "
+        f"model learns their first {slots} and cannot read their count right "
+        f"(--set strokes.slots=N for more)"
+    )
+
+
 def _split_indices(a: DigitData, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
     """Training and validation rows of a stored data set (labels filtered: ``data.digits``
     are digits, or in a data set with class names the classes named after them;
@@ -212,6 +230,8 @@ class TrainingData:
         self.fit_arrays = (a.params[train_idx], a.times[train_idx])
         layout = cfg.strokes.layout()
         if layout is not None:  # the model's DMPs are the strokes'
+            if note := slots_note(a, train_idx, layout.slots):
+                print(note, file=sys.stderr)
             self.dmp_config = layout.config
             self.normaliser = normaliser or stroke_normaliser(a, train_idx, layout)
         else:
