@@ -7,18 +7,22 @@ other alphabets' drawers 1-15 stay the training split and their drawers 16-20 ar
 validation split (which only picks the best epoch). The recommended configuration
 (``--config omniglot``) is trained on it from random weights and evaluated on the
 held-out alphabet as ``make model-omniglot`` evaluates (refined 60 steps, the count from
-one view). The table gives, per held-out alphabet, the measures ``img2dmp evaluate``
-reports: Chamfer and path on the ink against the image, path error against the drawer's
-own pen path, and the share of characters read with as many strokes as their drawer drew.
+one view; ``--refine N`` evaluates the same runs with N steps instead). The table gives,
+per held-out alphabet, the measures ``img2dmp evaluate`` reports: Chamfer and path on the
+ink against the image, path error against the drawer's own pen path, and the share of
+characters read with as many strokes as their drawer drew.
 
 Run from the repository's root::
 
     python experiments/unseen_alphabets.py --data runs/omniglot/data.safetensors \\
-        --out runs/unseen-alphabets [--alphabets Greek Latin] [--jobs 2] [--epochs N]
+        --out runs/unseen-alphabets [--alphabets Greek Latin] [--jobs 2] [--epochs N] \\
+        [--refine STEPS]
 
 Resumable: an alphabet whose evaluation is written is not run again, a training that
-was stopped resumes from its last checkpoint. Writes ``OUT/ALPHABET/`` (data set, run,
-evaluation) and ``OUT/results.md`` (the table with the date, revision and command).
+was stopped resumes from its last checkpoint (a finished one is only loaded). Writes
+``OUT/ALPHABET/`` (data set, run, evaluation) and ``OUT/results.md`` (the table with the
+date, revision and command); with ``--refine N`` other than 60, ``evaluation_refineN``
+and ``results_refineN.md``.
 About 6 minutes of training an alphabet on one core; ``--jobs 2`` trains two at once.
 """
 
@@ -47,6 +51,13 @@ from count_probes import drawers
 IMG2DMP = (sys.executable, "-m", "img2dmp")
 #: Drawers whose drawings (of the alphabets kept) only pick the best epoch.
 VALIDATION_DRAWERS = (16, 17, 18, 19, 20)
+#: The refinement steps ``make model-omniglot`` evaluates with.
+REFINE = 60
+
+
+def _suffix(refine: int) -> str:
+    """The evaluation's and table's name suffix for ``refine`` steps (none for 60)."""
+    return "" if refine == REFINE else f"_refine{refine}"
 
 
 def alphabets_of(data: DigitData) -> np.ndarray:
@@ -73,7 +84,7 @@ def held_out(data: DigitData, alphabet: str) -> DigitData:
     return DigitData(**arrays, meta=meta)
 
 
-def _commands(folder: Path, epochs: int | None) -> tuple[list[str], list[str]]:
+def _commands(folder: Path, epochs: int | None, refine: int) -> tuple[list[str], list[str]]:
     data, run = folder / "data.safetensors", folder / "run"
     if (run / "checkpoints" / "last.safetensors").is_file():
         train = [*IMG2DMP, "train", "--run-dir", str(run), "--resume", "--no-progress"]
@@ -83,14 +94,14 @@ def _commands(folder: Path, epochs: int | None) -> tuple[list[str], list[str]]:
         if epochs:
             train += ["--epochs", str(epochs)]
     evaluate = [*IMG2DMP, "evaluate", "--model", str(run), "--data", str(data), "--split"]
-    evaluate += ["test", "--refine", "60", "--count-views", "1", "--figures", "0"]
-    evaluate += ["--out", str(folder / "evaluation"), "--force", "--no-progress"]
+    evaluate += ["test", "--refine", str(refine), "--count-views", "1", "--figures", "0"]
+    evaluate += ["--out", str(folder / f"evaluation{_suffix(refine)}"), "--force", "--no-progress"]
     return train, evaluate
 
 
-def _run_alphabet(folder: Path, epochs: int | None) -> subprocess.Popen:
+def _run_alphabet(folder: Path, epochs: int | None, refine: int) -> subprocess.Popen:
     """Train then evaluate in one child shell, its output in ``folder/log.txt``."""
-    train, evaluate = _commands(folder, epochs)
+    train, evaluate = _commands(folder, epochs, refine)
     script = f"{shlex.join(train)} && {shlex.join(evaluate)}"
     with open(folder / "log.txt", "a") as log:  # the child keeps its own descriptor
         return subprocess.Popen(["sh", "-c", script], stdout=log, stderr=subprocess.STDOUT)
@@ -136,11 +147,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--alphabets", nargs="+", help="only these (default: every alphabet)")
     ap.add_argument("--jobs", type=int, default=2, help="trainings at once (default 2)")
     ap.add_argument("--epochs", type=int, help="training epochs (default: the config's)")
+    ap.add_argument("--refine", type=int, default=REFINE,
+                    help=f"refinement steps of the evaluation (default {REFINE})")  # fmt: skip
     args = ap.parse_args(argv)
     if args.jobs < 1:
         ap.error(f"--jobs must be >= 1, got {args.jobs}")
     if args.epochs is not None and args.epochs < 1:
         ap.error(f"--epochs must be >= 1, got {args.epochs}")
+    if args.refine < 0:
+        ap.error(f"--refine must be >= 0, got {args.refine}")
+    evaluation = f"evaluation{_suffix(args.refine)}"
     record = run_record(__file__, argv)
     print(format_record(record), flush=True)
     data = load_dataset(args.data)
@@ -153,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     todo = []
     for a in chosen:
         folder = out / a
-        if (folder / "evaluation" / "evaluation.json").is_file():
+        if (folder / evaluation / "evaluation.json").is_file():
             print(f"{a}: done before", flush=True)
             continue
         folder.mkdir(parents=True, exist_ok=True)
@@ -167,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         while todo and len(running) < args.jobs:
             a = todo.pop(0)
             print(f"{a}: training and evaluating (log {out / a / 'log.txt'})", flush=True)
-            running[a] = _run_alphabet(out / a, args.epochs)
+            running[a] = _run_alphabet(out / a, args.epochs, args.refine)
         for a, proc in list(running.items()):
             if proc.poll() is not None:
                 del running[a]
@@ -180,12 +196,13 @@ def main(argv: list[str] | None = None) -> int:
         time.sleep(2)
     rows = []
     for a in chosen:
-        path = out / a / "evaluation" / "evaluation.json"
+        path = out / a / evaluation / "evaluation.json"
         if path.is_file():
             rows.append(_row(a, json.loads(path.read_text())))
     table = format_table(rows)
     print(table)
-    atomic_write_text(out / "results.md", f"{format_record(record)}\n\n{table}\n")
+    results = out / f"results{_suffix(args.refine)}.md"
+    atomic_write_text(results, f"{format_record(record)}\n\n{table}\n")
     return 1 if failed else 0
 
 

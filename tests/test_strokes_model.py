@@ -963,5 +963,10 @@ def test_the_unseen_alphabets_experiment_holds_one_alphabet_out_and_evaluates_on
     capsys.readouterr()
     assert mod.main(args) == 0  # resumable: done before, not run again
     assert f"{first}: done before" in capsys.readouterr().out
+    # the same run evaluated with other refinement steps: its own evaluation and table
+    assert mod.main([*args, "--refine", "0"]) == 0
+    again = json.loads((out / first / "evaluation_refine0" / "evaluation.json").read_text())
+    assert again["refine_steps"] == 0 and ev["refine_steps"] == 60
+    assert (out / "results_refine0.md").is_file()
     with pytest.raises(SystemExit):
         mod.main(["--data", str(small_omniglot), "--out", str(out), "--alphabets", "Klingon"])
