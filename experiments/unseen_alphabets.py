@@ -19,7 +19,14 @@ Run from the repository's root::
         [--refine STEPS]
 
 Resumable: an alphabet whose evaluation is written is not run again, a training that
-was stopped resumes from its last checkpoint (a finished one is only loaded). Writes
+was stopped resumes from its last checkpoint (a finished one is only loaded).
+``--familiarity`` adds, per held-out alphabet, whether the run's encoder can tell its
+characters from the ones it learnt: each image's *familiarity*, the cosine similarity of
+its encoder features to those of the nearest training drawing, for the other alphabets'
+drawers 16-17 (known characters, unseen drawings) and for the held-out alphabet; the
+area under the ROC curve of telling them apart, the share of the held-out alphabet below
+the familiarity that 95 % of the known drawings reach, and the count and ink of those
+below and above it (``OUT/familiarity.md``). Writes
 ``OUT/ALPHABET/`` (data set, run, evaluation) and ``OUT/results.md`` (the table with the
 date, revision and command); with ``--refine N`` other than 60, ``evaluation_refineN``
 and ``results_refineN.md``.
@@ -41,6 +48,7 @@ import numpy as np
 from img2dmp._files import atomic_write_text
 from img2dmp.data.store import DigitData, load_dataset, save_dataset
 from img2dmp.evaluate import row_alphabets
+from img2dmp.predict import Predictor
 
 # isort: split
 # From this script's directory, which Python puts on sys.path when it runs a script.
@@ -119,6 +127,76 @@ def _row(alphabet: str, ev: dict) -> dict:
     }
 
 
+def encoder_features(predictor: Predictor, images: np.ndarray, batch: int = 512) -> np.ndarray:
+    """The run's encoder features ``[N, F]`` of prepared images ``[N, H, W]``, each scaled
+    to unit length (what the decoder reads, before any output)."""
+    import torch
+
+    m = predictor.model
+    out = []
+    with torch.no_grad():
+        for a in range(0, len(images), batch):
+            x = torch.as_tensor(np.asarray(images[a : a + batch], dtype=np.float32))
+            out.append(m.encoder(m.input_filter(x)).numpy().astype(np.float64))
+    f = np.concatenate(out) if out else np.zeros((0, 1))
+    return f / np.maximum(np.linalg.norm(f, axis=1, keepdims=True), 1e-12)
+
+
+def auc(negatives: np.ndarray, positives: np.ndarray) -> float:
+    """The area under the ROC curve of scores that should be higher for ``positives``
+    (the Mann-Whitney statistic; ties count a half)."""
+    neg, pos = np.sort(np.asarray(negatives, float)), np.asarray(positives, float)
+    below = np.searchsorted(neg, pos, side="left")
+    ties = np.searchsorted(neg, pos, side="right") - below
+    return float((below + 0.5 * ties).sum() / (len(neg) * len(pos)))
+
+
+def familiarity_row(folder: Path, alphabet: str, quantile: float = 0.05) -> dict:
+    """:func:`encoder_features`' familiarity of the known drawings (drawers 16-17 of the
+    other alphabets) and of the held-out alphabet, for the run in ``folder``, beside its
+    evaluation's per-drawing counts and ink shares."""
+    data = load_dataset(folder / "data.safetensors")
+    predictor = Predictor.load(folder / "run")
+    drawer = drawers(data)
+    train = np.flatnonzero(data.split == 0)
+    known = np.flatnonzero((data.split == 1) & (drawer <= 17))
+    unseen = np.flatnonzero(data.split == 2)
+    ref = encoder_features(predictor, data.images[train])
+    fam_known = (encoder_features(predictor, data.images[known]) @ ref.T).max(1)
+    fam_unseen = (encoder_features(predictor, data.images[unseen]) @ ref.T).max(1)
+    limit = float(np.quantile(fam_known, quantile))
+    ev = json.loads((folder / "evaluation" / "evaluation.json").read_text())
+    st = ev["strokes"]
+    ok = np.asarray(st["true_counts"]) == np.asarray(st["predicted_counts"])
+    ink = np.asarray(ev["on_ink_shares"], float)
+    low = fam_unseen < limit
+    share = lambda v, sel: float(v[sel].mean()) if sel.any() else float("nan")  # noqa: E731
+    return {
+        "alphabet": alphabet,
+        "known_median": float(np.median(fam_known)),
+        "unseen_median": float(np.median(fam_unseen)),
+        "auc": auc(fam_unseen, fam_known),  # known drawings the more familiar
+        "limit": limit,
+        "below": float(low.mean()),
+        "count_below": share(ok, low), "count_above": share(ok, ~low),
+        "ink_below": share(ink, low), "ink_above": share(ink, ~low),
+    }  # fmt: skip
+
+
+def format_familiarity(rows: list[dict]) -> str:
+    out = ["| held-out alphabet | familiarity, known / held out (medians) | AUC | held out "
+           "below the known 5 % | count right, below / above | on ink, below / above |",
+           "|---|---|---|---|---|---|"]  # fmt: skip
+    for r in rows:
+        out.append(
+            f"| {r['alphabet']} | {r['known_median']:.3f} / {r['unseen_median']:.3f} | "
+            f"{r['auc']:.3f} | {100 * r['below']:.1f} % | {100 * r['count_below']:.1f} / "
+            f"{100 * r['count_above']:.1f} % | {100 * r['ink_below']:.1f} / "
+            f"{100 * r['ink_above']:.1f} % |"
+        )
+    return "\n".join(out)
+
+
 def format_table(rows: list[dict]) -> str:
     out = ["| held-out alphabet | n | Chamfer (px) | on ink | path (px) | count right |"]
     out.append("|---|---|---|---|---|---|")
@@ -147,6 +225,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--alphabets", nargs="+", help="only these (default: every alphabet)")
     ap.add_argument("--jobs", type=int, default=2, help="trainings at once (default 2)")
     ap.add_argument("--epochs", type=int, help="training epochs (default: the config's)")
+    ap.add_argument("--familiarity", action="store_true",
+                    help="also measure how far the encoder tells the held-out alphabet "
+                    "from known characters (OUT/familiarity.md)")  # fmt: skip
     ap.add_argument("--refine", type=int, default=REFINE,
                     help=f"refinement steps of the evaluation (default {REFINE})")  # fmt: skip
     args = ap.parse_args(argv)
@@ -203,6 +284,11 @@ def main(argv: list[str] | None = None) -> int:
     print(table)
     results = out / f"results{_suffix(args.refine)}.md"
     atomic_write_text(results, f"{format_record(record)}\n\n{table}\n")
+    if args.familiarity:
+        done = [a for a in chosen if (out / a / "evaluation" / "evaluation.json").is_file()]
+        fam = format_familiarity([familiarity_row(out / a, a) for a in done])
+        print(fam)
+        atomic_write_text(out / "familiarity.md", f"{format_record(record)}\n\n{fam}\n")
     return 1 if failed else 0
 
 

@@ -968,5 +968,16 @@ def test_the_unseen_alphabets_experiment_holds_one_alphabet_out_and_evaluates_on
     again = json.loads((out / first / "evaluation_refine0" / "evaluation.json").read_text())
     assert again["refine_steps"] == 0 and ev["refine_steps"] == 60
     assert (out / "results_refine0.md").is_file()
+    # how far the encoder tells the held-out alphabet from known characters
+    assert mod.main([*args, "--familiarity"]) == 0
+    row = mod.familiarity_row(out / first, first)
+    assert 0.0 <= row["auc"] <= 1.0 and 0.0 <= row["below"] <= 1.0
+    assert -1.0 <= row["unseen_median"] <= 1.0 and row["known_median"] <= 1.0 + 1e-9
+    assert f"| {first} | {row['known_median']:.3f} / {row['unseen_median']:.3f} | " in (
+        out / "familiarity.md"
+    ).read_text()
+    # the AUC: the share of (negative, positive) pairs ordered right, ties a half
+    assert mod.auc([1.0, 2.0], [3.0, 4.0]) == 1.0 and mod.auc([3.0, 4.0], [1.0, 2.0]) == 0.0
+    assert mod.auc([1.0, 3.0], [2.0, 3.0]) == (1 + 0.5 + 1) / 4
     with pytest.raises(SystemExit):
         mod.main(["--data", str(small_omniglot), "--out", str(out), "--alphabets", "Klingon"])
