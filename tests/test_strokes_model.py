@@ -973,9 +973,10 @@ def test_the_unseen_alphabets_experiment_holds_one_alphabet_out_and_evaluates_on
     row = mod.familiarity_row(out / first, first)
     assert 0.0 <= row["auc"] <= 1.0 and 0.0 <= row["below"] <= 1.0
     assert -1.0 <= row["unseen_median"] <= 1.0 and row["known_median"] <= 1.0 + 1e-9
-    assert f"| {first} | {row['known_median']:.3f} / {row['unseen_median']:.3f} | " in (
-        out / "familiarity.md"
-    ).read_text()
+    assert (
+        f"| {first} | {row['known_median']:.3f} / {row['unseen_median']:.3f} | "
+        in (out / "familiarity.md").read_text()
+    )
     # the AUC: the share of (negative, positive) pairs ordered right, ties a half
     assert mod.auc([1.0, 2.0], [3.0, 4.0]) == 1.0 and mod.auc([3.0, 4.0], [1.0, 2.0]) == 0.0
     assert mod.auc([1.0, 3.0], [2.0, 3.0]) == (1 + 0.5 + 1) / 4
