@@ -16,7 +16,11 @@ a stroke model, whose figures add the share of characters whose stroke count is 
 
 A field of an existing ``model.json`` that is not given again (summary, provenance,
 recommended settings, default) is kept; ``--refine`` and ``--count-views`` set the
-recommended settings of those names.
+recommended settings of those names. ``--familiar DATA`` (the data set the run trained
+on) adds ``familiar.safetensors``: the training drawings' encoder features and the line
+below which an image is flagged unfamiliar, drawn on its validation drawings
+(:mod:`img2dmp.familiar`); without it a familiarity file shipped before is kept only
+while the weights are the same.
 """
 
 from __future__ import annotations
@@ -30,7 +34,16 @@ from pathlib import Path
 from _provenance import run_record
 from img2dmp._files import atomic_write_text, file_digest
 from img2dmp.checkpoint import read_checkpoint_meta, resolve_checkpoint
-from img2dmp.models import FORMAT, RECORD_FILE, VERSION, WEIGHTS_FILE, is_model_name
+from img2dmp.familiar import fit_familiar
+from img2dmp.models import (
+    FAMILIAR_FILE,
+    FORMAT,
+    RECORD_FILE,
+    VERSION,
+    WEIGHTS_FILE,
+    is_model_name,
+)
+from img2dmp.predict import Predictor
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT / "src" / "img2dmp" / "models"
@@ -78,6 +91,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--count-views", type=int, help="a stroke model's recommended views to read the count from"
     )
+    p.add_argument("--familiar", metavar="DATA",
+                   help="the data set the run trained on: ship its familiarity")  # fmt: skip
     p.add_argument("--provenance", nargs="*", default=[], metavar="KEY=VALUE")
     args = p.parse_args(argv)
     if not is_model_name(args.name):
@@ -122,6 +137,21 @@ def main(argv: list[str] | None = None) -> int:
         "shipped_by": run_record("ship_model.py", sys.argv[1:] if argv is None else argv),
         "card": "CARD.md",
     }
+    familiar = folder / FAMILIAR_FILE
+    if args.familiar:
+        fam = fit_familiar(Predictor.load(folder / WEIGHTS_FILE), args.familiar)
+        fam.save(familiar)
+        record["familiar"] = {
+            "file": FAMILIAR_FILE, "bytes": familiar.stat().st_size,
+            "sha256": file_digest(familiar), "line": round(fam.line, 6),
+            "quantile": fam.quantile, "n_train": len(fam.features),
+            "n_validation": fam.n_validation, "data": args.familiar,
+        }  # fmt: skip
+    elif "familiar" in old and old["weights"]["sha256"] == record["weights"]["sha256"]:
+        record["familiar"] = old["familiar"]
+    elif familiar.is_file():
+        familiar.unlink()  # another network's features
+    record["card"] = record.pop("card")  # last, as before
     atomic_write_text(old_path, json.dumps(record, indent=1) + "\n")
     print(
         f"{folder}: {WEIGHTS_FILE} ({record['weights']['bytes']:,} bytes, sha256 "

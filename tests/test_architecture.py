@@ -18,7 +18,7 @@ LAYERS = [
     {"__init__", "_files", "_lazy", "_processes", "_progress", "config", "errors", "models"},
     {"dmp", "metrics"},
     {"data", "interop"},
-    {"nn", "checkpoint"},
+    {"nn", "checkpoint", "familiar"},
     {"training", "train"},
     {"predict", "page"},
     {"evaluate", "export"},

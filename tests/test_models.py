@@ -46,8 +46,13 @@ def test_each_shipped_file_has_its_recorded_digest_and_size():
         assert len(data) == m.size_bytes <= MAX_BYTES, m.name
         assert models.file_digest(m.weights) == m.sha256, m.name
         assert models.verified_weights(m) == m.weights
+        own = [models.WEIGHTS_FILE, models.RECORD_FILE, models.CARD_FILE]
+        if m.familiar is not None:  # a familiarity, checked as the weights are
+            own.append(models.FAMILIAR_FILE)
+            assert models.verified_familiar(m) == m.familiar
+            assert m.familiar.stat().st_size == m.record["familiar"]["bytes"]
         for f in m.folder.iterdir():  # nothing else in the folder grows the wheel
-            assert f.name in (models.WEIGHTS_FILE, models.RECORD_FILE, models.CARD_FILE), f
+            assert f.name in own, f
             assert f.stat().st_size <= MAX_BYTES, f
         # the checkpoint inside is the one recorded (its own record digest verified)
         assert (
@@ -129,6 +134,22 @@ def test_a_damaged_shipped_file_is_refused_naming_it(tmp_path, monkeypatch, caps
     assert "damaged" in _one_error_line(capsys.readouterr().err, "predict")
     assert cli.main(["models"]) == 0
     assert "DAMAGED" in capsys.readouterr().out
+
+
+def test_a_damaged_familiarity_file_is_refused_naming_it(tmp_path, monkeypatch, capsys):
+    root = _copy_of_the_models(tmp_path, monkeypatch)
+    carriers = [m for m in models.shipped_models() if m.familiar is not None]
+    assert carriers, "no shipped model carries a familiarity"
+    name = carriers[0].name
+    familiar = root / name / models.FAMILIAR_FILE
+    data = bytearray(familiar.read_bytes())
+    data[-3] ^= 0x01  # one bit in the features
+    familiar.write_bytes(bytes(data))
+    with pytest.raises(ShippedModelError, match=rf"shipped model {name}: .*{familiar.name} is "
+                       r"damaged: its SHA-256 .* is not the recorded"):  # fmt: skip
+        img2dmp.load_model(name)
+    assert cli.main(["models"]) == 0
+    assert f"DAMAGED: shipped model {name}" in capsys.readouterr().out
 
 
 def test_an_unknown_name_lists_the_shipped_models(tmp_path, monkeypatch, capsys):

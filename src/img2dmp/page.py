@@ -102,11 +102,13 @@ class CharacterPrediction:
         order (without ``index`` and ``line``): its path, box and DMP in the photo's
         pixels, the character's fit and flags, and notes of which character and stroke
         it is (``character``, ``stroke``, ``n_strokes``, ``count_probability``: how sure
-        the network is of that count, ``character_box_image_px``)."""
+        the network is of that count, ``familiarity``: how familiar the character is to
+        the model, None if it carries no familiarity, ``character_box_image_px``)."""
         c, p = self.character, self.prediction
-        sure = p.count_probability
+        sure, known = p.count_probability, p.familiarity
         notes = {"character": c.index, "n_strokes": p.n_strokes,
                  "count_probability": None if sure is None else round(sure, 6),
+                 "familiarity": None if known is None else round(known, 6),
                  "character_box_image_px": [int(v) for v in self.box_image],
                  "position": c.position, "word": c.word, "parts": c.parts,
                  "split": c.split}  # fmt: skip
@@ -425,12 +427,18 @@ def _stroke_predictions(predictor, inputs, frames, source, steps, n_points) -> l
     (and refined) in one batch."""
     from .predict import StrokePrediction
 
-    strokes, counts = predictor.predict_strokes(np.stack(inputs), return_counts=True)
+    images = np.stack(inputs)
+    strokes, counts = predictor.predict_strokes(images, return_counts=True)
+    familiar = predictor.familiarity(images)
+    familiar = [None] * len(inputs) if familiar is None else familiar
+    line = None if predictor.familiar is None else predictor.familiar.line
     return [StrokePrediction(s, predictor.normaliser, predictor.strokes, frame, x,
                              source=source, refine_steps=steps,
                              stroke_width_px=predictor.stroke_width, n_per_stroke=n_points,
-                             count_views=predictor.count_views, count_probabilities=p)
-            for s, p, frame, x in zip(strokes, counts, frames, inputs, strict=True)]  # fmt: skip
+                             count_views=predictor.count_views, count_probabilities=p,
+                             familiarity=f, familiar_line=line)
+            for s, p, f, frame, x in zip(strokes, counts, familiar, frames, inputs,
+                                         strict=True)]  # fmt: skip
 
 
 def _dmp_predictions(predictor, inputs, frames, source, steps, n_points) -> list:

@@ -78,6 +78,7 @@ from .data.images import (  # noqa: F401  (re-exported: their home was this modu
 from .dmp import DMPConfig, DMPParams
 from .dmp._numpy_rollout import rollout_numpy
 from .dmp.affine import affine_dmp
+from .familiar import shipped_familiar
 from .models import ShippedModel, default_model
 from .models import resolve as resolve_shipped
 from .nn._numpy_net import NumpyNetwork
@@ -213,6 +214,12 @@ class Predictor:
         image and ``count_views - 1`` small affine copies,
         :func:`img2dmp.nn.strokes.count_views`; 1: the image alone): a shipped model's
         recommended ``count_views``, else :data:`~img2dmp.nn.strokes.COUNT_VIEWS`.
+    familiar : Familiar or None
+        The training drawings' encoder features and the line below which an image is
+        unfamiliar (:mod:`img2dmp.familiar`): a shipped model's when it carries them
+        (``omniglot-strokes``), else None; set it with
+        :func:`~img2dmp.familiar.fit_familiar` for a run of one's own. A stroke model's
+        predictions then record their familiarity and flag ``"unfamiliar"`` below it.
 
     ``Predictor(model, ...)`` with a torch network computes with torch;
     :meth:`Predictor.load` chooses the backend (module docstring, "Backends").
@@ -246,6 +253,8 @@ class Predictor:
         self.strokes = strokes
         views = shipped.count_views if shipped is not None else None
         self.count_views = views if views is not None else COUNT_VIEWS
+        self.familiar = shipped_familiar(shipped) if shipped is not None else None
+        self._seen = None  # (images, encoder features) of the network's last batch
 
     @property
     def backend(self) -> str:
@@ -269,7 +278,7 @@ class Predictor:
 
     @model.setter
     def model(self, model) -> None:  # a torch network of one's own: torch computes
-        self._model, self.network = model.eval(), None
+        self._model, self.network, self._seen = model.eval(), None, None
 
     @classmethod
     def load(
@@ -386,7 +395,14 @@ class Predictor:
         """Checked images ``x [B, H, W]`` and the network's outputs for them (NumPy)."""
         check_count("batch_size", batch_size, 1, MAX_BATCH_SIZE)
         x = self._check_images(images)
-        if self.network is not None:
+        if self.network is not None and self.familiar is not None and len(x):
+            # the encoder's features kept for the familiarity of the same images (a copy of
+            # them: the caller may change its array)
+            parts = [self.network.with_features(x[lo : lo + batch_size])
+                     for lo in range(0, len(x), batch_size)]  # fmt: skip
+            out = np.concatenate([o for o, _ in parts])
+            self._seen = (x.copy(), np.concatenate([f for _, f in parts]))
+        elif self.network is not None:
             parts = [self.network(x[lo : lo + batch_size]) for lo in range(0, len(x), batch_size)]
             out = np.concatenate(parts) if parts else self.network(x)  # [B, K (P + 1) | P]
         else:
@@ -539,6 +555,36 @@ class Predictor:
         top = split_slots_numpy(out, self.strokes, self.n_hypotheses)[4].argmax(1)  # [B]
         return strokes, counts[np.arange(len(counts)), top]
 
+    def encoder_features(self, images, batch_size: int = 4096) -> np.ndarray:
+        """The encoder's features ``[B, F]`` of prepared images ``[B, H, W]`` (what the
+        decoder reads; float32)."""
+        x = np.asarray(images, dtype=np.float32)
+        if x.ndim != 3 or x.shape[1:] != self.image_size:
+            raise ValueError(f"images must be [B, {self.image_size[0]}, {self.image_size[1]}] "
+                             f"prepared images, got shape {x.shape}")  # fmt: skip
+        seen = self._seen
+        if seen is not None and seen[0].shape == x.shape and np.array_equal(seen[0], x):
+            return seen[1]  # the network read these images last: their features are kept
+        if self.network is not None:
+            return self.network.features(x)
+        import torch
+
+        m, out = self.model, []
+        device = next(m.parameters()).device
+        with torch.no_grad():
+            for a in range(0, len(x), batch_size):
+                t = torch.as_tensor(x[a : a + batch_size], device=device)
+                out.append(m.encoder(m.input_filter(t)).float().cpu().numpy())
+        return np.concatenate(out) if out else np.zeros((0, 0), np.float32)
+
+    def familiarity(self, images, batch_size: int = 4096) -> np.ndarray | None:
+        """How familiar prepared images ``[B, H, W]`` are to the model ``[B]``
+        (:meth:`Familiar.familiarity <img2dmp.familiar.Familiar.familiarity>`), None when
+        the model carries no :attr:`familiar`."""
+        if self.familiar is None:
+            return None
+        return self.familiar.familiarity(self.encoder_features(images, batch_size))
+
     def stroke_count_probabilities(self, images, batch_size: int = 4096) -> np.ndarray:
         """A stroke model's probabilities ``[B, K, S]`` of 1 to S strokes per hypothesis
         for prepared images ``[B, H, W]``, averaged over :attr:`count_views` views of each
@@ -669,6 +715,7 @@ class Predictor:
         o = self.refine_options
         if self.strokes is not None:
             (strokes,), (counts,) = self.predict_strokes(prepared[None], return_counts=True)
+            familiarity = self.familiarity(prepared[None])
             return StrokePrediction(
                 strokes, self.normaliser, self.strokes, frame, prepared,
                 source=str(image) if isinstance(image, (str, os.PathLike)) else None,
@@ -677,6 +724,8 @@ class Predictor:
                 n_characters=count_characters(mask, letters=True),
                 n_per_stroke=n_points, count_views=self.count_views,
                 count_probabilities=counts,
+                familiarity=None if familiarity is None else familiarity[0],
+                familiar_line=None if self.familiar is None else self.familiar.line,
             )  # fmt: skip
         params, probs = self.predict_hypotheses(prepared[None])  # [1, K], ranked
         times, path = self.trajectories(params[0], n_points=n_points)  # [K, T], [K, T, d]
@@ -945,12 +994,16 @@ class StrokePrediction:
     count_probability : float or None
         Of those, the probability of the count read (``n_strokes``): how sure the
         network is of it (RESULTS 8.8 measures how often such counts are right).
+    familiarity, familiar_line : float or None
+        How familiar the image is to the model (:meth:`Predictor.familiarity`) and the
+        line below which it is flagged ``"unfamiliar"`` (:mod:`img2dmp.familiar`); None
+        when the model carries no familiarity.
     """
 
     def __init__(self, strokes, normaliser, layout, frame, image, *, source=None,
                  refine_steps=0, user_image=None, stroke_width_px=None, n_characters=1,
                  n_per_stroke: int = 100, count_views: int = COUNT_VIEWS,
-                 count_probabilities=None):  # fmt: skip
+                 count_probabilities=None, familiarity=None, familiar_line=None):  # fmt: skip
         vectors, presence = strokes
         self.count_views = int(count_views)
         self.count_probabilities = (
@@ -971,6 +1024,11 @@ class StrokePrediction:
         self.fit = fit_score(image, path, stroke_width_px)
         # A character of c strokes may stand in up to c pieces: more is several characters.
         self.flags = fit_flags(self.fit, n_characters if n_characters > self.n_strokes else 1)
+        self.familiarity = None if familiarity is None else float(familiarity)
+        self.familiar_line = None if familiar_line is None else float(familiar_line)
+        if self.familiarity is not None and self.familiar_line is not None:
+            if self.familiarity < self.familiar_line:
+                self.flags.append("unfamiliar")
 
     n_hypotheses = 1
 
@@ -1009,8 +1067,18 @@ class StrokePrediction:
             "hypotheses": [{"rank": 1, "probability": 1.0, "trajectory": trajectory}],
             "image_frame": {"image": self.source, **self.frame.to_dict()},
             "refinement": {"steps": self.refine_steps}, "count": self._count_entry(),
-            "fit": self.fit, "flags": self.flags,
+            "fit": self.fit, **self._familiarity_entry(), "flags": self.flags,
         }  # fmt: skip
+
+    def _familiarity_entry(self) -> dict:
+        """The stroke document's ``familiarity`` (the image's and the model's line), when
+        the model carries one."""
+        if self.familiarity is None:
+            return {}
+        entry = {"value": round(self.familiarity, 6)}
+        if self.familiar_line is not None:
+            entry["line"] = round(self.familiar_line, 6)
+        return {"familiarity": entry}
 
     def _count_entry(self) -> dict:
         """The stroke document's ``count``: the views, and when known the probability of

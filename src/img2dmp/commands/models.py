@@ -48,11 +48,14 @@ def _count(f: dict) -> str:
 
 def _describe(model) -> list[str]:
     from ..errors import ShippedModelError
-    from ..models import verified_weights
+    from ..models import verified_familiar, verified_weights
 
     try:
         verified_weights(model)
         check = f"sha256 {model.sha256[:12]}... verified"
+        if verified_familiar(model) is not None:
+            line = model.record["familiar"].get("line")
+            check += f"; familiarity ({model.familiar.name}, line {line}) verified"
     except ShippedModelError as e:
         check = f"DAMAGED: {e}"
     settings = ", ".join(f"--{k.replace('_', '-')} {v}" for k, v in model.recommended.items())

@@ -128,8 +128,10 @@ def _check_options(args: argparse.Namespace) -> None:
                          "(NAME_page.png)")  # fmt: skip
 
 
-def _warn(path, flags: list[str], fit: dict) -> None:
-    print(f"img2dmp predict: warning: {path}: {', '.join(flags)} (path on ink "
+def _warn(path, flags: list[str], fit: dict, familiarity=None, line=None) -> None:
+    known = "" if familiarity is None or line is None else (
+        f"familiarity {familiarity:.3f}, the model's line {line:.3f}; ")  # fmt: skip
+    print(f"img2dmp predict: warning: {path}: {', '.join(flags)} ({known}path on ink "
           f"{fit['path_on_ink']:.2f}, ink written {fit['ink_written']:.2f}): it may not "
           "show one character the model knows"
           + ("; for a page of characters use --page" if "several_characters" in flags else ""),
@@ -222,7 +224,13 @@ def run(args: argparse.Namespace) -> int:
         predictions.append((path, pred, pred.to_json(name)))
     for path, pred, _ in predictions:
         if pred.flags:
-            _warn(path, pred.flags, pred.fit)
+            _warn(
+                path,
+                pred.flags,
+                pred.fit,
+                getattr(pred, "familiarity", None),
+                getattr(pred, "familiar_line", None),
+            )
     if not args.out:
         texts = [text.rstrip() for _, _, text in predictions]
         print(texts[0] if len(texts) == 1 else "[\n" + ",\n".join(texts) + "\n]")

@@ -16,6 +16,11 @@ A shipped model is a folder ``img2dmp/models/NAME/`` of three files:
     The model card for people: data, commands, revisions, figures, recommended settings
     and what the model is not for.
 
+A model may also carry ``familiar.safetensors`` (:mod:`img2dmp.familiar`: its training
+drawings' encoder features and the line below which an image is unfamiliar), named with
+its size and SHA-256 in ``model.json``'s ``"familiar"`` and checked like the weights
+(:func:`verified_familiar`).
+
 A name is a word of letters, digits, ``-`` and ``_`` (:func:`is_model_name`). Wherever a
 run directory or checkpoint is taken, such a word that is not an existing file or folder
 is looked up here (:func:`resolve`): a shipped name gives its weights file, after its
@@ -45,6 +50,7 @@ VERSION = 1
 WEIGHTS_FILE = "model.safetensors"
 RECORD_FILE = "model.json"
 CARD_FILE = "CARD.md"
+FAMILIAR_FILE = "familiar.safetensors"
 #: What a model's name looks like (and a ``--model`` word looked up here).
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
 #: Settings a card may recommend, with their types and least values (``refine``:
@@ -95,6 +101,12 @@ class ShippedModel:
     @property
     def card(self) -> Path:
         return self.folder / CARD_FILE
+
+    @property
+    def familiar(self) -> Path | None:
+        """Its familiarity file, if it carries one (not yet verified:
+        :func:`verified_familiar`)."""
+        return self.folder / FAMILIAR_FILE if "familiar" in self.record else None
 
     @property
     def refine(self) -> int:
@@ -150,6 +162,13 @@ def _read(folder: Path) -> ShippedModel:
     sha256 = _field(weights, "sha256", str, where)
     size = _field(weights, "bytes", int, where)
     recommended = _field(record, "recommended", dict, where)
+    if "familiar" in record:
+        familiar = _field(record, "familiar", dict, where)
+        if familiar.get("file") != FAMILIAR_FILE:
+            raise ShippedModelError(f"{where}: familiar file {show(familiar.get('file'))} "
+                                    f"is not {FAMILIAR_FILE!r}")  # fmt: skip
+        _field(familiar, "sha256", str, where)
+        _field(familiar, "bytes", int, where)
     for key, value in recommended.items():
         kind, least = RECOMMENDED_KEYS.get(key, (None, 0))
         if kind is None or not isinstance(value, kind) or isinstance(value, bool) or value < least:
@@ -223,7 +242,19 @@ def resolve(source, root: str | os.PathLike | None = None) -> ShippedModel | Non
 def verified_weights(model: ShippedModel) -> Path:
     """``model``'s weights file once its size and SHA-256 match ``model.json``; else one
     :class:`~img2dmp.errors.ShippedModelError` naming the file (reinstall img2dmp)."""
-    path = model.weights
+    return _verified(model, model.weights, model.size_bytes, model.sha256)
+
+
+def verified_familiar(model: ShippedModel) -> Path | None:
+    """``model``'s familiarity file (None if it carries none) once its size and SHA-256
+    match ``model.json``; else one :class:`~img2dmp.errors.ShippedModelError` naming it."""
+    if model.familiar is None:
+        return None
+    entry = model.record["familiar"]
+    return _verified(model, model.familiar, entry["bytes"], entry["sha256"])
+
+
+def _verified(model: ShippedModel, path: Path, size_bytes: int, sha256: str) -> Path:
     try:
         size = path.stat().st_size
         digest = file_digest(path)
@@ -232,11 +263,11 @@ def verified_weights(model: ShippedModel) -> Path:
             f"shipped model {model.name}: {path} cannot be read ({e.strerror or e}); "
             "reinstall img2dmp"
         ) from None
-    if size != model.size_bytes or digest != model.sha256:
+    if size != size_bytes or digest != sha256:
         raise ShippedModelError(
             f"shipped model {model.name}: {path} is damaged: its SHA-256 {digest[:12]}... "
-            f"({size:,} bytes) is not the recorded {model.sha256[:12]}... "
-            f"({model.size_bytes:,} bytes); reinstall img2dmp"
+            f"({size:,} bytes) is not the recorded {sha256[:12]}... "
+            f"({size_bytes:,} bytes); reinstall img2dmp"
         )
     return path
 
@@ -250,6 +281,7 @@ def recommended_refine(source) -> int:
 
 __all__ = [
     "CARD_FILE",
+    "FAMILIAR_FILE",
     "FORMAT",
     "RECORD_FILE",
     "ShippedModel",
@@ -262,5 +294,6 @@ __all__ = [
     "resolve",
     "shipped_model_names",
     "shipped_models",
+    "verified_familiar",
     "verified_weights",
 ]

@@ -314,6 +314,8 @@ class NumpyNetwork:
         decoder[-1] = (*decoder[-1][:2], None)  # the output layer: no activation
         # x @ W.T as a product with a contiguous [in, out] matrix
         self._dense = [(_float32(m.T), _float32(b), f) for m, b, f in encoder_dense + decoder]
+        self._n_encoder = len(encoder_dense)
+        self.feature_size = int(self._dense[self._n_encoder - 1][0].shape[1])
         per_image, (h, wd) = 0, self.image_size
         for conv, st in zip(self._convs, conv_strides(config), strict=False):
             per_image += conv.work_bytes(h, wd)
@@ -336,6 +338,25 @@ class NumpyNetwork:
     def __call__(self, images: np.ndarray) -> np.ndarray:  # [B, H, W] -> [B, P | K (P + 1)]
         """The network's output for ``images [B, H, W]``: ``[B, output_size]`` float32,
         the normalised DMP vector (K = 1) or K vectors and K scores."""
+        return self._run(images, len(self._dense), self.output_size)
+
+    def features(self, images: np.ndarray) -> np.ndarray:  # [B, H, W] -> [B, F]
+        """The encoder's output for ``images [B, H, W]``: ``[B, feature_size]`` float32,
+        what the decoder reads (torch: ``model.encoder(model.input_filter(x))``)."""
+        return self._run(images, self._n_encoder, self.feature_size)
+
+    def with_features(self, images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The output and the encoder's features of ``images``, in one pass."""
+        feats = self.features(images)
+        x = feats
+        for matrix, bias, activation in self._dense[self._n_encoder :]:
+            x = x @ matrix
+            x += bias
+            if activation is not None:
+                x = activation(x)
+        return x, feats
+
+    def _run(self, images, layers: int, size: int) -> np.ndarray:
         x = np.asarray(images, dtype=np.float32)
         if x.ndim != 3:
             raise ValueError(f"images must be [B, H, W], got shape {x.shape}")
@@ -347,20 +368,21 @@ class NumpyNetwork:
             x = impulse_filter(x)
         n, part = x.shape[0], self._part
         if part is None or n <= part:
-            return self._forward(x)
-        out = np.empty((n, self.output_size), np.float32)
+            return self._forward(x, layers)
+        out = np.empty((n, size), np.float32)
         for i in range(0, n, part):
-            out[i : i + part] = self._forward(x[i : i + part])
+            out[i : i + part] = self._forward(x[i : i + part], layers)
         return out
 
-    def _forward(self, x: np.ndarray) -> np.ndarray:  # [B, H, W] -> [B, P | K (P + 1)]
+    def _forward(self, x: np.ndarray, layers: int) -> np.ndarray:  # [B, H, W] -> [B, *]
+        """The convolutions, then the first ``layers`` dense layers."""
         n = x.shape[0]
         if self._convs:
             x = x[..., None]  # [B, H, W, 1]
             for conv in self._convs:
                 x = conv(x, self._work)
         x = x.reshape(n, self._dense[0][0].shape[0])  # [B, inputs of the first dense layer]
-        for matrix, bias, activation in self._dense:
+        for matrix, bias, activation in self._dense[:layers]:
             x = x @ matrix
             x += bias
             if activation is not None:

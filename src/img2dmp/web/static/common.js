@@ -110,6 +110,8 @@ const FLAG_TEXT = {
   unexplained_ink: (fit) => `part of the ink is not written (written ${pct(fit.ink_written)})`,
   several_characters: () => "the image holds several characters",
   cut_by_border: () => "it touches the photo's border, so part of it may be cut off",
+  unfamiliar: () =>
+    "it looks unlike the characters the model learnt, so its strokes and their count are a guess",
 };
 
 /** The flags as one clause ("the path leaves the ink (on ink 62 %); ..."), "" for none. */

@@ -349,7 +349,9 @@ function showFlags(answer) {
   ui.fitNote.replaceChildren();
   ui.fitNote.hidden = !text;
   if (!text) return;
-  ui.fitNote.append(`This does not look like one character: ${text}.`);
+  const onlyNew = answer.flags.every((f) => f === "unfamiliar");
+  ui.fitNote.append(onlyNew ? `This character is new to the model: ${text}.`
+    : `This does not look like one character: ${text}.`);
   if (answer.flags.includes("several_characters")) {
     ui.fitNote.append(" ", el("a", { href: "/page" }, "Read it on the Page view"), ".");
   }

@@ -1,0 +1,155 @@
+"""How familiar an image is to a model: whether it looks like the drawings it learnt.
+
+A stroke model reads the characters it was trained on well and those of an alphabet it
+never saw much worse (experiments/RESULTS.md §8.9: the count right for 44 % instead of
+79 %), and its count's own probability does not tell them apart (§8.8). The encoder
+does (§8.11): an image's **familiarity** is the cosine similarity of its encoder
+features (what the decoder reads) to those of the nearest training drawing. A model may
+carry its training drawings' features and a **line**, the familiarity that all but
+:data:`QUANTILE` of its validation drawings reach; a prediction below the line is
+flagged ``"unfamiliar"``.
+
+The features are stored as safetensors (``features``, float16 ``[N, F]``, unit rows) with
+the line and how it was drawn in the file's JSON metadata: no code is stored.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ._files import atomic_write_bytes
+
+#: The format name in a familiarity file's metadata.
+FORMAT = "img2dmp-familiar"
+VERSION = 1
+#: The share of the validation drawings left below the line.
+QUANTILE = 0.05
+
+
+def unit_rows(features) -> np.ndarray:
+    """``features [N, F]`` as float64 rows of length 1 (a zero row stays zero)."""
+    f = np.asarray(features, dtype=np.float64)
+    return f / np.maximum(np.linalg.norm(f, axis=-1, keepdims=True), 1e-12)
+
+
+@dataclass(frozen=True)
+class Familiar:
+    """A model's training drawings' encoder features ``[N, F]`` (unit rows) and the
+    ``line`` below which an image is unfamiliar; ``quantile``, ``n_validation``: how the
+    line was drawn (that share of that many validation drawings lie below it)."""
+
+    features: np.ndarray
+    line: float
+    quantile: float = QUANTILE
+    n_validation: int = 0
+
+    def __post_init__(self):
+        f = np.asarray(self.features)
+        if f.ndim != 2 or not len(f) or not np.isfinite(f).all():
+            raise ValueError(f"familiar features must be a finite [N, F] array, got {f.shape}")
+        if not np.isfinite(self.line) or not -1.0 <= self.line <= 1.0:
+            raise ValueError(f"familiar line must be a cosine in [-1, 1], got {self.line!r}")
+
+    @property
+    def feature_size(self) -> int:
+        return int(np.asarray(self.features).shape[1])
+
+    def familiarity(self, features) -> np.ndarray:
+        """The familiarity ``[B]`` of images whose encoder features are ``[B, F]``: the
+        largest cosine similarity to a training drawing's."""
+        f = unit_rows(features)
+        if f.ndim != 2 or f.shape[1] != self.feature_size:
+            raise ValueError(
+                f"features must be [B, {self.feature_size}] (the model's encoder), got {f.shape}"
+            )
+        ref = unit_rows(self.features)
+        out = np.full(len(f), -1.0)
+        for a in range(0, len(ref), 4096):  # [B, 4096] at a time
+            np.maximum(out, (f @ ref[a : a + 4096].T).max(1), out=out)
+        return out
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the features (float16) and the line to ``path`` atomically."""
+        from safetensors.numpy import save
+
+        meta = {"format": FORMAT, "version": VERSION, "line": float(self.line),
+                "quantile": float(self.quantile),
+                "n_validation": int(self.n_validation)}  # fmt: skip
+        data = save({"features": unit_rows(self.features).astype(np.float16)},
+                    metadata={"familiar": json.dumps(meta)})  # fmt: skip
+        atomic_write_bytes(path, data)
+        return Path(path)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Familiar:
+        """Read a file :meth:`save` wrote; ``ValueError`` naming the file and what is wrong."""
+        from safetensors import SafetensorError, safe_open
+
+        p = Path(path)
+        try:
+            with safe_open(p, framework="numpy") as f:
+                raw = (f.metadata() or {}).get("familiar")
+                features = f.get_tensor("features") if "features" in f.keys() else None
+        except (OSError, SafetensorError) as e:
+            raise ValueError(f"familiarity file {p} cannot be read: {e}") from None
+        try:
+            meta = json.loads(raw) if raw is not None else None
+        except ValueError:
+            meta = None
+        if not isinstance(meta, dict) or meta.get("format") != FORMAT or features is None:
+            raise ValueError(f"{p} is not a familiarity file (format {FORMAT!r}, 'features')")
+        if meta.get("version") != VERSION:
+            raise ValueError(f"{p}: familiarity file version {meta.get('version')!r} is not "
+                             f"supported (this img2dmp reads version {VERSION})")  # fmt: skip
+        try:
+            quantile, n = float(meta.get("quantile", QUANTILE)), int(meta.get("n_validation", 0))
+            return cls(features.astype(np.float32), float(meta["line"]), quantile, n)
+        except (KeyError, TypeError, ValueError) as e:
+            raise ValueError(f"{p}: {e}") from None
+
+
+def shipped_familiar(model) -> Familiar | None:
+    """The :class:`Familiar` a shipped model (:class:`~img2dmp.models.ShippedModel`)
+    carries, its file's SHA-256 checked (:func:`~img2dmp.models.verified_familiar`);
+    None if it carries none."""
+    from .errors import ShippedModelError
+    from .models import verified_familiar
+
+    path = verified_familiar(model)
+    if path is None:
+        return None
+    try:
+        return Familiar.load(path)
+    except ValueError as e:
+        raise ShippedModelError(f"shipped model {model.name}: {e}; reinstall img2dmp") from None
+
+
+def fit_familiar(predictor, data, quantile: float = QUANTILE) -> Familiar:
+    """The :class:`Familiar` of ``predictor``'s model from a data set (a
+    :class:`~img2dmp.data.store.DigitData` or its path): its training split's features,
+    and the line that ``quantile`` of its validation split falls below. Choose it on the
+    data set the model trained on; ``ValueError`` if a split is empty."""
+    from .data.store import load_dataset
+
+    if isinstance(data, (str, os.PathLike)):
+        data = load_dataset(data)
+    if not 0.0 < quantile < 0.5:
+        raise ValueError(f"quantile must be in (0, 0.5), got {quantile!r}")
+    split = np.asarray(data.split)
+    train, val = np.flatnonzero(split == 0), np.flatnonzero(split == 1)
+    if not len(train) or not len(val):
+        raise ValueError(f"the data set needs training and validation rows, has {len(train)} "
+                         f"and {len(val)}")  # fmt: skip
+    ref = unit_rows(predictor.encoder_features(data.images[train])).astype(np.float16)
+    probe = Familiar(ref.astype(np.float32), 0.0)
+    line = float(np.quantile(probe.familiarity(predictor.encoder_features(data.images[val])),
+                             quantile))  # fmt: skip
+    return Familiar(ref.astype(np.float32), line, quantile, len(val))
+
+
+__all__ = ["FORMAT", "QUANTILE", "Familiar", "fit_familiar", "shipped_familiar", "unit_rows"]

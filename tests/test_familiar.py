@@ -1,0 +1,204 @@
+"""How familiar an image is to a model (``img2dmp.familiar``): the encoder's features in
+NumPy and torch, the familiarity file, the line drawn on validation drawings, the
+``"unfamiliar"`` flag of a stroke model's predictions and pages, and shipping it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import img2dmp
+from img2dmp import cli, models
+from img2dmp.data.store import load_dataset
+from img2dmp.familiar import FORMAT, Familiar, fit_familiar, unit_rows
+from img2dmp.predict import Predictor
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT / "examples" / "samples"
+
+
+@pytest.mark.parametrize("source", ["omniglot-strokes", "digits-real"])
+def test_the_numpy_encoder_gives_torch_s_features(source):
+    import torch
+
+    numpy = Predictor.load(source, backend="numpy")
+    torch_ = Predictor.load(source, backend="torch")
+    rng = np.random.default_rng(0)
+    x = (rng.random((5, *numpy.image_size)) > 0.8).astype(np.float32)
+    f = numpy.encoder_features(x)
+    m = torch_.model
+    with torch.no_grad():
+        ref = m.encoder(m.input_filter(torch.as_tensor(x))).numpy()
+    assert f.shape == ref.shape == (5, numpy.network.feature_size)
+    np.testing.assert_allclose(f, ref, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(torch_.encoder_features(x), ref, rtol=1e-6, atol=1e-7)
+    with pytest.raises(ValueError, match=r"images must be \[B, "):
+        numpy.encoder_features(x[0])
+
+
+def test_familiarity_is_the_cosine_to_the_nearest_training_drawing():
+    ref = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
+    fam = Familiar(ref.astype(np.float32), line=0.5)
+    got = fam.familiarity([[3.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+    np.testing.assert_allclose(got, [1.0, 0.0, np.sqrt(0.5), 0.0], atol=1e-12)
+    with pytest.raises(ValueError, match=r"features must be \[B, 3\]"):
+        fam.familiarity(np.zeros((2, 4)))
+    with pytest.raises(ValueError, match="cosine in"):
+        Familiar(ref, line=1.5)
+    with pytest.raises(ValueError, match="finite"):
+        Familiar(np.full((2, 3), np.nan), line=0.5)
+
+
+def test_a_familiarity_file_round_trips_and_a_bad_one_is_named(tmp_path):
+    rng = np.random.default_rng(1)
+    fam = Familiar(unit_rows(rng.normal(size=(7, 4))).astype(np.float32), 0.8, 0.05, 12)
+    path = fam.save(tmp_path / "f.safetensors")
+    back = Familiar.load(path)
+    assert (back.line, back.quantile, back.n_validation) == (0.8, 0.05, 12)
+    np.testing.assert_allclose(back.features, fam.features, atol=1e-3)  # float16 stored
+    (tmp_path / "junk.safetensors").write_bytes(b"not a safetensors file")
+    with pytest.raises(ValueError, match=r"familiarity file .*junk.safetensors cannot be read"):
+        Familiar.load(tmp_path / "junk.safetensors")
+    from safetensors.numpy import save_file
+
+    save_file({"features": np.zeros((2, 2), np.float16)}, tmp_path / "other.safetensors")
+    with pytest.raises(
+        ValueError, match=rf"other.safetensors is not a familiarity file .*{FORMAT}"
+    ):
+        Familiar.load(tmp_path / "other.safetensors")
+    meta = {"familiar": json.dumps({"format": FORMAT, "version": 9, "line": 0.5})}
+    save_file({"features": np.ones((2, 2), np.float16)}, tmp_path / "v9.safetensors", meta)
+    with pytest.raises(ValueError, match="version 9 is not supported"):
+        Familiar.load(tmp_path / "v9.safetensors")
+
+
+class _Net:
+    """What fit_familiar asks of a predictor: the encoder's features of images (here
+    the images' own pixels)."""
+
+    def encoder_features(self, images):
+        return np.asarray(images, dtype=np.float64).reshape(len(images), -1)
+
+
+class _Data:
+    def __init__(self, images, split):
+        self.images, self.split = images, np.asarray(split)
+
+
+def test_the_line_is_the_validation_drawings_quantile():
+    rng = np.random.default_rng(2)
+    images = rng.normal(size=(60, 2, 3))
+    split = np.r_[np.zeros(40, int), np.ones(20, int)]
+    fam = fit_familiar(_Net(), _Data(images, split), quantile=0.1)
+    ref = unit_rows(images[:40].reshape(40, -1)).astype(np.float16).astype(np.float64)
+    val = unit_rows(images[40:].reshape(20, -1))
+    expect = np.quantile((val @ unit_rows(ref).T).max(1), 0.1)
+    assert fam.line == pytest.approx(expect, abs=1e-9)
+    assert fam.n_validation == 20 and len(fam.features) == 40
+    assert (fam.familiarity(images[40:].reshape(20, -1)) < fam.line).sum() == 2
+    with pytest.raises(ValueError, match="needs training and validation rows, has 40 and 0"):
+        fit_familiar(_Net(), _Data(images[:40], split[:40]))
+    with pytest.raises(ValueError, match="quantile"):
+        fit_familiar(_Net(), _Data(images, split), quantile=0.7)
+
+
+def test_a_stroke_prediction_is_flagged_unfamiliar_below_the_line_only():
+    predictor = img2dmp.load_model("omniglot-strokes", refine=0)
+    image = SAMPLES / "character_f.png"
+    own = predictor.predict(image)
+    assert own.familiarity is not None and own.familiar_line == predictor.familiar.line
+    assert ("unfamiliar" in own.flags) == (own.familiarity < own.familiar_line)
+    doc = own.to_document()
+    assert doc["familiarity"] == {"value": round(own.familiarity, 6),
+                                  "line": round(predictor.familiar.line, 6)}  # fmt: skip
+    # the image's own features as the only training drawing: familiarity 1, not flagged
+    features = predictor.encoder_features(own.image[None])
+    predictor.familiar = Familiar(features, line=0.999)
+    same = predictor.predict(image)
+    assert same.familiarity == pytest.approx(1.0, abs=1e-6) and "unfamiliar" not in same.flags
+    predictor.familiar = Familiar(-features, line=0.0)  # pointing away: flagged
+    away = predictor.predict(image)
+    assert away.familiarity < 0 and "unfamiliar" in away.flags
+    predictor.familiar = None  # none carried: nothing recorded, nothing flagged
+    none = predictor.predict(image)
+    assert none.familiarity is None and "familiarity" not in none.to_document()
+    assert "unfamiliar" not in none.flags
+    assert img2dmp.load_model("digits-real").familiar is None
+
+
+def test_a_page_notes_each_character_s_familiarity_and_flags_it():
+    predictor = img2dmp.load_model("omniglot-strokes", refine=0)
+    page = predictor.predict_page(SAMPLES / "letters_page.png")
+    doc = page.to_document()
+    line = predictor.familiar.line
+    seen = set()
+    assert doc["entries"] == "strokes"
+    for entry in doc["characters"]:
+        fam = entry["familiarity"]
+        assert fam is not None and -1.0 <= fam <= 1.0
+        assert ("unfamiliar" in entry["flags"]) == (fam < line)
+        seen.add(entry["character"])
+    assert len(seen) == len(page.characters) == 8
+    one = page.characters[0].prediction
+    assert one.familiarity == pytest.approx(predictor.familiarity(one.image[None])[0], abs=1e-6)
+
+
+def test_a_run_of_one_s_own_gets_a_familiarity_and_ships_it(
+    stroke_run, small_omniglot, tmp_path, monkeypatch, experiment_script
+):
+    predictor = Predictor.load(stroke_run)
+    assert predictor.familiar is None
+    data = load_dataset(small_omniglot)
+    predictor.familiar = fit_familiar(predictor, small_omniglot)
+    val = np.flatnonzero(data.split == 1)
+    below = predictor.familiarity(data.images[val]) < predictor.familiar.line
+    assert below.mean() <= 0.05 + 1.0 / len(val)
+    # shipped: the file beside the weights, its digest in model.json, loaded with the model
+    ship = experiment_script("ship_model")
+    monkeypatch.setattr(ship, "MODELS", tmp_path / "models")
+    ev = tmp_path / "ev"
+    assert cli.main(["evaluate", "--model", str(stroke_run), "--data", str(small_omniglot),
+                     "--split", "test", "--figures", "0", "--out", str(ev)]) == 0  # fmt: skip
+    args = ["--run", str(stroke_run), "--evaluation", str(ev / "evaluation.json"),
+            "--name", "mine", "--familiar", str(small_omniglot)]  # fmt: skip
+    assert ship.main(args) == 0
+    (shipped,) = models.shipped_models(tmp_path / "models")
+    assert shipped.familiar is not None and models.verified_familiar(shipped)
+    record = shipped.record["familiar"]
+    assert record["line"] == pytest.approx(predictor.familiar.line, abs=1e-6)
+    assert record["n_train"] == int((data.split == 0).sum())
+    # shipped again without --familiar, same weights: kept
+    assert ship.main(args[:-2]) == 0
+    (again,) = models.shipped_models(tmp_path / "models")
+    assert again.record["familiar"] == record and again.familiar.is_file()
+
+
+def test_the_features_kept_from_the_network_s_pass_are_those_of_the_same_images():
+    predictor = img2dmp.load_model("omniglot-strokes", refine=0)
+    x = (np.random.default_rng(3).random((3, *predictor.image_size)) > 0.85).astype(np.float32)
+    predictor.predict_strokes(x)  # the network's pass keeps the features
+    fresh = predictor.familiar.familiarity(predictor.network.features(x))
+    np.testing.assert_allclose(predictor.familiarity(x), fresh, atol=1e-6)
+    x[0] = 0.0
+    x[0, 10:30, 20] = 1.0  # the caller's array changed in place: not the kept images
+    fresh = predictor.familiar.familiarity(predictor.network.features(x))
+    np.testing.assert_allclose(predictor.familiarity(x), fresh, atol=1e-6)
+    assert abs(predictor.familiarity(x)[0] - fresh[0]) < 1e-6
+
+
+def test_predict_warns_of_an_unfamiliar_character_with_its_familiarity(tmp_path, capsys):
+    """The drawn digit 3 read by the stroke model: digits are in none of its alphabets."""
+    image = SAMPLES / "digit_3.png"
+    assert cli.main(["predict", str(image), "--model", "omniglot-strokes", "--out",
+                     str(tmp_path)]) == 0  # fmt: skip
+    doc = json.loads((tmp_path / "digit_3_dmp.json").read_text())
+    fam = doc["familiarity"]
+    assert fam["value"] < fam["line"] and "unfamiliar" in doc["flags"]
+    err = capsys.readouterr().err
+    line = next(x for x in err.splitlines() if "warning" in x)
+    assert f"unfamiliar (familiarity {fam['value']:.3f}, the model's line {fam['line']:.3f}; " in (
+        line
+    )
