@@ -348,13 +348,7 @@ class NumpyNetwork:
     def with_features(self, images: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The output and the encoder's features of ``images``, in one pass."""
         feats = self.features(images)
-        x = feats
-        for matrix, bias, activation in self._dense[self._n_encoder :]:
-            x = x @ matrix
-            x += bias
-            if activation is not None:
-                x = activation(x)
-        return x, feats
+        return self._dense_layers(feats, self._n_encoder, len(self._dense)), feats
 
     def _run(self, images, layers: int, size: int) -> np.ndarray:
         x = np.asarray(images, dtype=np.float32)
@@ -382,7 +376,11 @@ class NumpyNetwork:
             for conv in self._convs:
                 x = conv(x, self._work)
         x = x.reshape(n, self._dense[0][0].shape[0])  # [B, inputs of the first dense layer]
-        for matrix, bias, activation in self._dense[:layers]:
+        return self._dense_layers(x, 0, layers)
+
+    def _dense_layers(self, x: np.ndarray, first: int, stop: int) -> np.ndarray:
+        """Dense layers ``first`` to ``stop - 1`` applied to ``x [B, *]``."""
+        for matrix, bias, activation in self._dense[first:stop]:
             x = x @ matrix
             x += bias
             if activation is not None:
