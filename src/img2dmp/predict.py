@@ -128,6 +128,12 @@ MIN_INK_WRITTEN = 0.8
 DEFAULT_STROKE_WIDTH_PX = 2.4
 
 
+#: At most this many images' encoder features are kept from the network's last pass for
+#: their familiarity (:meth:`Predictor.familiarity`): a page's characters (at most
+#: :data:`img2dmp.data.pages.MAX_CHARACTERS`, 5,000), not a whole evaluation's images.
+KEEP_ROWS = 5000
+
+
 def fit_score(image: np.ndarray, path: np.ndarray, stroke_width_px: float | None = None) -> dict:
     """How well a path ``[T, d]`` explains an image ``[H, W]`` (model frame, ink = 1):
     ``path_on_ink`` (:func:`img2dmp.metrics.on_ink_share`) and ``ink_written``
@@ -395,7 +401,7 @@ class Predictor:
         """Checked images ``x [B, H, W]`` and the network's outputs for them (NumPy)."""
         check_count("batch_size", batch_size, 1, MAX_BATCH_SIZE)
         x = self._check_images(images)
-        if self.network is not None and self.familiar is not None and len(x):
+        if self.network is not None and self.familiar is not None and 0 < len(x) <= KEEP_ROWS:
             # the encoder's features kept for the familiarity of the same images (a copy of
             # them: the caller may change its array)
             parts = [self.network.with_features(x[lo : lo + batch_size])
