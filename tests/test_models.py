@@ -60,6 +60,20 @@ def test_each_shipped_file_has_its_recorded_digest_and_size():
         )
 
 
+def test_every_shipped_file_is_in_the_repository():
+    """A file of a shipped model that git ignores would be missing from every clone
+    (``.gitignore`` ignores ``*.safetensors`` but the shipped models' own)."""
+    import subprocess
+
+    if not (ROOT / ".git").exists() or shutil.which("git") is None:
+        pytest.skip("not a git checkout (an installed package): nothing to compare with")
+    tracked = subprocess.run(["git", "ls-files", "src/img2dmp/models"], cwd=ROOT, check=True,
+                             capture_output=True, text=True).stdout.split()  # fmt: skip
+    for m in models.shipped_models():
+        for f in m.folder.iterdir():
+            assert f.relative_to(ROOT).as_posix() in tracked, f"{f} is not committed"
+
+
 def test_the_wheel_takes_every_shipped_file():
     import fnmatch
     import tomllib
