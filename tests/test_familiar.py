@@ -202,3 +202,38 @@ def test_predict_warns_of_an_unfamiliar_character_with_its_familiarity(tmp_path,
     assert f"unfamiliar (familiarity {fam['value']:.3f}, the model's line {fam['line']:.3f}; " in (
         line
     )
+
+
+def test_familiarity_in_parts_is_the_whole_product_s_and_max_train_keeps_a_choice():
+    rng = np.random.default_rng(4)
+    ref, query = rng.normal(size=(5000, 8)), rng.normal(size=(1500, 8))
+    fam = Familiar(ref.astype(np.float32), 0.5)
+    whole = (unit_rows(query) @ unit_rows(ref.astype(np.float32)).T).max(1)
+    np.testing.assert_allclose(fam.familiarity(query), whole, atol=1e-12)
+    images = rng.normal(size=(60, 2, 3))
+    split = np.r_[np.zeros(40, int), np.ones(20, int)]
+    small = fit_familiar(_Net(), _Data(images, split), max_train=10)
+    assert len(small.features) == 10
+    rows = unit_rows(images[:40].reshape(40, -1)).astype(np.float16).astype(np.float32)
+    assert all(any(np.allclose(f, r) for r in rows) for f in small.features)  # training rows
+    with pytest.raises(ValueError, match="max_train"):
+        fit_familiar(_Net(), _Data(images, split), max_train=0)
+
+
+def test_a_one_dmp_prediction_and_its_page_take_a_familiarity_too():
+    predictor = img2dmp.load_model("digits-real", refine=0)
+    image = SAMPLES / "digit_3.png"
+    base = predictor.predict(image)
+    features = predictor.encoder_features(base.image[None])
+    predictor.familiar = Familiar(features, line=0.999)
+    same = predictor.predict(image)
+    assert same.familiarity == pytest.approx(1.0, abs=1e-6) and "unfamiliar" not in same.flags
+    assert same.to_document()["familiarity"] == {"value": round(same.familiarity, 6),
+                                                 "line": 0.999}  # fmt: skip
+    predictor.familiar = Familiar(-features, line=0.0)
+    away = predictor.predict(image)
+    assert "unfamiliar" in away.flags and away.flags[:-1] == base.flags
+    page = predictor.predict_page(SAMPLES / "page.jpg").to_document()
+    assert page["characters"] and all(
+        ("unfamiliar" in c["flags"]) == (c["familiarity"] < 0.0) for c in page["characters"]
+    )

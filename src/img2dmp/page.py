@@ -141,6 +141,8 @@ class CharacterPrediction:
             "parts": c.parts,
             "split": c.split,
         }
+        if p.familiarity is not None:  # from a model that carries a familiarity
+            entry["familiarity"] = round(p.familiarity, 6)
         if dmp:
             entry["dmp"] = p.to_document()
         return entry
@@ -429,9 +431,7 @@ def _stroke_predictions(predictor, inputs, frames, source, steps, n_points) -> l
 
     images = np.stack(inputs)
     strokes, counts = predictor.predict_strokes(images, return_counts=True)
-    familiar = predictor.familiarity(images)
-    familiar = [None] * len(inputs) if familiar is None else familiar
-    line = None if predictor.familiar is None else predictor.familiar.line
+    familiar, line = _familiarities(predictor, images)
     return [StrokePrediction(s, predictor.normaliser, predictor.strokes, frame, x,
                              source=source, refine_steps=steps,
                              stroke_width_px=predictor.stroke_width, n_per_stroke=n_points,
@@ -447,13 +447,23 @@ def _dmp_predictions(predictor, inputs, frames, source, steps, n_points) -> list
     from .predict import Prediction
 
     # refined: the top hypothesis, the one written (PAGE_REFINE_TOP_ONLY)
-    params, probs = predictor.predict_hypotheses(np.stack(inputs),
-                                                 refine_top_only=PAGE_REFINE_TOP_ONLY)  # fmt: skip
+    images = np.stack(inputs)
+    params, probs = predictor.predict_hypotheses(images, refine_top_only=PAGE_REFINE_TOP_ONLY)
     times, paths = predictor.trajectories(params, n_points=n_points)  # [N, K, T], [N, K, T, d]
+    familiar, line = _familiarities(predictor, images)
     return [Prediction(params[i], probs[i], times[i], paths[i], frames[i], predictor.dmp_config,
                        inputs[i], source=source, refine_steps=steps,
-                       stroke_width_px=predictor.stroke_width)
+                       stroke_width_px=predictor.stroke_width, familiarity=familiar[i],
+                       familiar_line=line)
             for i in range(len(inputs))]  # fmt: skip
+
+
+def _familiarities(predictor, images) -> tuple[list, float | None]:
+    """Each image's familiarity to the predictor's model (None each when it carries
+    none) and the model's line."""
+    if predictor.familiar is None:
+        return [None] * len(images), None
+    return list(predictor.familiarity(images)), predictor.familiar.line
 
 
 def _grow(pen_width_px: float) -> int:

@@ -181,6 +181,27 @@ def fit_flags(fit: dict, n_characters: int = 1) -> list[str]:
     return flags
 
 
+def _set_familiarity(pred, familiarity, line) -> None:
+    """``pred.familiarity`` and ``pred.familiar_line`` (floats or None), and the flag
+    ``"unfamiliar"`` added to ``pred.flags`` when the one is below the other."""
+    pred.familiarity = None if familiarity is None else float(familiarity)
+    pred.familiar_line = None if line is None else float(line)
+    if pred.familiarity is not None and pred.familiar_line is not None:
+        if pred.familiarity < pred.familiar_line:
+            pred.flags.append("unfamiliar")
+
+
+def _familiarity_entry(pred) -> dict:
+    """A document's ``familiarity`` (the image's and the model's line), when the model
+    carries one; nothing otherwise."""
+    if pred.familiarity is None:
+        return {}
+    entry = {"value": round(pred.familiarity, 6)}
+    if pred.familiar_line is not None:
+        entry["line"] = round(pred.familiar_line, 6)
+    return {"familiarity": entry}
+
+
 def check_count(name: str, value, lo: int, hi: int) -> int:
     """``value`` as an int if it is a whole number in ``[lo, hi]``, else ``ValueError``
     naming ``name``, the value and the range."""
@@ -735,6 +756,7 @@ class Predictor:
             )  # fmt: skip
         params, probs = self.predict_hypotheses(prepared[None])  # [1, K], ranked
         times, path = self.trajectories(params[0], n_points=n_points)  # [K, T], [K, T, d]
+        familiarity = self.familiarity(prepared[None])
         return Prediction(
             params=params[0],
             probabilities=probs[0],
@@ -748,6 +770,8 @@ class Predictor:
             user_image=image,
             stroke_width_px=self.stroke_width,
             n_characters=count_characters(mask),
+            familiarity=None if familiarity is None else familiarity[0],
+            familiar_line=None if self.familiar is None else self.familiar.line,
         )
 
     def predict_page(
@@ -867,6 +891,10 @@ class Prediction:
         ``"several_characters"``; empty for an image read as one character.
     n_characters : int
         The characters found in the image (1 for a page's character).
+    familiarity, familiar_line : float or None
+        How familiar the image is to the model (:meth:`Predictor.familiarity`) and the
+        line below which it is flagged ``"unfamiliar"`` (:mod:`img2dmp.familiar`); None
+        when the model carries no familiarity.
     """
 
     def __init__(
@@ -883,6 +911,8 @@ class Prediction:
         user_image=None,
         stroke_width_px: float | None = None,
         n_characters: int = 1,
+        familiarity: float | None = None,
+        familiar_line: float | None = None,
     ):
         self.params = params.to_numpy()
         if len(self.params.batch_shape) != 1:
@@ -897,6 +927,7 @@ class Prediction:
         self.user_image = user_image
         self.fit = fit_score(image, self.path_model[0], stroke_width_px)
         self.flags = fit_flags(self.fit, n_characters)
+        _set_familiarity(self, familiarity, familiar_line)
 
     @property
     def n_hypotheses(self) -> int:
@@ -935,6 +966,7 @@ class Prediction:
             image_frame={"image": self.source, **self.frame.to_dict()},
             refinement={"steps": self.refine_steps},
             fit=self.fit,
+            **_familiarity_entry(self),
             flags=self.flags,
         )
 
@@ -1030,11 +1062,7 @@ class StrokePrediction:
         self.fit = fit_score(image, path, stroke_width_px)
         # A character of c strokes may stand in up to c pieces: more is several characters.
         self.flags = fit_flags(self.fit, n_characters if n_characters > self.n_strokes else 1)
-        self.familiarity = None if familiarity is None else float(familiarity)
-        self.familiar_line = None if familiar_line is None else float(familiar_line)
-        if self.familiarity is not None and self.familiar_line is not None:
-            if self.familiarity < self.familiar_line:
-                self.flags.append("unfamiliar")
+        _set_familiarity(self, familiarity, familiar_line)
 
     n_hypotheses = 1
 
@@ -1073,18 +1101,8 @@ class StrokePrediction:
             "hypotheses": [{"rank": 1, "probability": 1.0, "trajectory": trajectory}],
             "image_frame": {"image": self.source, **self.frame.to_dict()},
             "refinement": {"steps": self.refine_steps}, "count": self._count_entry(),
-            "fit": self.fit, **self._familiarity_entry(), "flags": self.flags,
+            "fit": self.fit, **_familiarity_entry(self), "flags": self.flags,
         }  # fmt: skip
-
-    def _familiarity_entry(self) -> dict:
-        """The stroke document's ``familiarity`` (the image's and the model's line), when
-        the model carries one."""
-        if self.familiarity is None:
-            return {}
-        entry = {"value": round(self.familiarity, 6)}
-        if self.familiar_line is not None:
-            entry["line"] = round(self.familiar_line, 6)
-        return {"familiarity": entry}
 
     def _count_entry(self) -> dict:
         """The stroke document's ``count``: the views, and when known the probability of
