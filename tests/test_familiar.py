@@ -237,3 +237,24 @@ def test_a_one_dmp_prediction_and_its_page_take_a_familiarity_too():
     assert page["characters"] and all(
         ("unfamiliar" in c["flags"]) == (c["familiarity"] < 0.0) for c in page["characters"]
     )
+
+
+def test_the_familiarity_experiment_counts_what_it_flags(
+    small_omniglot, experiment_script, tmp_path, capsys
+):
+    mod = experiment_script("familiarity")
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    (photos / "letters.png").write_bytes((SAMPLES / "letters_page.png").read_bytes())
+    assert mod.main(["--data", str(small_omniglot), "--photos", str(photos)]) == 0
+    out = capsys.readouterr().out
+    n_val = int((load_dataset(small_omniglot).split == 1).sum())
+    assert f"validation rows: {n_val} characters, below the line " in out
+    page = img2dmp.load_model("omniglot-strokes").predict_page(photos / "letters.png")
+    low = sum("unfamiliar" in c.flags for c in page.characters)
+    assert f"letters.png: {len(page.characters)} characters, unfamiliar {low}, " in out
+    r = {"familiarity": np.array([0.1, 0.9, 0.95]), "ink": np.array([0.5, 1.0, 0.9])}
+    assert mod.describe("x", r, 0.5) == (
+        "x: 3 characters, below the line 1 (33.3 %); below: on the ink 50.0 %; "
+        "above: on the ink 95.0 %"
+    )
