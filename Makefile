@@ -97,7 +97,8 @@ $(OMNI)/evaluation/evaluation.json: $(OMNI)/run/checkpoints/best.safetensors
 # figures); its CARD.md is then brought up to date by hand (tests/test_models.py checks
 # it against model.json).
 ship-real: $(REAL)/evaluation/evaluation.json
-	$(BIN)/python experiments/ship_model.py --run $(REAL)/run --evaluation $< --name digits-real
+	$(BIN)/python experiments/ship_model.py --run $(REAL)/run --evaluation $< --name digits-real \
+	  --familiar $(REAL)/data.safetensors
 
 # Put the model-omniglot run into the package as the shipped model omniglot-strokes, with
 # its familiarity drawn on the data set's validation drawers (its CARD.md is then brought

@@ -16,11 +16,13 @@ a stroke model, whose figures add the share of characters whose stroke count is 
 
 A field of an existing ``model.json`` that is not given again (summary, provenance,
 recommended settings, default) is kept; ``--refine`` and ``--count-views`` set the
-recommended settings of those names. ``--familiar DATA`` (the data set the run trained
-on) adds ``familiar.safetensors``: the training drawings' encoder features and the line
-below which an image is flagged unfamiliar, drawn on its validation drawings
-(:mod:`img2dmp.familiar`); without it a familiarity file shipped before is kept only
-while the weights are the same.
+recommended settings of those names. Without ``--evaluation``, a model shipped before with
+the same weights is shipped again with its figures (to add a familiarity, say).
+``--familiar DATA`` (the data set the run trained on) adds ``familiar.safetensors``: the
+training drawings' encoder features (at most 16,384 of them) and the line below which an
+image is flagged unfamiliar, drawn on its validation drawings (:mod:`img2dmp.familiar`);
+without it a familiarity file shipped before is kept only while the weights are the
+same.
 """
 
 from __future__ import annotations
@@ -83,7 +85,8 @@ def figures(evaluation: dict, command: str) -> dict:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--run", required=True, help="run directory or checkpoint")
-    p.add_argument("--evaluation", required=True, help="its evaluation.json")
+    p.add_argument("--evaluation", help="its evaluation.json (omitted: a model shipped "
+                   "before with the same weights keeps its figures)")  # fmt: skip
     p.add_argument("--name", required=True)
     p.add_argument("--summary")
     p.add_argument("--default", action="store_true", help="the model used when none is given")
@@ -101,18 +104,26 @@ def main(argv: list[str] | None = None) -> int:
     meta = read_checkpoint_meta(source)  # verified: a damaged checkpoint is not shipped
     if source.stat().st_size > MAX_BYTES:
         p.error(f"{source} has {source.stat().st_size:,} bytes, more than {MAX_BYTES:,}")
-    evaluation = json.loads(Path(args.evaluation).read_text(encoding="utf-8"))
     folder = MODELS / args.name
     old_path = folder / RECORD_FILE
     old = json.loads(old_path.read_text(encoding="utf-8")) if old_path.is_file() else {}
+    if args.evaluation is None:
+        if old.get("weights", {}).get("sha256") != file_digest(source):
+            p.error(f"--evaluation is needed: {source} is not the weights {args.name} was "
+                    "shipped with (their figures would not be its)")  # fmt: skip
+        shown = old["figures"]
+    else:
+        evaluation = json.loads(Path(args.evaluation).read_text(encoding="utf-8"))
+        command = (
+            f"img2dmp evaluate --model {evaluation['model']} --data {evaluation['dataset']} "
+            f"--split {evaluation['split']} --refine {evaluation['refine_steps']}"
+        )
+        if "strokes" in evaluation:
+            command += f" --count-views {evaluation['strokes']['count_views']}"
+        shown = figures(evaluation, command)
     folder.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(source, folder / WEIGHTS_FILE)
-    command = (
-        f"img2dmp evaluate --model {evaluation['model']} --data {evaluation['dataset']} "
-        f"--split {evaluation['split']} --refine {evaluation['refine_steps']}"
-    )
-    if "strokes" in evaluation:
-        command += f" --count-views {evaluation['strokes']['count_views']}"
+    if not (folder / WEIGHTS_FILE).is_file() or not source.samefile(folder / WEIGHTS_FILE):
+        shutil.copyfile(source, folder / WEIGHTS_FILE)
     recommended = dict(old.get("recommended", {}))
     for key in ("refine", "count_views"):
         if getattr(args, key) is not None:
@@ -132,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
             "record_sha256": meta["record_sha256"],
         },
         "recommended": recommended,
-        "figures": figures(evaluation, command),
+        "figures": shown,
         "provenance": provenance,
         "shipped_by": run_record("ship_model.py", sys.argv[1:] if argv is None else argv),
         "card": "CARD.md",

@@ -126,7 +126,18 @@ def test_a_stroke_prediction_is_flagged_unfamiliar_below_the_line_only():
     none = predictor.predict(image)
     assert none.familiarity is None and "familiarity" not in none.to_document()
     assert "unfamiliar" not in none.flags
-    assert img2dmp.load_model("digits-real").familiar is None
+
+
+def test_the_digit_model_flags_a_letter_and_not_a_digit():
+    """digits-real's familiarity (RESULTS 8.13): the drawn F of the samples is unlike
+    every digit it learnt, the drawn 3 and the photographed 5 are not."""
+    digits = img2dmp.load_model("digits-real")
+    assert digits.familiar is not None and digits.familiar.feature_size == 64
+    letter = digits.predict(SAMPLES / "character_f.png")
+    assert "unfamiliar" in letter.flags and letter.familiarity < digits.familiar.line
+    for name in ("digit_3.png", "digit_5_photo.jpg"):
+        digit = digits.predict(SAMPLES / name)
+        assert digit.familiarity >= digits.familiar.line and "unfamiliar" not in digit.flags
 
 
 def test_a_page_notes_each_character_s_familiarity_and_flags_it():
