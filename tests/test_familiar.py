@@ -105,23 +105,33 @@ def test_the_line_is_the_validation_drawings_quantile():
         fit_familiar(_Net(), _Data(images, split), quantile=0.7)
 
 
-def test_a_stroke_prediction_is_flagged_unfamiliar_below_the_line_only():
-    predictor = img2dmp.load_model("omniglot-strokes", refine=0)
-    image = SAMPLES / "character_f.png"
+@pytest.mark.parametrize(
+    ("name", "sample"), [("omniglot-strokes", "character_f.png"), ("digits-real", "digit_3.png")]
+)
+def test_a_prediction_is_flagged_unfamiliar_below_the_line_only(name, sample):
+    predictor = img2dmp.load_model(name, refine=0)
+    image = SAMPLES / sample
     own = predictor.predict(image)
     assert own.familiarity is not None and own.familiar_line == predictor.familiar.line
     assert ("unfamiliar" in own.flags) == (own.familiarity < own.familiar_line)
-    doc = own.to_document()
-    assert doc["familiarity"] == {"value": round(own.familiarity, 6),
-                                  "line": round(predictor.familiar.line, 6)}  # fmt: skip
+    assert own.to_document()["familiarity"] == {
+        "value": round(own.familiarity, 6),
+        "line": round(predictor.familiar.line, 6),
+    }
     # the image's own features as the only training drawing: familiarity 1, not flagged
     features = predictor.encoder_features(own.image[None])
     predictor.familiar = Familiar(features, line=0.999)
     same = predictor.predict(image)
     assert same.familiarity == pytest.approx(1.0, abs=1e-6) and "unfamiliar" not in same.flags
-    predictor.familiar = Familiar(-features, line=0.0)  # pointing away: flagged
+    predictor.familiar = Familiar(-features, line=0.0)  # pointing away: flagged, last
     away = predictor.predict(image)
-    assert away.familiarity < 0 and "unfamiliar" in away.flags
+    assert away.familiarity < 0 and away.flags[-1] == "unfamiliar"
+    assert away.flags[:-1] == [f for f in own.flags if f != "unfamiliar"]
+    if name == "digits-real":  # a digit page's entries too
+        page = predictor.predict_page(SAMPLES / "page.jpg").to_document()
+        assert page["characters"] and all(
+            ("unfamiliar" in c["flags"]) == (c["familiarity"] < 0.0) for c in page["characters"]
+        )
     predictor.familiar = None  # none carried: nothing recorded, nothing flagged
     none = predictor.predict(image)
     assert none.familiarity is None and "familiarity" not in none.to_document()
@@ -229,25 +239,6 @@ def test_familiarity_in_parts_is_the_whole_product_s_and_max_train_keeps_a_choic
     assert all(any(np.allclose(f, r) for r in rows) for f in small.features)  # training rows
     with pytest.raises(ValueError, match="max_train"):
         fit_familiar(_Net(), _Data(images, split), max_train=0)
-
-
-def test_a_one_dmp_prediction_and_its_page_take_a_familiarity_too():
-    predictor = img2dmp.load_model("digits-real", refine=0)
-    image = SAMPLES / "digit_3.png"
-    base = predictor.predict(image)
-    features = predictor.encoder_features(base.image[None])
-    predictor.familiar = Familiar(features, line=0.999)
-    same = predictor.predict(image)
-    assert same.familiarity == pytest.approx(1.0, abs=1e-6) and "unfamiliar" not in same.flags
-    assert same.to_document()["familiarity"] == {"value": round(same.familiarity, 6),
-                                                 "line": 0.999}  # fmt: skip
-    predictor.familiar = Familiar(-features, line=0.0)
-    away = predictor.predict(image)
-    assert "unfamiliar" in away.flags and away.flags[:-1] == base.flags
-    page = predictor.predict_page(SAMPLES / "page.jpg").to_document()
-    assert page["characters"] and all(
-        ("unfamiliar" in c["flags"]) == (c["familiarity"] < 0.0) for c in page["characters"]
-    )
 
 
 def test_the_familiarity_experiment_counts_what_it_flags(
