@@ -38,6 +38,7 @@ from img2dmp.data.mnist import read_idx
 from img2dmp.data.store import load_dataset
 from img2dmp.evaluate import stroke_counts
 from img2dmp.metrics import on_ink_share
+from img2dmp.nn.strokes import character_paths
 from img2dmp.predict import load_model
 
 # isort: split
@@ -60,8 +61,8 @@ def split_rows(predictor, data, split: int) -> dict:
     images = np.asarray(data.images[rows], dtype=np.float32)
     fam = predictor.familiarity(images)
     if predictor.strokes is not None:
-        strokes = predictor.predict_strokes(images)
-        paths = predictor.stroke_paths(images)
+        strokes = predictor.predict_strokes(images)  # read and refined once
+        paths = character_paths(strokes, predictor.normaliser, predictor.strokes)
         ok = np.array([len(v) for v, _ in strokes]) == stroke_counts(data)[rows]
     else:
         params, _ = predictor.predict_hypotheses(images)

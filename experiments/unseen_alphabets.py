@@ -48,6 +48,7 @@ import numpy as np
 from img2dmp._files import atomic_write_text
 from img2dmp.data.store import DigitData, load_dataset, save_dataset
 from img2dmp.evaluate import row_alphabets
+from img2dmp.familiar import Familiar
 from img2dmp.predict import Predictor
 
 # isort: split
@@ -127,21 +128,6 @@ def _row(alphabet: str, ev: dict) -> dict:
     }
 
 
-def encoder_features(predictor: Predictor, images: np.ndarray, batch: int = 512) -> np.ndarray:
-    """The run's encoder features ``[N, F]`` of prepared images ``[N, H, W]``, each scaled
-    to unit length (what the decoder reads, before any output)."""
-    import torch
-
-    m = predictor.model
-    out = []
-    with torch.no_grad():
-        for a in range(0, len(images), batch):
-            x = torch.as_tensor(np.asarray(images[a : a + batch], dtype=np.float32))
-            out.append(m.encoder(m.input_filter(x)).numpy().astype(np.float64))
-    f = np.concatenate(out) if out else np.zeros((0, 1))
-    return f / np.maximum(np.linalg.norm(f, axis=1, keepdims=True), 1e-12)
-
-
 def auc(negatives: np.ndarray, positives: np.ndarray) -> float:
     """The area under the ROC curve of scores that should be higher for ``positives``
     (the Mann-Whitney statistic; ties count a half)."""
@@ -152,7 +138,8 @@ def auc(negatives: np.ndarray, positives: np.ndarray) -> float:
 
 
 def familiarity_row(folder: Path, alphabet: str, quantile: float = 0.05) -> dict:
-    """:func:`encoder_features`' familiarity of the known drawings (drawers 16-17 of the
+    """The familiarity (:meth:`img2dmp.familiar.Familiar.familiarity` against the
+    training drawings' encoder features) of the known drawings (drawers 16-17 of the
     other alphabets) and of the held-out alphabet, for the run in ``folder``, beside its
     evaluation's per-drawing counts and ink shares."""
     data = load_dataset(folder / "data.safetensors")
@@ -161,9 +148,9 @@ def familiarity_row(folder: Path, alphabet: str, quantile: float = 0.05) -> dict
     train = np.flatnonzero(data.split == 0)
     known = np.flatnonzero((data.split == 1) & (drawer <= 17))
     unseen = np.flatnonzero(data.split == 2)
-    ref = encoder_features(predictor, data.images[train])
-    fam_known = (encoder_features(predictor, data.images[known]) @ ref.T).max(1)
-    fam_unseen = (encoder_features(predictor, data.images[unseen]) @ ref.T).max(1)
+    ref = Familiar(predictor.encoder_features(data.images[train]), line=0.0)
+    fam_known = ref.familiarity(predictor.encoder_features(data.images[known]))
+    fam_unseen = ref.familiarity(predictor.encoder_features(data.images[unseen]))
     limit = float(np.quantile(fam_known, quantile))
     ev = json.loads((folder / "evaluation" / "evaluation.json").read_text())
     st = ev["strokes"]

@@ -224,13 +224,7 @@ def run(args: argparse.Namespace) -> int:
         predictions.append((path, pred, pred.to_json(name)))
     for path, pred, _ in predictions:
         if pred.flags:
-            _warn(
-                path,
-                pred.flags,
-                pred.fit,
-                getattr(pred, "familiarity", None),
-                getattr(pred, "familiar_line", None),
-            )
+            _warn(path, pred.flags, pred.fit, pred.familiarity, pred.familiar_line)
     if not args.out:
         texts = [text.rstrip() for _, _, text in predictions]
         print(texts[0] if len(texts) == 1 else "[\n" + ",\n".join(texts) + "\n]")
