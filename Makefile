@@ -17,6 +17,12 @@ OMNIGLOT ?= $(DATA)/omniglot
 # ... its stroke count read from this many views of each image (chosen on the validation
 # drawers for --config omniglot: RESULTS 8.3).
 OMNI_VIEWS ?= 1
+# Refinement steps of the images each model finds unfamiliar (below its familiarity line;
+# chosen on validation drawings: RESULTS 8.14), beside the 30 and 60 steps of the others.
+REAL_UNFAMILIAR ?= 60
+OMNI_UNFAMILIAR ?= 150
+# A run trained before img2dmp train wrote its familiarity gets one here.
+RUN_FAMILIAR = $(BIN)/python -c "import sys; from img2dmp.familiar import write_run_familiar as w; w(*sys.argv[1:])"
 # The torch build the set-up installs (the CPU build).
 TORCH  ?= 2.13.0
 
@@ -71,8 +77,9 @@ $(REAL)/run/checkpoints/best.safetensors: $(REAL)/data.safetensors src/img2dmp/c
 	  $(BIN)/img2dmp train --config real --data $< --run-dir $(REAL)/run; fi
 
 $(REAL)/evaluation/evaluation.json: $(REAL)/run/checkpoints/best.safetensors
+	test -f $(REAL)/run/familiar.safetensors || $(RUN_FAMILIAR) $(REAL)/run $(REAL)/data.safetensors
 	$(BIN)/img2dmp evaluate --model $(REAL)/run --data $(REAL)/data.safetensors --split test \
-	  --refine 30 --out $(REAL)/evaluation --force
+	  --refine 30 --refine-unfamiliar $(REAL_UNFAMILIAR) --out $(REAL)/evaluation --force
 
 # The recommended stroke model (each character up to 8 strokes, each its own DMP) from
 # $(OMNIGLOT) (../shared/data/omniglot): import (every stroke kept, 300 instants), train
@@ -89,8 +96,10 @@ $(OMNI)/run/checkpoints/best.safetensors: $(OMNI)/data.safetensors src/img2dmp/c
 	  $(BIN)/img2dmp train --config omniglot --data $< --run-dir $(OMNI)/run; fi
 
 $(OMNI)/evaluation/evaluation.json: $(OMNI)/run/checkpoints/best.safetensors
+	test -f $(OMNI)/run/familiar.safetensors || $(RUN_FAMILIAR) $(OMNI)/run $(OMNI)/data.safetensors
 	$(BIN)/img2dmp evaluate --model $(OMNI)/run --data $(OMNI)/data.safetensors --split test \
-	  --refine 60 --count-views $(OMNI_VIEWS) --out $(OMNI)/evaluation --force
+	  --refine 60 --refine-unfamiliar $(OMNI_UNFAMILIAR) --count-views $(OMNI_VIEWS) \
+	  --out $(OMNI)/evaluation --force
 
 # Put the model-real run into the package as the shipped model digits-real
 # (src/img2dmp/models/digits-real: the checkpoint, model.json with its SHA-256 and test
@@ -98,14 +107,15 @@ $(OMNI)/evaluation/evaluation.json: $(OMNI)/run/checkpoints/best.safetensors
 # it against model.json).
 ship-real: $(REAL)/evaluation/evaluation.json
 	$(BIN)/python experiments/ship_model.py --run $(REAL)/run --evaluation $< --name digits-real \
-	  --familiar $(REAL)/data.safetensors
+	  --refine-unfamiliar $(REAL_UNFAMILIAR) --familiar $(REAL)/data.safetensors
 
 # Put the model-omniglot run into the package as the shipped model omniglot-strokes, with
 # its familiarity drawn on the data set's validation drawers (its CARD.md is then brought
 # up to date by hand).
 ship-omniglot: $(OMNI)/evaluation/evaluation.json
 	$(BIN)/python experiments/ship_model.py --run $(OMNI)/run --evaluation $< --name omniglot-strokes \
-	  --count-views $(OMNI_VIEWS) --familiar $(OMNI)/data.safetensors
+	  --count-views $(OMNI_VIEWS) --refine-unfamiliar $(OMNI_UNFAMILIAR) \
+	  --familiar $(OMNI)/data.safetensors
 
 lint: setup
 	$(BIN)/ruff check src tests benchmarks experiments examples

@@ -15,9 +15,10 @@ a stroke model, whose figures add the share of characters whose stroke count is 
         --summary "handwritten digits 0-9 ..." --provenance train_revision=0d7c727 ...
 
 A field of an existing ``model.json`` that is not given again (summary, provenance,
-recommended settings, default) is kept; ``--refine`` and ``--count-views`` set the
-recommended settings of those names. Without ``--evaluation``, a model shipped before with
-the same weights is shipped again with its figures (to add a familiarity, say).
+recommended settings, default) is kept; ``--refine``, ``--refine-unfamiliar`` and
+``--count-views`` set the recommended settings of those names. Without ``--evaluation``,
+a model shipped before with the same weights is shipped again with its figures (to add
+a familiarity, say).
 ``--familiar DATA`` (the data set the run trained on) adds ``familiar.safetensors``: the
 training drawings' encoder features (at most 16,384 of them) and the line below which an
 image is flagged unfamiliar, drawn on its validation drawings (:mod:`img2dmp.familiar`);
@@ -71,6 +72,10 @@ def figures(evaluation: dict, command: str) -> dict:
         "human_on_ink": round(evaluation["on_ink_human"]["overall"]["mean"], 4),
         "command": command,
     }
+    if evaluation.get("refine_unfamiliar_steps") is not None:
+        out["refine_unfamiliar"] = evaluation["refine_unfamiliar_steps"]
+    if evaluation.get("unfamiliar"):  # the share of the part below the familiarity line
+        out["unfamiliar_share"] = round(evaluation["unfamiliar"]["share"], 5)
     if "best_of_k" in evaluation:
         best = evaluation["best_of_k"]["path_error"]["overall"]["mean"]
         out["best_of_k_path_error_px"] = round(best, 4)
@@ -91,6 +96,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--summary")
     p.add_argument("--default", action="store_true", help="the model used when none is given")
     p.add_argument("--refine", type=int, help="recommended refinement steps")
+    p.add_argument(
+        "--refine-unfamiliar",
+        type=int,
+        help="recommended refinement steps of the images a model finds unfamiliar",
+    )
     p.add_argument(
         "--count-views", type=int, help="a stroke model's recommended views to read the count from"
     )
@@ -118,6 +128,8 @@ def main(argv: list[str] | None = None) -> int:
             f"img2dmp evaluate --model {evaluation['model']} --data {evaluation['dataset']} "
             f"--split {evaluation['split']} --refine {evaluation['refine_steps']}"
         )
+        if evaluation.get("refine_unfamiliar_steps") is not None:
+            command += f" --refine-unfamiliar {evaluation['refine_unfamiliar_steps']}"
         if "strokes" in evaluation:
             command += f" --count-views {evaluation['strokes']['count_views']}"
         shown = figures(evaluation, command)
@@ -125,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     if not (folder / WEIGHTS_FILE).is_file() or not source.samefile(folder / WEIGHTS_FILE):
         shutil.copyfile(source, folder / WEIGHTS_FILE)
     recommended = dict(old.get("recommended", {}))
-    for key in ("refine", "count_views"):
+    for key in ("refine", "refine_unfamiliar", "count_views"):
         if getattr(args, key) is not None:
             recommended[key] = getattr(args, key)
     provenance = dict(old.get("provenance", {}))

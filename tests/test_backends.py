@@ -65,13 +65,16 @@ def test_many_images_are_refined_in_parts_with_the_numbers_of_one_batch(both, ba
     images = np.concatenate([images, images[:, ::-1], images[:, :, ::-1]])  # 6 images, 24 DMPs
     whole, probs = m.predict_hypotheses(images)
     calls = []
-    refined = type(m)._refined
+    part = type(m)._refined_part
     monkeypatch.setattr(predict, "REFINE_ROWS", 5)
     monkeypatch.setattr(
-        type(m), "_refined", lambda self, z, x: calls.append(len(z)) or refined(self, z, x)
+        type(m), "_refined_part", lambda self, z, x, o: calls.append(len(z)) or part(self, z, x, o)
     )
     parts, probs_parts = m.predict_hypotheses(images)
-    assert calls[0] == 24 and calls[1:] == [5, 5, 5, 5, 4]  # the batch, then its parts
+    # each group of equal steps (an unfamiliar image's take more) in parts of 5 DMPs
+    steps = np.repeat(m.refine_steps_for(images), 4)
+    sizes = [int((steps == n).sum()) for n in np.unique(steps)]
+    assert calls == [min(5, n - a) for n in sizes for a in range(0, n, 5)] and sum(calls) == 24
     np.testing.assert_allclose(parts.to_vector(), whole.to_vector(), rtol=0, atol=1e-9)
     np.testing.assert_array_equal(probs_parts, probs)
 
@@ -163,4 +166,6 @@ def test_predict_and_a_page_run_without_torch(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert json.loads(proc.stdout.strip().splitlines()[-1])["tau"] > 0
     assert (tmp_path / "page_page.json").exists() and (tmp_path / "digit_3_dmp.json").exists()
-    assert json.loads((tmp_path / "character_f_dmp.json").read_text())["refinement"]["steps"] == 60
+    letter = json.loads((tmp_path / "character_f_dmp.json").read_text())  # the card's steps:
+    unfamiliar = "unfamiliar" in letter["flags"]  # 150 for an unfamiliar image, else 60
+    assert letter["refinement"]["steps"] == (150 if unfamiliar else 60)

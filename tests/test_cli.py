@@ -206,6 +206,7 @@ def test_evaluate_passes_the_digits_to_the_library(monkeypatch, tmp_path, capsys
             "digits": [2, 3],
             "classes": None,
             "refine": 0,
+            "refine_unfamiliar": None,
             "count_views": None,
             "device": "cpu",
             "progress": True,

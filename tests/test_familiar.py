@@ -171,7 +171,7 @@ def test_a_run_of_one_s_own_gets_a_familiarity_and_ships_it(
     stroke_run, small_omniglot, tmp_path, monkeypatch, experiment_script
 ):
     predictor = Predictor.load(stroke_run)
-    assert predictor.familiar is None
+    assert predictor.familiar is not None  # img2dmp train wrote it (the next test)
     data = load_dataset(small_omniglot)
     predictor.familiar = fit_familiar(predictor, small_omniglot)
     val = np.flatnonzero(data.split == 1)
@@ -260,3 +260,99 @@ def test_the_familiarity_experiment_counts_what_it_flags(
         "x: 3 characters, below the line 1 (33.3 %); below: on the ink 50.0 %; "
         "above: on the ink 95.0 %"
     )
+
+
+@pytest.mark.parametrize(
+    ("name", "familiar", "other"),
+    [("omniglot-strokes", "character_f.png", "digit_3.png"),
+     ("digits-real", "digit_3.png", "character_f.png")],
+)  # fmt: skip
+def test_unfamiliar_images_are_refined_with_their_own_steps(name, familiar, other):
+    predictor = img2dmp.load_model(name, refine=0)
+    x = np.stack([predictor.predict(SAMPLES / s).image for s in (familiar, other)])
+    # the first image's own features as the only training drawing: it is familiar (1.0),
+    # the other lies below the line
+    predictor.familiar = Familiar(predictor.encoder_features(x[:1]), line=0.999)
+    predictor.refine_with(4, unfamiliar=9)
+    assert predictor.refine_unfamiliar == 9 and list(predictor.refine_steps_for(x)) == [4, 9]
+
+    def read(images):
+        if predictor.strokes is not None:
+            return [v for v, _ in predictor.predict_strokes(images)]
+        params, _ = predictor.predict_hypotheses(images)
+        return list(np.concatenate([params.w.reshape(len(images), -1), params.g.reshape(
+            len(images), -1), params.y0.reshape(len(images), -1)], axis=1))  # fmt: skip
+
+    both = read(x)
+    predictor.refine_with(4)
+    assert predictor.refine_unfamiliar is None and list(predictor.refine_steps_for(x)) == [4, 4]
+    four = read(x)
+    np.testing.assert_array_equal(both[0], four[0])  # the familiar one: 4 steps
+    assert not np.array_equal(both[1], four[1])
+    predictor.refine_with(9)
+    np.testing.assert_array_equal(both[1], read(x)[1])  # the unfamiliar one: 9 steps
+    # a prediction records the steps its image had; a page both settings
+    predictor.refine_with(4, unfamiliar=9)
+    assert predictor.predict(SAMPLES / other).to_document()["refinement"] == {"steps": 9}
+    assert predictor.predict(SAMPLES / familiar).to_document()["refinement"] == {"steps": 4}
+    predictor.refine_with(0, unfamiliar=9)  # only the unfamiliar ones refined
+    assert list(predictor.refine_steps_for(x)) == [0, 9]
+    page = predictor.predict_page(SAMPLES / "letters_page.png").to_document()
+    assert page["refinement"] == {"steps": 0, "unfamiliar_steps": 9}
+    predictor.refine_with(5, unfamiliar=5)  # the same steps: nothing to tell apart
+    assert predictor.refine_unfamiliar is None
+    predictor.familiar = None
+    with pytest.raises(ValueError, match="carries no familiarity"):
+        predictor.refine_with(5, unfamiliar=9)
+    with pytest.raises(ValueError, match=r"refine_unfamiliar .* \[0, "):
+        img2dmp.load_model(name, refine_unfamiliar=-1)
+
+
+@pytest.mark.parametrize("name", ["omniglot-strokes", "digits-real"])
+def test_a_shipped_model_refines_unfamiliar_images_as_its_card_recommends(name):
+    shipped = models.find_shipped(name)
+    assert shipped.refine_unfamiliar is not None and shipped.refine_unfamiliar > shipped.refine
+    assert img2dmp.load_model(name).refine_unfamiliar == shipped.refine_unfamiliar
+    assert img2dmp.load_model(name, refine=7).refine_unfamiliar is None  # --refine alone: all
+    assert img2dmp.load_model(name, refine=7, refine_unfamiliar=11).refine_unfamiliar == 11
+    assert shipped.figures["refine_unfamiliar"] == shipped.refine_unfamiliar
+
+
+def test_training_writes_the_run_s_familiarity_for_its_best_checkpoint_only(
+    stroke_run, small_omniglot, tmp_path
+):
+    import shutil
+
+    from img2dmp.familiar import RUN_FILE, run_familiar
+
+    own = Predictor.load(stroke_run)
+    assert own.familiar is not None and own.familiar.weights_sha256
+    again = fit_familiar(own, small_omniglot)  # the data set's splits: the rows it trained on
+    assert own.familiar.line == pytest.approx(again.line, abs=1e-6)
+    np.testing.assert_array_equal(own.familiar.features, again.features)
+    run = shutil.copytree(stroke_run, tmp_path / "run")
+    best = run / "checkpoints" / "best.safetensors"
+    assert run_familiar(best) is not None and run_familiar(tmp_path / "elsewhere.st") is None
+    stale = Familiar(own.familiar.features, own.familiar.line, weights_sha256="0" * 64)
+    stale.save(run / RUN_FILE)  # drawn for other weights: not used
+    assert Predictor.load(run).familiar is None
+    (run / RUN_FILE).write_bytes(b"not a familiarity file")
+    with pytest.raises(ValueError, match="familiar.safetensors"):
+        Predictor.load(run)
+    # an evaluation with it: the unfamiliar share and their steps recorded
+    (run / RUN_FILE).unlink()
+    shutil.copyfile(stroke_run / RUN_FILE, run / RUN_FILE)
+    out = tmp_path / "ev"
+    assert cli.main(["evaluate", "--model", str(run), "--data", str(small_omniglot), "--split",
+                     "test", "--refine", "2", "--refine-unfamiliar", "3", "--figures", "0",
+                     "--out", str(out), "--no-progress"]) == 0  # fmt: skip
+    ev = json.loads((out / "evaluation.json").read_text())
+    assert (ev["refine_steps"], ev["refine_unfamiliar_steps"]) == (2, 3)
+    fam = np.asarray(ev["unfamiliar"]["familiarity"])
+    assert ev["unfamiliar"]["share"] == pytest.approx(np.mean(fam < ev["unfamiliar"]["line"]))
+    assert "unfamiliar to the model" in (out / "evaluation.txt").read_text()
+    (run / RUN_FILE).unlink()  # none: the option is refused by name
+    code = cli.main(["evaluate", "--model", str(run), "--data", str(small_omniglot), "--split",
+                     "test", "--refine-unfamiliar", "3", "--figures", "0", "--out",
+                     str(tmp_path / "ev2"), "--no-progress"])  # fmt: skip
+    assert code != 0

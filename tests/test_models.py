@@ -103,6 +103,8 @@ def test_each_card_states_its_records_figures_commands_and_limits():
                       f"{f['path_error_px']:.3f}", m.sha256, f"{m.size_bytes:,}"):  # fmt: skip
             assert value in card, (m.name, value)
         assert f"--refine {f['refine']}" in card and f"--refine {m.refine}" in card
+        if m.refine_unfamiliar is not None:  # and the steps of images it finds unfamiliar
+            assert f"--refine-unfamiliar {m.refine_unfamiliar}" in card, m.name
         if "count_views" in f:  # a stroke model: the views its figures' counts were read from
             assert f"--count-views {f['count_views']}" in card, m.name
             assert f"--count-views {m.count_views}" in card, m.name
@@ -280,7 +282,10 @@ def test_predict_without_a_model_writes_the_sample_digit(tmp_path, capsys):
     out = tmp_path / "pred"
     assert cli.main(["predict", str(SAMPLE), "--out", str(out), "--overlay"]) == 0
     captured = capsys.readouterr()
-    assert "model digits-real with --refine 30, as its card recommends" in captured.err
+    assert (
+        "model digits-real with --refine 30 (--refine-unfamiliar 60: images it finds "
+        "unfamiliar), as its card recommends"
+    ) in captured.err
     doc = json.loads((out / "digit_3_dmp.json").read_text())
     assert doc["refinement"] == {"steps": 30} and doc["flags"] == []
     assert doc["fit"]["path_on_ink"] > 0.95 and doc["fit"]["ink_written"] > 0.9, doc["fit"]

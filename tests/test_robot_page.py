@@ -479,6 +479,7 @@ def test_write_page_command_skips_flagged_characters(page_document, tmp_path, ca
         (["--page", "--hypothesis", "2"], "--hypothesis is not for --page"),
         (["--page", "--writing-height-mm", "30"], "--width-mm scales a page"),
         (["--page", "--refine", "3"], "--refine refines what --model reads"),
+        (["--page", "--refine-unfamiliar", "3"], "--refine-unfamiliar refines what --model"),
     ],
 )
 def test_write_page_command_refuses_options_of_one_dmp(
@@ -517,17 +518,18 @@ class _FakePagePrediction:
 class _FakePredictor:
     """What ``write PHOTO --page --model`` uses of a Predictor: ``predict_page(PHOTO)``
     returning an object whose ``to_document()`` is the page document, and
-    ``refine_with(steps)`` setting ``refine_options``."""
+    ``refine_with(steps, unfamiliar)`` setting ``refine_options``."""
 
     calls: list = []
 
     def __init__(self, document):
         self.document, self.refine_options = document, None
 
-    def refine_with(self, steps: int) -> None:
+    def refine_with(self, steps: int, unfamiliar: int | None = None) -> None:
         from img2dmp.nn._refine_numpy import RefineOptions
 
         self.refine_options = RefineOptions(steps=steps) if steps else None
+        self.refine_unfamiliar = unfamiliar
 
     def predict_page(self, photo):
         self.calls.append((photo, self.refine_options))

@@ -196,7 +196,20 @@ def format_metrics_table(result: dict) -> str:
     strokes = result.get("strokes")
     if strokes:
         lines.append(_strokes_lines(strokes))
+    if result.get("unfamiliar"):
+        lines.append(_unfamiliar_line(result))
     return "\n".join(lines)
+
+
+def _unfamiliar_line(result: dict) -> str:
+    """How many samples the model found unfamiliar, and their refinement."""
+    u, other = result["unfamiliar"], result.get("refine_unfamiliar_steps")
+    steps = result.get("refine_steps")
+    refined = f" (refined {other} steps instead of {steps})" if other is not None else ""
+    return (
+        f"unfamiliar to the model (familiarity below its line {u['line']:.4f}): "
+        f"{100 * u['share']:.1f} % of the samples{refined}"
+    )
 
 
 def _strokes_lines(strokes: dict) -> str:
@@ -435,6 +448,7 @@ def evaluate(
     count_views: int | None = None,
     device: str = "cpu",
     progress: bool = False,
+    refine_unfamiliar: int | None = None,
 ) -> dict:
     """Table I's statistics and the path measures of a trained network on a data set.
 
@@ -462,6 +476,10 @@ def evaluate(
         from (:attr:`~img2dmp.predict.Predictor.count_views`; None: the predictor's own).
     device, progress : str, bool
         Where the network runs when loaded from a path (``"cpu"``, ``"cuda"``); a bar.
+    refine_unfamiliar : int or None
+        Refinement steps of the images the model finds unfamiliar instead of ``refine``
+        (:meth:`~img2dmp.predict.Predictor.refine_with`; the model must carry a
+        familiarity); None: ``refine`` for every image.
 
     Returns
     -------
@@ -470,13 +488,16 @@ def evaluate(
         :func:`_headline`) plus ``errors_px`` (per sample), a description of the model
         and data, and the path measures of :func:`hypothesis_metrics` (``path_error``,
         ``chamfer``, ``on_ink``, ``on_ink_human``, ``start_error``, ``area_ratio``,
-        ``width_ratio`` with their per-sample lists; ``best_of_k`` for K > 1 hypotheses).
+        ``width_ratio`` with their per-sample lists; ``best_of_k`` for K > 1 hypotheses),
+        ``refine_steps`` and ``refine_unfamiliar_steps`` (None: the same), and for a model
+        that carries a familiarity ``unfamiliar``: its line, the share of the samples
+        below it and every sample's familiarity.
     """
     t0 = time.perf_counter()  # the counts checked before anything slow: each bounds work
     n_figures = check_count("n_figures (--figures)", n_figures, 0, MAX_FIGURES)
     batch_size = check_count("batch_size", batch_size, 1, MAX_BATCH_SIZE)
     refine = check_count("refine (--refine)", refine, 0, MAX_REFINE_STEPS)
-    predictor = _load_predictor(model_path, device, refine, count_views)
+    predictor = _load_predictor(model_path, device, refine, count_views, refine_unfamiliar)
     whole = load_dataset(dataset_path)
     data = _evaluation_data(predictor, dataset_path, split, digits, classes, whole)
     y_all, probs, measures = _measured(predictor, data, batch_size, progress)
@@ -486,11 +507,31 @@ def evaluate(
     errors = np.asarray(measures["errors_px"])  # [M], Table I
     result = _headline(measures, data.class_names)
     result.update(_described(predictor, model_path, dataset_path, data, split, digits, classes))
-    result.update(refine_steps=int(refine), **measures)
+    result.update(refine_steps=int(refine), **measures, **_refined(predictor, data, batch_size))
     result["wall_s"] = time.perf_counter() - t0
     if out_dir is not None:
         _write_evaluation(Path(out_dir), result, data, y, errors, n_figures, seed)
     return result
+
+
+def _refined(predictor, data, batch_size: int) -> dict:
+    """What :func:`evaluate` records of the unfamiliar samples: their refinement steps
+    (None: the others'), and for a model with a familiarity :func:`unfamiliar_measures`."""
+    out = {"refine_unfamiliar_steps": getattr(predictor, "refine_unfamiliar", None)}
+    if getattr(predictor, "familiar", None) is not None:
+        out["unfamiliar"] = unfamiliar_measures(predictor, data.images, batch_size)
+    return out
+
+
+def unfamiliar_measures(predictor, images, batch_size: int = 2048) -> dict:
+    """How many of prepared images ``[M, H, W]`` the predictor's model finds unfamiliar
+    (:mod:`img2dmp.familiar`): its ``line``, the ``share`` below it and every image's
+    ``familiarity``."""
+    line = float(predictor.familiar.line)
+    fam = np.concatenate([predictor.familiarity(images[a : a + batch_size])
+                          for a in range(0, len(images), batch_size)])  # fmt: skip
+    return {"line": line, "share": float(np.mean(fam < line)) if len(fam) else 0.0,
+            "familiarity": [round(float(f), 6) for f in fam]}  # fmt: skip
 
 
 def _described(predictor, model_path, dataset_path, data, split, digits, classes) -> dict:
@@ -678,19 +719,26 @@ def _headline(measures: dict, class_names) -> dict:
     return result
 
 
-def _load_predictor(model, device: str = "cpu", refine: int = 0, count_views=None):
+def _load_predictor(model, device: str = "cpu", refine: int = 0, count_views=None,
+                    refine_unfamiliar=None):  # fmt: skip
     """A :class:`Predictor` loaded from a path, or ``model`` itself if it is one already
     (any object with ``trajectories_for_images`` or ``hypothesis_trajectories``), set to
-    refine its predictions with ``refine`` steps (when not 0) and, a stroke model, to read
-    its counts from ``count_views`` views (when not None; a one-DMP model refuses it)."""
+    refine its predictions with ``refine`` steps (when not 0; the unfamiliar ones with
+    ``refine_unfamiliar`` when not None) and, a stroke model, to read its counts from
+    ``count_views`` views (when not None; a one-DMP model refuses it)."""
     if count_views is not None:  # before the model is read
         check_count("count_views (--count-views)", count_views, 1, MAX_COUNT_VIEWS)
+    if refine_unfamiliar is not None:
+        check_count("refine_unfamiliar (--refine-unfamiliar)", refine_unfamiliar, 0,
+                    MAX_REFINE_STEPS)  # fmt: skip
     if not (hasattr(model, "trajectories_for_images") or hasattr(model, "hypothesis_trajectories")):
         model = Predictor.load(model, device=device)
     if count_views is not None:
         model.count_with(count_views)
-    if refine and hasattr(model, "refine_with"):
-        model.refine_with(int(refine))
+    if (refine or refine_unfamiliar is not None) and hasattr(model, "refine_with"):
+        model.refine_with(int(refine), refine_unfamiliar)
+    elif refine_unfamiliar is not None:
+        raise ValueError("refine_unfamiliar (--refine-unfamiliar) needs a Predictor")
     elif refine:
         from .nn.refine import RefineOptions
 

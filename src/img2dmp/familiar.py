@@ -10,19 +10,23 @@ carry its training drawings' features and a **line**, the familiarity that all b
 flagged ``"unfamiliar"``.
 
 The features are stored as safetensors (``features``, float16 ``[N, F]``, unit rows) with
-the line and how it was drawn in the file's JSON metadata: no code is stored.
+the line and how it was drawn in the file's JSON metadata: no code is stored. A shipped
+model carries one (``familiar.safetensors`` beside its weights, its SHA-256 in
+``model.json``); ``img2dmp train`` writes one into a run directory for its best
+checkpoint (:func:`write_run_familiar`, read back by :func:`run_familiar` only for the
+weights it was drawn for).
 """
 
 from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from ._files import atomic_write_bytes
+from ._files import atomic_write_bytes, file_digest
 
 #: The format name in a familiarity file's metadata.
 FORMAT = "img2dmp-familiar"
@@ -32,6 +36,8 @@ QUANTILE = 0.05
 #: At most this many training drawings' features are kept (a random choice of them,
 #: seeded): 16,384 of 64 features are 2 MB, under the 3 MB a shipped file may take.
 MAX_TRAIN = 16384
+#: A run directory's familiarity file (beside ``checkpoints/``), as a shipped model's.
+RUN_FILE = "familiar.safetensors"
 
 
 def unit_rows(features) -> np.ndarray:
@@ -44,12 +50,14 @@ def unit_rows(features) -> np.ndarray:
 class Familiar:
     """A model's training drawings' encoder features ``[N, F]`` (unit rows) and the
     ``line`` below which an image is unfamiliar; ``quantile``, ``n_validation``: how the
-    line was drawn (that share of that many validation drawings lie below it)."""
+    line was drawn (that share of that many validation drawings lie below it);
+    ``weights_sha256``: the checkpoint file it was drawn for, when recorded (a run's)."""
 
     features: np.ndarray
     line: float
     quantile: float = QUANTILE
     n_validation: int = 0
+    weights_sha256: str | None = None
 
     def __post_init__(self):
         f = np.asarray(self.features)
@@ -85,6 +93,8 @@ class Familiar:
         meta = {"format": FORMAT, "version": VERSION, "line": float(self.line),
                 "quantile": float(self.quantile),
                 "n_validation": int(self.n_validation)}  # fmt: skip
+        if self.weights_sha256 is not None:
+            meta["weights_sha256"] = str(self.weights_sha256)
         data = save({"features": unit_rows(self.features).astype(np.float16)},
                     metadata={"familiar": json.dumps(meta)})  # fmt: skip
         atomic_write_bytes(path, data)
@@ -113,7 +123,10 @@ class Familiar:
                              f"supported (this img2dmp reads version {VERSION})")  # fmt: skip
         try:
             quantile, n = float(meta.get("quantile", QUANTILE)), int(meta.get("n_validation", 0))
-            return cls(features.astype(np.float32), float(meta["line"]), quantile, n)
+            weights = meta.get("weights_sha256")
+            if weights is not None and not isinstance(weights, str):
+                raise ValueError(f"weights_sha256 must be a string, got {weights!r}")
+            return cls(features.astype(np.float32), float(meta["line"]), quantile, n, weights)
         except (KeyError, TypeError, ValueError) as e:
             raise ValueError(f"{p}: {e}") from None
 
@@ -132,6 +145,74 @@ def shipped_familiar(model) -> Familiar | None:
         return Familiar.load(path)
     except ValueError as e:
         raise ShippedModelError(f"shipped model {model.name}: {e}; reinstall img2dmp") from None
+
+
+def run_familiar(checkpoint: str | os.PathLike) -> Familiar | None:
+    """The familiarity ``img2dmp train`` wrote into the run directory of ``checkpoint``
+    (a file in ``RUN/checkpoints/``; :data:`RUN_FILE` in ``RUN``), if it was drawn for
+    that checkpoint's weights (its recorded SHA-256 is the file's); None otherwise (no
+    file, another checkpoint, a checkpoint outside a run). ``ValueError`` naming a
+    damaged file."""
+    from .checkpoint import CHECKPOINT_DIR
+
+    ckpt = Path(checkpoint)
+    path = ckpt.parent.parent / RUN_FILE
+    if ckpt.parent.name != CHECKPOINT_DIR or not path.is_file():
+        return None
+    familiar = Familiar.load(path)
+    if familiar.weights_sha256 is None or familiar.weights_sha256 != file_digest(ckpt):
+        return None
+    return familiar
+
+
+class _Rows:
+    """Images and a split of chosen rows (0: training, 1: validation, -1: neither), as
+    :func:`fit_familiar` reads a data set."""
+
+    def __init__(self, images, train_idx, val_idx):
+        self.images = images
+        self.split = np.full(len(images), -1, dtype=np.int64)
+        self.split[np.asarray(train_idx, dtype=np.int64)] = 0
+        self.split[np.asarray(val_idx, dtype=np.int64)] = 1
+
+
+class _Encoder:
+    """The encoder of a checkpoint file, in NumPy, as :func:`fit_familiar` reads a model."""
+
+    def __init__(self, checkpoint: Path):
+        from .checkpoint import load_checkpoint
+        from .nn._numpy_net import NumpyNetwork
+        from .nn.architecture import ModelConfig
+
+        ckpt = load_checkpoint(checkpoint, framework="numpy")
+        self.network = NumpyNetwork(ModelConfig.from_dict(ckpt.meta["model"]), ckpt.model_state)
+
+    def encoder_features(self, images) -> np.ndarray:
+        return self.network.features(np.asarray(images, dtype=np.float32))
+
+
+def write_run_familiar(run_dir: str | os.PathLike, data, train_idx=None,
+                       val_idx=None) -> Path | None:  # fmt: skip
+    """Fit the familiarity of a run's best checkpoint (:func:`fit_familiar`) on the data
+    set it trained on (a :class:`~img2dmp.data.store.DigitData` or its path; the rows
+    ``train_idx`` and ``val_idx`` when given, else its splits) and write it to
+    ``RUN/familiar.safetensors`` with the checkpoint's SHA-256; None (nothing written, an
+    older file removed) when there are no validation rows to draw the line on."""
+    from .checkpoint import resolve_checkpoint
+    from .data.store import load_dataset
+
+    run = Path(run_dir)
+    ckpt = resolve_checkpoint(run)
+    if isinstance(data, (str, os.PathLike)):
+        data = load_dataset(data)
+    if train_idx is not None and val_idx is not None:
+        data = _Rows(data.images, train_idx, val_idx)
+    if not (np.asarray(data.split) == 1).any():
+        (run / RUN_FILE).unlink(missing_ok=True)  # drawn for other weights, if any
+        return None
+    familiar = fit_familiar(_Encoder(ckpt), data)
+    familiar = replace(familiar, weights_sha256=file_digest(ckpt))
+    return familiar.save(run / RUN_FILE)
 
 
 def fit_familiar(
@@ -169,7 +250,10 @@ __all__ = [
     "MAX_TRAIN",
     "QUANTILE",
     "Familiar",
+    "RUN_FILE",
     "fit_familiar",
+    "run_familiar",
     "shipped_familiar",
+    "write_run_familiar",
     "unit_rows",
 ]

@@ -174,11 +174,12 @@ class PagePrediction:
     """
 
     def __init__(self, characters, layout, image_size, reduction, source, flags, removed,
-                 user_image=None, refine_steps=0):  # fmt: skip
+                 user_image=None, refine_steps=0, refine_unfamiliar=None):  # fmt: skip
         self.characters = list(characters)
         self.layout, self.image_size, self.reduction = layout, tuple(image_size), reduction
         self.source, self._flags, self.removed = source, list(flags), dict(removed)
         self.user_image, self.refine_steps = user_image, int(refine_steps)
+        self.refine_unfamiliar = None if refine_unfamiliar is None else int(refine_unfamiliar)
         self.preview = None
 
     @property
@@ -196,6 +197,14 @@ class PagePrediction:
         if self._flags or not self.characters:
             return list(self._flags)
         return ["mostly_unreadable"] if 2 * len(self.flagged) > len(self.characters) else []
+
+    def _refinement(self) -> dict:
+        """The document's ``refinement``: the steps of every character, and those of the
+        characters the model found unfamiliar when they differ."""
+        entry = {"steps": self.refine_steps}
+        if self.refine_unfamiliar is not None:
+            entry["unfamiliar_steps"] = self.refine_unfamiliar
+        return entry
 
     def to_document(self, dmps: bool = True) -> dict:
         """The page document (format ``img2dmp-page`` version 1; docs/PAGE.md); without
@@ -220,7 +229,7 @@ class PagePrediction:
             "image_size_px": [int(w), int(h)],
             "writing_angle_deg": round(float(self.layout.angle_deg), 3),
             "character_height_px": round(float(self.layout.height_px * self.reduction), 3),
-            "refinement": {"steps": self.refine_steps},
+            "refinement": self._refinement(),
             "flags": self.flags,
             "removed": self.removed,
             "lines": [{"index": i, "characters": idx} for i, idx in enumerate(lines)],
@@ -403,19 +412,21 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
                        join_sides=letters and STROKE_PAGE_JOIN)  # fmt: skip
     levels, reduction, size, label, found = seg.levels, seg.reduction, seg.size, seg.label, seg.ink
     source = str(image) if isinstance(image, (str, os.PathLike)) else None
-    steps = 0 if predictor.refine_options is None else int(predictor.refine_options.steps)
+    o = predictor.refine_options
+    steps, unfamiliar = (0, None) if o is None else (o.steps, predictor.refine_unfamiliar)
     page = PagePrediction([], seg.layout, size, reduction, source,
                           ["no_ink"] if found is None else [],
-                          {} if found is None else found.removed, refine_steps=steps)  # fmt: skip
+                          {} if found is None else found.removed, refine_steps=steps,
+                          refine_unfamiliar=unfamiliar)  # fmt: skip
     page.preview = _preview(levels)
     if found is None or not page.layout.characters:
         return page
     inputs, frames = _frame_characters(predictor, found, page.layout, reduction, size, label,
                                        match_stroke_width)  # fmt: skip
     if predictor.strokes is not None:
-        preds = _stroke_predictions(predictor, inputs, frames, source, steps, n_points)
+        preds = _stroke_predictions(predictor, inputs, frames, source, n_points)
     else:
-        preds = _dmp_predictions(predictor, inputs, frames, source, steps, n_points)
+        preds = _dmp_predictions(predictor, inputs, frames, source, n_points)
     for c, pred in zip(page.layout.characters, preds, strict=True):
         border = _touches_border(c.box, found.ink.shape, reduction)
         flags = list(pred.flags) + (["cut_by_border"] if border else [])
@@ -424,7 +435,7 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
     return page
 
 
-def _stroke_predictions(predictor, inputs, frames, source, steps, n_points) -> list:
+def _stroke_predictions(predictor, inputs, frames, source, n_points) -> list:
     """A stroke model's characters (:class:`~img2dmp.predict.StrokePrediction`), all read
     (and refined) in one batch."""
     from .predict import StrokePrediction
@@ -432,16 +443,17 @@ def _stroke_predictions(predictor, inputs, frames, source, steps, n_points) -> l
     images = np.stack(inputs)
     strokes, counts = predictor.predict_strokes(images, return_counts=True)
     familiar, line = _familiarities(predictor, images)
+    steps = predictor.refine_steps_for(images)
     return [StrokePrediction(s, predictor.normaliser, predictor.strokes, frame, x,
-                             source=source, refine_steps=steps,
+                             source=source, refine_steps=n,
                              stroke_width_px=predictor.stroke_width, n_per_stroke=n_points,
                              count_views=predictor.count_views, count_probabilities=p,
                              familiarity=f, familiar_line=line)
-            for s, p, f, frame, x in zip(strokes, counts, familiar, frames, inputs,
-                                         strict=True)]  # fmt: skip
+            for s, p, f, n, frame, x in zip(strokes, counts, familiar, steps, frames, inputs,
+                                            strict=True)]  # fmt: skip
 
 
-def _dmp_predictions(predictor, inputs, frames, source, steps, n_points) -> list:
+def _dmp_predictions(predictor, inputs, frames, source, n_points) -> list:
     """A one-DMP model's characters (:class:`~img2dmp.predict.Prediction`, ranked
     hypotheses), all in one batch."""
     from .predict import Prediction
@@ -451,8 +463,9 @@ def _dmp_predictions(predictor, inputs, frames, source, steps, n_points) -> list
     params, probs = predictor.predict_hypotheses(images, refine_top_only=PAGE_REFINE_TOP_ONLY)
     times, paths = predictor.trajectories(params, n_points=n_points)  # [N, K, T], [N, K, T, d]
     familiar, line = _familiarities(predictor, images)
+    steps = predictor.refine_steps_for(images)
     return [Prediction(params[i], probs[i], times[i], paths[i], frames[i], predictor.dmp_config,
-                       inputs[i], source=source, refine_steps=steps,
+                       inputs[i], source=source, refine_steps=steps[i],
                        stroke_width_px=predictor.stroke_width, familiarity=familiar[i],
                        familiar_line=line)
             for i in range(len(inputs))]  # fmt: skip

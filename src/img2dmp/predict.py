@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import numbers
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -78,7 +79,7 @@ from .data.images import (  # noqa: F401  (re-exported: their home was this modu
 from .dmp import DMPConfig, DMPParams
 from .dmp._numpy_rollout import rollout_numpy
 from .dmp.affine import affine_dmp
-from .familiar import shipped_familiar
+from .familiar import run_familiar, shipped_familiar
 from .models import ShippedModel, default_model
 from .models import resolve as resolve_shipped
 from .nn._numpy_net import NumpyNetwork
@@ -229,6 +230,11 @@ class Predictor:
         If set, every prediction is refined on its image (:func:`img2dmp.nn.refine.refine`:
         a few gradient steps that pull the DMP onto the ink near the network's output);
         None (default): the network's output as it is.
+    refine_unfamiliar : int or None
+        The refinement steps of images the model finds unfamiliar (below the
+        :attr:`familiar` line) instead of ``refine_options.steps``; None (default): the
+        same steps for every image. Set both with :meth:`refine_with`;
+        :meth:`refine_steps_for` gives an image's steps.
     shipped : ShippedModel or None
         The model shipped with img2dmp this is (:mod:`img2dmp.models`: its name, card
         and recommended settings), None for a run directory or checkpoint.
@@ -244,9 +250,10 @@ class Predictor:
     familiar : Familiar or None
         The training drawings' encoder features and the line below which an image is
         unfamiliar (:mod:`img2dmp.familiar`): a shipped model's when it carries them
-        (``omniglot-strokes``), else None; set it with
-        :func:`~img2dmp.familiar.fit_familiar` for a run of one's own. A stroke model's
-        predictions then record their familiarity and flag ``"unfamiliar"`` below it.
+        (both shipped models do), a run's when ``img2dmp train`` wrote them for the
+        checkpoint loaded (:func:`~img2dmp.familiar.run_familiar`), else None; set it
+        with :func:`~img2dmp.familiar.fit_familiar`. Predictions then record their
+        familiarity and flag ``"unfamiliar"`` below it.
 
     ``Predictor(model, ...)`` with a torch network computes with torch;
     :meth:`Predictor.load` chooses the backend (module docstring, "Backends").
@@ -276,6 +283,7 @@ class Predictor:
         size = network.image_size if network is not None else model.image_size
         self.image_size = tuple(int(s) for s in size)
         self.refine_options = refine_options
+        self.refine_unfamiliar: int | None = None
         self.shipped = shipped
         self.strokes = strokes
         views = shipped.count_views if shipped is not None else None
@@ -357,23 +365,58 @@ class Predictor:
             except ValueError as e:
                 raise CheckpointError(f"checkpoint {ckpt.path} was saved from another "
                                       f"architecture: {e}") from e  # fmt: skip
-            return cls(None, normaliser, dmp_config, ckpt.meta, shipped=shipped,
-                       network=network, checkpoint=ckpt, strokes=strokes)  # fmt: skip
-        from .nn.device import place_model
-        from .nn.model import build_model
+            predictor = cls(None, normaliser, dmp_config, ckpt.meta, shipped=shipped,
+                            network=network, checkpoint=ckpt, strokes=strokes)  # fmt: skip
+        else:
+            from .nn.device import place_model
+            from .nn.model import build_model
 
-        model = build_model(mcfg)
-        load_weights_into(model, ckpt)
-        return cls(place_model(model, device), normaliser, dmp_config, ckpt.meta, shipped=shipped,
-                   strokes=strokes)  # fmt: skip
+            model = build_model(mcfg)
+            load_weights_into(model, ckpt)
+            predictor = cls(place_model(model, device), normaliser, dmp_config, ckpt.meta,
+                            shipped=shipped, strokes=strokes)  # fmt: skip
+        if shipped is None:  # a run's own, drawn by img2dmp train for these weights
+            predictor.familiar = run_familiar(ckpt.path)
+        return predictor
 
-    def refine_with(self, steps: int) -> None:
+    def refine_with(self, steps: int, unfamiliar: int | None = None) -> None:
         """Refine every prediction with ``steps`` gradient steps on the ink (0: off), with
         the default settings of this kind of model (a stroke model's
-        :data:`~img2dmp.nn.strokes.STROKE_REFINE`)."""
+        :data:`~img2dmp.nn.strokes.STROKE_REFINE`); an image the model finds unfamiliar
+        (below its :attr:`familiar` line) with ``unfamiliar`` steps instead (None: with
+        ``steps`` too). ``ValueError`` for steps outside ``[0, MAX_REFINE_STEPS]`` and for
+        ``unfamiliar`` on a model without a :attr:`familiar`."""
         steps = check_count("refine", steps, 0, MAX_REFINE_STEPS)
+        if unfamiliar is not None:
+            unfamiliar = check_count("refine_unfamiliar (--refine-unfamiliar)", unfamiliar, 0,
+                                     MAX_REFINE_STEPS)  # fmt: skip
+            if self.familiar is None:
+                raise ValueError(
+                    f"refine_unfamiliar (--refine-unfamiliar) {unfamiliar}: "
+                    f"{self._label()} carries no familiarity to tell unfamiliar images by "
+                    "(img2dmp.familiar.fit_familiar makes one)"
+                )
         extra = STROKE_REFINE if self.strokes is not None else {}
-        self.refine_options = RefineOptions(steps=steps, **extra) if steps else None
+        self.refine_unfamiliar = None if unfamiliar == steps else unfamiliar
+        refining = steps or self.refine_unfamiliar
+        self.refine_options = RefineOptions(steps=steps, **extra) if refining else None
+
+    def refine_steps_for(self, images, batch_size: int = 4096) -> np.ndarray:
+        """The refinement steps of each prepared image ``[B, H, W]``: ``[B]`` ints, those
+        of :attr:`refine_options` (0 without refinement), :attr:`refine_unfamiliar` for
+        an image below the :attr:`familiar` line (the one the ``"unfamiliar"`` flag
+        uses)."""
+        o = self.refine_options
+        steps = np.full(len(images), 0 if o is None else int(o.steps), dtype=np.int64)
+        adaptive = o is not None and self.refine_unfamiliar is not None
+        if adaptive and self.familiar is not None and len(images):
+            below = self.familiarity(images, batch_size) < self.familiar.line
+            steps[below] = self.refine_unfamiliar
+        return steps
+
+    def _label(self) -> str:
+        """``model NAME`` for a shipped model, else ``this model`` (for messages)."""
+        return f"model {self.shipped.name}" if self.shipped is not None else "this model"
 
     def count_with(self, views: int) -> None:
         """Read a stroke model's stroke counts from ``views`` views of each image (the
@@ -381,9 +424,8 @@ class Predictor:
         for a one-DMP model or ``views`` outside ``[1, MAX_COUNT_VIEWS]``."""
         views = check_count("count_views (--count-views)", views, 1, MAX_COUNT_VIEWS)
         if self.strokes is None:
-            model = f"model {self.shipped.name}" if self.shipped is not None else "this model"
-            raise ValueError(f"count_views (--count-views) {views}: {model} predicts one DMP "
-                             "per image, it reads no stroke count")  # fmt: skip
+            raise ValueError(f"count_views (--count-views) {views}: {self._label()} predicts "
+                             "one DMP per image, it reads no stroke count")  # fmt: skip
         self.count_views = views
 
     @property
@@ -455,19 +497,27 @@ class Predictor:
         p = out.shape[-1] // k - 1
         return x, out[:, : k * p].reshape(-1, k, p), out[:, k * p :]
 
-    def _refined(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """``z [N, P]`` refined on images ``x [N, H, W]`` (unchanged without refinement),
-        compared with the ink at 100 instants over each DMP's own duration; the result
-        in ``z``'s dtype. At most :data:`REFINE_ROWS` DMPs at once (each is refined on
-        its own: the parts give the numbers of one batch, in bounded memory)."""
+    def _refined(self, z: np.ndarray, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """``z [N, P]`` refined on images ``x [N, H, W]``, each with its ``steps [N]``
+        (:meth:`refine_steps_for`; unchanged with 0), compared with the ink at 100
+        instants over each DMP's own duration; the result in ``z``'s dtype. Each DMP is
+        refined on its own, so rows of equal steps go together, at most
+        :data:`REFINE_ROWS` at once (the parts give the numbers of one batch, in bounded
+        memory)."""
         o = self.refine_options
-        if o is None or o.steps == 0 or len(z) == 0:
+        if o is None or len(z) == 0 or not steps.any():
             return z
-        check_count("refine steps (--refine)", o.steps, 0, MAX_REFINE_STEPS)
-        if len(z) > REFINE_ROWS:
-            parts = range(0, len(z), REFINE_ROWS)
-            return np.concatenate([self._refined(z[a : a + REFINE_ROWS], x[a : a + REFINE_ROWS])
-                                   for a in parts])  # fmt: skip
+        out = z.copy()
+        for n in np.unique(steps[steps > 0]):
+            check_count("refine steps (--refine)", int(n), 0, MAX_REFINE_STEPS)
+            rows = np.flatnonzero(steps == n)
+            parts = [rows[a : a + REFINE_ROWS] for a in range(0, len(rows), REFINE_ROWS)]
+            o_n = replace(o, steps=int(n))
+            out[rows] = np.concatenate([self._refined_part(z[r], x[r], o_n) for r in parts])
+        return out
+
+    def _refined_part(self, z: np.ndarray, x: np.ndarray, o: RefineOptions) -> np.ndarray:
+        """At most :data:`REFINE_ROWS` DMPs ``z`` refined on ``x`` with options ``o``."""
         z64 = z.astype(np.float64)
         tau = self.normaliser.denormalise_numpy(z64)[:, self.normaliser.tau_index]
         t = tau[:, None] * np.linspace(0.0, 1.0, REFINE_POINTS)  # [N, T]
@@ -487,13 +537,14 @@ class Predictor:
     def _refined_all(self, z: np.ndarray, x: np.ndarray) -> np.ndarray:
         """Every hypothesis ``z [B, K, P]`` refined on its image (see :meth:`_refined`)."""
         b, k, p = z.shape
-        return self._refined(z.reshape(b * k, p), np.repeat(x, k, axis=0)).reshape(b, k, p)
+        steps = np.repeat(self.refine_steps_for(x), k)
+        return self._refined(z.reshape(b * k, p), np.repeat(x, k, axis=0), steps).reshape(b, k, p)
 
     def _top_refined(self, images, batch_size: int) -> np.ndarray:
         """The top hypothesis ``[B, P]`` (normalised) of every image, refined if asked."""
         x, z, logits = self._outputs(images, batch_size)
         top = z[np.arange(len(z)), logits.argmax(axis=1)]  # [B, P]
-        return self._refined(top, x)
+        return self._refined(top, x, self.refine_steps_for(x, batch_size))
 
     def predict_normalised(self, images, batch_size: int = 4096):
         """Network output ``[B, P]`` (a torch tensor, normalised units; the top hypothesis
@@ -522,7 +573,7 @@ class Predictor:
         if refine_top_only and self.refine_options is not None:
             rows, top = np.arange(len(z)), logits.argmax(axis=1)  # [B]
             z = z.copy()
-            z[rows, top] = self._refined(z[rows, top], x)
+            z[rows, top] = self._refined(z[rows, top], x, self.refine_steps_for(x, batch_size))
         else:
             z = self._refined_all(z, x)  # [B, K, P]
         probs = _softmax(logits.astype(np.float64))  # [B, K]
@@ -563,20 +614,25 @@ class Predictor:
         if self.strokes is None:
             raise ValueError("predict_strokes needs a stroke model; this one predicts one DMP")
         x, out = self._raw_outputs(images, batch_size)
+        steps = self.refine_steps_for(x, batch_size)  # before the views: x's features kept
         counts = self._count_probabilities(x, out, batch_size)  # [B, K, S]
-        strokes = read_strokes(out, self.strokes, self.n_hypotheses, count_probs=counts,
-                               min_counts=ink_pieces(x))  # fmt: skip
+        strokes = list(read_strokes(out, self.strokes, self.n_hypotheses, count_probs=counts,
+                                    min_counts=ink_pieces(x)))  # fmt: skip
         o = self.refine_options
-        if o is not None and o.steps:
-            check_count("refine steps (--refine)", o.steps, 0, MAX_REFINE_STEPS)
+        if o is not None and steps.any():
             if self.network is not None:
                 refine = refine_strokes_numpy
             else:
                 from .nn.strokes import refine_strokes as refine
             n = REFINE_ROWS // self.strokes.slots  # characters: at most REFINE_ROWS strokes
-            strokes = [s for a in range(0, len(strokes), n)
-                       for s in refine(strokes[a : a + n], x[a : a + n], self.normaliser,
-                                       self.strokes, o)]  # fmt: skip
+            for k in np.unique(steps[steps > 0]):  # each character is refined on its own
+                check_count("refine steps (--refine)", int(k), 0, MAX_REFINE_STEPS)
+                rows, o_k = np.flatnonzero(steps == k), replace(o, steps=int(k))
+                for part in (rows[a : a + n] for a in range(0, len(rows), n)):
+                    done = refine([strokes[i] for i in part], x[part], self.normaliser,
+                                  self.strokes, o_k)  # fmt: skip
+                    for i, s in zip(part, done, strict=True):
+                        strokes[i] = s
         if not return_counts:
             return strokes
         top = split_slots_numpy(out, self.strokes, self.n_hypotheses)[4].argmax(1)  # [B]
@@ -739,14 +795,13 @@ class Predictor:
         prepared, frame, mask = prepare_image_found(
             image, self.image_size, margin=self.margin, stroke_width_px=width, name=name
         )
-        o = self.refine_options
         if self.strokes is not None:
             (strokes,), (counts,) = self.predict_strokes(prepared[None], return_counts=True)
             familiarity = self.familiarity(prepared[None])
             return StrokePrediction(
                 strokes, self.normaliser, self.strokes, frame, prepared,
                 source=str(image) if isinstance(image, (str, os.PathLike)) else None,
-                refine_steps=0 if o is None else int(o.steps), user_image=image,
+                refine_steps=int(self.refine_steps_for(prepared[None])[0]), user_image=image,
                 stroke_width_px=self.stroke_width,
                 n_characters=count_characters(mask, letters=True),
                 n_per_stroke=n_points, count_views=self.count_views,
@@ -757,6 +812,7 @@ class Predictor:
         params, probs = self.predict_hypotheses(prepared[None])  # [1, K], ranked
         times, path = self.trajectories(params[0], n_points=n_points)  # [K, T], [K, T, d]
         familiarity = self.familiarity(prepared[None])
+        steps = int(self.refine_steps_for(prepared[None])[0])
         return Prediction(
             params=params[0],
             probabilities=probs[0],
@@ -766,7 +822,7 @@ class Predictor:
             dmp_config=self.dmp_config,
             image=prepared,
             source=str(image) if isinstance(image, (str, os.PathLike)) else None,
-            refine_steps=0 if o is None else int(o.steps),
+            refine_steps=steps,
             user_image=image,
             stroke_width_px=self.stroke_width,
             n_characters=count_characters(mask),
@@ -1231,6 +1287,7 @@ def load_model(
     checkpoint: str = "best",
     device: str = "cpu",
     backend: str = "auto",
+    refine_unfamiliar: int | None = None,
 ) -> Predictor:
     """A trained network, ready to predict: ``load_model().predict(image)``.
 
@@ -1245,6 +1302,11 @@ def load_model(
         (``img2dmp predict --refine``; 0: the network's output as it is). None: what a
         shipped model's card recommends (30 for ``digits-real``), 0 for a run directory
         or checkpoint.
+    refine_unfamiliar : int or None
+        The steps of images the model finds unfamiliar (below its familiarity line,
+        :attr:`Predictor.refine_unfamiliar`; ``--refine-unfamiliar``). None: what the card
+        recommends when ``refine`` is None too (60 for ``digits-real``, 150 for
+        ``omniglot-strokes``), else ``refine``'s.
     checkpoint : str
         Which checkpoint of a run directory ("best" or "last").
     device : str
@@ -1257,15 +1319,21 @@ def load_model(
     :class:`~img2dmp.errors.UnknownModelError`, listing the shipped models, for an
     unknown name), :class:`CheckpointError` (a ``ValueError``) for a corrupt or foreign
     file, :class:`~img2dmp.errors.ShippedModelError` for a shipped file that does not
-    match its recorded SHA-256, and ``ValueError`` for a bad ``refine``.
+    match its recorded SHA-256, and ``ValueError`` for a bad ``refine`` or
+    ``refine_unfamiliar`` (or the latter for a model without a familiarity).
     """
     if refine is not None:  # before the model is read
         check_count("refine", refine, 0, MAX_REFINE_STEPS)
+    if refine_unfamiliar is not None:
+        check_count("refine_unfamiliar", refine_unfamiliar, 0, MAX_REFINE_STEPS)
     source = default_model().name if path is None else path
     predictor = Predictor.load(source, checkpoint, device, backend)
+    shipped = predictor.shipped
     if refine is None:
-        refine = predictor.shipped.refine if predictor.shipped is not None else 0
-    predictor.refine_with(int(refine))
+        refine = shipped.refine if shipped is not None else 0
+        if refine_unfamiliar is None and shipped is not None:
+            refine_unfamiliar = shipped.refine_unfamiliar
+    predictor.refine_with(int(refine), refine_unfamiliar)
     return predictor
 
 

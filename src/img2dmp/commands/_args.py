@@ -174,20 +174,27 @@ def one_thread() -> None:
         torch.set_num_threads(1)
 
 
-def refine_steps(args, model, command: str) -> int:
-    """``--refine`` as given, or else the steps a shipped model's card recommends (0 for a
-    run directory), said in one note on standard error when they are not 0."""
+def refine_steps(args, model, command: str) -> tuple[int, int | None]:
+    """``(--refine, --refine-unfamiliar)`` as given; else the steps a shipped model's card
+    recommends (0 for a run directory), said in one note on standard error when they are
+    not 0. The second is None when unfamiliar images get the first's steps (neither given
+    nor recommended, or ``--refine`` given alone)."""
+    unfamiliar = getattr(args, "refine_unfamiliar", None)
     if args.refine is not None:
-        return args.refine
+        return args.refine, unfamiliar
     from ..models import resolve
 
     shipped = resolve(model)
     steps = shipped.refine if shipped is not None else 0
-    if steps:
-        print(f"img2dmp {command}: note: model {shipped.name} with --refine {steps}, as its "
-              "card recommends (--refine 0: the network's output as it is)",
+    if unfamiliar is None and shipped is not None:
+        unfamiliar = shipped.refine_unfamiliar
+    if steps or unfamiliar:
+        more = f" (--refine-unfamiliar {unfamiliar}: images it finds unfamiliar)"
+        more = more if unfamiliar else ""
+        print(f"img2dmp {command}: note: model {shipped.name} with --refine {steps}{more}, as "
+              "its card recommends (--refine 0: the network's output as it is)",
               file=sys.stderr)  # fmt: skip
-    return steps
+    return steps, unfamiliar
 
 
 def add_data(p: argparse.ArgumentParser, *, help: str = "", dest: str = "data") -> None:
@@ -522,17 +529,24 @@ __all__ = [
 def add_refine(p: argparse.ArgumentParser) -> None:
     """``--refine STEPS``: gradient steps that pull each predicted DMP onto the ink of its
     image near the network's output (:mod:`img2dmp.nn.refine`); 0 = the network's output;
-    not given (None): the model's recommendation, :func:`refine_steps`."""
+    ``--refine-unfamiliar STEPS``: those of the images the model finds unfamiliar; not
+    given (None): the model's recommendation, :func:`refine_steps`."""
+    steps = {"metavar": "STEPS", "type": int_at_least(0), "default": None}
     p.add_argument(
         "--refine",
-        metavar="STEPS",
-        type=int_at_least(0),
-        default=None,
+        **steps,
         help="refine each predicted DMP on its image with this many gradient steps that "
         "pull it onto the ink near the network's output (0 = the network's output as it "
         f"is); default: what a shipped model's card recommends ({DEFAULT_REFINE} for "
-        f"{DEFAULT_MODEL_NAME}), 0 for "
-        "a run directory or checkpoint",
+        f"{DEFAULT_MODEL_NAME}), 0 for a run directory or checkpoint",
+    )
+    p.add_argument(
+        "--refine-unfamiliar",
+        **steps,
+        help="refine the images the model finds unfamiliar (familiarity below its line, "
+        "flagged 'unfamiliar') with this many steps instead; default: what a shipped "
+        "model's card recommends when --refine is not given (img2dmp models shows it), "
+        "else --refine's steps. Needs a model that carries a familiarity",
     )
 
 

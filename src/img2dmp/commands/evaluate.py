@@ -106,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     inputs = [("data set", data), *_args.model_inputs(model)]
     _args.check_outputs([(Path(out) / n, None) for n in names], args.force, inputs)
     _args.check_device(args.device)
-    refine = _args.refine_steps(args, model, "evaluate")
+    refine, unfamiliar = _args.refine_steps(args, model, "evaluate")
     res = evaluate(
         model,
         data,
@@ -116,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
         digits=list(args.digits) if args.digits is not None else None,
         classes=list(args.classes) if args.classes is not None else None,
         refine=refine,
+        refine_unfamiliar=unfamiliar,
         count_views=args.count_views,
         device=args.device,
         progress=not args.no_progress,

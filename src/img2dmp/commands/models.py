@@ -29,6 +29,7 @@ def _figures(f: dict) -> str:
     return (
         f"{f['split']} part ({f['n']} {'characters' if strokes else 'digits'}, "
         f"--refine {f['refine']}"
+        + (f", --refine-unfamiliar {f['refine_unfamiliar']}" if "refine_unfamiliar" in f else "")
         + (f", --count-views {f['count_views']}" if "count_views" in f else "")
         + f"): Chamfer {f['chamfer_px']:.4f} px, path on the ink "
         f"{100 * f['path_on_ink']:.1f} %, path error {f['path_error_px']:.3f} px "

@@ -140,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
         max_page_mb=args.max_page_mb,
         jobs_dir=args.jobs_dir,
         refine=args.refine,
+        refine_unfamiliar=args.refine_unfamiliar,
         allowed_hosts=[args.host, *args.allowed_host],
     )
     from ..web.models import warm_up

@@ -262,9 +262,9 @@ def _predictor(args):
     _args.one_thread()
     predictor = Predictor.load(args.model, backend=args.backend)
     _args.set_count_views(args, predictor)
-    refine = _args.refine_steps(args, args.model, "write")
-    if refine:
-        predictor.refine_with(refine)
+    refine, unfamiliar = _args.refine_steps(args, args.model, "write")
+    if refine or unfamiliar is not None:
+        predictor.refine_with(refine, unfamiliar)
     return predictor
 
 
@@ -346,6 +346,9 @@ def _check_page_files(args) -> None:
                                              "--width-mm scales a page"),
         (args.refine and not args.model, "--refine refines what --model reads in a photo; "
                                          "a page document is written as it is"),
+        (args.refine_unfamiliar is not None and not args.model,
+         "--refine-unfamiliar refines what --model reads in a photo; a page document is "
+         "written as it is"),
     )  # fmt: skip
     for given, message in refused:
         if given:

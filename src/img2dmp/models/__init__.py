@@ -54,9 +54,11 @@ FAMILIAR_FILE = "familiar.safetensors"
 #: What a model's name looks like (and a ``--model`` word looked up here).
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
 #: Settings a card may recommend, with their types and least values (``refine``:
-#: refinement steps; ``count_views``: the views of an image a stroke model reads its
-#: stroke count from, :attr:`img2dmp.predict.Predictor.count_views`).
-RECOMMENDED_KEYS = {"refine": (int, 0), "count_views": (int, 1)}
+#: refinement steps; ``refine_unfamiliar``: those of images the model finds unfamiliar,
+#: :attr:`img2dmp.predict.Predictor.refine_unfamiliar`; ``count_views``: the views of an
+#: image a stroke model reads its stroke count from,
+#: :attr:`img2dmp.predict.Predictor.count_views`).
+RECOMMENDED_KEYS = {"refine": (int, 0), "refine_unfamiliar": (int, 0), "count_views": (int, 1)}
 
 
 @dataclass(frozen=True)
@@ -112,6 +114,13 @@ class ShippedModel:
     def refine(self) -> int:
         """The refinement steps its card recommends (0 if it recommends none)."""
         return int(self.recommended.get("refine", 0))
+
+    @property
+    def refine_unfamiliar(self) -> int | None:
+        """The refinement steps its card recommends for images it finds unfamiliar (None:
+        it recommends none, they get :attr:`refine`'s)."""
+        steps = self.recommended.get("refine_unfamiliar")
+        return int(steps) if steps is not None else None
 
     @property
     def count_views(self) -> int | None:

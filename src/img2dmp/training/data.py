@@ -196,6 +196,9 @@ class TrainingData:
     val : Split
     dataset_sha256 : str or None
         Of the data-set file (stored mode).
+    rows : (train_idx, val_idx) or None
+        The data-set file's rows trained and validated on (stored mode; None for the
+        generator).
     ink_margin, stroke_width_px : float
         How the images frame their ink and how wide the pen is, for preparing other
         images alike (:func:`img2dmp.data.images.prepare_image`).
@@ -204,6 +207,7 @@ class TrainingData:
     def __init__(self, cfg: TrainConfig, normaliser: ParamNormaliser | None = None):
         self.cfg = cfg
         self.dataset_sha256 = None
+        self.rows: tuple[np.ndarray, np.ndarray] | None = None
         self._train: Split | None = None
         self._first: DigitData | None = None
         self._pool: tuple[int, Split] | None = None  # (epoch drawn for, samples)
@@ -227,6 +231,7 @@ class TrainingData:
         self.image_size = list(a.images.shape[1:])
         self.dataset_sha256 = file_digest(cfg.data.path)
         train_idx, val_idx = _split_indices(a, cfg)
+        self.rows = (train_idx, val_idx)
         self.fit_arrays = (a.params[train_idx], a.times[train_idx])
         layout = cfg.strokes.layout()
         if layout is not None:  # the model's DMPs are the strokes'

@@ -12,6 +12,8 @@ The run directory receives::
     training_curve.png       the same, as a picture
     checkpoints/best.*       lowest validation trajectory error (weights only)
     checkpoints/last.*       end of the latest epoch, with optimiser state (for resume)
+    familiar.safetensors     at the end: how familiar an image is to the best checkpoint
+                             (img2dmp.familiar; trained on a data-set file only)
 
 Reproducibility: the initial weights, the per-epoch shuffling and (in generator mode) the
 per-epoch samples are all drawn from generators seeded by ``(seed, epoch)``, never from
@@ -39,7 +41,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .._files import lock_directory
+from .._files import file_digest, lock_directory
 from .._progress import bar, live, say
 from ..errors import TrainingDiverged
 from ..nn import Cost, trajectory_error_px
@@ -174,7 +176,34 @@ def fit(run: Run, t_start: float | None = None) -> TrainResult:
                 say(f"early stop: no better validation error for {cfg.optim.patience} epochs")
             break
     epochs.close()
+    if run.rank == 0:
+        _write_familiar(run)
     return _result(run, time.perf_counter() - t_start)
+
+
+def _write_familiar(run: Run) -> None:
+    """``RUN/familiar.safetensors``: the best checkpoint's familiarity on the rows it
+    trained and validated on (:func:`img2dmp.familiar.write_run_familiar`), when it
+    trained on a data-set file that is still the one it read; a one-line note either
+    way. A failure here costs the familiarity, never the training."""
+    from ..familiar import RUN_FILE, write_run_familiar
+
+    path, rows = run.cfg.data.path, run.data.rows
+    if path is None or rows is None:
+        return
+    try:
+        if file_digest(path) != run.data.dataset_sha256:
+            (run.run_dir / RUN_FILE).unlink(missing_ok=True)
+            say(f"note: {path} changed during training: no familiarity written")
+            return
+        written = write_run_familiar(run.run_dir, path, *rows)
+    except (OSError, ValueError) as e:
+        say(f"note: no familiarity written ({e})")
+        return
+    if written is None:
+        say("note: no validation rows: no familiarity written (no 'unfamiliar' flag)")
+    elif run.show_progress:
+        say(f"familiarity of the best checkpoint (img2dmp.familiar): {written}")
 
 
 def train_epoch(run: Run, epoch: int) -> tuple[float, float]:

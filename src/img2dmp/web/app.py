@@ -359,6 +359,7 @@ def create_app(
     refine: int | None = None,
     allowed_hosts=(),
     body_timeout_s: float = BODY_TIMEOUT_S,
+    refine_unfamiliar: int | None = None,
 ) -> FastAPI:
     """The application of ``img2dmp serve`` (docs/WEB.md).
 
@@ -386,6 +387,10 @@ def create_app(
         Gradient steps every prediction of a model loaded from a path is refined with on
         its ink (``img2dmp serve --refine``; 0: the network's output); None: each model's
         recommendation (a shipped model's card's, 0 for a run directory).
+    refine_unfamiliar : int or None
+        The steps of images a model finds unfamiliar instead (``--refine-unfamiliar``;
+        :func:`img2dmp.predict.load_model`); None: as the card recommends when ``refine``
+        is None too, else ``refine``'s.
     allowed_hosts : sequence of str
         Names the server answers to besides :data:`LOOPBACK_HOSTS` (``Host`` header;
         ``img2dmp serve`` gives its ``--host`` and ``--allowed-host``), see
@@ -406,7 +411,9 @@ def create_app(
     source = MnistImages(mnist) if mnist is not None else None
     source = FolderImages(images) if images is not None else source
     state = ServerState(
-        load_models(models, refine), Recordings(data_dir, source), JobManager(jobs_dir, max_jobs)
+        load_models(models, refine, refine_unfamiliar),
+        Recordings(data_dir, source),
+        JobManager(jobs_dir, max_jobs),
     )
 
     app = _new_app(state)

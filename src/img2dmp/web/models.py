@@ -74,10 +74,12 @@ def model_id(path: str | os.PathLike) -> str:
     return p.parent.name if p.name == "run" and p.parent.name else p.name
 
 
-def load_models(sources, refine: int | None = None) -> dict[str, LoadedModel]:
+def load_models(sources, refine: int | None = None,
+                refine_unfamiliar: int | None = None) -> dict[str, LoadedModel]:  # fmt: skip
     """Every model of ``sources`` (shipped models' names, paths, or ``(id, Predictor)``
     pairs), in order, by id; those loaded by name or path refine their predictions with
-    ``refine`` steps (``img2dmp serve --refine``; None: as a shipped model's card
+    ``refine`` steps, those they find unfamiliar with ``refine_unfamiliar`` (``img2dmp
+    serve --refine``, ``--refine-unfamiliar``; None: as a shipped model's card
     recommends, 0 for a run directory, :func:`img2dmp.predict.load_model`).
 
     Raises ``FileNotFoundError`` or ``ValueError`` (from :func:`img2dmp.predict.load_model`)
@@ -90,7 +92,7 @@ def load_models(sources, refine: int | None = None) -> dict[str, LoadedModel]:
             path = str(name)
         else:
             name, path = model_id(source), os.fspath(source)
-            predictor = load_model(source, refine=refine)
+            predictor = load_model(source, refine=refine, refine_unfamiliar=refine_unfamiliar)
         unique, n = name, 1
         while unique in models:
             n += 1

@@ -180,7 +180,9 @@ function showSummary(answer, nFlagged) {
   const counts = el("strong", { id: "page-count" },
     `${plural(n, "character")}${strokes} in ${plural(lines, "line")}`);
   const flags = n ? el("strong", { class: nFlagged ? "flag-count" : "" }, `${nFlagged} flagged`) : "";
-  const refined = page.refinement.steps ? ` \u00b7 refined ${page.refinement.steps} steps` : "";
+  const r = page.refinement;
+  const unfamiliar = r.unfamiliar_steps !== undefined ? `, ${r.unfamiliar_steps} if unfamiliar` : "";
+  const refined = r.steps || r.unfamiliar_steps ? ` \u00b7 refined ${r.steps} steps${unfamiliar}` : "";
   const rest = ` \u00b7 photo ${w}\u00d7${h}\u00a0px \u00b7 model ${answer.model}${refined}` +
     ` \u00b7 read in ${(answer.elapsed_ms / 1000).toFixed(2)}\u00a0s`;
   ui.summary.replaceChildren(counts, n ? " \u00b7 " : "", flags, rest);
