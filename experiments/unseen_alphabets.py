@@ -26,7 +26,11 @@ its encoder features to those of the nearest training drawing, for the other alp
 drawers 16-17 (known characters, unseen drawings) and for the held-out alphabet; the
 area under the ROC curve of telling them apart, the share of the held-out alphabet below
 the familiarity that 95 % of the known drawings reach, and the count and ink of those
-below and above it (``OUT/familiarity.md``). Writes
+below and above it (``OUT/familiarity.md``). ``--refine-unfamiliar N`` evaluates the
+trained runs again (in this process) with a familiarity fitted to each run
+(:func:`img2dmp.familiar.fit_familiar` on its data set: the line from the known
+alphabets' drawers 16-20) and N refinement steps for the held-out images below its
+line (``evaluation[_refineR]_unfamiliarN``, ``results[_refineR]_unfamiliarN.md``). Writes
 ``OUT/ALPHABET/`` (data set, run, evaluation) and ``OUT/results.md`` (the table with the
 date, revision and command); with ``--refine N`` other than 60, ``evaluation_refineN``
 and ``results_refineN.md``.
@@ -47,8 +51,8 @@ import numpy as np
 
 from img2dmp._files import atomic_write_text
 from img2dmp.data.store import DigitData, load_dataset, save_dataset
-from img2dmp.evaluate import row_alphabets
-from img2dmp.familiar import Familiar
+from img2dmp.evaluate import evaluate, row_alphabets
+from img2dmp.familiar import Familiar, fit_familiar
 from img2dmp.predict import Predictor
 
 # isort: split
@@ -64,9 +68,11 @@ VALIDATION_DRAWERS = (16, 17, 18, 19, 20)
 REFINE = 60
 
 
-def _suffix(refine: int) -> str:
-    """The evaluation's and table's name suffix for ``refine`` steps (none for 60)."""
-    return "" if refine == REFINE else f"_refine{refine}"
+def _suffix(refine: int, unfamiliar: int | None = None) -> str:
+    """The evaluation's and table's name suffix for ``refine`` steps (none for 60) and
+    ``unfamiliar`` steps for the images below the familiarity line (none for None)."""
+    steps = "" if refine == REFINE else f"_refine{refine}"
+    return steps + ("" if unfamiliar is None else f"_unfamiliar{unfamiliar}")
 
 
 def alphabets_of(data: DigitData) -> np.ndarray:
@@ -116,6 +122,18 @@ def _run_alphabet(folder: Path, epochs: int | None, refine: int) -> subprocess.P
         return subprocess.Popen(["sh", "-c", script], stdout=log, stderr=subprocess.STDOUT)
 
 
+def evaluate_unfamiliar(folder: Path, refine: int, unfamiliar: int) -> Path:
+    """The run in ``folder`` evaluated on its held-out alphabet with a familiarity fitted
+    to it and ``unfamiliar`` steps for the images below its line (``refine`` for the
+    others); the evaluation's folder."""
+    data, out = folder / "data.safetensors", folder / f"evaluation{_suffix(refine, unfamiliar)}"
+    predictor = Predictor.load(folder / "run")
+    predictor.familiar = fit_familiar(predictor, data)
+    evaluate(predictor, data, split="test", out_dir=out, n_figures=0, refine=refine,
+             refine_unfamiliar=unfamiliar, count_views=1)  # fmt: skip
+    return out
+
+
 def _row(alphabet: str, ev: dict) -> dict:
     st = ev["strokes"]
     return {
@@ -125,6 +143,7 @@ def _row(alphabet: str, ev: dict) -> dict:
         "on_ink": float(ev["on_ink"]["overall"]["mean"]),
         "path_px": float(ev["path_error"]["overall"]["mean"]),
         "count_right": float(st["count_right"]),
+        "unfamiliar": ev.get("unfamiliar", {}).get("share"),  # with a familiarity
     }
 
 
@@ -185,21 +204,25 @@ def format_familiarity(rows: list[dict]) -> str:
 
 
 def format_table(rows: list[dict]) -> str:
-    out = ["| held-out alphabet | n | Chamfer (px) | on ink | path (px) | count right |"]
-    out.append("|---|---|---|---|---|---|")
+    below = bool(rows) and all(r.get("unfamiliar") is not None for r in rows)
+    head = "| held-out alphabet | n | Chamfer (px) | on ink | path (px) | count right |"
+    out = [head + (" below the familiarity line |" if below else "")]
+    out.append("|---|---|---|---|---|---|" + ("---|" if below else ""))
     for r in rows:
         out.append(
             f"| {r['alphabet']} | {r['n']} | {r['chamfer_px']:.3f} | {100 * r['on_ink']:.1f} % "
             f"| {r['path_px']:.2f} | {100 * r['count_right']:.1f} % |"
+            + (f" {100 * r['unfamiliar']:.1f} % |" if below else "")
         )
     if rows:
         n = np.array([r["n"] for r in rows], float)
         mean = {k: float(np.average([r[k] for r in rows], weights=n))
                 for k in ("chamfer_px", "on_ink", "path_px", "count_right")}  # fmt: skip
+        share = np.average([r["unfamiliar"] for r in rows], weights=n) if below else 0.0
         out.append(
             f"| all ({len(rows)}) | {int(n.sum())} | {mean['chamfer_px']:.3f} | "
             f"{100 * mean['on_ink']:.1f} % | {mean['path_px']:.2f} | "
-            f"{100 * mean['count_right']:.1f} % |"
+            f"{100 * mean['count_right']:.1f} % |" + (f" {100 * share:.1f} % |" if below else "")
         )
     return "\n".join(out)
 
@@ -217,6 +240,9 @@ def main(argv: list[str] | None = None) -> int:
                     "from known characters (OUT/familiarity.md)")  # fmt: skip
     ap.add_argument("--refine", type=int, default=REFINE,
                     help=f"refinement steps of the evaluation (default {REFINE})")  # fmt: skip
+    ap.add_argument("--refine-unfamiliar", type=int, metavar="N",
+                    help="evaluate the trained runs again with N steps for the images "
+                    "below a familiarity line fitted to each run")  # fmt: skip
     args = ap.parse_args(argv)
     if args.jobs < 1:
         ap.error(f"--jobs must be >= 1, got {args.jobs}")
@@ -224,7 +250,10 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--epochs must be >= 1, got {args.epochs}")
     if args.refine < 0:
         ap.error(f"--refine must be >= 0, got {args.refine}")
-    evaluation = f"evaluation{_suffix(args.refine)}"
+    unfamiliar = args.refine_unfamiliar
+    if unfamiliar is not None and unfamiliar < 0:
+        ap.error(f"--refine-unfamiliar must be >= 0, got {unfamiliar}")
+    evaluation = f"evaluation{_suffix(args.refine, unfamiliar)}"
     record = run_record(__file__, argv)
     print(format_record(record), flush=True)
     data = load_dataset(args.data)
@@ -239,6 +268,13 @@ def main(argv: list[str] | None = None) -> int:
         folder = out / a
         if (folder / evaluation / "evaluation.json").is_file():
             print(f"{a}: done before", flush=True)
+            continue
+        if unfamiliar is not None:  # the trained runs, evaluated again in this process
+            if not (folder / "run" / "checkpoints" / "best.safetensors").is_file():
+                ap.error(f"{a}: no trained run in {folder}; run once without "
+                         "--refine-unfamiliar first")  # fmt: skip
+            print(f"{a}: evaluating ({evaluate_unfamiliar(folder, args.refine, unfamiliar)})",
+                  flush=True)  # fmt: skip
             continue
         folder.mkdir(parents=True, exist_ok=True)
         if not (folder / "data.safetensors").is_file():
@@ -269,7 +305,7 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(_row(a, json.loads(path.read_text())))
     table = format_table(rows)
     print(table)
-    results = out / f"results{_suffix(args.refine)}.md"
+    results = out / f"results{_suffix(args.refine, unfamiliar)}.md"
     atomic_write_text(results, f"{format_record(record)}\n\n{table}\n")
     if args.familiarity:
         done = [a for a in chosen if (out / a / "evaluation" / "evaluation.json").is_file()]
