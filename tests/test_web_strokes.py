@@ -219,3 +219,15 @@ def test_the_warm_up_of_img2dmp_serve_takes_a_stroke_model(stroke_run):
     (model,) = load_models([stroke_run]).values()
     warm_up(model)  # predicts a character and reads a page of two
     assert model.describe()["kind"] == "strokes"
+
+
+def test_served_models_refine_unfamiliar_characters_as_asked(stroke_run):
+    """``img2dmp serve --refine/--refine-unfamiliar`` reach every model it loads: a
+    shipped one takes its card's steps, a run its own familiarity (img2dmp train's)."""
+    card = load_models(["omniglot-strokes"])["omniglot-strokes"].predictor
+    assert (card.refine_options.steps, card.refine_unfamiliar) == (60, 150)
+    (run, both) = load_models([stroke_run, "omniglot-strokes"], 5, 7).values()
+    assert (run.predictor.refine_options.steps, run.predictor.refine_unfamiliar) == (5, 7)
+    assert (both.predictor.refine_options.steps, both.predictor.refine_unfamiliar) == (5, 7)
+    (alone,) = load_models(["omniglot-strokes"], 5).values()  # --refine alone: all images
+    assert alone.predictor.refine_unfamiliar is None
