@@ -319,7 +319,7 @@ def test_a_shipped_model_refines_unfamiliar_images_as_its_card_recommends(name):
 
 
 def test_training_writes_the_run_s_familiarity_for_its_best_checkpoint_only(
-    stroke_run, small_omniglot, tmp_path
+    stroke_run, small_omniglot, tmp_path, capsys
 ):
     import shutil
 
@@ -351,8 +351,19 @@ def test_training_writes_the_run_s_familiarity_for_its_best_checkpoint_only(
     fam = np.asarray(ev["unfamiliar"]["familiarity"])
     assert ev["unfamiliar"]["share"] == pytest.approx(np.mean(fam < ev["unfamiliar"]["line"]))
     assert "unfamiliar to the model" in (out / "evaluation.txt").read_text()
-    (run / RUN_FILE).unlink()  # none: the option is refused by name
-    code = cli.main(["evaluate", "--model", str(run), "--data", str(small_omniglot), "--split",
-                     "test", "--refine-unfamiliar", "3", "--figures", "0", "--out",
-                     str(tmp_path / "ev2"), "--no-progress"])  # fmt: skip
-    assert code != 0
+    # --refine-unfamiliar alone: the others as a run's default, not refined
+    image = str(SAMPLES / "character_f.png")
+    assert cli.main(["predict", image, "--model", str(run), "--refine-unfamiliar", "3",
+                     "--out", str(tmp_path / "p"), "--no-progress"]) == 0  # fmt: skip
+    doc = json.loads((tmp_path / "p" / "character_f_dmp.json").read_text())
+    below = doc["familiarity"]["value"] < doc["familiarity"]["line"]
+    assert doc["refinement"] == {"steps": 3 if below else 0}
+    (run / RUN_FILE).unlink()  # none: the option is refused in one line
+    capsys.readouterr()
+    for command in (["evaluate", "--data", str(small_omniglot), "--figures", "0", "--out",
+                     str(tmp_path / "ev2")], ["predict", image]):  # fmt: skip
+        code = cli.main(
+            [*command, "--model", str(run), "--refine-unfamiliar", "3", "--no-progress"]
+        )
+        err = capsys.readouterr().err
+        assert code == 2 and "carries no familiarity" in err and err.count("\n") == 1

@@ -394,7 +394,8 @@ class Predictor:
                 raise ValueError(
                     f"refine_unfamiliar (--refine-unfamiliar) {unfamiliar}: "
                     f"{self._label()} carries no familiarity to tell unfamiliar images by "
-                    "(img2dmp.familiar.fit_familiar makes one)"
+                    "(img2dmp train writes one into its run; for a run trained before: "
+                    "img2dmp.familiar.write_run_familiar(RUN, DATA))"
                 )
         extra = STROKE_REFINE if self.strokes is not None else {}
         self.refine_unfamiliar = None if unfamiliar == steps else unfamiliar

@@ -179,18 +179,20 @@ def refine_steps(args, model, command: str) -> tuple[int, int | None]:
     recommends (0 for a run directory), said in one note on standard error when they are
     not 0. The second is None when unfamiliar images get the first's steps (neither given
     nor recommended, or ``--refine`` given alone)."""
-    unfamiliar = getattr(args, "refine_unfamiliar", None)
+    given = getattr(args, "refine_unfamiliar", None)
     if args.refine is not None:
-        return args.refine, unfamiliar
+        return args.refine, given
     from ..models import resolve
 
     shipped = resolve(model)
-    steps = shipped.refine if shipped is not None else 0
-    if unfamiliar is None and shipped is not None:
+    if shipped is None:  # a run directory or checkpoint: no recommendation
+        return 0, given
+    steps, unfamiliar = shipped.refine, given
+    if given is None:
         unfamiliar = shipped.refine_unfamiliar
-    if steps or unfamiliar:
+    if steps or (unfamiliar and given is None):
         more = f" (--refine-unfamiliar {unfamiliar}: images it finds unfamiliar)"
-        more = more if unfamiliar else ""
+        more = more if unfamiliar and given is None else ""
         print(f"img2dmp {command}: note: model {shipped.name} with --refine {steps}{more}, as "
               "its card recommends (--refine 0: the network's output as it is)",
               file=sys.stderr)  # fmt: skip
