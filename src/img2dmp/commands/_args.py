@@ -187,16 +187,23 @@ def refine_steps(args, model, command: str) -> tuple[int, int | None]:
     shipped = resolve(model)
     if shipped is None:  # a run directory or checkpoint: no recommendation
         return 0, given
-    steps, unfamiliar = shipped.refine, given
-    if given is None:
-        unfamiliar = shipped.refine_unfamiliar
-    if steps or (unfamiliar and given is None):
-        more = f" (--refine-unfamiliar {unfamiliar}: images it finds unfamiliar)"
-        more = more if unfamiliar and given is None else ""
-        print(f"img2dmp {command}: note: model {shipped.name} with --refine {steps}{more}, as "
-              "its card recommends (--refine 0: the network's output as it is)",
+    card = shipped.refine_unfamiliar if given is None else None  # the card's, when taken
+    if shipped.refine or card:
+        more = f" (--refine-unfamiliar {card}: images it finds unfamiliar)" if card else ""
+        print(f"img2dmp {command}: note: model {shipped.name} with --refine {shipped.refine}"
+              f"{more}, as its card recommends (--refine 0: the network's output as it is)",
               file=sys.stderr)  # fmt: skip
-    return steps, unfamiliar
+    return shipped.refine, given if given is not None else card
+
+
+def set_refinement(args, model, predictor, command: str) -> None:
+    """Refine ``predictor``'s predictions as ``--refine`` and ``--refine-unfamiliar`` say,
+    or as ``model``'s card recommends (:func:`refine_steps`); nothing when neither asks
+    for any (:meth:`~img2dmp.predict.Predictor.refine_with`: a ``ValueError`` for
+    ``--refine-unfamiliar`` on a model without a familiarity)."""
+    refine, unfamiliar = refine_steps(args, model, command)
+    if refine or unfamiliar is not None:
+        predictor.refine_with(refine, unfamiliar)
 
 
 def add_data(p: argparse.ArgumentParser, *, help: str = "", dest: str = "data") -> None:
@@ -518,6 +525,7 @@ __all__ = [
     "model_or_default",
     "one_thread",
     "refine_steps",
+    "set_refinement",
     "add_no_progress",
     "add_set",
     "int_at_least",

@@ -209,9 +209,7 @@ def run(args: argparse.Namespace) -> int:
     predictor = Predictor.load(model, device=_args.check_device(args.device),
                                backend=args.backend)  # fmt: skip
     _args.set_count_views(args, predictor)
-    refine, unfamiliar = _args.refine_steps(args, model, "predict")
-    if refine or unfamiliar is not None:
-        predictor.refine_with(refine, unfamiliar)
+    _args.set_refinement(args, model, predictor, "predict")
     if args.page:
         return _run_pages(args, predictor)
     predictions = []

@@ -262,9 +262,7 @@ def _predictor(args):
     _args.one_thread()
     predictor = Predictor.load(args.model, backend=args.backend)
     _args.set_count_views(args, predictor)
-    refine, unfamiliar = _args.refine_steps(args, args.model, "write")
-    if refine or unfamiliar is not None:
-        predictor.refine_with(refine, unfamiliar)
+    _args.set_refinement(args, args.model, predictor, "write")
     return predictor
 
 
