@@ -159,7 +159,12 @@ def run_familiar(checkpoint: str | os.PathLike) -> Familiar | None:
     path = ckpt.parent.parent / RUN_FILE
     if ckpt.parent.name != CHECKPOINT_DIR or not path.is_file():
         return None
-    familiar = Familiar.load(path)
+    try:
+        familiar = Familiar.load(path)
+    except ValueError as e:
+        raise ValueError(f"{e}; remove it, or write it again with "
+                         f"img2dmp.familiar.write_run_familiar({str(ckpt.parent.parent)!r}, "
+                         "DATA)") from None  # fmt: skip
     if familiar.weights_sha256 is None or familiar.weights_sha256 != file_digest(ckpt):
         return None
     return familiar
