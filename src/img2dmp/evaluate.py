@@ -507,14 +507,14 @@ def evaluate(
     errors = np.asarray(measures["errors_px"])  # [M], Table I
     result = _headline(measures, data.class_names)
     result.update(_described(predictor, model_path, dataset_path, data, split, digits, classes))
-    result.update(refine_steps=int(refine), **measures, **_refined(predictor, data, batch_size))
+    result.update(refine_steps=int(refine), **measures, **_unfamiliar(predictor, data, batch_size))
     result["wall_s"] = time.perf_counter() - t0
     if out_dir is not None:
         _write_evaluation(Path(out_dir), result, data, y, errors, n_figures, seed)
     return result
 
 
-def _refined(predictor, data, batch_size: int) -> dict:
+def _unfamiliar(predictor, data, batch_size: int) -> dict:
     """What :func:`evaluate` records of the unfamiliar samples: their refinement steps
     (None: the others'), and for a model with a familiarity :func:`unfamiliar_measures`."""
     out = {"refine_unfamiliar_steps": getattr(predictor, "refine_unfamiliar", None)}
@@ -528,8 +528,7 @@ def unfamiliar_measures(predictor, images, batch_size: int = 2048) -> dict:
     (:mod:`img2dmp.familiar`): its ``line``, the ``share`` below it and every image's
     ``familiarity``."""
     line = float(predictor.familiar.line)
-    fam = np.concatenate([predictor.familiarity(images[a : a + batch_size])
-                          for a in range(0, len(images), batch_size)])  # fmt: skip
+    fam = predictor.familiarity(images, batch_size)  # in parts, by the encoder and Familiar
     return {"line": line, "share": float(np.mean(fam < line)) if len(fam) else 0.0,
             "familiarity": [round(float(f), 6) for f in fam]}  # fmt: skip
 

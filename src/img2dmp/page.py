@@ -443,7 +443,7 @@ def _stroke_predictions(predictor, inputs, frames, source, n_points) -> list:
     images = np.stack(inputs)
     strokes, counts = predictor.predict_strokes(images, return_counts=True)
     familiar, line = _familiarities(predictor, images)
-    steps = predictor.refine_steps_for(images)
+    steps = predictor.refine_steps_for(images, familiarity=None if line is None else familiar)
     return [StrokePrediction(s, predictor.normaliser, predictor.strokes, frame, x,
                              source=source, refine_steps=n,
                              stroke_width_px=predictor.stroke_width, n_per_stroke=n_points,
@@ -463,7 +463,7 @@ def _dmp_predictions(predictor, inputs, frames, source, n_points) -> list:
     params, probs = predictor.predict_hypotheses(images, refine_top_only=PAGE_REFINE_TOP_ONLY)
     times, paths = predictor.trajectories(params, n_points=n_points)  # [N, K, T], [N, K, T, d]
     familiar, line = _familiarities(predictor, images)
-    steps = predictor.refine_steps_for(images)
+    steps = predictor.refine_steps_for(images, familiarity=None if line is None else familiar)
     return [Prediction(params[i], probs[i], times[i], paths[i], frames[i], predictor.dmp_config,
                        inputs[i], source=source, refine_steps=steps[i],
                        stroke_width_px=predictor.stroke_width, familiarity=familiar[i],

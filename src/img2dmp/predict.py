@@ -402,17 +402,18 @@ class Predictor:
         refining = steps or self.refine_unfamiliar
         self.refine_options = RefineOptions(steps=steps, **extra) if refining else None
 
-    def refine_steps_for(self, images, batch_size: int = 4096) -> np.ndarray:
+    def refine_steps_for(self, images, batch_size: int = 4096, familiarity=None) -> np.ndarray:
         """The refinement steps of each prepared image ``[B, H, W]``: ``[B]`` ints, those
         of :attr:`refine_options` (0 without refinement), :attr:`refine_unfamiliar` for
         an image below the :attr:`familiar` line (the one the ``"unfamiliar"`` flag
-        uses)."""
+        uses); ``familiarity [B]``: the images' own, when already computed."""
         o = self.refine_options
         steps = np.full(len(images), 0 if o is None else int(o.steps), dtype=np.int64)
         adaptive = o is not None and self.refine_unfamiliar is not None
         if adaptive and self.familiar is not None and len(images):
-            below = self.familiarity(images, batch_size) < self.familiar.line
-            steps[below] = self.refine_unfamiliar
+            if familiarity is None:
+                familiarity = self.familiarity(images, batch_size)
+            steps[np.asarray(familiarity) < self.familiar.line] = self.refine_unfamiliar
         return steps
 
     def _label(self) -> str:
@@ -799,10 +800,11 @@ class Predictor:
         if self.strokes is not None:
             (strokes,), (counts,) = self.predict_strokes(prepared[None], return_counts=True)
             familiarity = self.familiarity(prepared[None])
+            steps = self.refine_steps_for(prepared[None], familiarity=familiarity)
             return StrokePrediction(
                 strokes, self.normaliser, self.strokes, frame, prepared,
                 source=str(image) if isinstance(image, (str, os.PathLike)) else None,
-                refine_steps=int(self.refine_steps_for(prepared[None])[0]), user_image=image,
+                refine_steps=int(steps[0]), user_image=image,
                 stroke_width_px=self.stroke_width,
                 n_characters=count_characters(mask, letters=True),
                 n_per_stroke=n_points, count_views=self.count_views,
@@ -813,7 +815,7 @@ class Predictor:
         params, probs = self.predict_hypotheses(prepared[None])  # [1, K], ranked
         times, path = self.trajectories(params[0], n_points=n_points)  # [K, T], [K, T, d]
         familiarity = self.familiarity(prepared[None])
-        steps = int(self.refine_steps_for(prepared[None])[0])
+        steps = int(self.refine_steps_for(prepared[None], familiarity=familiarity)[0])
         return Prediction(
             params=params[0],
             probabilities=probs[0],
