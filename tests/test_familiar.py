@@ -96,7 +96,7 @@ def test_the_line_is_the_validation_drawings_quantile():
     ref = unit_rows(images[:40].reshape(40, -1)).astype(np.float16).astype(np.float64)
     val = unit_rows(images[40:].reshape(20, -1))
     expect = np.quantile((val @ unit_rows(ref).T).max(1), 0.1)
-    assert fam.line == pytest.approx(expect, abs=1e-9)
+    assert fam.line == pytest.approx(expect, abs=1e-6)  # unit rows held in float32
     assert fam.n_validation == 20 and len(fam.features) == 40
     assert (fam.familiarity(images[40:].reshape(20, -1)) < fam.line).sum() == 2
     with pytest.raises(ValueError, match="needs training and validation rows, has 40 and 0"):

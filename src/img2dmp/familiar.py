@@ -48,7 +48,8 @@ def unit_rows(features) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Familiar:
-    """A model's training drawings' encoder features ``[N, F]`` (unit rows) and the
+    """A model's training drawings' encoder features ``[N, F]`` (unit rows; float16 as a
+    file stores them, in :func:`fit_familiar` too) and the
     ``line`` below which an image is unfamiliar; ``quantile``, ``n_validation``: how the
     line was drawn (that share of that many validation drawings lie below it);
     ``weights_sha256``: the checkpoint file it was drawn for, when recorded (a run's)."""
@@ -65,7 +66,8 @@ class Familiar:
             raise ValueError(f"familiar features must be a finite [N, F] array, got {f.shape}")
         if not np.isfinite(self.line) or not -1.0 <= self.line <= 1.0:
             raise ValueError(f"familiar line must be a cosine in [-1, 1], got {self.line!r}")
-        object.__setattr__(self, "_unit", unit_rows(f))  # [N, F] float64, made once
+        # [N, F] float32, made once; each product with them is taken in float64.
+        object.__setattr__(self, "_unit", unit_rows(f).astype(np.float32))
 
     @property
     def feature_size(self) -> int:
@@ -126,7 +128,7 @@ class Familiar:
             weights = meta.get("weights_sha256")
             if weights is not None and not isinstance(weights, str):
                 raise ValueError(f"weights_sha256 must be a string, got {weights!r}")
-            return cls(features.astype(np.float32), float(meta["line"]), quantile, n, weights)
+            return cls(features, float(meta["line"]), quantile, n, weights)  # as stored
         except (KeyError, TypeError, ValueError) as e:
             raise ValueError(f"{p}: {e}") from None
 
@@ -244,10 +246,10 @@ def fit_familiar(
         raise ValueError(f"the data set needs training and validation rows, has {len(train)} "
                          f"and {len(val)}")  # fmt: skip
     ref = unit_rows(predictor.encoder_features(data.images[train])).astype(np.float16)
-    probe = Familiar(ref.astype(np.float32), 0.0)
+    probe = Familiar(ref, 0.0)
     line = float(np.quantile(probe.familiarity(predictor.encoder_features(data.images[val])),
                              quantile))  # fmt: skip
-    return Familiar(ref.astype(np.float32), line, quantile, len(val))
+    return Familiar(ref, line, quantile, len(val))
 
 
 __all__ = [
