@@ -1,7 +1,8 @@
-"""Probes of a stroke model's stroke count on the validation drawers (RESULTS 8.2): does it
-grow with more drawers, with an auxiliary head that names the character, with more views,
-an ensemble or another way of reading the count's probabilities, or by the refined
-strokes' fit to the ink; what is the ceiling of a count learnt per character? Subcommands:
+"""Probes of a stroke model's stroke count on the validation drawers (RESULTS 8.2, 8.3,
+8.15): does it grow with more drawers, with an auxiliary head that names the character,
+with more views, an ensemble or another way of reading the count's probabilities (a
+lean, a quantile, the nearest training drawings' counts), or by the refined strokes' fit
+to the ink; what is the ceiling of a count learnt per character? Subcommands:
 
 ``drop-drawers DATA OUT --drawers 14,15``
     A copy of an Omniglot data set (``img2dmp import``) whose drawings by these drawers
@@ -37,6 +38,15 @@ strokes' fit to the ink; what is the ceiling of a count learnt per character? Su
     probable count); every run's count probabilities averaged (an ensemble, from 8 views
     and from 1); the class-mode ceiling (:func:`stroke_choices.class_mode_shares`); and
     how often a run's count is its class's most common count among the training drawers.
+``rules --data DATA RUN [--split validation|test]``
+    Other rules for reading one run's count (1 view, no fewer than the pieces of ink):
+    the most probable count after a lean toward more strokes (``beta`` added to the log
+    probability per stroke: the model errs more by too few strokes than by too many); the
+    smallest count whose cumulative probability reaches ``q``; the counts of the nearest
+    training drawings in the encoder's feature space (the familiarity's cosine
+    similarity; ``k`` of them, each weighted by ``exp(20 cos)``), alone and mixed with the
+    network's probabilities (share ``a`` of the neighbours' votes). Choose on the
+    validation drawers; ``--split test`` reads the test drawers with every rule.
 
 Run from the repository's root, e.g.::
 
@@ -442,6 +452,63 @@ def fit(data_path: str, run: str, steps: int = 60) -> None:
         )
 
 
+#: The leans toward more strokes, quantiles, neighbours and mixes ``rules`` reads.
+RULE_BETAS = (-0.3, -0.2, -0.1, 0.0, 0.1, 0.2, 0.3)
+RULE_QUANTILES = (0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6)
+RULE_NEIGHBOURS = (1, 3, 5, 10, 15)
+RULE_MIXES = (0.25, 0.5, 0.75)
+
+
+def neighbour_votes(
+    features: np.ndarray, reference: np.ndarray, ref_counts: np.ndarray, k: int, slots: int
+) -> np.ndarray:
+    """Count votes ``[B, S]`` (rows sum to 1) of the ``k`` training drawings nearest to
+    each image by the cosine similarity of their encoder features (unit rows), each
+    weighted by ``exp(20 cos)``; counts beyond ``slots`` vote for ``slots``."""
+    sim = features @ reference.T
+    near = np.argsort(-sim, 1, kind="stable")[:, :k]
+    rows = np.arange(len(features))[:, None]
+    votes = np.zeros((len(features), slots))
+    np.add.at(votes, (rows, np.clip(ref_counts[near], 1, slots) - 1), np.exp(20 * sim[rows, near]))
+    return votes / votes.sum(1, keepdims=True)
+
+
+def rules(data_path: str, run: str, split: str) -> None:
+    from img2dmp.familiar import unit_rows
+
+    data = load_dataset(data_path)
+    s = {"validation": 1, "test": 2}[split]
+    idx, train = np.flatnonzero(data.split == s), np.flatnonzero(data.split == 0)
+    if not len(idx):
+        raise SystemExit(f"{data_path} has no {split} split")
+    counts = np.array([len(data.stroke_spans(i)) for i in range(len(data))])
+    truth, images = counts[idx], data.images[idx]
+    predictor = Predictor.load(run)
+    prob = count_probabilities(predictor, images, ink_pieces(images), 1)
+    allowed, k = prob > 0, np.arange(1, prob.shape[1] + 1)
+
+    def share(said) -> str:
+        return f"{100 * np.mean(said == truth):.1f}"
+
+    print(f"{split} drawings: {len(idx)}; count right, % (1 view):")
+    print("  most probable:", share(prob.argmax(1) + 1))
+    lean = [f"{b:+.1f} {share((np.log(prob + 1e-12) + b * k).argmax(1) + 1)}" for b in RULE_BETAS]
+    print("  leaning toward more strokes, beta:", ", ".join(lean))
+    cum = np.cumsum(prob / prob.sum(1, keepdims=True), 1)
+    print("  the smallest count of cumulative probability q:",
+          ", ".join(f"{q} {share((cum >= q).argmax(1) + 1)}" for q in RULE_QUANTILES))  # fmt: skip
+    feats = unit_rows(predictor.encoder_features(data.images[np.r_[idx, train]]))
+    for n in RULE_NEIGHBOURS:
+        near = neighbour_votes(feats[: len(idx)], feats[len(idx) :], counts[train], n,
+                               prob.shape[1])  # fmt: skip
+        votes = np.where(allowed, near, 0.0)
+        mixed = [f"a {a} {share((a * votes + (1 - a) * prob).argmax(1) + 1)}" for a in RULE_MIXES]
+        print(
+            f"  the {n:>2} nearest training drawings: {share(votes.argmax(1) + 1)}; mixed:",
+            ", ".join(mixed),
+        )
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -467,6 +534,10 @@ def main(argv: list[str]) -> int:
     p = sub.add_parser("read")
     p.add_argument("--data", required=True)
     p.add_argument("runs", nargs="+")
+    p = sub.add_parser("rules")
+    p.add_argument("--data", required=True)
+    p.add_argument("run")
+    p.add_argument("--split", choices=("validation", "test"), default="validation")
     args = parser.parse_args(argv)
     print(format_record(run_record(__file__, argv)))
     if args.command == "drop-drawers":
@@ -492,6 +563,8 @@ def main(argv: list[str]) -> int:
         ceilings(args.data)
     elif args.command == "fit":
         fit(args.data, args.run)
+    elif args.command == "rules":
+        rules(args.data, args.run, args.split)
     else:
         read(args.data, args.runs)
     return 0
