@@ -17,6 +17,10 @@ OMNIGLOT ?= $(DATA)/omniglot
 # ... its stroke count read from this many views of each image (chosen on the validation
 # drawers for --config omniglot: RESULTS 8.3).
 OMNI_VIEWS ?= 1
+# ... trained with this many torch threads: 1 trains the shipped weights to the last bit;
+# 2 trains about 1.6 times as fast on a 2-core machine nothing else uses, as
+# deterministically, to other weights (RESULTS 8.15): for more alphabets than ../shared's.
+OMNI_THREADS ?= 1
 # Refinement steps of the images each model finds unfamiliar (below its familiarity line;
 # chosen on validation drawings: RESULTS 8.14), beside the 30 and 60 steps of the others.
 REAL_UNFAMILIAR ?= 60
@@ -93,7 +97,8 @@ $(OMNI)/data.safetensors: | setup
 $(OMNI)/run/checkpoints/best.safetensors: $(OMNI)/data.safetensors src/img2dmp/configs/omniglot.yaml | setup
 	if [ -f $(OMNI)/run/checkpoints/last.safetensors ]; then \
 	  $(BIN)/img2dmp train --run-dir $(OMNI)/run --resume; else \
-	  $(BIN)/img2dmp train --config omniglot --data $< --run-dir $(OMNI)/run; fi
+	  $(BIN)/img2dmp train --config omniglot --data $< --run-dir $(OMNI)/run \
+	    --set threads=$(OMNI_THREADS); fi
 
 $(OMNI)/evaluation/evaluation.json: $(OMNI)/run/checkpoints/best.safetensors
 	test -f $(OMNI)/run/familiar.safetensors || $(RUN_FAMILIAR) $(OMNI)/run $(OMNI)/data.safetensors
