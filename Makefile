@@ -18,7 +18,7 @@ OMNIGLOT ?= $(DATA)/omniglot
 # drawers for --config omniglot: RESULTS 8.3).
 OMNI_VIEWS ?= 1
 # ... trained with this many torch threads: 1 trains the shipped weights to the last bit;
-# 2 trains about 1.6 times as fast on a 2-core machine nothing else uses, as
+# 2 trains about 1.8 times as fast on a 2-core machine nothing else uses, as
 # deterministically, to other weights (RESULTS 8.15): for more alphabets than ../shared's.
 OMNI_THREADS ?= 1
 # Refinement steps of the images each model finds unfamiliar (below its familiarity line;
