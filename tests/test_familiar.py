@@ -52,6 +52,14 @@ def test_familiarity_is_the_cosine_to_the_nearest_training_drawing():
         Familiar(np.full((2, 3), np.nan), line=0.5)
 
 
+def test_a_training_drawing_itself_is_at_most_1_familiar():
+    # The unit rows are held in float32: unclipped, a drawing's cosine to itself can come
+    # out a rounding above 1.
+    rows = np.random.default_rng(5).normal(size=(300, 64))
+    got = Familiar(rows, line=0.5).familiarity(rows)
+    assert (got <= 1.0).all() and np.allclose(got, 1.0, atol=1e-6)
+
+
 def test_a_familiarity_file_round_trips_and_a_bad_one_is_named(tmp_path):
     rng = np.random.default_rng(1)
     fam = Familiar(unit_rows(rng.normal(size=(7, 4))).astype(np.float32), 0.8, 0.05, 12)

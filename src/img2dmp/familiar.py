@@ -86,7 +86,7 @@ class Familiar:
             for a in range(0, len(ref), 4096):
                 best = (f[b : b + 1024] @ ref[a : a + 4096].T).max(1)
                 np.maximum(out[b : b + 1024], best, out=out[b : b + 1024])
-        return out
+        return np.minimum(out, 1.0, out=out)  # float32 unit rows can pass 1 by a rounding
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write the features (float16) and the line to ``path`` atomically."""
