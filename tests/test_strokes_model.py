@@ -456,6 +456,18 @@ def test_the_count_ceiling_is_the_class_mode_of_the_training_drawings_only(small
     line = _strokes_lines({"count_right": 0.5, "per_alphabet": {}, **got}).splitlines()[1]
     assert f"{100 * got['count_mode_right']:.1f} %" in line
     assert f"{100 * 0.5 / got['count_mode_right']:.1f} % of it" in line
+    # an evaluation of all rows: the training drawings, whose counts make the modes, are
+    # left out of the ceiling, and the count right it is compared with is on the same rows
+    every = count_ceiling(fake, fake, predicted=np.ones(len(fake.labels), int))
+    kept = (np.asarray(fake.labels) != 1) & (arrays["split"] != 0)
+    assert every["count_mode_n"] == int(kept.sum()) > 0
+    assert every["count_mode_training_left_out"] == int((arrays["split"] == 0).sum()) > 0
+    truth = np.array([len(v) for v in spans])
+    assert every["count_mode_count_right"] == pytest.approx(np.mean(truth[kept] == 1))
+    line = _strokes_lines({"count_right": 0.9, "per_alphabet": {}, **every}).splitlines()[1]
+    assert f"its {every['count_mode_training_left_out']} training drawings left out" in line
+    share = every["count_mode_count_right"] / every["count_mode_right"]
+    assert f"on them {100 * every['count_mode_count_right']:.1f} % is {100 * share:.1f} %" in line
 
 
 def test_evaluate_and_export_read_the_count_from_the_views_asked_for(

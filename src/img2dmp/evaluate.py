@@ -220,11 +220,14 @@ def _strokes_lines(strokes: dict) -> str:
              "stroke model: its path by index at the demonstration's instants)"]  # fmt: skip
     mode = strokes.get("count_mode_right")  # absent from evaluations written before it
     if mode is not None:
-        right = strokes["count_right"]
+        right = strokes.get("count_mode_count_right", strokes["count_right"])
+        left = strokes.get("count_mode_training_left_out", 0)
+        on = f", on them {100 * right:.1f} %" if left else ""
         lines.append(
             f"its ceiling, each class's most common count among its training drawings: "
             f"{100 * mode:.1f} % (of the {strokes['count_mode_n']} characters whose class has "
-            f"training drawings; the count right is {100 * right / mode:.1f} % of it)"
+            f"training drawings" + (f", its {left} training drawings left out" if left else "")
+            + f"; the count right{on} is {100 * right / mode:.1f} % of it)"
         )
     elif "count_mode_right" in strokes:
         lines.append("its ceiling: none of these classes has training drawings (never seen)")
@@ -502,7 +505,8 @@ def evaluate(
     data = _evaluation_data(predictor, dataset_path, split, digits, classes, whole)
     y_all, probs, measures = _measured(predictor, data, batch_size, progress)
     if "strokes" in measures:
-        measures["strokes"].update(count_ceiling(whole, data))
+        st = measures["strokes"]
+        st.update(count_ceiling(whole, data, st["predicted_counts"]))
     _, y = top_hypothesis(y_all, probs)  # [M, T, d]
     errors = np.asarray(measures["errors_px"])  # [M], Table I
     result = _headline(measures, data.class_names)
@@ -684,7 +688,7 @@ def class_modes(data, counts: np.ndarray | None = None) -> dict[int, int]:
     return mode
 
 
-def count_ceiling(whole, data) -> dict:
+def count_ceiling(whole, data, predicted=None) -> dict:
     """What a reader that recognised every character and answered its class's most
     common count among the training drawings of ``whole`` (:func:`class_modes`) would
     score on the rows of ``data`` (a selection of ``whole``: the same labels): the count
@@ -692,19 +696,29 @@ def count_ceiling(whole, data) -> dict:
 
     ``count_mode_right`` (overall, ``None`` when no evaluated class has training
     drawings: characters never seen in training) over the ``count_mode_n`` rows whose
-    class has training drawings, and per alphabet (``count_mode_right_per_alphabet``)."""
+    class has training drawings, and per alphabet (``count_mode_right_per_alphabet``).
+    Training rows among ``data`` (an evaluation of ``all`` or ``train``) are left out, as
+    their own counts make the modes (``count_mode_training_left_out`` of them). With the
+    rows' ``predicted`` counts, ``count_mode_count_right``: the count right on the same
+    rows, for comparing with the ceiling."""
     modes = class_modes(whole)
     truth, labels = stroke_counts(data), np.asarray(data.labels)
-    seen = np.isin(labels, list(modes))
+    training = np.asarray(data.split) == SPLITS["train"]
+    seen = np.isin(labels, list(modes)) & ~training
     ok = np.array([seen[i] and truth[i] == modes[int(labels[i])] for i in range(len(data))])
     alphabet = row_alphabets(data)
     per = {str(a): float(ok[(alphabet == a) & seen].mean())
            for a in np.unique(alphabet) if ((alphabet == a) & seen).any()}  # fmt: skip
-    return {
+    out = {
         "count_mode_right": float(ok[seen].mean()) if seen.any() else None,
         "count_mode_n": int(seen.sum()),
         "count_mode_right_per_alphabet": per,
+        "count_mode_training_left_out": int(training.sum()),
     }
+    if predicted is not None and seen.any():
+        right = np.asarray(predicted) == truth
+        out["count_mode_count_right"] = float(right[seen].mean())
+    return out
 
 
 def _headline(measures: dict, class_names) -> dict:
