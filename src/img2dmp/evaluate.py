@@ -222,12 +222,12 @@ def _strokes_lines(strokes: dict) -> str:
     if mode is not None:
         right = strokes.get("count_mode_count_right", strokes["count_right"])
         left = strokes.get("count_mode_training_left_out", 0)
-        on = f", on them {100 * right:.1f} %" if left else ""
+        out, on = (f", its {left} training drawings left out", f", on them {100 * right:.1f} %") \
+            if left else ("", "")  # fmt: skip
         lines.append(
             f"its ceiling, each class's most common count among its training drawings: "
             f"{100 * mode:.1f} % (of the {strokes['count_mode_n']} characters whose class has "
-            f"training drawings" + (f", its {left} training drawings left out" if left else "")
-            + f"; the count right{on} is {100 * right / mode:.1f} % of it)"
+            f"training drawings{out}; the count right{on} is {100 * right / mode:.1f} % of it)"
         )
     elif "count_mode_right" in strokes:
         lines.append("its ceiling: none of these classes has training drawings (never seen)")
