@@ -994,3 +994,40 @@ def test_the_unseen_alphabets_experiment_holds_one_alphabet_out_and_evaluates_on
     assert mod.auc([1.0, 3.0], [2.0, 3.0]) == (1 + 0.5 + 1) / 4
     with pytest.raises(SystemExit):
         mod.main(["--data", str(small_omniglot), "--out", str(out), "--alphabets", "Klingon"])
+
+
+def test_the_hanzi_experiment_draws_imports_and_reads_a_font_script(
+    trained, experiment_script, tmp_path
+):
+    mod = experiment_script("hanzi_script")
+    pkg = tmp_path / "package"
+    pkg.mkdir()
+
+    def medians(n):  # n parallel slanted strokes in the 1024-unit box, y up
+        y = np.linspace(800, 150, 6)
+        return [np.stack([np.linspace(150, 300, 6) + 90 * k, y], 1).astype(int).tolist()
+                for k in range(n)]  # fmt: skip
+
+    for i in range(12):  # CJK unified ideographs of 1-3 strokes
+        (pkg / f"{chr(0x4E00 + i)}.json").write_text(json.dumps({"medians": medians(1 + i % 3)}))
+    (pkg / "\u2e80.json").write_text(json.dumps({"medians": medians(1)}))  # a radical: not read
+    (pkg / f"{chr(0x4E00 + 40)}.json").write_text(json.dumps({"medians": medians(9)}))  # > 8
+    chars = mod.characters(pkg, 8)
+    assert sorted(chars) == [chr(0x4E00 + i) for i in range(12)]
+    out = tmp_path / "hz"
+    assert mod.main(["--hanzi", str(pkg), "--out", str(out), "--model", str(trained),
+                     "--n", "10"]) == 0  # fmt: skip
+    names = json.loads((out / "characters.json").read_text())
+    assert len(names) == 10
+    for i, (name, char) in enumerate(names.items(), 1):  # one BREAK a stroke, in order
+        text = (out / "tree" / "strokes_hanzi" / "Hanzi" / name / f"{i:04d}_01.txt").read_text()
+        assert text.startswith("START\n") and text.count("BREAK") == len(chars[char])
+    ev = json.loads((out / "evaluation" / "evaluation.json").read_text())
+    assert ev["overall"]["n"] == 10 and sorted(ev["strokes"]["true_counts"]) == sorted(
+        len(chars[c]) for c in names.values()
+    )
+    rows = [r.split("|") for r in (out / "by_count.md").read_text().splitlines()
+            if re.match(r"\| \d+-\d+ \|", r)]  # fmt: skip
+    assert sum(int(r[2]) for r in rows) == 10
+    with pytest.raises(SystemExit, match="no character files"):
+        mod.characters(tmp_path / "hz", 8)
