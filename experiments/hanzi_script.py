@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -104,7 +105,10 @@ def stroke_text(strokes: list[np.ndarray]) -> str:
 
 
 def write_tree(chars: dict[str, list[np.ndarray]], out: Path, pen: float) -> dict[str, str]:
-    """The characters as an Omniglot tree under ``out``; ``characterNNNN`` -> character."""
+    """The characters as an Omniglot tree under ``out`` (a tree written before is
+    replaced, so that no character of another run is imported with these);
+    ``characterNNNN`` -> character."""
+    shutil.rmtree(out, ignore_errors=True)
     names = {}
     for i, (char, strokes) in enumerate(chars.items(), 1):
         name = f"character{i:04d}"

@@ -1029,5 +1029,10 @@ def test_the_hanzi_experiment_draws_imports_and_reads_a_font_script(
     rows = [r.split("|") for r in (out / "by_count.md").read_text().splitlines()
             if re.match(r"\| \d+-\d+ \|", r)]  # fmt: skip
     assert sum(int(r[2]) for r in rows) == 10
+    # a second run into the same folder imports its own characters only
+    assert mod.main(["--hanzi", str(pkg), "--out", str(out), "--model", str(trained),
+                     "--n", "10", "--max-strokes", "1"]) == 0  # fmt: skip
+    ev = json.loads((out / "evaluation" / "evaluation.json").read_text())
+    assert ev["overall"]["n"] == 4 and set(ev["strokes"]["true_counts"]) == {1}
     with pytest.raises(SystemExit, match="no character files"):
         mod.characters(tmp_path / "hz", 8)
