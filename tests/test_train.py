@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 
 from img2dmp import cli
 from img2dmp.checkpoint import (
@@ -619,3 +620,40 @@ def test_evaluate_notes_a_split_the_model_trained_on(small_data, trained, capsys
                          split, "--out", str(tmp_path / split), "--figures", "0"])  # fmt: skip
         assert code == 0
         assert ("not a test" in capsys.readouterr().out) is seen, split
+
+
+def test_max_samples_takes_fewer_epochs_on_more_data_and_the_run_records_them(
+    small_data, tmp_path, capsys
+):
+    """``optim.max_samples`` bounds epochs x training samples: a fresh run whose epochs
+    would pass it takes fewer (said on stderr, written to config.yaml and the checkpoint,
+    the cosine schedule ending there), one within it is untouched, and a resumed run
+    keeps the epochs its start chose."""
+    from img2dmp.config import ConfigError
+
+    n = len(load_dataset(small_data).select_split("train").labels)
+    cfg = tiny_config(small_data, epochs=6, schedule="cosine", max_samples=2 * n + n // 2)
+    res = train(cfg, tmp_path / "few")
+    err = capsys.readouterr().err
+    assert f"6 epochs of {n} training samples would pass optim.max_samples" in err
+    assert "training 2 epochs" in err
+    assert res.epochs_run == 2
+    stored = yaml.safe_load((tmp_path / "few" / "config.yaml").read_text())["optim"]
+    assert stored["epochs"] == 2 and stored["max_samples"] == 2 * n + n // 2
+    lr = [row["lr"] for row in read_metrics_csv(tmp_path / "few" / "metrics.csv")]
+    assert lr[-1] < 0.6 * lr[0]  # half-way down a cosine of 2 epochs (of 6: 0.93)
+    meta = read_checkpoint_meta(tmp_path / "few" / "checkpoints" / "last.safetensors")
+    assert meta["train_config"]["optim"]["epochs"] == 2
+    resumed = train(cfg, tmp_path / "few", resume=True)
+    assert resumed.epochs_run == 2  # nothing left to do
+    assert "would pass" not in capsys.readouterr().err
+
+    roomy = tiny_config(small_data, epochs=3, max_samples=3 * n)
+    assert train(roomy, tmp_path / "all").epochs_run == 3
+    assert "would pass" not in capsys.readouterr().err
+    one = tiny_config(small_data, epochs=3, max_samples=1)
+    assert train(one, tmp_path / "one").epochs_run == 1
+    for bad, msg in ((-1, "optim.max_samples must be >= 0, got -1"),
+                     (2.5, "optim.max_samples must be a number")):  # fmt: skip
+        with pytest.raises(ConfigError, match=msg):
+            tiny_config(small_data, max_samples=bad)

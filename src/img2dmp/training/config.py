@@ -170,7 +170,11 @@ class OptimConfig:
     (times ``gamma`` every ``step_size`` epochs); ``"plateau"`` (times ``gamma`` after
     ``step_size`` epochs without a better validation error). ``patience``: early stopping
     after that many epochs without a better validation trajectory error (0 = never).
-    ``grad_clip``: largest gradient norm (None = no clipping).
+    ``grad_clip``: largest gradient norm (None = no clipping). ``max_samples``: at most this
+    many training samples in all (epochs times the samples of an epoch; 0 = no limit): a
+    fresh run on more data takes fewer epochs, so a recipe's training time stays bounded
+    whatever the data set's size; the epochs it takes are written to the run's
+    configuration.
     """
 
     lr: float = 1e-3
@@ -183,9 +187,11 @@ class OptimConfig:
     gamma: float = 0.5
     min_lr: float = 1e-6
     grad_clip: float | None = None
+    max_samples: int = 0
 
     def __post_init__(self) -> None:
         numbers = {"lr": float, "weight_decay": float, "batch_size": int, "epochs": int}
+        numbers |= {"max_samples": int}
         numbers |= {"patience": int, "step_size": int, "gamma": float, "min_lr": float}
         for name, kind in numbers.items():
             v = getattr(self, name)
@@ -198,7 +204,8 @@ class OptimConfig:
         check_positive("optim.gamma", self.gamma)
         if self.grad_clip is not None:
             check_positive("optim.grad_clip", self.grad_clip)
-        for name, lo in (("batch_size", 1), ("epochs", 1), ("step_size", 1), ("patience", 0)):
+        bounds = ("batch_size", 1), ("epochs", 1), ("step_size", 1), ("patience", 0)
+        for name, lo in (*bounds, ("max_samples", 0)):
             if getattr(self, name) < lo:
                 raise ConfigError(f"optim.{name} must be >= {lo}, got {getattr(self, name)!r}")
         if self.schedule not in SCHEDULES:

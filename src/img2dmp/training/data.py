@@ -299,6 +299,13 @@ class TrainingData:
         n = self.cfg.data.samples_per_epoch
         return generate_arrays(self._generator, n, seed=self.cfg.seed, epoch=epoch)
 
+    @property
+    def samples_per_epoch(self) -> int:
+        """How many training samples an epoch goes through."""
+        if self.rows is not None:
+            return len(self.rows[0])
+        return int(self.cfg.data.samples_per_epoch)
+
     def train_for_epoch(self, epoch: int) -> Split:
         """The training split of ``epoch`` (stored mode: always the same).
 

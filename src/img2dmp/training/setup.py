@@ -72,6 +72,8 @@ def open_run(
     data = TrainingData(cfg, _kept_normaliser(cfg, last or init))
     _check_fits(cfg, data, last, init)
     cfg = _resolved(cfg, data)
+    if last is None:
+        cfg = _within_sample_limit(cfg, data.samples_per_epoch)
     stored = last.meta.get("parameter_weighting") if last is not None else None
     weighting = data.parameter_weighting(stored, resumed=last is not None)
     model = place_model(build_model(cfg.model, seed=cfg.seed), device)
@@ -205,6 +207,24 @@ def _resolved(cfg: TrainConfig, data: TrainingData) -> TrainConfig:
     cfg.model.image_size = list(data.image_size)
     layout = cfg.strokes.layout()
     cfg.model.n_outputs = data.dmp_config.n_params if layout is None else layout.n_outputs
+    return cfg
+
+
+def _within_sample_limit(cfg: TrainConfig, per_epoch: int) -> TrainConfig:
+    """``cfg`` with fewer epochs when its epochs of ``per_epoch`` training samples would
+    pass ``optim.max_samples`` (said on stderr); unchanged otherwise."""
+    limit, wanted = cfg.optim.max_samples, cfg.optim.epochs
+    epochs = max(1, limit // per_epoch) if limit else wanted
+    if epochs >= wanted:
+        return cfg
+    print(
+        f"note: {wanted} epochs of {per_epoch} training samples would pass optim.max_samples "
+        f"= {limit}; training {epochs} epochs ({epochs * per_epoch} samples; --set "
+        f"optim.max_samples=0 for all {wanted})",
+        file=sys.stderr,
+    )
+    cfg = copy.deepcopy(cfg)
+    cfg.optim.epochs = epochs
     return cfg
 
 
