@@ -468,6 +468,17 @@ def test_the_count_ceiling_is_the_class_mode_of_the_training_drawings_only(small
     assert f"its {every['count_mode_training_left_out']} training drawings left out" in line
     share = every["count_mode_count_right"] / every["count_mode_right"]
     assert f"on them {100 * every['count_mode_count_right']:.1f} % is {100 * share:.1f} %" in line
+    # and per alphabet: the table gives the count on the ceiling's rows beside its mode %
+    alphabets = np.array([fake.class_names[c].split("/")[0] for c in fake.labels])
+    per = {a: {"n": 1, "count_right": 0.9} for a in ("Alpha", "Beta")}
+    table = _strokes_lines({"count_right": 0.9, "per_alphabet": per, **every}).splitlines()
+    assert table[-4].endswith("mode % on them %") and table[-1].startswith("(mode % and on them")
+    for a, row in zip(("Alpha", "Beta"), table[-3:-1], strict=True):
+        on_them = np.mean(truth[kept & (alphabets == a)] == 1)
+        assert row.split()[0] == a and row.split()[-1] == f"{100 * on_them:.1f}"
+        assert every["count_mode_count_right_per_alphabet"][a] == pytest.approx(on_them)
+    plain = _strokes_lines({"count_right": 0.9, "per_alphabet": per, **got}).splitlines()
+    assert plain[-3].endswith("mode %") and "on them" not in plain[-1]
 
 
 def test_evaluate_and_export_read_the_count_from_the_views_asked_for(

@@ -239,16 +239,24 @@ def _strokes_lines(strokes: dict) -> str:
         )
         lines.append(f"the count right by the network's probability of it: {said}")
     per, modes = strokes["per_alphabet"], strokes.get("count_mode_right_per_alphabet", {})
+    # with training drawings evaluated, the ceiling's rows are fewer: the count on them too
+    same = strokes.get("count_mode_count_right_per_alphabet") \
+        if strokes.get("count_mode_training_left_out") else None  # fmt: skip
     if len(per) > 1:
         w = max(len(a) for a in per)
-        lines.append(f"{'alphabet':>{w}} {'n':>5} {'path':>7} {'Chamfer':>8} {'ink %':>6} "
-                     f"{'count %':>7} {'mode %':>6}")  # fmt: skip
+        head = f"{'alphabet':>{w}} {'n':>5} {'path':>7} {'Chamfer':>8} {'ink %':>6} "
+        lines.append(head + f"{'count %':>7} {'mode %':>6}" + (" on them %" if same else ""))
         for a, m in per.items():
             ceiling = f"{100 * modes[a]:>6.1f}" if a in modes else f"{'-':>6}"
+            on_them = "" if not same else f" {100 * same[a]:>9.1f}" if a in same else f" {'-':>9}"
             lines.append(
                 f"{a:>{w}} {m['n']:>5} {_cell(m, 'path_error', 7)} {_cell(m, 'chamfer', 8)} "
                 f"{_cell(m, 'on_ink', 6, 100, 1)} {100 * m['count_right']:>7.1f} {ceiling}"
+                + on_them
             )
+        if same:
+            lines.append("(mode % and on them %: the rows that are not training drawings; "
+                         "count %: every row)")  # fmt: skip
     return "\n".join(lines)
 
 
@@ -700,7 +708,8 @@ def count_ceiling(whole, data, predicted=None) -> dict:
     Training rows among ``data`` (an evaluation of ``all`` or ``train``) are left out, as
     their own counts make the modes (``count_mode_training_left_out`` of them). With the
     rows' ``predicted`` counts, ``count_mode_count_right``: the count right on the same
-    rows, for comparing with the ceiling."""
+    rows, for comparing with the ceiling (and per alphabet,
+    ``count_mode_count_right_per_alphabet``)."""
     modes = class_modes(whole)
     truth, labels = stroke_counts(data), np.asarray(data.labels)
     training = np.asarray(data.split) == SPLITS["train"]
@@ -718,6 +727,9 @@ def count_ceiling(whole, data, predicted=None) -> dict:
     if predicted is not None and seen.any():
         right = np.asarray(predicted) == truth
         out["count_mode_count_right"] = float(right[seen].mean())
+        out["count_mode_count_right_per_alphabet"] = {
+            a: float(right[(alphabet == a) & seen].mean()) for a in per
+        }
     return out
 
 
