@@ -182,6 +182,41 @@ def test_zips_as_distributed_import_the_same_as_their_folders(tree, imported, tm
     assert np.array_equal(load_dataset(tmp_path / "b.safetensors").images, imported.images)
 
 
+def test_the_copies_experiment_writes_every_alphabet_again_from_folders_or_zips(
+    tree, imported, tmp_path, experiment_script, capsys
+):
+    """``experiments/omniglot_copies.py`` (a larger source for timing a recipe): each
+    alphabet three times under new names, the same drawings, from folders or zips."""
+    mod = experiment_script("omniglot_copies")
+    zips = tmp_path / "zips"
+    zips.mkdir()
+    for name in ("images_test", "strokes_test"):
+        zip_tree(tree / name, zips / f"{name}.zip")
+    for source in (tree, zips):
+        out = tmp_path / f"x3_{source.name}"
+        assert mod.main(["--omniglot", str(source), "--copies", "3", "--out", str(out)]) == 0
+        assert not out.with_name(out.name + ".partial").exists()
+        assert _import(out, tmp_path / "x3.safetensors", "--force") == 0
+        data = load_dataset(tmp_path / "x3.safetensors")
+        assert len(data) == 3 * len(imported)
+        names = [f"{a}_copy{k}/character{c:02d}" for a in ("Alpha", "Beta") for k in (1, 2, 3)
+                 for c in (1, 2)]  # fmt: skip
+        assert sorted(data.class_names) == sorted(names)
+        copy2 = np.isin(data.labels, [i for i, n in enumerate(data.class_names) if "_copy2/" in n])
+        assert np.array_equal(data.trajectories[copy2], imported.trajectories)
+        assert np.array_equal(data.split[copy2], imported.split)
+    capsys.readouterr()
+    assert mod.main(["--omniglot", str(tree), "--out", str(out)]) == 2  # OUT exists
+    assert f"{out} exists (--force replaces it)" in capsys.readouterr().err
+    assert mod.main(["--omniglot", str(zips), "--copies", "0",
+                     "--out", str(tmp_path / "none")]) == 2  # fmt: skip
+    assert "--copies must be >= 1, got 0" in capsys.readouterr().err
+    assert not (tmp_path / "none").exists() and not (tmp_path / "none.partial").exists()
+    (tmp_path / "empty").mkdir()
+    assert mod.main(["--omniglot", str(tmp_path / "empty"), "--out", str(tmp_path / "none")]) == 2
+    assert "no images_NAME / strokes_NAME folder or zip in it" in capsys.readouterr().err
+
+
 def test_split_by_character_or_alphabet_keeps_them_whole(tmp_path):
     root = write_tree(tmp_path / "o", alphabets=("A", "B", "C", "D", "E"), characters=5, drawers=2)
     samples, _ = find_samples(root, split_by="character")
