@@ -21,6 +21,10 @@ OMNI_VIEWS ?= 1
 # 2 trains about 1.8 times as fast on a 2-core machine nothing else uses, as
 # deterministically, to other weights (RESULTS 8.15): for more alphabets than ../shared's.
 OMNI_THREADS ?= 1
+# ... with these settings besides --config omniglot, each passed as --set KEY=VALUE, e.g.
+# OMNI_SET="strokes.slots=12 optim.max_samples=0" for a script of more than 8 strokes a
+# character, trained the full 120 epochs whatever its size (docs/TRAINING.md).
+OMNI_SET ?=
 # Refinement steps of the images each model finds unfamiliar (below its familiarity line;
 # chosen on validation drawings: RESULTS 8.14), beside the 30 and 60 steps of the others.
 REAL_UNFAMILIAR ?= 60
@@ -98,7 +102,7 @@ $(OMNI)/run/checkpoints/best.safetensors: $(OMNI)/data.safetensors src/img2dmp/c
 	if [ -f $(OMNI)/run/checkpoints/last.safetensors ]; then \
 	  $(BIN)/img2dmp train --run-dir $(OMNI)/run --resume; else \
 	  $(BIN)/img2dmp train --config omniglot --data $< --run-dir $(OMNI)/run \
-	    --set threads=$(OMNI_THREADS); fi
+	    --set threads=$(OMNI_THREADS) $(foreach s,$(OMNI_SET),--set $(s)); fi
 
 $(OMNI)/evaluation/evaluation.json: $(OMNI)/run/checkpoints/best.safetensors
 	test -f $(OMNI)/run/familiar.safetensors || $(RUN_FAMILIAR) $(OMNI)/run $(OMNI)/data.safetensors
