@@ -9,7 +9,8 @@ again, so it says nothing about how well a model reads more alphabets.
 
 Run from the repository's root::
 
-    python experiments/omniglot_copies.py --omniglot ../shared/data/omniglot --copies 4 --out runs/omniglot_x4
+    python experiments/omniglot_copies.py --omniglot ../shared/data/omniglot --copies 4 \\
+        --out runs/omniglot_x4
     make model-omniglot OMNIGLOT=runs/omniglot_x4 OMNI=runs/omniglot_x4_run
 
 The source's trees may be folders or zips, as Omniglot ships them; a zip's ``__MACOSX``
