@@ -217,6 +217,18 @@ def test_the_copies_experiment_writes_every_alphabet_again_from_folders_or_zips(
     assert "no images_NAME / strokes_NAME folder or zip in it" in capsys.readouterr().err
 
 
+def test_a_split_by_drawer_without_validation_or_test_drawers_says_so(tree, tmp_path, capsys):
+    few = write_tree(tmp_path / "few", characters=1, drawers=5)
+    assert _import(few, tmp_path / "few.safetensors") == 0
+    out = capsys.readouterr().out
+    assert "(train 10, validation 0, test 0)" in out
+    assert "note: no drawing in validation or test: the split by drawer puts" in out
+    assert _import(tree, tmp_path / "all.safetensors") == 0
+    assert "no drawing in" not in capsys.readouterr().out
+    assert _import(few, tmp_path / "c.safetensors", "--split-by", "character") == 0
+    assert "no drawing in" not in capsys.readouterr().out
+
+
 def test_split_by_character_or_alphabet_keeps_them_whole(tmp_path):
     root = write_tree(tmp_path / "o", alphabets=("A", "B", "C", "D", "E"), characters=5, drawers=2)
     samples, _ = find_samples(root, split_by="character")

@@ -257,6 +257,18 @@ def run(args: argparse.Namespace) -> int:
         f"{data.image_size}, d={data.trajectories.shape[-1]}, DMP fit error "
         f"{meta['fit']['mean_error_px']:.3f} px mean"
     )
+    empty = [name for name in ("validation", "test") if not counts[name]]
+    if (
+        empty
+        and meta["source"].get("format") == "omniglot"
+        and meta["source"].get("split_by") == "drawer"
+    ):
+        print(
+            f"note: no drawing in {' or '.join(empty)}: the split by drawer puts drawers 1-15 "
+            "in training, 16-17 in validation and 18-20 in test (a file's number after its "
+            "'_'); number your drawers into those, or --split-by character to test on "
+            "whole characters never seen in training"
+        )
     poor = meta["fit"]["poor"]
     if poor["rows"]:
         # Without the goal-start scaling, what a fit misses is detail: many strokes or a
