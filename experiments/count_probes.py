@@ -47,6 +47,17 @@ to the ink; what is the ceiling of a count learnt per character? Subcommands:
     similarity; ``k`` of them, each weighted by ``exp(20 cos)``), alone and mixed with the
     network's probabilities (share ``a`` of the neighbours' votes). Choose on the
     validation drawers; ``--split test`` reads the test drawers with every rule.
+``ink EVALUATION DATA [EVALUATION DATA ...]``
+    A count read from the image's ink instead of the network's, where the network has
+    least to go on: per ``img2dmp evaluate`` output (its ``evaluation.json``, with the
+    familiarity: ``--refine-unfamiliar``) and the data set it evaluated (its evaluated
+    split, in order), the count right by the network, by the pieces of ink, by the
+    skeleton's ends (half of them, at least the pieces), and by those where the network
+    is unsure (its count's probability below ``q``) or finds the image unfamiliar. For
+    the alphabets held out in turn (``unseen_alphabets.py``, RESULTS 8.9) and the known
+    alphabets' validation drawers, side by side. Last, per evaluation, the rule that the
+    other evaluations of its split choose (the most characters right, pooled) and what
+    it gives there: whether a choice made on some alphabets carries over to another.
 
 Run from the repository's root, e.g.::
 
@@ -60,6 +71,7 @@ a run.
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import sys
 import time
@@ -509,6 +521,77 @@ def rules(data_path: str, run: str, split: str) -> None:
         )
 
 
+#: ``ink``: the count's probabilities below which the ink's count is taken.
+INK_BELOW = (0.3, 0.4, 0.5, 0.6)
+
+
+def skeleton_ends(images: np.ndarray, level: float = 0.5) -> np.ndarray:
+    """Per image ``[B, H, W]`` the ends of its ink's skeleton: skeleton pixels with one
+    skeleton neighbour (8-connected)."""
+    from scipy.ndimage import convolve
+    from skimage.morphology import skeletonize
+
+    ring = np.ones((3, 3), int)
+    ring[1, 1] = 0
+    out = np.zeros(len(images), int)
+    for i, im in enumerate(images):
+        sk = skeletonize(np.asarray(im) > level)
+        out[i] = int((sk & (convolve(sk.astype(int), ring, mode="constant") == 1)).sum())
+    return out
+
+
+def ink_counts(evaluation: dict, images: np.ndarray) -> dict[str, np.ndarray]:
+    """The counts of :func:`ink`'s rules for one evaluation's rows and their images."""
+    st = evaluation["strokes"]
+    net, prob = np.array(st["predicted_counts"]), np.array(st["count_probabilities"])
+    pieces, ends = ink_pieces(images), skeleton_ends(images)
+    skeleton = np.maximum(pieces, ends // 2)
+    rules = {"the network": net, "pieces of ink": pieces, "skeleton (ends / 2, >= pieces)":
+             skeleton}  # fmt: skip
+    for q in INK_BELOW:
+        rules[f"pieces where p < {q}"] = np.where(prob < q, pieces, net)
+    u = evaluation.get("unfamiliar")
+    if u and u.get("familiarity") is not None:
+        below = np.array(u["familiarity"]) < u["line"]
+        rules["pieces where unfamiliar"] = np.where(below, pieces, net)
+        rules["skeleton where unfamiliar"] = np.where(below, skeleton, net)
+    return rules
+
+
+def ink(pairs: list[tuple[str, str]]) -> None:
+    table: dict[str, list[str]] = {}
+    names, splits, right, sizes = [], [], {}, []
+    for ev_path, data_path in pairs:
+        evaluation = json.loads(Path(ev_path).read_text())
+        data = load_dataset(data_path)
+        split = evaluation["split"]
+        rows = np.arange(len(data)) if split == "all" else np.flatnonzero(
+            data.split == {"train": 0, "validation": 1, "test": 2}[split])  # fmt: skip
+        truth = np.array(evaluation["strokes"]["true_counts"])
+        mine = np.array([len(data.stroke_spans(int(i))) for i in rows])
+        if not np.array_equal(truth, mine):
+            raise SystemExit(f"{ev_path}: its rows are not {data_path}'s {split} split")
+        names.append(f"{Path(data_path).parent.name}/{split} ({len(rows)})")
+        splits.append(split)
+        sizes.append(len(rows))
+        for rule, said in ink_counts(evaluation, data.images[rows]).items():
+            table.setdefault(rule, []).append(f"{100 * np.mean(said == truth):.1f}")
+            right.setdefault(rule, []).append(int(np.sum(said == truth)))
+    print("count right, %: | rule | " + " | ".join(names) + " |")
+    for rule, cells in table.items():
+        print(f"| {rule} | " + " | ".join(cells) + " |")
+    chosen = []
+    for i in range(len(names)):
+        others = [j for j in range(len(names)) if j != i and splits[j] == splits[i]]
+        common = [r for r in right if len(right[r]) == len(names)]
+        if not others:
+            chosen.append("-")
+            continue
+        best = max(common, key=lambda r: sum(right[r][j] for j in others))
+        chosen.append(f"{100 * right[best][i] / sizes[i]:.1f} ({best})")
+    print("| chosen on the others of its split | " + " | ".join(chosen) + " |")
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -538,7 +621,11 @@ def main(argv: list[str]) -> int:
     p.add_argument("--data", required=True)
     p.add_argument("run")
     p.add_argument("--split", choices=("validation", "test"), default="validation")
+    p = sub.add_parser("ink")
+    p.add_argument("pairs", nargs="+", metavar="EVALUATION DATA")
     args = parser.parse_args(argv)
+    if args.command == "ink" and len(args.pairs) % 2:
+        parser.error("ink takes pairs: EVALUATION.json DATA.safetensors ...")
     print(format_record(run_record(__file__, argv)))
     if args.command == "drop-drawers":
         gone = [int(d) for d in args.drawers.split(",")]
@@ -565,6 +652,8 @@ def main(argv: list[str]) -> int:
         fit(args.data, args.run)
     elif args.command == "rules":
         rules(args.data, args.run, args.split)
+    elif args.command == "ink":
+        ink(list(zip(args.pairs[::2], args.pairs[1::2], strict=True)))
     else:
         read(args.data, args.runs)
     return 0

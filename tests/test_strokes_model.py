@@ -908,6 +908,45 @@ def test_count_probes_ceilings_and_the_count_chosen_by_its_fit_to_the_ink(
     assert len(re.findall(r"taken, count right", out)) == len(mod.FIT_MARGINS)
 
 
+def test_count_probes_ink_reads_the_count_from_the_ink_and_chooses_on_the_others(
+    small_omniglot, trained, experiment_script, tmp_path, capsys
+):
+    from img2dmp.nn.strokes import ink_pieces
+
+    mod = experiment_script("count_probes")
+    # the skeleton's ends: a bar 2, a plus 4, a ring none
+    images = np.zeros((3, 40, 40), np.float32)
+    images[0, 20, 5:35] = 1
+    images[1, 20, 5:35] = images[1, 5:35, 20] = 1
+    yy, xx = np.mgrid[:40, :40]
+    images[2][np.abs(np.hypot(yy - 20, xx - 20) - 10) < 1] = 1
+    assert mod.skeleton_ends(images).tolist() == [2, 4, 0]
+
+    out = tmp_path / "ev"
+    argv = ["evaluate", "--model", str(trained), "--data", str(small_omniglot),
+            "--split", "validation", "--figures", "0", "--out", str(out)]  # fmt: skip
+    assert cli.main(argv) == 0
+    capsys.readouterr()
+    ev = out / "evaluation.json"
+    assert mod.main(["ink", str(ev), str(small_omniglot), str(ev), str(small_omniglot)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    cells = [ln.split(" | ") for ln in lines if ln.startswith("| ")]
+    rows = {c[0].strip("| "): c[1:] for c in cells}
+    evaluation = json.loads(ev.read_text())
+    data = load_dataset(small_omniglot)
+    val = np.flatnonzero(data.split == 1)
+    truth = np.array([len(data.stroke_spans(int(i))) for i in val])
+    network = 100 * evaluation["strokes"]["count_right"]
+    assert rows["the network"][0] == f"{network:.1f}"
+    pieces = 100 * np.mean(ink_pieces(data.images[val]) == truth)
+    assert rows["pieces of ink"][0] == f"{pieces:.1f}"
+    # each evaluation's rule is the one the other (here the same) chooses
+    best = max(float(v[0]) for k, v in rows.items() if not k.startswith("chosen"))
+    assert rows["chosen on the others of its split"][0].startswith(f"{best:.1f} (")
+    with pytest.raises(SystemExit):
+        mod.main(["ink", str(ev)])
+
+
 def test_the_stroke_jitter_probe_moves_each_stroke_and_its_ink_together(
     small_omniglot, experiment_script
 ):
