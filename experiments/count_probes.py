@@ -1,8 +1,9 @@
 """Probes of a stroke model's stroke count on the validation drawers (RESULTS 8.2, 8.3,
-8.15): does it grow with more drawers, with an auxiliary head that names the character,
-with more views, an ensemble or another way of reading the count's probabilities (a
-lean, a quantile, the nearest training drawings' counts), or by the refined strokes' fit
-to the ink; what is the ceiling of a count learnt per character? Subcommands:
+8.15) and on alphabets held out (8.18): does it grow with more drawers, with an auxiliary
+head that names the character, with more views, an ensemble or another way of reading
+the count's probabilities (a lean, a quantile, the nearest training drawings' counts), by
+the refined strokes' fit to the ink, or from the ink itself; what is the ceiling of a
+count learnt per character? Subcommands:
 
 ``drop-drawers DATA OUT --drawers 14,15``
     A copy of an Omniglot data set (``img2dmp import``) whose drawings by these drawers
