@@ -191,8 +191,8 @@ class OptimConfig:
 
     def __post_init__(self) -> None:
         numbers = {"lr": float, "weight_decay": float, "batch_size": int, "epochs": int}
-        numbers |= {"max_samples": int}
         numbers |= {"patience": int, "step_size": int, "gamma": float, "min_lr": float}
+        numbers |= {"max_samples": int}
         for name, kind in numbers.items():
             v = getattr(self, name)
             ok = isinstance(v, (int, float)) if kind is float else isinstance(v, int)

@@ -73,7 +73,7 @@ def open_run(
     _check_fits(cfg, data, last, init)
     cfg = _resolved(cfg, data)
     if last is None:
-        cfg = _within_sample_limit(cfg, data.samples_per_epoch)
+        cfg = _within_sample_limit(cfg, data.samples_per_epoch, say=rank == 0)
     stored = last.meta.get("parameter_weighting") if last is not None else None
     weighting = data.parameter_weighting(stored, resumed=last is not None)
     model = place_model(build_model(cfg.model, seed=cfg.seed), device)
@@ -210,19 +210,20 @@ def _resolved(cfg: TrainConfig, data: TrainingData) -> TrainConfig:
     return cfg
 
 
-def _within_sample_limit(cfg: TrainConfig, per_epoch: int) -> TrainConfig:
+def _within_sample_limit(cfg: TrainConfig, per_epoch: int, say: bool = True) -> TrainConfig:
     """``cfg`` with fewer epochs when its epochs of ``per_epoch`` training samples would
-    pass ``optim.max_samples`` (said on stderr); unchanged otherwise."""
+    pass ``optim.max_samples`` (said on stderr if ``say``); unchanged otherwise."""
     limit, wanted = cfg.optim.max_samples, cfg.optim.epochs
     epochs = max(1, limit // per_epoch) if limit else wanted
     if epochs >= wanted:
         return cfg
-    print(
-        f"note: {wanted} epochs of {per_epoch} training samples would pass optim.max_samples "
-        f"= {limit}; training {epochs} epochs ({epochs * per_epoch} samples; --set "
-        f"optim.max_samples=0 for all {wanted})",
-        file=sys.stderr,
-    )
+    if say:
+        print(
+            f"note: {wanted} epochs of {per_epoch} training samples would pass "
+            f"optim.max_samples = {limit}; training {epochs} epochs ({epochs * per_epoch} "
+            f"samples; --set optim.max_samples=0 for all {wanted})",
+            file=sys.stderr,
+        )
     cfg = copy.deepcopy(cfg)
     cfg.optim.epochs = epochs
     return cfg
