@@ -29,6 +29,10 @@ OMNI_SET ?=
 # chosen on validation drawings: RESULTS 8.14), beside the 30 and 60 steps of the others.
 REAL_UNFAMILIAR ?= 60
 OMNI_UNFAMILIAR ?= 150
+# The recipe evaluates on the test drawers: a data set without them stops before training.
+HAS_TEST = $(BIN)/python -c "import sys; from img2dmp.data.store import load_dataset; \
+  sys.exit(None if (load_dataset(sys.argv[1]).split == 2).any() else f'error: {sys.argv[1]} \
+  has no test drawings (drawers 18-20) to evaluate on: see the import note above')"
 # A run trained before img2dmp train wrote its familiarity gets one here.
 RUN_FAMILIAR = $(BIN)/python -c "import sys; from img2dmp.familiar import write_run_familiar as w; w(*sys.argv[1:])"
 # The torch build the set-up installs (the CPU build).
@@ -99,6 +103,7 @@ $(OMNI)/data.safetensors: | setup
 	$(BIN)/img2dmp import $(OMNIGLOT) --n-times 300 --out $@ --force --no-progress
 
 $(OMNI)/run/checkpoints/best.safetensors: $(OMNI)/data.safetensors src/img2dmp/configs/omniglot.yaml | setup
+	$(HAS_TEST) $<
 	if [ -f $(OMNI)/run/checkpoints/last.safetensors ]; then \
 	  $(BIN)/img2dmp train --run-dir $(OMNI)/run --resume; else \
 	  $(BIN)/img2dmp train --config omniglot --data $< --run-dir $(OMNI)/run \
