@@ -81,7 +81,7 @@ from pathlib import Path
 
 import numpy as np
 
-from img2dmp.data.store import DigitData, load_dataset, save_dataset
+from img2dmp.data.store import SPLITS, DigitData, load_dataset, save_dataset
 from img2dmp.evaluate import class_modes
 from img2dmp.nn.strokes import ink_pieces
 from img2dmp.predict import Predictor
@@ -567,7 +567,7 @@ def ink(pairs: list[tuple[str, str]]) -> None:
         data = load_dataset(data_path)
         split = evaluation["split"]
         rows = np.arange(len(data)) if split == "all" else np.flatnonzero(
-            data.split == {"train": 0, "validation": 1, "test": 2}[split])  # fmt: skip
+            data.split == SPLITS[split])  # fmt: skip
         truth = np.array(evaluation["strokes"]["true_counts"])
         mine = np.array([len(data.stroke_spans(int(i))) for i in rows])
         if not np.array_equal(truth, mine):
@@ -581,10 +581,9 @@ def ink(pairs: list[tuple[str, str]]) -> None:
     print("count right, %: | rule | " + " | ".join(names) + " |")
     for rule, cells in table.items():
         print(f"| {rule} | " + " | ".join(cells) + " |")
-    chosen = []
+    chosen, common = [], [r for r in right if len(right[r]) == len(names)]
     for i in range(len(names)):
         others = [j for j in range(len(names)) if j != i and splits[j] == splits[i]]
-        common = [r for r in right if len(right[r]) == len(names)]
         if not others:
             chosen.append("-")
             continue

@@ -24,60 +24,34 @@ import argparse
 import shutil
 import sys
 import zipfile
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
-
-def trees(source: Path) -> dict[str, Path]:
-    """The ``images_*`` and ``strokes_*`` trees in ``source``: name -> folder or zip (a
-    folder wins over a zip of the same name)."""
-    found: dict[str, Path] = {}
-    for p in sorted(source.iterdir()):
-        name = p.name[: -len(".zip")] if p.suffix.lower() == ".zip" else p.name
-        if not name.startswith(("images_", "strokes_")):
-            continue
-        if p.is_dir() or (p.is_file() and p.suffix.lower() == ".zip" and name not in found):
-            found[name] = p
-    return found
-
-
-def members(tree: Path, name: str):
-    """``(parts below the tree's top, bytes)`` of every file of a tree (folder or zip)."""
-    if tree.is_dir():
-        for p in sorted(tree.rglob("*")):
-            if p.is_file() and not p.name.startswith("."):
-                yield p.relative_to(tree).parts, p.read_bytes()
-        return
-    with zipfile.ZipFile(tree) as z:
-        for info in z.infolist():
-            parts = PurePosixPath(info.filename).parts
-            if info.is_dir() or not parts or parts[0] == "__MACOSX":
-                continue
-            if parts[0] == name:
-                parts = parts[1:]
-            if parts and not parts[-1].startswith("."):
-                yield parts, z.read(info)
+from img2dmp.data.omniglot import MAX_IMAGE_BYTES, ArchiveMember, omniglot_trees, tree_files
 
 
 def write_copies(source: Path, out: Path, copies: int) -> dict[str, int]:
-    """Every tree of ``source`` into ``out`` with each alphabet ``copies`` times; the
-    files written per tree."""
+    """Every tree of ``source`` (:func:`~img2dmp.data.omniglot.omniglot_trees`) into
+    ``out`` with each alphabet ``copies`` times; the files written per tree."""
     if copies < 1:
         raise ValueError(f"--copies must be >= 1, got {copies}")
-    found = trees(source)
-    if not found:
+    pairs = omniglot_trees(source)
+    if not pairs:
         raise ValueError(f"{source}: no images_NAME / strokes_NAME folder or zip in it")
     written = {}
-    for name, tree in found.items():
-        n = 0
-        for parts, data in members(tree, name):
-            if len(parts) < 2:  # a file beside the alphabets, not a drawing
-                continue
+    for tree in (t for pair in pairs for t in pair):
+        name = tree.name[: -len(".zip")] if tree.suffix.lower() == ".zip" else tree.name
+        files, _elsewhere = tree_files(tree)  # what is no drawing is left out
+        for (alphabet, character, file), entry in files.items():
+            data = (
+                entry.read_bytes(MAX_IMAGE_BYTES)
+                if isinstance(entry, ArchiveMember)
+                else entry.read_bytes()
+            )
             for k in range(1, copies + 1):
-                target = out.joinpath(name, f"{parts[0]}_copy{k}", *parts[1:])
+                target = out / name / f"{alphabet}_copy{k}" / character / file
                 target.parent.mkdir(parents=True, exist_ok=True)
                 target.write_bytes(data)
-                n += 1
-        written[name] = n
+        written[name] = copies * len(files)
     return written
 
 

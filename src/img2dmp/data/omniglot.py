@@ -22,4 +22,5 @@ from .sources.omniglot import (  # noqa: F401
     onto_ink,
     parse_strokes,
     read_strokes,
+    tree_files,
 )

@@ -482,7 +482,9 @@ def _folder_files(root: Path) -> tuple[dict[tuple[str, ...], Entry], list[Except
     return files, problems
 
 
-def _tree_files(tree: Path) -> tuple[dict[tuple[str, ...], Entry], list[Exception]]:
+def tree_files(tree: Path) -> tuple[dict[tuple[str, ...], Entry], list[Exception]]:
+    """The files of one tree of :func:`omniglot_trees` (folder or zip) by ``(alphabet,
+    character, file)``, and the files that lie elsewhere in it (as problems)."""
     return _zip_files(tree) if tree.is_file() else _folder_files(tree)
 
 
@@ -542,8 +544,8 @@ def find_omniglot(
         raise ValueError(f"split_by must be one of {list(SPLIT_BY)}, got {split_by!r}")
     samples, problems, seen = [], [], {}
     for strokes_tree, images_tree in trees:
-        stroke_files, found = _tree_files(strokes_tree)
-        image_files, stray = _tree_files(images_tree)
+        stroke_files, found = tree_files(strokes_tree)
+        image_files, stray = tree_files(images_tree)
         found += stray
         strokes = _by_stem(stroke_files, (STROKE_SUFFIX,), "stroke", found)
         images = _by_stem(image_files, IMAGE_SUFFIXES, "image", found)
