@@ -26,7 +26,13 @@ import sys
 import zipfile
 from pathlib import Path
 
-from img2dmp.data.omniglot import MAX_IMAGE_BYTES, ArchiveMember, omniglot_trees, tree_files
+from img2dmp.data.omniglot import (
+    MAX_IMAGE_BYTES,
+    ArchiveMember,
+    omniglot_trees,
+    tree_files,
+    tree_name,
+)
 
 
 def write_copies(source: Path, out: Path, copies: int) -> dict[str, int]:
@@ -39,7 +45,7 @@ def write_copies(source: Path, out: Path, copies: int) -> dict[str, int]:
         raise ValueError(f"{source}: no images_NAME / strokes_NAME folder or zip in it")
     written = {}
     for tree in (t for pair in pairs for t in pair):
-        name = tree.name[: -len(".zip")] if tree.suffix.lower() == ".zip" else tree.name
+        name = tree_name(tree)
         files, _elsewhere = tree_files(tree)  # what is no drawing is left out
         for (alphabet, character, file), entry in files.items():
             data = (

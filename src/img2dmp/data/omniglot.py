@@ -23,4 +23,5 @@ from .sources.omniglot import (  # noqa: F401
     parse_strokes,
     read_strokes,
     tree_files,
+    tree_name,
 )

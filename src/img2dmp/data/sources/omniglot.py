@@ -380,7 +380,8 @@ def image_of(entry: Entry):
 # --- the trees of images and strokes --------------------------------------------------
 
 
-def _tree_name(path: Path) -> str:
+def tree_name(path: Path) -> str:
+    """A tree's name without its ``.zip`` (``strokes_background_small1``)."""
     return path.name[: -len(".zip")] if path.name.lower().endswith(".zip") else path.name
 
 
@@ -397,7 +398,7 @@ def omniglot_trees(source: Path, images=None) -> list[tuple[Path, Path]] | None:
     when ``source`` is none (module docstring); ``FileNotFoundError`` for strokes
     without their images."""
     source = Path(source)
-    name = _tree_name(source)
+    name = tree_name(source)
     if name.startswith("strokes_") and (source.is_dir() or source.suffix.lower() == ".zip"):
         image_name = "images_" + name[len("strokes_") :]
         found = Path(images) if images is not None else _tree_beside(source.parent, image_name)
@@ -410,7 +411,7 @@ def omniglot_trees(source: Path, images=None) -> list[tuple[Path, Path]] | None:
         return [(source, found)]
     if not source.is_dir():
         return None
-    names = sorted({_tree_name(p) for p in source.iterdir() if p.name.startswith("strokes_")})
+    names = sorted({tree_name(p) for p in source.iterdir() if p.name.startswith("strokes_")})
     names = [n for n in names if _tree_beside(source, n) is not None]
     if not names:
         return None
