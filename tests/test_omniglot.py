@@ -217,6 +217,42 @@ def test_the_copies_experiment_writes_every_alphabet_again_from_folders_or_zips(
     assert "no images_NAME / strokes_NAME folder or zip in it" in capsys.readouterr().err
 
 
+def test_the_copies_experiment_with_transforms_writes_new_characters_on_their_ink(
+    tree, imported, tmp_path, experiment_script
+):
+    """``--transforms``: copies 2, 3, 4 mirrored left-right, upside down, turned half
+    round; each drawing keeps its strokes and their count, its path lies on its image's
+    ink without the importer's shift, and the imported images are the original's
+    mirrored."""
+    mod = experiment_script("omniglot_copies")
+    out = tmp_path / "x4t"
+    argv = ["--omniglot", str(tree), "--copies", "4", "--transforms", "--out", str(out)]
+    assert mod.main(argv) == 0
+    png = Path("Alpha/character01/0101_03.png")
+    original = np.array(Image.open(tree / "images_test" / png))
+    flips = {1: original, 2: original[:, ::-1], 3: original[::-1], 4: original[::-1, ::-1]}
+    for k, want in flips.items():
+        got = np.array(
+            Image.open(out / "images_test" / f"Alpha_copy{k}" / png.relative_to("Alpha"))
+        )
+        assert np.array_equal(got, want), k
+    assert _import(out, tmp_path / "x4t.safetensors") == 0
+    data = load_dataset(tmp_path / "x4t.safetensors")
+    assert len(data) == 4 * len(imported) and data.meta["source"]["shifted"] == {}
+    assert on_ink_share(data.images, data.trajectories).min() > 0.9
+    spans = data.meta["stroke_spans"]
+    counts = {rel.split("/", 1)[1]: len(spans[r]) for r, rel in
+              enumerate(imported.meta["rows"]["trajectory"])}  # fmt: skip
+    for r, rel in enumerate(data.meta["rows"]["trajectory"]):
+        alphabet, rest = rel.split("/", 2)[1:]
+        assert len(spans[r]) == counts[f"{alphabet.split('_copy')[0]}/{rest}"], rel
+    copy2 = [i for i, n in enumerate(data.class_names) if n.startswith("Alpha_copy2/")]
+    first = [i for i, n in enumerate(data.class_names) if n.startswith("Alpha_copy1/")]
+    mirrored, plain = (data.images[np.isin(data.labels, c)] for c in (copy2, first))
+    # (framed to within half a pixel of a mirror image)
+    assert np.abs(mirrored - plain[..., ::-1]).mean() < 0.5 * np.abs(mirrored - plain).mean()
+
+
 def test_a_split_by_drawer_without_validation_or_test_drawers_says_so(tree, tmp_path, capsys):
     few = write_tree(tmp_path / "few", characters=1, drawers=5)
     assert _import(few, tmp_path / "few.safetensors") == 0
