@@ -35,6 +35,7 @@ from pathlib import Path
 
 from PIL import Image
 
+from _provenance import format_record, run_record
 from img2dmp.data.omniglot import (
     MAX_IMAGE_BYTES,
     ArchiveMember,
@@ -136,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, required=True, help="new folder")
     ap.add_argument("--force", action="store_true", help="replace OUT if it exists")
     args = ap.parse_args(argv)
+    print(format_record(run_record(__file__, sys.argv[1:] if argv is None else argv)))
     if args.out.exists():
         if not args.force:
             print(f"error: {args.out} exists (--force replaces it)", file=sys.stderr)
