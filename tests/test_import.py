@@ -758,6 +758,7 @@ def test_poor_dmp_fits_are_reported_with_their_remedy(tmp_path, capsys):
     assert cli.main(argv) == 0
     printed = capsys.readouterr().out
     assert "note: 2 DMP fit(s) are off by more than 1 px" in printed and "--scaling none" in printed
+    assert "stroke model" not in printed  # one stroke each: nothing to say of stroke models
     assert load_dataset(out).meta["fit"]["poor"]["rows"] == 2
     assert cli.main([*argv, "--scaling", "none"]) == 0
     assert "note:" not in capsys.readouterr().out

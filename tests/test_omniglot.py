@@ -298,6 +298,8 @@ def test_stroke_resampling_keeps_the_dots_the_even_grid_refuses(tree, tmp_path, 
     # Too few kernels for 3 strokes: the remedy is more of them, the scaling is none already.
     assert "DMP fit(s) are off" in printed and "try a larger --n-kernels" in printed
     assert "--scaling none" not in printed
+    # ... for a model of one DMP per drawing: a stroke model's kernels are its own.
+    assert "a stroke model (--config omniglot) does not learn this fit" in printed
     data = load_dataset(out)
     assert [len(data.stroke_spans(r)) for r in range(4)] == [3, 3, 3, 3]
     assert data.meta["import"]["resample"] == "strokes"

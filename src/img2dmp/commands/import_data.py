@@ -225,6 +225,7 @@ def import_options(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from ..data.importer import import_dataset
+    from ..data.store import STROKE_SPANS_KEY
     from .generate import save_new_dataset
 
     source = Path(args.source)
@@ -280,6 +281,12 @@ def run(args: argparse.Namespace) -> int:
             else f"many strokes or a long path need more than {data.dmp_config.n_kernels} "
             "kernels: try a larger --n-kernels"
         )
+        if any(len(spans) > 1 for spans in meta.get(STROKE_SPANS_KEY) or []):
+            # The fit is the whole drawing's one DMP; a stroke model does not learn it.
+            remedy += (
+                " for a model of one DMP per drawing; a stroke model (--config omniglot) "
+                "does not learn this fit: each stroke is its own DMP (strokes.n_kernels)"
+            )
         print(
             f"note: {poor['rows']} DMP fit(s) are off by more than {poor['threshold_px']:g} px "
             f"on average (worst {poor['worst_mean_error_px']:.2f} px, "
