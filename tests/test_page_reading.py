@@ -107,6 +107,19 @@ def test_a_single_prediction_of_several_characters_is_flagged(tmp_path, run):
     assert one and "several_characters" not in load_model(run).predict(tmp_path / "one.png").flags
 
 
+def test_the_warning_says_when_a_run_directory_s_path_is_unrefined(tmp_path, run, capsys):
+    """A run directory recommends no refinement: a path flagged off the ink may be off
+    it only for that, and the warning says so; with ``--refine`` it does not."""
+    _photo(tmp_path / "p.png")
+    assert main(["predict", "--model", str(run), str(tmp_path / "p.png")]) == 0
+    err = capsys.readouterr().err
+    assert "off_ink" in err or "unexplained_ink" in err, err
+    assert "; the path is unrefined: --refine N pulls it onto the ink" in err
+    assert main(["predict", "--model", str(run), str(tmp_path / "p.png"), "--refine", "2"]) == 0
+    err = capsys.readouterr().err
+    assert "warning:" in err and "unrefined" not in err
+
+
 def test_predict_page_on_the_command_line(tmp_path, run, capsys):
     _photo(tmp_path / "p.png")
     out = tmp_path / "out"
