@@ -225,7 +225,6 @@ def import_options(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from ..data.importer import import_dataset
-    from ..data.store import STROKE_SPANS_KEY
     from .generate import save_new_dataset
 
     source = Path(args.source)
@@ -244,6 +243,12 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     save_new_dataset(out, data, args.force)
+    _report(out, data)
+    return 0
+
+
+def _report(out: Path, data) -> None:
+    """What was written, then a note for each thing a user may want to act on."""
     meta = data.meta
     counts = meta["counts_by_split"]
     by_class = meta["counts_by_class"]
@@ -270,28 +275,8 @@ def run(args: argparse.Namespace) -> int:
             "'_'); number your drawers into those, or --split-by character to test on "
             "whole characters never seen in training"
         )
-    poor = meta["fit"]["poor"]
-    if poor["rows"]:
-        # Without the goal-start scaling, what a fit misses is detail: many strokes or a
-        # long drawing for the kernels.
-        remedy = (
-            "where a path ends near its start in x or y the goal-start scaling fails: try "
-            "--scaling none"
-            if data.dmp_config.scaling == "goal-start"
-            else f"many strokes or a long path need more than {data.dmp_config.n_kernels} "
-            "kernels: try a larger --n-kernels"
-        )
-        if any(len(spans) > 1 for spans in meta.get(STROKE_SPANS_KEY) or []):
-            # The fit is the whole drawing's one DMP; a stroke model does not learn it.
-            remedy += (
-                " for a model of one DMP per drawing; a stroke model (--config omniglot) "
-                "does not learn this fit: each stroke is its own DMP (strokes.n_kernels)"
-            )
-        print(
-            f"note: {poor['rows']} DMP fit(s) are off by more than {poor['threshold_px']:g} px "
-            f"on average (worst {poor['worst_mean_error_px']:.2f} px, "
-            f"{poor['worst_trajectory']}); {remedy}"
-        )
+    if meta["fit"]["poor"]["rows"]:
+        print(_poor_fit_note(data))
     shifted = meta["source"].get("shifted") or {}
     if shifted:
         far = max(max(abs(v) for v in s) for s in shifted.values())
@@ -303,4 +288,32 @@ def run(args: argparse.Namespace) -> int:
         print(f"skipped: {line}")
     if meta["source"]["skipped"]:
         print(f"skipped {len(meta['source']['skipped'])} bad sample(s), listed above")
-    return 0
+
+
+def _poor_fit_note(data) -> str:
+    """The note on the DMP fits that miss their drawings by more than the threshold, with
+    the remedy for the data set's scaling and, for a data set of strokes, whose fit it
+    is."""
+    from ..data.store import STROKE_SPANS_KEY
+
+    poor = data.meta["fit"]["poor"]
+    # Without the goal-start scaling, what a fit misses is detail: many strokes or a
+    # long drawing for the kernels.
+    remedy = (
+        "where a path ends near its start in x or y the goal-start scaling fails: try "
+        "--scaling none"
+        if data.dmp_config.scaling == "goal-start"
+        else f"many strokes or a long path need more than {data.dmp_config.n_kernels} "
+        "kernels: try a larger --n-kernels"
+    )
+    if any(len(spans) > 1 for spans in data.meta.get(STROKE_SPANS_KEY) or []):
+        # The fit is the whole drawing's one DMP; a stroke model does not learn it.
+        remedy += (
+            " for a model of one DMP per drawing; a stroke model (--config omniglot) "
+            "does not learn this fit: each stroke is its own DMP (strokes.n_kernels)"
+        )
+    return (
+        f"note: {poor['rows']} DMP fit(s) are off by more than {poor['threshold_px']:g} px "
+        f"on average (worst {poor['worst_mean_error_px']:.2f} px, "
+        f"{poor['worst_trajectory']}); {remedy}"
+    )
