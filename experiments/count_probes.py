@@ -583,7 +583,6 @@ def ink_counts(evaluation: dict, images: np.ndarray) -> dict[str, np.ndarray]:
 
 
 def ink(pairs: list[tuple[str, str]]) -> None:
-    table: dict[str, list[str]] = {}
     names, splits, right, sizes = [], [], {}, []
     for ev_path, data_path in pairs:
         evaluation = json.loads(Path(ev_path).read_text())
@@ -599,10 +598,10 @@ def ink(pairs: list[tuple[str, str]]) -> None:
         splits.append(split)
         sizes.append(len(rows))
         for rule, said in ink_counts(evaluation, data.images[rows]).items():
-            table.setdefault(rule, []).append(f"{100 * np.mean(said == truth):.1f}")
-            right.setdefault(rule, []).append(int(np.sum(said == truth)))
+            right.setdefault(rule, {})[len(names) - 1] = int(np.sum(said == truth))
     print("count right, %: | rule | " + " | ".join(names) + " |")
-    for rule, cells in table.items():
+    for rule, counts in right.items():  # a familiarity's rules: where it was evaluated
+        cells = [f"{100 * counts[i] / n:.1f}" if i in counts else "-" for i, n in enumerate(sizes)]
         print(f"| {rule} | " + " | ".join(cells) + " |")
     chosen, common = [], [r for r in right if len(right[r]) == len(names)]
     for i in range(len(names)):
