@@ -16,7 +16,9 @@ a stroke model, whose figures add the share of characters whose stroke count is 
 
 A field of an existing ``model.json`` that is not given again (summary, provenance,
 recommended settings, default) is kept; ``--refine``, ``--refine-unfamiliar`` and
-``--count-views`` set the recommended settings of those names. Without ``--evaluation``,
+``--count-views`` set the recommended settings of those names. A model shipped for the
+first time recommends what its run's training configuration's ``reading`` does
+(docs/TRAINING.md, "Reading settings") where these flags do not say. Without ``--evaluation``,
 a model shipped before with the same weights is shipped again with its figures (to add
 a familiarity, say).
 ``--familiar DATA`` (the data set the run trained on) adds ``familiar.safetensors``: the
@@ -44,6 +46,7 @@ from img2dmp.models import (
     RECORD_FILE,
     VERSION,
     WEIGHTS_FILE,
+    checkpoint_reading,
     is_model_name,
 )
 from img2dmp.predict import Predictor
@@ -136,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
     folder.mkdir(parents=True, exist_ok=True)
     if not (folder / WEIGHTS_FILE).is_file() or not source.samefile(folder / WEIGHTS_FILE):
         shutil.copyfile(source, folder / WEIGHTS_FILE)
-    recommended = dict(old.get("recommended", {}))
+    recommended = dict(old.get("recommended") or checkpoint_reading(meta).recommended())
     for key in ("refine", "refine_unfamiliar", "count_views"):
         if getattr(args, key) is not None:
             recommended[key] = getattr(args, key)

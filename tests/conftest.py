@@ -128,12 +128,16 @@ def small_omniglot(omni_root, tmp_path_factory) -> Path:
 def stroke_run(small_omniglot, tmp_path_factory) -> Path:
     """The run directory of a tiny stroke model (``--config omniglot``, 8 slots) trained
     60 epochs on :func:`small_omniglot` (about 15 s), for the tests of stroke models,
-    serving them and the browser."""
+    serving them and the browser; it recommends no reading settings (``reading``
+    emptied: its predictions are the network's, its count read from 8 views), which
+    tests/test_reading.py takes up."""
     from img2dmp import cli
 
     run = tmp_path_factory.mktemp("strokes") / "run"
     args = ["train", "--config", "omniglot", "--data", str(small_omniglot), "--run-dir",
             str(run), "--epochs", "60", "--no-progress", "--set", "optim.batch_size=16",
-            "--set", "cost.ink_weight=0", "--set", "cost.coverage_weight=0"]  # fmt: skip
+            "--set", "cost.ink_weight=0", "--set", "cost.coverage_weight=0",
+            "--set", "reading.refine=0", "--set", "reading.refine_unfamiliar=null",
+            "--set", "reading.count_views=null"]  # fmt: skip
     assert cli.main(args) == 0
     return run

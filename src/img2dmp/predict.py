@@ -60,6 +60,8 @@ from .checkpoint import (
     atomic_write_text,
     load_checkpoint,
     load_weights_into,
+    read_checkpoint_meta,
+    resolve_checkpoint,
 )
 from .data.dmpfile import dmp_document, dmp_json_text, trajectory_entry, write_dmp_document
 from .data.images import (  # noqa: F401  (re-exported: their home was this module)
@@ -80,7 +82,7 @@ from .dmp import DMPConfig, DMPParams
 from .dmp._numpy_rollout import rollout_numpy
 from .dmp.affine import affine_dmp
 from .familiar import run_familiar, shipped_familiar
-from .models import ShippedModel, default_model
+from .models import Reading, ShippedModel, checkpoint_reading, default_model
 from .models import resolve as resolve_shipped
 from .nn._numpy_net import NumpyNetwork
 from .nn._refine_numpy import (
@@ -238,6 +240,12 @@ class Predictor:
     shipped : ShippedModel or None
         The model shipped with img2dmp this is (:mod:`img2dmp.models`: its name, card
         and recommended settings), None for a run directory or checkpoint.
+    reading : Reading
+        The settings its predictions are best read with (:class:`~img2dmp.models.Reading`):
+        a shipped model's card's, else its training configuration's ``reading``
+        (without ``refine_unfamiliar`` when it carries no :attr:`familiar`).
+        :func:`load_model` and the commands apply them where not told otherwise;
+        :meth:`Predictor.load` applies only ``count_views``.
     strokes : StrokeLayout or None
         A stroke model's layout (:mod:`img2dmp.nn.strokes`: a character as up to S
         strokes, each its own DMP); None for one DMP per image. A stroke model's
@@ -246,7 +254,8 @@ class Predictor:
         How many views of each image a stroke model reads its stroke count from (the
         image and ``count_views - 1`` small affine copies,
         :func:`img2dmp.nn.strokes.count_views`; 1: the image alone): a shipped model's
-        recommended ``count_views``, else :data:`~img2dmp.nn.strokes.COUNT_VIEWS`.
+        recommended ``count_views`` (:attr:`reading`), else
+        :data:`~img2dmp.nn.strokes.COUNT_VIEWS`.
     familiar : Familiar or None
         The training drawings' encoder features and the line below which an image is
         unfamiliar (:mod:`img2dmp.familiar`): a shipped model's when it carries them
@@ -286,8 +295,9 @@ class Predictor:
         self.refine_unfamiliar: int | None = None
         self.shipped = shipped
         self.strokes = strokes
-        views = shipped.count_views if shipped is not None else None
-        self.count_views = views if views is not None else COUNT_VIEWS
+        self.reading: Reading = shipped.reading if shipped is not None else checkpoint_reading(meta)
+        views = self.reading.count_views
+        self.count_views = views if views is not None and strokes is not None else COUNT_VIEWS
         self.familiar = shipped_familiar(shipped) if shipped is not None else None
         self._seen = None  # (images, encoder features) of the network's last batch
 
@@ -325,8 +335,9 @@ class Predictor:
     ) -> Predictor:
         """Load from a run directory (its ``checkpoints/<name>``), a checkpoint file or
         the name of a shipped model (``"digits-real"``, :mod:`img2dmp.models`; its file's
-        SHA-256 checked). No refinement is set (:func:`load_model` applies a shipped
-        model's recommended settings).
+        SHA-256 checked). No refinement is set (:func:`load_model` applies the
+        model's recommended :attr:`reading`); a stroke model's ``count_views`` is its
+        reading's.
 
         ``device``: where the network runs (``"cpu"``, ``"cuda"``; inputs and outputs stay
         on the CPU, :func:`img2dmp.nn.device.place_model`). ``backend``: one of
@@ -377,6 +388,8 @@ class Predictor:
                             shipped=shipped, strokes=strokes)  # fmt: skip
         if shipped is None:  # a run's own, drawn by img2dmp train for these weights
             predictor.familiar = run_familiar(ckpt.path)
+            if predictor.familiar is None:
+                predictor.reading = predictor.reading.without_unfamiliar()
         return predictor
 
     def refine_with(self, steps: int, unfamiliar: int | None = None) -> None:
@@ -1283,6 +1296,23 @@ def trajectory_csv(probabilities, times, path_model, path_image) -> str:
     return "\n".join(lines) + "\n"
 
 
+def reading_for(source, checkpoint: str = "best") -> Reading:
+    """The settings the model ``source`` recommends reading its predictions with
+    (:attr:`Predictor.reading`, without loading the network): a shipped model's card's,
+    else those of the training configuration in the checkpoint (``checkpoint``: which
+    one of a run directory), without ``refine_unfamiliar`` when the run carries no
+    familiarity for those weights (:func:`img2dmp.familiar.run_familiar`).
+    ``FileNotFoundError`` / ``ValueError`` as :func:`img2dmp.checkpoint.read_checkpoint_meta`."""
+    shipped = resolve_shipped(source)
+    if shipped is not None:
+        return shipped.reading
+    path = resolve_checkpoint(source, checkpoint)
+    reading = checkpoint_reading(read_checkpoint_meta(path), f"checkpoint {path}")
+    if reading.refine_unfamiliar is not None and run_familiar(path) is None:
+        return reading.without_unfamiliar()
+    return reading
+
+
 def load_model(
     path: str | os.PathLike | None = None,
     *,
@@ -1302,13 +1332,14 @@ def load_model(
         file. None: the default shipped model (:func:`img2dmp.models.default_model`).
     refine : int or None
         Gradient steps that pull every predicted DMP onto the ink of its image
-        (``img2dmp predict --refine``; 0: the network's output as it is). None: what a
-        shipped model's card recommends (30 for ``digits-real``), 0 for a run directory
-        or checkpoint.
+        (``img2dmp predict --refine``; 0: the network's output as it is). None: what the
+        model recommends (:attr:`Predictor.reading`: a shipped model's card, 30 for
+        ``digits-real``; a run's training configuration's ``reading``, 0 where it says
+        nothing).
     refine_unfamiliar : int or None
         The steps of images the model finds unfamiliar (below its familiarity line,
-        :attr:`Predictor.refine_unfamiliar`; ``--refine-unfamiliar``). None: what the card
-        recommends when ``refine`` is None too (60 for ``digits-real``, 150 for
+        :attr:`Predictor.refine_unfamiliar`; ``--refine-unfamiliar``). None: what the
+        model recommends when ``refine`` is None too (60 for ``digits-real``, 150 for
         ``omniglot-strokes``), else ``refine``'s.
     checkpoint : str
         Which checkpoint of a run directory ("best" or "last").
@@ -1331,11 +1362,10 @@ def load_model(
         check_count("refine_unfamiliar", refine_unfamiliar, 0, MAX_REFINE_STEPS)
     source = default_model().name if path is None else path
     predictor = Predictor.load(source, checkpoint, device, backend)
-    shipped = predictor.shipped
     if refine is None:
-        refine = shipped.refine if shipped is not None else 0
-        if refine_unfamiliar is None and shipped is not None:
-            refine_unfamiliar = shipped.refine_unfamiliar
+        refine = predictor.reading.refine
+        if refine_unfamiliar is None:
+            refine_unfamiliar = predictor.reading.refine_unfamiliar
     predictor.refine_with(int(refine), refine_unfamiliar)
     return predictor
 
@@ -1403,6 +1433,7 @@ __all__ = [
     "load_model",
     "prepare_image",
     "prepare_image_framed",
+    "reading_for",
     "stroke_width",
     "trajectory_csv",
     "typical_stroke_width",

@@ -174,34 +174,39 @@ def one_thread() -> None:
         torch.set_num_threads(1)
 
 
-def refine_steps(args, model, command: str) -> tuple[int, int | None]:
-    """``(--refine, --refine-unfamiliar)`` as given; else the steps a shipped model's card
-    recommends (0 for a run directory), said in one note on standard error when they are
-    not 0. The second is None when unfamiliar images get the first's steps (neither given
-    nor recommended, or ``--refine`` given alone)."""
+def refine_steps(args, model, command: str, reading=None) -> tuple[int, int | None]:
+    """``(--refine, --refine-unfamiliar)`` as given; else the steps the model recommends
+    (``reading``, or :func:`img2dmp.predict.reading_for` ``model``: a shipped model's card,
+    a run's training configuration), said in one note on standard error when they are not
+    0. The second is None when unfamiliar images get the first's steps (neither given nor
+    recommended, or ``--refine`` given alone)."""
     given = getattr(args, "refine_unfamiliar", None)
     if args.refine is not None:
         return args.refine, given
-    from ..models import resolve
+    if reading is None:
+        from ..predict import reading_for
 
-    shipped = resolve(model)
-    if shipped is None:  # a run directory or checkpoint: no recommendation
-        return 0, given
-    card = shipped.refine_unfamiliar if given is None else None  # the card's, when taken
-    if shipped.refine or card:
+        try:
+            reading = reading_for(model)
+        except (OSError, ValueError):  # said by name where the model is loaded
+            return 0, given
+    card = reading.refine_unfamiliar if given is None else None  # the recommended, when taken
+    if reading.refine or card:
         more = f" (--refine-unfamiliar {card}: images it finds unfamiliar)" if card else ""
-        print(f"img2dmp {command}: note: model {shipped.name} with --refine {shipped.refine}"
-              f"{more}, as its card recommends (--refine 0: the network's output as it is)",
+        print(f"img2dmp {command}: note: model {model} with --refine {reading.refine}{more}, "
+              f"as {reading.by} recommends (--refine 0: the network's output as it is)",
               file=sys.stderr)  # fmt: skip
-    return shipped.refine, given if given is not None else card
+    return reading.refine, given if given is not None else card
 
 
 def set_refinement(args, model, predictor, command: str) -> None:
     """Refine ``predictor``'s predictions as ``--refine`` and ``--refine-unfamiliar`` say,
-    or as ``model``'s card recommends (:func:`refine_steps`); nothing when neither asks
-    for any (:meth:`~img2dmp.predict.Predictor.refine_with`: a ``ValueError`` for
+    or as the model recommends (its :attr:`~img2dmp.predict.Predictor.reading`,
+    :func:`refine_steps`); nothing when neither asks for any
+    (:meth:`~img2dmp.predict.Predictor.refine_with`: a ``ValueError`` for
     ``--refine-unfamiliar`` on a model without a familiarity)."""
-    refine, unfamiliar = refine_steps(args, model, command)
+    reading = predictor.reading if args.refine is None else None  # read only when taken
+    refine, unfamiliar = refine_steps(args, model, command, reading)
     if refine or unfamiliar is not None:
         predictor.refine_with(refine, unfamiliar)
 
@@ -547,16 +552,18 @@ def add_refine(p: argparse.ArgumentParser) -> None:
         **steps,
         help="refine each predicted DMP on its image with this many gradient steps that "
         "pull it onto the ink near the network's output (0 = the network's output as it "
-        f"is); default: what a shipped model's card recommends ({DEFAULT_REFINE} for "
-        f"{DEFAULT_MODEL_NAME}), 0 for a run directory or checkpoint",
+        f"is); default: what the model recommends: a shipped model's card ({DEFAULT_REFINE} "
+        f"for {DEFAULT_MODEL_NAME}), a run's training configuration (its reading section; "
+        "0 where it says nothing)",
     )
     p.add_argument(
         "--refine-unfamiliar",
         **steps,
         help="refine the images the model finds unfamiliar (familiarity below its line, "
-        "flagged 'unfamiliar') with this many steps instead; default: what a shipped "
-        "model's card recommends when --refine is not given (img2dmp models shows it), "
-        "else --refine's steps. Needs a model that carries a familiarity",
+        "flagged 'unfamiliar') with this many steps instead; default: what the model "
+        "recommends (a shipped model's card, img2dmp models shows it; a run's reading) "
+        "when --refine is not given, else --refine's steps. Needs a model that carries a "
+        "familiarity",
     )
 
 
@@ -570,8 +577,8 @@ def add_count_views(p: argparse.ArgumentParser) -> None:
         default=None,
         help="a stroke model reads each character's stroke count from N views of its image "
         "(the image and N-1 small affine copies, their count probabilities averaged; 1 = "
-        "the image alone); default: what a shipped model's card recommends, else "
-        f"{DEFAULT_COUNT_VIEWS}",
+        "the image alone); default: what the model recommends (a shipped model's card, a "
+        f"run's reading), else {DEFAULT_COUNT_VIEWS}",
     )
 
 

@@ -19,7 +19,8 @@ pages (its Origin), else 403.
 Needs the optional extra: pip install 'img2dmp[web]' (and img2dmp[robot] for the arm).
 
 Without --model the default shipped model (digits-real, img2dmp models) answers, refined
-as its card recommends (--refine 30) unless --refine says otherwise.
+as its card recommends (--refine 30) unless --refine says otherwise; a run directory is
+read as its training configuration's reading recommends (docs/TRAINING.md).
 
   img2dmp serve
   img2dmp serve --model digits-real --model out/demo/run --mnist ../shared/data/mnist \\

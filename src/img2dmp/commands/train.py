@@ -163,4 +163,9 @@ def run(args: argparse.Namespace) -> int:
         "best validation trajectory error "
         f"{res.best_val_error_px:.4f} px (epoch {res.best_epoch}); run in {res.run_dir}"
     )
+    settings = {k: v for k, v in cfg.reading.recommended().items() if v}
+    if settings:
+        flags = " ".join(f"--{k.replace('_', '-')} {v}" for k, v in settings.items())
+        print(f"predict, write, evaluate and serve read it with {flags}, as its configuration's "
+              "reading recommends (their own flags say otherwise)")  # fmt: skip
     return 0

@@ -111,23 +111,81 @@ class ShippedModel:
         return self.folder / FAMILIAR_FILE if "familiar" in self.record else None
 
     @property
+    def reading(self) -> Reading:
+        """The settings its card recommends reading its predictions with."""
+        return Reading.from_recommended(self.recommended, "its card")
+
+    @property
     def refine(self) -> int:
         """The refinement steps its card recommends (0 if it recommends none)."""
-        return int(self.recommended.get("refine", 0))
+        return self.reading.refine
 
     @property
     def refine_unfamiliar(self) -> int | None:
         """The refinement steps its card recommends for images it finds unfamiliar (None:
         it recommends none, they get :attr:`refine`'s)."""
-        steps = self.recommended.get("refine_unfamiliar")
-        return int(steps) if steps is not None else None
+        return self.reading.refine_unfamiliar
 
     @property
     def count_views(self) -> int | None:
         """The views a stroke model's card recommends reading the stroke count from (None:
         it recommends none, :data:`img2dmp.nn.strokes.COUNT_VIEWS` is read)."""
-        views = self.recommended.get("count_views")
-        return int(views) if views is not None else None
+        return self.reading.count_views
+
+
+@dataclass(frozen=True)
+class Reading:
+    """The settings a model's predictions are read with when the caller does not say
+    (``predict``, ``write``, ``evaluate``, ``serve``, :func:`img2dmp.predict.load_model`):
+    a shipped model's card's ``recommended``, or the ``reading`` section of the training
+    configuration in a run's checkpoint (:class:`img2dmp.training.config.ReadingConfig`).
+
+    ``refine``: refinement steps (0: none); ``refine_unfamiliar``: those of images below
+    the model's familiarity line (None: ``refine``'s); ``count_views``: the views a stroke
+    model reads its count from (None: :data:`img2dmp.nn.strokes.COUNT_VIEWS`); ``by``:
+    who recommends them, for notes (``"its card"``; empty: nobody).
+    """
+
+    refine: int = 0
+    refine_unfamiliar: int | None = None
+    count_views: int | None = None
+    by: str = ""
+
+    @classmethod
+    def from_recommended(cls, recommended: dict, by: str) -> Reading:
+        """From settings written as a card writes them (:data:`RECOMMENDED_KEYS`; checked
+        where they are read)."""
+        return cls(int(recommended.get("refine", 0)), recommended.get("refine_unfamiliar"),
+                   recommended.get("count_views"), by)  # fmt: skip
+
+    def recommended(self) -> dict:
+        """The settings as a card writes them (``refine`` always, the others when set)."""
+        out = {"refine": self.refine}
+        for key in ("refine_unfamiliar", "count_views"):
+            if getattr(self, key) is not None:
+                out[key] = getattr(self, key)
+        return out
+
+    def without_unfamiliar(self) -> Reading:
+        """The same without ``refine_unfamiliar`` (for a model that carries no
+        familiarity to tell unfamiliar images by)."""
+        return Reading(self.refine, None, self.count_views, self.by)
+
+
+def checkpoint_reading(record: dict, where: str = "checkpoint") -> Reading:
+    """The reading settings a checkpoint's JSON ``record`` recommends: its training
+    configuration's ``reading`` section (:class:`img2dmp.training.config.ReadingConfig`),
+    nothing for a checkpoint trained before img2dmp recorded one. ``ValueError`` naming
+    ``where`` and the setting for a value that is not a whole number in range."""
+    section = ((record.get("train_config") or {}).get("reading")) or {}
+    if not isinstance(section, dict):
+        raise ValueError(f"{where}: train_config.reading is {show(section)}, not a mapping")
+    recommended = {k: v for k, v in section.items() if v is not None}
+    for key, value in recommended.items():
+        kind, least = RECOMMENDED_KEYS.get(key, (None, 0))
+        if kind is None or not isinstance(value, kind) or isinstance(value, bool) or value < least:
+            raise ValueError(f"{where}: reading setting {key!r} = {show(value)}")
+    return Reading.from_recommended(recommended, "its training configuration (reading)")
 
 
 def models_root() -> Path:
@@ -281,25 +339,19 @@ def _verified(model: ShippedModel, path: Path, size_bytes: int, sha256: str) -> 
     return path
 
 
-def recommended_refine(source) -> int:
-    """The refinement steps recommended for the model ``source`` (a shipped model's
-    card's; 0 for a run directory or checkpoint, whose training says nothing about it)."""
-    shipped = resolve(source) if source is not None else default_model()
-    return shipped.refine if shipped is not None else 0
-
-
 __all__ = [
     "CARD_FILE",
     "FAMILIAR_FILE",
     "FORMAT",
     "RECORD_FILE",
+    "Reading",
     "ShippedModel",
     "WEIGHTS_FILE",
+    "checkpoint_reading",
     "default_model",
     "find_shipped",
     "is_model_name",
     "models_root",
-    "recommended_refine",
     "resolve",
     "shipped_model_names",
     "shipped_models",

@@ -332,6 +332,48 @@ class StrokesConfig:
         return StrokeLayout(self.slots, self.n_kernels, self.n_points, self.matching)
 
 
+@dataclass
+class ReadingConfig:
+    """How the trained model's predictions are best read: the settings ``predict``,
+    ``write``, ``evaluate`` and ``serve`` (and :func:`img2dmp.predict.load_model`) take
+    for a run directory or checkpoint when their own flags do not say, as they take a
+    shipped model's card's ``recommended``. Training does not use them; they travel in
+    every checkpoint's record. A recipe sets those it chose on the validation part
+    (``configs/real.yaml``, ``configs/omniglot.yaml``); the defaults recommend nothing.
+
+    ``refine``: gradient steps that pull each prediction onto its image's ink
+    (``--refine``; 0: the network's output). ``refine_unfamiliar``: the steps of images
+    the model finds unfamiliar, below its familiarity line (``--refine-unfamiliar``;
+    null: ``refine``'s; taken only where the run carries its familiarity).
+    ``count_views``: the views a stroke model reads its stroke count from
+    (``--count-views``; null: :data:`img2dmp.nn.strokes.COUNT_VIEWS`).
+    """
+
+    refine: int = 0
+    refine_unfamiliar: int | None = None
+    count_views: int | None = None
+
+    def __post_init__(self) -> None:
+        from ..nn._refine_options import MAX_REFINE_STEPS
+        from ..nn._stroke_layout import MAX_COUNT_VIEWS
+
+        for name, top in (("refine", MAX_REFINE_STEPS), ("refine_unfamiliar", MAX_REFINE_STEPS),
+                          ("count_views", MAX_COUNT_VIEWS)):  # fmt: skip
+            value = getattr(self, name)
+            low = 1 if name == "count_views" else 0
+            if value is not None and not low <= value <= top:
+                null = "" if name == "refine" else " or null"
+                raise ConfigError(f"reading.{name} must be a whole number from {low} to "
+                                  f"{top:,}{null}, got {value!r}")  # fmt: skip
+
+    def recommended(self) -> dict:
+        """The settings it recommends, as a shipped model's card writes them (``refine``
+        always; the others when set)."""
+        from ..models import Reading
+
+        return Reading(self.refine, self.refine_unfamiliar, self.count_views).recommended()
+
+
 def _check_strokes(cfg) -> None:
     """Settings a stroke model cannot honour, refused by name."""
     if not cfg.strokes.slots:
@@ -345,6 +387,15 @@ def _check_strokes(cfg) -> None:
         raise ConfigError("cost.path_weight is not used by a stroke model: set it to 0")
     if cfg.data.unlabelled_mnist is not None:
         raise ConfigError("data.unlabelled_mnist is not used by a stroke model: leave it out")
+
+
+def _check_reading(cfg) -> None:
+    """Reading settings the model cannot honour, refused by name."""
+    if cfg.reading.count_views is not None and not cfg.strokes.slots:
+        raise ConfigError(
+            f"reading.count_views ({cfg.reading.count_views}) is read by a stroke model only; "
+            "this one predicts one DMP per image (strokes.slots = 0): leave it out"
+        )
 
 
 def _check_train_on_validation(cfg) -> None:
@@ -386,6 +437,7 @@ class TrainConfig:
     optim: OptimConfig = field(default_factory=OptimConfig)
     cost: CostConfig = field(default_factory=CostConfig)
     strokes: StrokesConfig = field(default_factory=StrokesConfig)
+    reading: ReadingConfig = field(default_factory=ReadingConfig)
     seed: int = 0
     threads: int | None = None
     eval_batch_size: int = 1024
@@ -406,6 +458,7 @@ class TrainConfig:
         if self.seed < 0:
             raise ConfigError(f"seed must be >= 0, got {self.seed!r}")
         _check_strokes(self)
+        _check_reading(self)
         _check_train_on_validation(self)
 
     def to_dict(self) -> dict:
@@ -433,6 +486,7 @@ __all__ = [
     "DataConfig",
     "ModelConfig",
     "OptimConfig",
+    "ReadingConfig",
     "StrokesConfig",
     "TrainConfig",
     "load_config",

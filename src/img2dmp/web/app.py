@@ -386,11 +386,11 @@ def create_app(
     refine : int or None
         Gradient steps every prediction of a model loaded from a path is refined with on
         its ink (``img2dmp serve --refine``; 0: the network's output); None: each model's
-        recommendation (a shipped model's card's, 0 for a run directory).
+        recommendation (a card's, a run's ``reading``: ``Predictor.reading``).
     refine_unfamiliar : int or None
         The steps of images a model finds unfamiliar instead (``--refine-unfamiliar``;
-        :func:`img2dmp.predict.load_model`); None: as the card recommends when ``refine``
-        is None too, else ``refine``'s.
+        :func:`img2dmp.predict.load_model`); None: as the model recommends when
+        ``refine`` is None too, else ``refine``'s.
     allowed_hosts : sequence of str
         Names the server answers to besides :data:`LOOPBACK_HOSTS` (``Host`` header;
         ``img2dmp serve`` gives its ``--host`` and ``--allowed-host``), see

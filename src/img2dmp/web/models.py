@@ -79,8 +79,8 @@ def load_models(sources, refine: int | None = None,
     """Every model of ``sources`` (shipped models' names, paths, or ``(id, Predictor)``
     pairs), in order, by id; those loaded by name or path refine their predictions with
     ``refine`` steps, those they find unfamiliar with ``refine_unfamiliar`` (``img2dmp
-    serve --refine``, ``--refine-unfamiliar``; None: as a shipped model's card
-    recommends, 0 for a run directory, :func:`img2dmp.predict.load_model`).
+    serve --refine``, ``--refine-unfamiliar``; None: as the model recommends, a shipped
+    model's card or a run's reading, :func:`img2dmp.predict.load_model`).
 
     Raises ``FileNotFoundError`` or ``ValueError`` (from :func:`img2dmp.predict.load_model`)
     naming a path that holds no model.
