@@ -17,7 +17,8 @@ OMNIGLOT ?= $(DATA)/omniglot
 # ... its stroke count read from this many views of each image (chosen on the validation
 # drawers for --config omniglot: RESULTS 8.3).
 OMNI_VIEWS ?= 1
-# ... trained with this many torch threads: 1 trains the shipped weights to the last bit;
+# ... trained with this many torch threads: 1 trains the shipped weights to the last bit
+# on a CPU with AVX-512 (on one with AVX2 alone, other weights: RESULTS 8.21);
 # 2 trains about 1.8 times as fast on a 2-core machine nothing else uses, as
 # deterministically, to other weights (RESULTS 8.15): for more alphabets than ../shared's.
 OMNI_THREADS ?= 1
