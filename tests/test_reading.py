@@ -161,3 +161,16 @@ def test_a_checkpoint_that_records_no_reading_recommends_nothing():
         checkpoint_reading({"train_config": {"reading": {"refine": -3}}}, "checkpoint X")
     with pytest.raises(ValueError, match="not a mapping"):
         checkpoint_reading({"train_config": {"reading": [1]}})
+
+
+def test_a_checkpoint_with_a_bad_reading_is_refused_naming_the_file(reading_run, tmp_path):
+    from img2dmp.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+    from img2dmp.predict import Predictor
+
+    ckpt = load_checkpoint(reading_run)  # torch tensors, as save_checkpoint takes them
+    meta = dict(ckpt.meta)
+    meta["train_config"] = {**meta["train_config"], "reading": {"refine": "many"}}
+    bad = tmp_path / "bad.safetensors"
+    save_checkpoint(bad, ckpt.model_state, meta)  # its digests made anew: a whole file
+    with pytest.raises(CheckpointError, match=r"bad\.safetensors: invalid record .*'refine'"):
+        Predictor.load(bad)

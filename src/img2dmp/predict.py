@@ -360,6 +360,7 @@ class Predictor:
             dmp_config = DMPConfig.from_dict(ckpt.meta["dmp_config"])
             strokes = ckpt.meta.get("strokes")
             strokes = StrokeLayout.from_dict(strokes) if strokes is not None else None
+            checkpoint_reading(ckpt.meta, "train_config")  # its reading settings, checked
         except (KeyError, TypeError, ValueError) as e:
             raise CheckpointError(f"checkpoint {ckpt.path}: invalid record ({e})") from e
         need = dmp_config.n_params if strokes is None else strokes.n_outputs
