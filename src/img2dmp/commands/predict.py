@@ -131,7 +131,8 @@ def _check_options(args: argparse.Namespace) -> None:
 def _warn(path, flags: list[str], fit: dict, familiarity=None, line=None, steps=None) -> None:
     known = "" if familiarity is None or line is None else (
         f"familiarity {familiarity:.3f}, the model's line {line:.3f}; ")  # fmt: skip
-    # A run directory recommends no refinement: its path off the ink may be only that.
+    # Unrefined (--refine 0, or a run whose reading recommends none): a path off the ink
+    # may be off it only for that.
     unrefined = steps == 0 and bool({"off_ink", "unexplained_ink"} & set(flags))
     print(f"img2dmp predict: warning: {path}: {', '.join(flags)} ({known}path on ink "
           f"{fit['path_on_ink']:.2f}, ink written {fit['ink_written']:.2f}): it may not "
