@@ -172,6 +172,16 @@ class Reading:
         return Reading(self.refine, None, self.count_views, self.by)
 
 
+def _bad_setting(recommended: dict):
+    """The first key of ``recommended`` that is not a reading setting of its type and
+    least value (:data:`RECOMMENDED_KEYS`), None if every one is."""
+    for key, value in recommended.items():
+        kind, least = RECOMMENDED_KEYS.get(key, (None, 0))
+        if kind is None or not isinstance(value, kind) or isinstance(value, bool) or value < least:
+            return key
+    return None
+
+
 def checkpoint_reading(record: dict, where: str = "checkpoint") -> Reading:
     """The reading settings a checkpoint's JSON ``record`` recommends: its training
     configuration's ``reading`` section (:class:`img2dmp.training.config.ReadingConfig`),
@@ -181,10 +191,9 @@ def checkpoint_reading(record: dict, where: str = "checkpoint") -> Reading:
     if not isinstance(section, dict):
         raise ValueError(f"{where}: train_config.reading is {show(section)}, not a mapping")
     recommended = {k: v for k, v in section.items() if v is not None}
-    for key, value in recommended.items():
-        kind, least = RECOMMENDED_KEYS.get(key, (None, 0))
-        if kind is None or not isinstance(value, kind) or isinstance(value, bool) or value < least:
-            raise ValueError(f"{where}: reading setting {key!r} = {show(value)}")
+    bad = _bad_setting(recommended)
+    if bad is not None:
+        raise ValueError(f"{where}: reading setting {bad!r} = {show(recommended[bad])}")
     return Reading.from_recommended(recommended, "its training configuration (reading)")
 
 
@@ -236,10 +245,9 @@ def _read(folder: Path) -> ShippedModel:
                                     f"is not {FAMILIAR_FILE!r}")  # fmt: skip
         _field(familiar, "sha256", str, where)
         _field(familiar, "bytes", int, where)
-    for key, value in recommended.items():
-        kind, least = RECOMMENDED_KEYS.get(key, (None, 0))
-        if kind is None or not isinstance(value, kind) or isinstance(value, bool) or value < least:
-            raise ShippedModelError(f"{where}: recommended setting {key!r} = {show(value)}")
+    bad = _bad_setting(recommended)
+    if bad is not None:
+        raise ShippedModelError(f"{where}: recommended setting {bad!r} = {show(recommended[bad])}")
     return ShippedModel(
         name=name,
         folder=folder,
