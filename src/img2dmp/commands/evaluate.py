@@ -19,7 +19,8 @@ Fig. 4 of the paper) to --out; those files, if already there, are replaced only 
 The model and the data are given with --model and --data, as in the other commands, or
 as the two positional arguments MODEL DATA; if both forms are used they must agree. MODEL
 is a run directory, a checkpoint or a shipped model's name (img2dmp models), which is
-evaluated with the refinement its card recommends unless --refine says otherwise.
+evaluated with the refinement its card (a shipped model) or its training configuration's
+reading section (a run) recommends unless --refine says otherwise.
 """
 
 from __future__ import annotations

@@ -29,7 +29,8 @@ already in --out are replaced only with --force, also checked before anything is
 A network with several hypotheses (model.hypotheses) gives all of them, ranked; the
 overlays draw the top one bold. --refine N pulls each DMP onto the ink of its image with N
 gradient steps near the network's output (img2dmp.nn.refine); not given, a shipped model
-uses its card's recommendation and a run directory 0.
+uses its card's recommendation and a run directory its training configuration's reading
+section (docs/TRAINING.md; 0 where it says nothing).
 
 Every prediction carries a fit score ("fit": the share of its path on the ink and of the
 ink its path writes) and "flags" for what looks wrong ("off_ink", "unexplained_ink",
