@@ -152,3 +152,39 @@ def test_overlay_figure_keeps_its_arguments_and_names_the_prediction(digits, tmp
 def test_no_other_figure_writer_in_plotting_evaluate_predict():
     for rel in ("data/plotting.py", "evaluate.py", "predict.py"):
         assert ".savefig(" not in (SRC / rel).read_text(), rel
+
+
+def test_drawing_leaves_the_callers_backend_and_pyplot_figures_alone(tmp_path):
+    """A notebook user's backend survives every figure the package draws (a training
+    curve, a grid, a paper's steps); no module switches it or draws through pyplot."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(
+        f"""
+        import matplotlib
+        matplotlib.use("svg")  # any backend but Agg stands for the caller's own
+        import matplotlib.pyplot as plt
+        import numpy as np
+        mine = plt.figure()
+        from img2dmp.data import plotting
+        from img2dmp.training.records import plot_training_curve
+        import img2dmp.robot.outputs
+        out = {str(tmp_path)!r}
+        rows = [{{"epoch": e, "train_error_px": 1.0 / e, "val_error_px": 2.0 / e}}
+                for e in (1, 2, 3)]
+        plot_training_curve(out + "/curve.png", rows)
+        plotting.save_grid(out + "/grid.png", np.zeros((2, 8, 8)))
+        fig = plotting.plot_grid(np.zeros((2, 8, 8)))
+        print(matplotlib.get_backend(), plt.get_fignums() == [mine.number], type(fig).__name__)
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == ["svg", "True", "Figure"], done.stdout
+    assert (tmp_path / "curve.png").stat().st_size and (tmp_path / "grid.png").stat().st_size
+    for path in SRC.rglob("*.py"):  # the modules this script did not draw with, too
+        text = path.read_text()
+        for habit in ("matplotlib.use(", "import matplotlib.pyplot", "import pyplot", "plt."):
+            assert habit not in text, f"{path}: {habit}"

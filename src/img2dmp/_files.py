@@ -176,21 +176,36 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
+def new_figure(**kwargs):
+    """A matplotlib ``Figure(**kwargs)`` on an Agg canvas of its own, outside pyplot: the
+    one way the package starts a figure, so that drawing never switches the caller's
+    backend nor adds to pyplot's figures (a notebook shows one returned as a cell's
+    value; :func:`save_figure` writes it)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(**kwargs)
+    FigureCanvasAgg(fig)  # text sizes are measured on it (legend bands, tight layouts)
+    return fig
+
+
 def save_figure(fig, path: str | os.PathLike, *, dpi: int = 100) -> Path:
     """The one figure writer: a matplotlib figure to a PNG file, atomically, then closed.
 
     ``bbox_inches="tight"`` grows the canvas to whatever the figure draws, so titles,
-    legends and labels are never cut at its edge.
+    legends and labels are never cut at its edge. A pyplot figure given here is closed in
+    pyplot after writing (the package's own come from :func:`new_figure`).
     """
     import io
-
-    import matplotlib.pyplot as plt
+    import sys
 
     buf = io.BytesIO()
     try:
         fig.savefig(buf, format="png", dpi=dpi, bbox_inches="tight", pad_inches=0.05)
     finally:
-        plt.close(fig)
+        pyplot = sys.modules.get("matplotlib.pyplot")  # imported by the caller, if at all
+        if pyplot is not None:
+            pyplot.close(fig)
     atomic_write_bytes(path, buf.getvalue())
     return Path(path)
 
@@ -342,6 +357,7 @@ __all__ = [
     "lock_directory",
     "open_lock_file",
     "parse_json",
+    "new_figure",
     "save_figure",
 ]
 

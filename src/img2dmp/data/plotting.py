@@ -19,13 +19,11 @@ import os
 from pathlib import Path
 
 import matplotlib
+import numpy as np
+from matplotlib.lines import Line2D
+from matplotlib.patches import Rectangle
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.lines import Line2D  # noqa: E402
-
-from .._files import save_figure  # noqa: E402
+from .._files import new_figure, save_figure
 
 DEFAULT_LABELS = ("demonstration", "DMP")
 # The first path is drawn under the second; its start dot is larger so that it still
@@ -257,12 +255,11 @@ def plot_grid(
     m = images.shape[0]
     ncols = min(ncols, m)
     nrows = math.ceil(m / ncols)
-    dpi = plt.rcParams["figure.dpi"] if dpi is None else dpi
+    dpi = matplotlib.rcParams["figure.dpi"] if dpi is None else dpi
     # The legend band and titles add well under an inch.
     check_figure_size(cell_inches * ncols, cell_inches * nrows + 1.0, dpi)
-    fig, axes = plt.subplots(
-        nrows, ncols, figsize=(cell_inches * ncols, cell_inches * nrows), squeeze=False
-    )
+    fig = new_figure(figsize=(cell_inches * ncols, cell_inches * nrows))
+    axes = fig.subplots(nrows, ncols, squeeze=False)
     given = zip((paths, second_paths), labels, _STYLES, strict=True)
     sets = [(p, lab, style) for p, lab, style in given if p is not None]
     # Heads that stay visible in small cells without hiding a digit's strokes in large ones.
@@ -359,7 +356,8 @@ def hypotheses_figure(
             f"paths must be [K, T, d] with 1 <= K <= {MAX_GRID_CELLS} and one probability "
             f"each, got shape {paths.shape} and {len(probs)} probabilities"
         )
-    fig, ax = plt.subplots(figsize=(cell_inches, cell_inches))
+    fig = new_figure(figsize=(cell_inches, cell_inches))
+    ax = fig.subplots()
     ax.set_axis_off()
     _draw_cell(ax, np.asarray(image), [], True, 0.0)  # the image, framed as every cell
     arrow_pt = 4.5 + 1.5 * cell_inches
@@ -409,13 +407,14 @@ def paper_steps_figure(path: str | os.PathLike, found, boxes=None, title: str = 
                removed),
               (f"ink the model reads (pen {found.pen_width_px:.1f} px)", 1.0 - ink)]  # fmt: skip
     aspect = shape[0] / shape[1]
-    fig, axes = plt.subplots(2, 3, figsize=(12, 8 * aspect + 0.8), squeeze=False)
+    fig = new_figure(figsize=(12, 8 * aspect + 0.8))
+    axes = fig.subplots(2, 3, squeeze=False)
     for ax, (name, img) in zip(axes.ravel(), panels, strict=False):
         ax.imshow(img, cmap="gray", vmin=0, vmax=1, interpolation="nearest")
         ax.set_title(name, fontsize=_FONT + 1)
     for x0, y0, x1, y1 in boxes if boxes is not None else []:
-        axes[1, 1].add_patch(plt.Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0,
-                                           fill=False, ec="tab:blue", lw=0.6))  # fmt: skip
+        axes[1, 1].add_patch(Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0,
+                                       fill=False, ec="tab:blue", lw=0.6))  # fmt: skip
     counts = "\n".join(f"{k}: {v}" for k, v in found.removed.items())
     axes[1, 2].text(0.02, 0.98, "removed\n" + counts, va="top", fontsize=_FONT + 1,
                     family="monospace", transform=axes[1, 2].transAxes)  # fmt: skip

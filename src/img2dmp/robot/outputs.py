@@ -12,7 +12,7 @@ import io
 
 import numpy as np
 
-from .._files import atomic_write_bytes, atomic_write_text, save_figure
+from .._files import atomic_write_bytes, atomic_write_text, new_figure, save_figure
 from .animation import MP4_HINT, gif_bytes, mp4_available, mp4_bytes
 from .strokes import stroke_spans
 from .writing import PHASES, WritingResult
@@ -78,15 +78,10 @@ def plot_writing(result: WritingResult, path, image: np.ndarray | None = None, t
     writing; the ink (dark blue) is the tip's path while it touched the paper; the grey
     band in the time plots is the writing phase.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    
     # Constrained layout makes room for the legends under the top panels and for titles.
-    fig, axes = plt.subplots(
-        2, 2, figsize=(10, 9.4), gridspec_kw={"height_ratios": [3, 2]}, layout="constrained"
-    )
+    fig = new_figure(figsize=(10, 9.4), layout="constrained")
+    axes = fig.subplots(2, 2, gridspec_kw={"height_ratios": [3, 2]})
     _plot_pixels(axes[0, 0], result, image)
     _plot_paper(axes[0, 1], result)
     _plot_force(axes[1, 0], result)
@@ -124,7 +119,7 @@ def _plot_pixels(ax, result: WritingResult, image: np.ndarray | None) -> None:
 
 def _plot_paper(ax, result: WritingResult) -> None:
     """The ink (tip positions in contact) over the commanded path, mm on the paper."""
-    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
 
     log, plan, m = result.log, result.plan, result.metrics
     tip = _paper_mm(result, log.tip_m[:, :2])  # [S, 2]
@@ -143,7 +138,7 @@ def _plot_paper(ax, result: WritingResult) -> None:
     width_mm, height_mm = result.mapping.area_size_mm
     half_w, half_h = width_mm / 2, height_mm / 2
     ax.add_patch(
-        plt.Rectangle(
+        Rectangle(
             (-half_w, -half_h),
             2 * half_w,
             2 * half_h,
@@ -186,9 +181,10 @@ def _plot_force(ax, result: WritingResult) -> None:
         f"in contact {100 * m['contact_share']:.1f} % of the pen-down time",
         fontsize=10,
     )
-    # Head room above the band for a one-row legend clear of the force trace.
-    ax.set_ylim(top=max(ax.get_ylim()[1], 1.7 * f_set))
-    ax.legend(loc="upper center", ncol=4, fontsize=8)
+    # Head room above the band for a two-row legend clear of the force trace (four
+    # entries in one row are wider than the panel and cover its tick labels).
+    ax.set_ylim(top=max(ax.get_ylim()[1], 2.0 * f_set))
+    ax.legend(loc="upper center", ncol=2, fontsize=8)
 
 
 def _plot_tracking_error(ax, result: WritingResult) -> None:
@@ -340,14 +336,9 @@ def plot_page(result, path, image: np.ndarray | None = None, title=None) -> None
     ``image``: the photo (ink = 1), of any resolution: it is stretched over the photo's
     pixel frame (e.g. a reduced view from :func:`img2dmp.data.images.ink_view`).
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(
-        2, 2, figsize=(11, 9.4), gridspec_kw={"height_ratios": [3, 2]}, layout="constrained"
-    )
+    
+    fig = new_figure(figsize=(11, 9.4), layout="constrained")
+    axes = fig.subplots(2, 2, gridspec_kw={"height_ratios": [3, 2]})
     _plot_pixels(axes[0, 0], result, image)
     axes[0, 0].set_title(
         "the photo's written area and the characters' DMPs (pixels)"
@@ -368,7 +359,7 @@ def plot_page(result, path, image: np.ndarray | None = None, title=None) -> None
 def _number_characters(axes, result) -> None:
     """Each character's index at its box (pixels and paper) and over its time; dashed
     boxes for the characters not written."""
-    import matplotlib.pyplot as plt
+    from matplotlib.patches import Rectangle
 
     text = {"fontsize": 8, "color": "tab:blue", "ha": "right", "va": "bottom"}
     for r in result.characters:
@@ -380,9 +371,9 @@ def _number_characters(axes, result) -> None:
         axes[0, 1].text(*corners_mm[0], label, **text)
         if not r.written:
             box = {"fill": False, "ls": "--", "color": "gray"}
-            axes[0, 0].add_patch(plt.Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, **box))
+            axes[0, 0].add_patch(Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, **box))
             (ax0, ay1), (ax1, ay0) = corners_mm
-            axes[0, 1].add_patch(plt.Rectangle((ax0, ay0), ax1 - ax0, ay1 - ay0, **box))
+            axes[0, 1].add_patch(Rectangle((ax0, ay0), ax1 - ax0, ay1 - ay0, **box))
             continue
         a, b = r.steps
         t_mid = (result.log.time_s[a] + result.log.time_s[b - 1]) / 2

@@ -7,7 +7,7 @@ import io
 import os
 from pathlib import Path
 
-from .._files import atomic_write_text, save_figure
+from .._files import atomic_write_text, new_figure, save_figure
 
 #: Columns of ``metrics.csv``, one row per epoch (:class:`~.state.EpochStats`).
 METRIC_FIELDS = (
@@ -44,14 +44,11 @@ def read_metrics_csv(path: str | os.PathLike) -> list[dict]:
 
 def plot_training_curve(path: str | os.PathLike, history: list[dict], title: str = "") -> Path:
     """Train and validation trajectory error (px, log scale) per epoch, saved atomically."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     import matplotlib.ticker
 
     ep = [r["epoch"] for r in history]
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
+    fig = new_figure(figsize=(6, 4), dpi=100)
+    ax = fig.subplots()
     ax.plot(ep, [r["train_error_px"] for r in history], label="train", color="tab:blue")
     ax.plot(ep, [r["val_error_px"] for r in history], label="validation", color="tab:red")
     ax.set_yscale("log")
