@@ -313,6 +313,25 @@ def test_write_hands_the_arm_the_bent_dmp(tmp_path, capsys, monkeypatch):
     np.testing.assert_array_equal(given[0][0].to_vector(), params.to_vector())
 
 
+def test_a_negative_point_needs_no_equals_sign(tmp_path, capsys, monkeypatch):
+    """``--shift -3,2`` is the point (-3, 2), as ``--shift=-3,2`` is; a word after a point
+    option that is not a negative point, and words after ``--``, stay as they are."""
+    from img2dmp.cli import main
+    from img2dmp.commands._args import join_negative_points
+
+    path, params, config = _dmp_file(tmp_path)
+    given = _capture_write(monkeypatch)
+    argv = ["write", "--dmp", str(path), "--out-dir", str(tmp_path / "o"), "--no-progress"]
+    assert main([*argv, "--shift", "-3,2", "--goal", "-1.5e0,-4"]) == 1  # the stand-in fails
+    want = bend_dmp(params, config, shift=(-3.0, 2.0), goal=(-1.5, -4.0))
+    np.testing.assert_array_equal(given[0][0].to_vector(), want.to_vector())
+    assert "bent (--goal -1.5,-4 --shift -3,2)" in capsys.readouterr().out
+    assert join_negative_points(["--shift", "-3", "x", "--", "--goal", "-1,2", "--start"]) == [
+        "--shift", "-3", "x", "--", "--goal", "-1,2", "--start"]  # fmt: skip
+    assert main([*argv, "--shift", "-3"]) == 2
+    assert "argument --shift: must be two numbers X,Y, got '-3'" in capsys.readouterr().err
+
+
 def test_write_page_refuses_the_bending_options(tmp_path, capsys):
     from img2dmp.cli import main
 

@@ -107,6 +107,21 @@ def test_a_single_prediction_of_several_characters_is_flagged(tmp_path, run):
     assert one and "several_characters" not in load_model(run).predict(tmp_path / "one.png").flags
 
 
+def test_write_warns_as_predict_does_before_the_arm_writes_a_flagged_image(tmp_path, run, capsys):
+    """``write IMAGE`` of a page of characters says what ``predict`` says (one line on
+    stderr, the same flags, "use --page"), then writes; an unflagged image says nothing."""
+    pytest.importorskip("pybullet")
+    _photo(tmp_path / "p.png")
+    argv = ["--model", str(run), "--refine", "0", "--no-progress"]
+    assert main(["predict", str(tmp_path / "p.png"), *argv[:4]]) == 0
+    said = capsys.readouterr().err.split("warning: ", 1)[1]
+    assert "several_characters" in said and "for a page of characters use --page" in said
+    assert main(["write", str(tmp_path / "p.png"), "--out-dir", str(tmp_path / "W"), *argv]) == 0
+    err = capsys.readouterr().err
+    assert f"img2dmp write: warning: {said}" in err, err
+    assert (tmp_path / "W" / "p_paper.png").exists()
+
+
 def test_the_warning_says_when_a_run_directory_s_path_is_unrefined(tmp_path, run, capsys):
     """A run directory recommends no refinement: a path flagged off the ink may be off
     it only for that, and the warning says so; with ``--refine`` it does not."""

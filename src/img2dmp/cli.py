@@ -32,6 +32,7 @@ import sys
 import traceback
 
 from . import __version__, commands
+from .commands import _args
 from .errors import Img2dmpError
 
 #: Failures that are the user's input or the machine's state, not bugs: one line, exit 2.
@@ -118,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit status (see the module docstring)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        args = build_parser().parse_args(argv)
+        args = build_parser().parse_args(_args.join_negative_points(argv))
     except SystemExit as e:  # --help, --version, or a usage error already printed
         return e.code if isinstance(e.code, int) else (0 if e.code is None else 2)
     prog = f"img2dmp {args.command}"

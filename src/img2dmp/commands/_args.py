@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import sys
 from collections.abc import Iterable
 from contextlib import contextmanager
@@ -349,6 +350,28 @@ def reading_image(path):
         raise ValueError(f"image file {path} cannot be read as an image: {e}") from e
 
 
+def warn_flags(command: str, path, pred) -> None:
+    """One line on stderr for a prediction with flags (:attr:`Prediction.flags`: off the
+    ink, ink unexplained, several characters, unfamiliar), with its fit and familiarity
+    and what to do; nothing for one without."""
+    flags = list(pred.flags)
+    if not flags:
+        return
+    familiarity, line = pred.familiarity, pred.familiar_line
+    known = "" if familiarity is None or line is None else (
+        f"familiarity {familiarity:.3f}, the model's line {line:.3f}; ")  # fmt: skip
+    # Unrefined (--refine 0, or a run whose reading recommends none): a path off the ink
+    # may be off it only for that.
+    unrefined = pred.refine_steps == 0 and bool({"off_ink", "unexplained_ink"} & set(flags))
+    fit = pred.fit
+    print(f"img2dmp {command}: warning: {path}: {', '.join(flags)} ({known}path on ink "
+          f"{fit['path_on_ink']:.2f}, ink written {fit['ink_written']:.2f}): it may not "
+          "show one character the model knows"
+          + ("; for a page of characters use --page" if "several_characters" in flags else "")
+          + ("; the path is unrefined: --refine N pulls it onto the ink" if unrefined else ""),
+          file=sys.stderr)  # fmt: skip
+
+
 def check_images(paths: Iterable) -> None:
     """Each path opens as an image (its header only, which is where PIL refuses a
     decompression bomb), else one ``ValueError`` naming it, before any slow work."""
@@ -499,9 +522,34 @@ def finite_float(text: str) -> float:
     return v
 
 
+#: The options whose value is a point ``X,Y`` (:func:`point`).
+POINT_OPTIONS = frozenset({"--goal", "--start", "--shift"})
+_NEGATIVE_POINT = re.compile(r"-[0-9.][^,]*,[^,]*")
+
+
+def join_negative_points(argv: list[str]) -> list[str]:
+    """``--shift -3,2`` as ``--shift=-3,2``: argparse takes a word that starts with "-"
+    (and is not a plain negative number) for an option, so a point option followed by a
+    negative point is joined to it before parsing."""
+    out, words = [], iter(argv)
+    for word in words:
+        if word == "--":  # what follows is positional as it stands
+            out += [word, *words]
+            break
+        if word in POINT_OPTIONS:
+            value = next(words, None)
+            if value is not None and _NEGATIVE_POINT.fullmatch(value):
+                out.append(f"{word}={value}")
+                continue
+            out += [word] if value is None else [word, value]
+            continue
+        out.append(word)
+    return out
+
+
 def point(text: str) -> tuple[float, float]:
-    """An argparse ``type``: two finite numbers written ``X,Y`` (a negative first number
-    as ``--flag=-5,3``, or argparse reads it as an option)."""
+    """An argparse ``type``: two finite numbers written ``X,Y`` (``--flag -5,3`` is read
+    as ``--flag=-5,3``: :func:`join_negative_points`)."""
     parts = text.split(",")
     if len(parts) != 2:
         raise argparse.ArgumentTypeError(f"must be two numbers X,Y, got {text!r}")
@@ -534,10 +582,12 @@ __all__ = [
     "add_no_progress",
     "add_set",
     "int_at_least",
+    "join_negative_points",
     "parse_digits",
     "positive_float",
     "reading_image",
     "same_path",
+    "warn_flags",
 ]
 
 

@@ -129,20 +129,6 @@ def _check_options(args: argparse.Namespace) -> None:
                          "(NAME_page.png)")  # fmt: skip
 
 
-def _warn(path, flags: list[str], fit: dict, familiarity=None, line=None, steps=None) -> None:
-    known = "" if familiarity is None or line is None else (
-        f"familiarity {familiarity:.3f}, the model's line {line:.3f}; ")  # fmt: skip
-    # Unrefined (--refine 0, or a run whose reading recommends none): a path off the ink
-    # may be off it only for that.
-    unrefined = steps == 0 and bool({"off_ink", "unexplained_ink"} & set(flags))
-    print(f"img2dmp predict: warning: {path}: {', '.join(flags)} ({known}path on ink "
-          f"{fit['path_on_ink']:.2f}, ink written {fit['ink_written']:.2f}): it may not "
-          "show one character the model knows"
-          + ("; for a page of characters use --page" if "several_characters" in flags else "")
-          + ("; the path is unrefined: --refine N pulls it onto the ink" if unrefined else ""),
-          file=sys.stderr)  # fmt: skip
-
-
 def _explain(args, path, layout_boxes=None) -> Path:
     from ..data.images import paper_steps
     from ..data.plotting import paper_steps_figure
@@ -226,10 +212,7 @@ def run(args: argparse.Namespace) -> int:
         name = Path(args.out) / f"{Path(path).stem}_dmp.json" if args.out else path
         predictions.append((path, pred, pred.to_json(name)))
     for path, pred, _ in predictions:
-        if pred.flags:
-            _warn(
-                path, pred.flags, pred.fit, pred.familiarity, pred.familiar_line, pred.refine_steps
-            )
+        _args.warn_flags("predict", path, pred)
     if not args.out:
         texts = [text.rstrip() for _, _, text in predictions]
         print(texts[0] if len(texts) == 1 else "[\n" + ",\n".join(texts) + "\n]")

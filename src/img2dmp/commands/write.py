@@ -17,7 +17,9 @@ included), with ``--video`` ``NAME.gif`` and, where imageio-ffmpeg is installed,
 limits), and prints tracking-error, contact-force and per-stroke ink metrics. NAME is the input
 file's name without its extension: two inputs of one name are refused, naming both, and
 files already in ``--out-dir`` are replaced only with ``--force``; both are checked before
-the simulation starts.
+the simulation starts. An image the model reads with flags (several characters,
+unfamiliar, off the ink: as ``img2dmp predict`` says) gets predict's one-line warning on
+stderr before the arm writes it.
 
 ``--page`` writes a whole page in one run (:mod:`img2dmp.robot.page`): ``PAGE.json
 --page`` a page document (``img2dmp predict PHOTO --page`` writes one), ``PHOTO --page
@@ -157,7 +159,7 @@ def _add_bend_arguments(parser: argparse.ArgumentParser) -> None:
     """``--goal``, ``--start``, ``--shift``, ``--scale``, ``--rotate``, ``--tempo``."""
     group = parser.add_argument_group(
         "bending the DMP (docs/DMP.md, 'Bending a DMP'; positions in pixels of the DMP's "
-        "frame, x = column, y = row; a negative first number as --shift=-5,3)"
+        "frame, x = column, y = row, e.g. --shift -5,3)"
     )
     point = _args.point
     group.add_argument(
@@ -245,9 +247,11 @@ def _inputs(args, predictor=None) -> list[tuple[str, object, object, tuple, obje
     out = []
     for path in args.images:
         with _args.reading_image(path):
-            image = np.asarray(predictor.prepare(path)[0], dtype=np.float32)
-        if k == 1:  # the top one alone (refined alone)
-            params = predictor.predict_images(image[None])[0]
+            pred = predictor.predict(path)  # the one reading predict gives, flags and all
+        _args.warn_flags("write", path, pred)
+        image = np.asarray(pred.image, dtype=np.float32)
+        if k == 1:  # the top one (refined alone)
+            params = pred.dmp
         else:
             params = predictor.predict_hypotheses(image[None])[0][0, k - 1]
         out.append((_name(path), params, config, tuple(image.shape[-2:]), image))
@@ -568,6 +572,7 @@ def _run_strokes(args, scene_cfg, ctl_cfg, predictor) -> int:
     for path in args.images:
         with _args.reading_image(path):
             pred = predictor.predict(path)
+        _args.warn_flags("write", path, pred)
         where = f"{path} (the strokes read by {args.model})"
         page = check_page_document(pred.to_page_document(), where)
         x0, y0, x1, y1 = page.written_area_px

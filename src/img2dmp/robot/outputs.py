@@ -78,7 +78,7 @@ def plot_writing(result: WritingResult, path, image: np.ndarray | None = None, t
     writing; the ink (dark blue) is the tip's path while it touched the paper; the grey
     band in the time plots is the writing phase.
     """
-    
+
     # Constrained layout makes room for the legends under the top panels and for titles.
     fig = new_figure(figsize=(10, 9.4), layout="constrained")
     axes = fig.subplots(2, 2, gridspec_kw={"height_ratios": [3, 2]})
@@ -336,7 +336,7 @@ def plot_page(result, path, image: np.ndarray | None = None, title=None) -> None
     ``image``: the photo (ink = 1), of any resolution: it is stretched over the photo's
     pixel frame (e.g. a reduced view from :func:`img2dmp.data.images.ink_view`).
     """
-    
+
     fig = new_figure(figsize=(11, 9.4), layout="constrained")
     axes = fig.subplots(2, 2, gridspec_kw={"height_ratios": [3, 2]})
     _plot_pixels(axes[0, 0], result, image)
