@@ -742,6 +742,45 @@ def test_dmp_constants_refuse_booleans_and_text(field, value, message):
 
 
 @pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"alpha_z": 1e300}, "alpha_z must be at most 10000, got 1e+300"),
+        ({"beta_z": 2e4}, "beta_z must be at most 10000, got 20000.0"),
+        (
+            {"alpha_z": 1e-300},
+            "alpha_z=1e-300, beta_z=2.5e-301, alpha_x=2 with 25 kernels give "
+            "the rollout's response table no end x 26",
+        ),
+        ({"beta_z": 1e-300}, "beta_z=1e-300"),
+        (
+            {"alpha_x": 1e-300},
+            "alpha_x=1e-300 with 25 kernels give the rollout's response table 8.8e+303 steps x 26",
+        ),
+        ({"alpha_x": 0.01}, "table 884,194 steps x 26 responses (at most 8,000,000 entries)"),
+        ({"alpha_z": 5000}, "alpha_z=5000, beta_z=1250"),
+        ({"alpha_x": 0.5, "n_kernels": 200}, "146,630 steps x 201 responses"),
+    ],
+)
+def test_dmp_constants_whose_table_would_not_fit_are_refused_before_it_is_built(
+    fields, message, monkeypatch
+):
+    """Gains that make the rollout's response table endless or gigabytes long (a DMP file,
+    a checkpoint, a data set or a page may carry any) are one line naming them; the
+    paper's constants at the most kernels, and everyday others, build theirs."""
+    from img2dmp.dmp import _table
+
+    monkeypatch.setattr(_table, "_solve_responses", None)  # never reached for these
+    with pytest.raises(ValueError, match=re.escape(message)) as e:
+        DMPConfig(**fields)
+    _one_line(e)
+    monkeypatch.undo()
+    for fine in ({"n_kernels": 200}, {"alpha_z": 25.0, "alpha_x": 1.0}, {"alpha_z": 1000.0},
+                 {"alpha_z": 1.0}, {"alpha_x": 0.1}):  # fmt: skip
+        h, s_max, table = _table._response_table_f64(DMPConfig(**fine))
+        assert table.shape[0] * table.shape[2] <= 8_000_000 and np.isfinite(table).all()
+
+
+@pytest.mark.parametrize(
     "data, needle",
     [
         (b"\xff\xfe{}", "req: not a UTF-8 text file"),

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -174,23 +175,53 @@ def test_rollout_numpy_refuses_a_config_or_gradient_of_another_shape():
 
 
 def test_the_tables_cache_name_follows_the_code_that_computes_it(tmp_path, monkeypatch):
-    """The table on disk is named by a hash of _table.py and basis.py (where it is solved
-    now), not of rollout.py: a change to either of the two makes a new file."""
+    """The table on disk is named by a hash of _table.py, basis.py and config.py (where
+    it is solved and its grid chosen), not of rollout.py: a change to any of the three
+    makes a new file."""
     here = Path(_table.__file__).parent
-    for name in ("_table.py", "basis.py", "rollout.py"):
+    computing = ("_table.py", "basis.py", "config.py")
+    for name in (*computing, "rollout.py"):
         (tmp_path / name).write_bytes((here / name).read_bytes())
     monkeypatch.delenv("IMG2DMP_NO_TABLE_CACHE", raising=False)
     monkeypatch.setattr(_table, "__file__", str(tmp_path / "_table.py"))
     config = DMPConfig(n_kernels=7)
     names = [Path(_table._table_cache_file(config)).name]
     assert Path(_table._table_cache_file(config)).parent == tmp_path / "__pycache__"
-    for name in ("rollout.py", "_table.py", "basis.py"):
+    for name in ("rollout.py", *computing):
         with open(tmp_path / name, "a") as f:
             f.write("# changed\n")
         names.append(Path(_table._table_cache_file(config)).name)
     assert names[1] == names[0]  # rollout.py does not compute the table
-    assert len(set(names[1:])) == 3  # each of the other two does
-    assert names[0].split("_")[2] == names[3].split("_")[2]  # the constants' part is kept
+    assert len(set(names[1:])) == 4  # each of the other three does
+    assert names[0].split("_")[2] == names[4].split("_")[2]  # the constants' part is kept
+
+
+def test_the_table_cache_keeps_the_most_recently_used_within_its_bounds(tmp_path, monkeypatch):
+    """Any constants a file brings get a table on disk; the folder keeps the most recently
+    used ones, at most _CACHE_FILES files and _CACHE_BYTES bytes."""
+    here = Path(_table.__file__).parent
+    for name in _table._TABLE_CODE:
+        (tmp_path / name).write_bytes((here / name).read_bytes())
+    monkeypatch.delenv("IMG2DMP_NO_TABLE_CACHE", raising=False)
+    monkeypatch.setattr(_table, "__file__", str(tmp_path / "_table.py"))
+    monkeypatch.setattr(_table, "_CACHE_FILES", 3)
+    cache = tmp_path / "__pycache__"
+
+    def use(alpha_z: float) -> str:
+        config = DMPConfig(n_kernels=5, alpha_z=alpha_z)
+        _table._response_table_f64.__wrapped__(config)  # past the in-memory cache
+        time.sleep(0.02)  # distinct modification times
+        return Path(_table._table_cache_file(config)).name
+
+    first = use(40.0)
+    others = [use(a) for a in (41.0, 42.0)]
+    assert use(40.0) == first  # read from disk, and now the most recently used
+    newest = use(43.0)
+    kept = sorted(p.name for p in cache.glob("dmp_responses_*.npy"))
+    assert kept == sorted([first, others[1], newest])  # 41 was the least recently used
+    monkeypatch.setattr(_table, "_CACHE_BYTES", 1)  # only the one just written stays
+    last = use(44.0)
+    assert [p.name for p in cache.glob("dmp_responses_*.npy")] == [last]
 
 
 # --- the normaliser --------------------------------------------------------------------

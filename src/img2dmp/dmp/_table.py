@@ -27,13 +27,10 @@ import tempfile
 import numpy as np
 
 from .basis import basis_functions, kernel_centres, kernel_widths, negligible
-from .config import DMPConfig
+from .config import NODES_PER_SCALE, TABLE_TAIL, DMPConfig, response_grid
 
-# Nodes per shortest time scale of the responses: cubic Hermite error ~1e-7 relative
-# (~2e-6 px on a 40 px digit), below float32 resolution, with few pieces to combine.
-_NODES_PER_SCALE = 16
-# The table ends where the phase and the free response have decayed below this.
-_TAIL = 1e-10
+# Grid steps whose forcing is integrated at once (bounds the drive's memory).
+_CHUNK = 8192
 # Flush negligible table entries to 0 (see _cubic_pieces). Only a test turns it off,
 # to show what the flush prevents.
 _FLUSH = True
@@ -48,14 +45,9 @@ def _response_table_f64(config: DMPConfig) -> tuple[float, float, np.ndarray]:
     configuration (:func:`_solve_responses`, a few milliseconds) and kept on disk
     (:func:`_table_cache_file`).
     """
-    n, az, bz, ax = config.n_kernels, config.alpha_z, config.beta, config.alpha_x
-    scale = min(1.0 / (n - 1), 1.0 / math.sqrt(az * bz), 2.0 / az)
-    h = scale / _NODES_PER_SCALE
-    # Slowest decay of the free response: the real part of the slower characteristic root.
-    disc = az * az - 4 * az * bz
-    slow = az / 2 - (math.sqrt(disc) / 2 if disc > 0 else 0.0)
-    s_max = max(-math.log(_TAIL) / ax, (-math.log(_TAIL) + 5.0) / slow, 1.0)
-    g = int(math.ceil(s_max / h)) + 1
+    n = config.n_kernels
+    h, _, steps = response_grid(n, config.alpha_z, config.beta, config.alpha_x)
+    g = int(steps)  # bounded by DMPConfig (MAX_TABLE_ENTRIES)
     s_grid = np.arange(g) * h
     cache = _table_cache_file(config)
     table = _load_table(cache, (g, 2, n + 1))
@@ -136,9 +128,11 @@ def _solve_responses(config: DMPConfig, s_grid: np.ndarray) -> np.ndarray:
     r = 0.5 * h * (nodes + 1.0)  # [m], in [0, h]
     step = _expm2(a * h)  # [2, 2]
     kernel = _expm2(a * (h - r)[:, None, None])[:, :, 1] * (0.5 * h * weights)[:, None]  # [m, 2]
-    s = s_grid[:-1, None] + r  # [G - 1, m]: the quadrature points of every step
-    drive = basis_functions(np.exp(-ax * s), c, hw)  # [G - 1, m, N]
-    push = np.einsum("jr,ijk->irk", kernel, drive)  # [G - 1, 2, N]: each step's forcing
+    push = np.empty((max(g - 1, 0), 2, n))  # [G - 1, 2, N]: each step's forcing
+    for i in range(0, g - 1, _CHUNK):  # in pieces: the drive is m times the table's size
+        s = s_grid[i : min(i + _CHUNK, g - 1), None] + r  # [<=CHUNK, m]: quadrature points
+        drive = basis_functions(np.exp(-ax * s), c, hw)  # [<=CHUNK, m, N]
+        push[i : i + len(s)] = np.einsum("jr,ijk->irk", kernel, drive)
     out = np.zeros((g, 2, n + 1))
     out[0, 0, 0] = 1.0  # a(0) = 1: unit initial offset; every R_k starts at rest
     u = out[0].copy()  # [2, N + 1]
@@ -149,13 +143,18 @@ def _solve_responses(config: DMPConfig, s_grid: np.ndarray) -> np.ndarray:
     return out  # [G, 2, N + 1]
 
 
-# The files whose code decides the table's numbers: a change to either makes a new cache.
-_TABLE_CODE = ("_table.py", "basis.py")
+# The files whose code decides the table's numbers: a change to any makes a new cache.
+_TABLE_CODE = ("_table.py", "basis.py", "config.py")
+# The cache folder keeps at most this many tables and bytes, the least recently used
+# going first: DMP files, data sets and the web API may bring any constants, each set its
+# own table (up to 128 MB: MAX_TABLE_ENTRIES).
+_CACHE_FILES = 64
+_CACHE_BYTES = 512 * 2**20
 
 
 def _table_cache_file(config: DMPConfig) -> str | None:
     """Where the table of ``config`` is kept: named by a hash of the constants and of
-    the code that computes it (this file and basis.py), so that a change of either
+    the code that computes it (this file, basis.py and config.py), so that a change of any
     makes a new one. In ``__pycache__`` next to this file (as numba's cache), else in
     ``$XDG_CACHE_HOME/img2dmp`` (``~/.cache/img2dmp``); None when neither is writable
     or ``IMG2DMP_NO_TABLE_CACHE`` is set."""
@@ -163,7 +162,7 @@ def _table_cache_file(config: DMPConfig) -> str | None:
         return None
     here = os.path.dirname(os.path.abspath(__file__))
     constants = (config.n_kernels, config.alpha_z, config.beta, config.alpha_x)
-    constants += (config.width_factor, _NODES_PER_SCALE, _TAIL)
+    constants += (config.width_factor, NODES_PER_SCALE, TABLE_TAIL)
     code = hashlib.sha1()
     try:
         for name in _TABLE_CODE:
@@ -193,6 +192,9 @@ def _load_table(path: str | None, shape: tuple) -> np.ndarray | None:
     except (OSError, ValueError):
         return None
     ok = table.shape == shape and table.dtype == np.float64 and np.isfinite(table).all()
+    if ok:
+        with contextlib.suppress(OSError):
+            os.utime(path)  # used: the last to go when the cache is trimmed
     return table if ok else None
 
 
@@ -219,3 +221,23 @@ def _save_table(path: str | None, table: np.ndarray) -> None:
         if other.startswith(stale + sep) and other.endswith(".npy") and other != name:
             with contextlib.suppress(OSError):
                 os.remove(os.path.join(folder, other))
+    _trim_cache(folder, keep=name)
+
+
+def _trim_cache(folder: str, keep: str) -> None:
+    """Remove the least recently used tables of ``folder`` beyond :data:`_CACHE_FILES`
+    files or :data:`_CACHE_BYTES` bytes (never ``keep``, the one just written)."""
+    tables = []
+    with contextlib.suppress(OSError):
+        for entry in os.scandir(folder):
+            if entry.name.startswith("dmp_responses_") and entry.name.endswith(".npy"):
+                with contextlib.suppress(OSError):
+                    st = entry.stat()
+                    tables.append((entry.name == keep, st.st_mtime, st.st_size, entry.path))
+    tables.sort(reverse=True)  # the one just written, then the most recently used
+    total = 0
+    for k, (_, _, size, path) in enumerate(tables):
+        total += size
+        if k >= 1 and (k >= _CACHE_FILES or total > _CACHE_BYTES):
+            with contextlib.suppress(OSError):
+                os.remove(path)

@@ -12,6 +12,7 @@ with ``S = diag(g - y0)`` (the paper's scaling, ``scaling="goal-start"``) or ``S
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 from ..config import check_positive
@@ -21,6 +22,36 @@ SCALINGS = ("goal-start", "none")
 #: per configuration, grows with the square of it (about 30 MB and a second to solve at
 #: N = 100, 17 s at N = 300 on a 2-core machine).
 MAX_KERNELS = 200
+#: Largest gain alpha_z, beta_z or alpha_x (the paper's: 48, 12 and 2).
+MAX_GAIN = 1e4
+#: Most entries (grid steps x responses) of the rollout's response table: memory and
+#: time grow with it (the default constants at MAX_KERNELS make 7.4 million, 0.25 GB of
+#: cubic pieces); a slow phase (small alpha_x), a slowly settling transformation system
+#: (small alpha_z or beta_z) or a very fast one (large alpha_z) lengthen the table.
+MAX_TABLE_ENTRIES = 8_000_000
+# Nodes per shortest time scale of the responses: cubic Hermite error ~1e-7 relative
+# (~2e-6 px on a 40 px digit), below float32 resolution, with few pieces to combine.
+NODES_PER_SCALE = 16
+# The table ends where the phase and the free response have decayed below this.
+TABLE_TAIL = 1e-10
+
+
+def response_grid(n_kernels: int, alpha_z: float, beta: float, alpha_x: float):
+    """``(h, s_max, steps)`` of the rollout's response table (:mod:`img2dmp.dmp._table`):
+    its step in normalised time ``s = t / tau``, where it ends, and its number of grid
+    points (a float: ``inf`` for constants whose table has no end in floating point)."""
+    try:
+        az, bz, ax = float(alpha_z), float(beta), float(alpha_x)
+        scale = min(1.0 / (n_kernels - 1), 1.0 / math.sqrt(az * bz), 2.0 / az)
+        h = scale / NODES_PER_SCALE
+        # Slowest decay of the free response: the real part of the slower characteristic root.
+        disc = az * az - 4 * az * bz
+        slow = az / 2 - (math.sqrt(disc) / 2 if disc > 0 else 0.0)
+        s_max = max(-math.log(TABLE_TAIL) / ax, (-math.log(TABLE_TAIL) + 5.0) / slow, 1.0)
+        steps = math.ceil(s_max / h) + 1.0
+    except (ZeroDivisionError, OverflowError, ValueError):
+        return 0.0, math.inf, math.inf
+    return h, s_max, steps
 
 
 @dataclass(frozen=True)
@@ -71,14 +102,32 @@ class DMPConfig:
             )
         if isinstance(self.n_dims, bool) or not isinstance(self.n_dims, int) or self.n_dims < 1:
             raise ValueError(f"n_dims must be an integer >= 1, got {self.n_dims!r}")
-        check_positive("alpha_z", self.alpha_z)
-        check_positive("alpha_x", self.alpha_x)
+        for name in ("alpha_z", "alpha_x", "beta_z"):
+            value = getattr(self, name)
+            if value is not None and check_positive(name, value) > MAX_GAIN:
+                raise ValueError(f"{name} must be at most {MAX_GAIN:g}, got {value!r}")
         check_positive("width_factor", self.width_factor)
         beta = self.alpha_z / 4.0 if self.beta_z is None else self.beta_z
         check_positive("beta_z", beta)
         if self.scaling not in SCALINGS:
             raise ValueError(f"scaling must be one of {SCALINGS}, got {self.scaling!r}")
         object.__setattr__(self, "_beta", float(beta))
+        self._check_table()
+
+    def _check_table(self) -> None:
+        """The rollout's response table of these constants fits :data:`MAX_TABLE_ENTRIES`."""
+        _, _, steps = response_grid(self.n_kernels, self.alpha_z, self._beta, self.alpha_x)
+        entries = steps * (self.n_kernels + 1)
+        if entries > MAX_TABLE_ENTRIES:
+            size = "no end" if math.isinf(steps) else (
+                f"{steps:,.0f} steps" if steps < 1e12 else f"{steps:.1e} steps")  # fmt: skip
+            raise ValueError(
+                f"alpha_z={self.alpha_z:g}, beta_z={self._beta:g}, alpha_x={self.alpha_x:g} "
+                f"with {self.n_kernels} kernels give the rollout's response table {size} x "
+                f"{self.n_kernels + 1} responses (at most {MAX_TABLE_ENTRIES:,} entries): a "
+                "phase (alpha_x) or a transformation system (alpha_z, beta_z) that settles "
+                "too slowly, or alpha_z too large; the paper's are 48, 12 and 2"
+            )
 
     @property
     def beta(self) -> float:
