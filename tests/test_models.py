@@ -259,6 +259,25 @@ def test_a_folder_of_the_same_name_wins_over_the_shipped_model(tmp_path, monkeyp
         img2dmp.load_model(name)
 
 
+def test_the_default_model_is_read_when_none_is_given_whatever_folder_has_its_name(
+    tmp_path, monkeypatch, capsys
+):
+    """Named, a folder ``digits-real`` here wins; not named at all, the default is the
+    shipped model, never a folder (``predict --out digits-real`` makes one)."""
+    from img2dmp.web.models import load_models
+
+    monkeypatch.chdir(tmp_path)
+    name = models.default_model().name
+    (tmp_path / name).mkdir()
+    assert img2dmp.load_model().shipped.name == name
+    assert cli.main(["predict", str(SAMPLE), "--refine", "0"]) == 0
+    assert '"flags"' in capsys.readouterr().out
+    assert cli.main(["predict", str(SAMPLE), "--model", name]) == 2  # named: the folder
+    assert "holds no checkpoint" in capsys.readouterr().err
+    [(key, loaded)] = load_models([models.default_model()], refine=0).items()
+    assert key == loaded.path == name and loaded.predictor.shipped.name == name
+
+
 def test_the_default_model_comes_with_its_cards_settings_unless_told_otherwise():
     default = models.default_model()
     assert default.refine == 30
@@ -345,21 +364,21 @@ def test_write_serve_and_train_take_the_default_or_a_name():
         module.add_arguments(parser)
         return parser.parse_args(argv)
 
-    name = models.default_model().name
+    default = models.default_model()  # the shipped model itself: str() is its name
+    name = default.name
     args = parsed(write_command, ["photo.png"])
     write_command._default_model(args)
-    assert args.model == name
+    assert args.model == default and str(args.model) == name
     args = parsed(write_command, ["page.json", "--page"])  # a page document needs none
     write_command._default_model(args)
     assert args.model is None
     args = parsed(write_command, ["photo.jpg", "--page"])  # a photo of a page does
     write_command._default_model(args)
-    assert args.model == name
-    assert serve_command._models(parsed(serve_command, [])) == [name]
+    assert args.model == default
+    assert serve_command._models(parsed(serve_command, [])) == [default]
     assert serve_command._models(parsed(serve_command, ["--model", "a"])) == ["a"]
-    default = models.default_model()
     expected = [("model", default.weights), ("model", default.folder / "model.json")]
-    assert _args.model_inputs(name) == expected
+    assert _args.model_inputs(name) == expected == _args.model_inputs(default)
 
 
 def test_img2dmp_models_lists_each_with_its_figures_and_shows_a_card(capsys):

@@ -1361,7 +1361,7 @@ def load_model(
         check_count("refine", refine, 0, MAX_REFINE_STEPS)
     if refine_unfamiliar is not None:
         check_count("refine_unfamiliar", refine_unfamiliar, 0, MAX_REFINE_STEPS)
-    source = default_model().name if path is None else path
+    source = default_model() if path is None else path  # never a folder of its name here
     predictor = Predictor.load(source, checkpoint, device, backend)
     if refine is None:
         refine = predictor.reading.refine

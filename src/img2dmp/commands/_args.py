@@ -148,12 +148,14 @@ def add_model(
 
 
 def model_or_default(model):
-    """``--model`` as given, or the name of the default shipped model when none is."""
+    """``--model`` as given, or the default shipped model when none is (the
+    :class:`~img2dmp.models.ShippedModel` itself, not its name: a folder of that name in
+    the working directory is no model nobody asked for)."""
     if model is not None:
         return model
     from ..models import default_model
 
-    return default_model().name
+    return default_model()
 
 
 def one_thread() -> None:

@@ -27,7 +27,9 @@ is looked up here (:func:`resolve`): a shipped name gives its weights file, afte
 SHA-256 is checked against ``model.json`` (:func:`verified_weights`: a damaged file is
 refused with one :class:`~img2dmp.errors.ShippedModelError` naming it); another word gives
 one :class:`~img2dmp.errors.UnknownModelError` listing the shipped names. A path is always
-a path: a folder ``digits-real`` in the working directory wins over the shipped model.
+a path: a folder ``digits-real`` in the working directory wins over the shipped model
+when that word is given. The default, read when no model is given at all, is always the
+shipped model itself (:func:`default_model`).
 
 Standard library only: ``img2dmp models`` lists them without loading torch, and every
 layer (the checkpoint reader among them) may use this module.
@@ -94,6 +96,9 @@ class ShippedModel:
     recommended: dict = field(default_factory=dict)
     figures: dict = field(default_factory=dict)
     record: dict = field(default_factory=dict, repr=False)
+
+    def __str__(self) -> str:  # as a command line and its messages name it
+        return self.name
 
     @property
     def weights(self) -> Path:

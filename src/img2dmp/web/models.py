@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..data.dmpfile import TRAJECTORY_DECIMALS
+from ..models import ShippedModel
 from ..predict import Prediction, Predictor, StrokePrediction, load_model
 from .strokes import grey_png
 
@@ -90,6 +91,9 @@ def load_models(sources, refine: int | None = None,
         if isinstance(source, tuple):
             name, predictor = source
             path = str(name)
+        elif isinstance(source, ShippedModel):  # the default: by itself, never a folder here
+            name = path = source.name
+            predictor = load_model(source, refine=refine, refine_unfamiliar=refine_unfamiliar)
         else:
             name, path = model_id(source), os.fspath(source)
             predictor = load_model(source, refine=refine, refine_unfamiliar=refine_unfamiliar)
