@@ -174,3 +174,32 @@ def test_a_checkpoint_with_a_bad_reading_is_refused_naming_the_file(reading_run,
     save_checkpoint(bad, ckpt.model_state, meta)  # its digests made anew: a whole file
     with pytest.raises(CheckpointError, match=r"bad\.safetensors: invalid record .*'refine'"):
         Predictor.load(bad)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("train_config", "x", "invalid record (train_config is 'x', not a mapping)"),
+        ("ink_margin", "x", "invalid record (field 'ink_margin' must be a number, got 'x')"),
+        ("ink_margin", None, "field 'ink_margin' must be a number, got None"),
+        ("ink_margin", 5.0, "field 'ink_margin': margin must be in [0, 0.45], got 5.0"),
+        ("stroke_width_px", -3.0, "field 'stroke_width_px': stroke_width_px must be a number"),
+        ("dmp_config", "MISSING", "invalid record (field 'dmp_config' is missing)"),
+    ],
+)
+def test_a_record_s_wrong_field_is_named_with_the_file(reading_run, tmp_path, field, value,
+                                                        message):  # fmt: skip
+    """Whole files (their digests made anew) whose record holds a wrong field: one
+    CheckpointError naming the file and the field, at load, never a traceback later."""
+    from img2dmp.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+    from img2dmp.predict import Predictor
+
+    ckpt = load_checkpoint(reading_run)
+    meta = {k: v for k, v in ckpt.meta.items() if k != field}
+    if value != "MISSING":
+        meta[field] = value
+    bad = tmp_path / "bad.safetensors"
+    save_checkpoint(bad, ckpt.model_state, meta)
+    with pytest.raises(CheckpointError) as e:
+        Predictor.load(bad)
+    assert str(e.value).startswith(f"checkpoint {bad}: ") and message in str(e.value), e.value

@@ -213,6 +213,28 @@ def check_count(name: str, value, lo: int, hi: int) -> int:
     return int(value)
 
 
+def _check_framing(record: dict, image_size) -> None:
+    """A checkpoint record's framing of its training images (``ink_margin``,
+    ``stroke_width_px``), as :func:`prepare_image` will take them; ``ValueError`` naming
+    the field."""
+    from .config import show
+    from .data.images import _check_preparation
+
+    margin, width = record.get("ink_margin", DEFAULT_MARGIN), record.get("stroke_width_px")
+    for key, value in (("ink_margin", margin), ("stroke_width_px", width)):
+        given = value is not None or key == "ink_margin"  # no pen width: none recorded
+        if given and (isinstance(value, bool) or not isinstance(value, numbers.Real)):
+            raise ValueError(f"field {key!r} must be a number, got {show(value)}")
+    for key, framing in (
+        ("ink_margin", (float(margin), None)),
+        ("stroke_width_px", (DEFAULT_MARGIN, float(width) if width else None)),
+    ):
+        try:
+            _check_preparation(image_size, *framing)
+        except ValueError as e:
+            raise ValueError(f"field {key!r}: {e}") from None
+
+
 class Predictor:
     """A trained network with its output normalisation and DMP constants.
 
@@ -361,7 +383,12 @@ class Predictor:
             strokes = ckpt.meta.get("strokes")
             strokes = StrokeLayout.from_dict(strokes) if strokes is not None else None
             checkpoint_reading(ckpt.meta, "train_config")  # its reading settings, checked
-        except (KeyError, TypeError, ValueError) as e:
+            _check_framing(ckpt.meta, mcfg.image_size)
+        except KeyError as e:
+            raise CheckpointError(
+                f"checkpoint {ckpt.path}: invalid record (field {e.args[0]!r} is missing)"
+            ) from e
+        except (TypeError, ValueError) as e:
             raise CheckpointError(f"checkpoint {ckpt.path}: invalid record ({e})") from e
         need = dmp_config.n_params if strokes is None else strokes.n_outputs
         if mcfg.n_outputs != need:

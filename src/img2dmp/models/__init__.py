@@ -192,7 +192,10 @@ def checkpoint_reading(record: dict, where: str = "checkpoint") -> Reading:
     configuration's ``reading`` section (:class:`img2dmp.training.config.ReadingConfig`),
     nothing for a checkpoint trained before img2dmp recorded one. ``ValueError`` naming
     ``where`` and the setting for a value that is not a whole number in range."""
-    section = ((record.get("train_config") or {}).get("reading")) or {}
+    train_config = record.get("train_config") or {}
+    if not isinstance(train_config, dict):
+        raise ValueError(f"{where} is {show(train_config)}, not a mapping")
+    section = train_config.get("reading") or {}
     if not isinstance(section, dict):
         raise ValueError(f"{where}: train_config.reading is {show(section)}, not a mapping")
     recommended = {k: v for k, v in section.items() if v is not None}
