@@ -456,6 +456,45 @@ def test_a_non_json_record_is_refused_before_the_earlier_file_is_touched(tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.safetensors"]
 
 
+@pytest.mark.parametrize(
+    ("field", "index", "message"),
+    [
+        ("trajectories", (3, 5, 0), "field 'trajectories' row 3 holds a path position 1e+30 px"),
+        ("trajectories", (4, 0, 1), "field 'trajectories' row 4 holds a path position -95 px"),
+        ("params", (2, 52), "field 'params' row 2 holds a goal or start position 1e+30 px"),
+    ],
+)
+def test_a_position_far_off_the_image_is_named_on_save_and_load(tmp_path, field, index, message):
+    """A path, goal or start more than MAX_POSITION_SIDES image sides from the image is
+    no position of it (1e30 was read as a path and evaluated into Infinity)."""
+    from img2dmp.data.store import MAX_POSITION_SIDES
+
+    data = _data(m=6)
+    getattr(data, field)[index] = -95.0 if "-95" in message else 1e30
+    assert 95 > MAX_POSITION_SIDES * 9  # an 8 x 9 image: 90 px from its centre at most
+    with pytest.raises(DatasetError, match=re.escape(message)) as e:
+        save_dataset(tmp_path / "d.safetensors", data)
+    _one_line(e)
+    assert not (tmp_path / "d.safetensors").exists()
+    legacy = _legacy_dataset(tmp_path / "old.safetensors", data)  # written before the rule
+    with pytest.raises(DatasetError, match=rf"old\.safetensors: {re.escape(message)}"):
+        load_dataset(legacy)
+
+
+def test_training_names_the_row_whose_duration_is_no_duration(tmp_path, capsys):
+    from img2dmp.cli import main
+
+    data = _data(m=9)
+    data.params[4, DMPConfig().n_kernels * DMPConfig().n_dims] = -1.0
+    p = save_dataset(tmp_path / "d.safetensors", data)  # the format stores any finite vector
+    argv = ["train", "--config", "demo", "--data", str(p), "--run-dir", str(tmp_path / "r"),
+            "--epochs", "1", "--no-progress"]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("d.safetensors: row 4: field 'params' has tau (column 50) = -1.0; "
+                        "a DMP's duration must be > 0 s"), err  # fmt: skip
+
+
 def test_a_duration_that_is_no_duration_is_named_by_file_and_row(tmp_path):
     data = _data(m=9)
     tau = DMPConfig().n_kernels * DMPConfig().n_dims

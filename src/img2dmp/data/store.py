@@ -84,6 +84,10 @@ MAX_CLASSES = 10_000
 #: Smallest side of a data set's images: what generate, import and prepare make at the
 #: least. A 1 x 1 "image" holds no shape to learn a movement from.
 MIN_IMAGE_SIDE = 8
+#: Pen positions (a path's, a DMP's goal and start) lie within this many image sides of
+#: the image's centre: farther, a value is not a position of this image (1e30 was read
+#: as a path, and an evaluation wrote Infinity).
+MAX_POSITION_SIDES = 10
 MAX_CLASS_NAME_CHARS = 100
 #: The metadata key of the stroke spans (module docstring).
 STROKE_SPANS_KEY = "stroke_spans"
@@ -409,6 +413,27 @@ class DigitData:
             row = _first_row(np.diff(self.times, axis=1) <= 0)
             raise DatasetError(f"{where}: field 'times' is not strictly increasing in row {row}")
 
+    def _validate_positions(self, where: str, config: DMPConfig) -> None:
+        """Paths, goals and starts near the image (:data:`MAX_POSITION_SIDES`; a tau <= 0
+        is named where the DMPs are read, :meth:`dmp_params`)."""
+        h, w = self.images.shape[1:]
+        centre, reach = np.array([w - 1, h - 1]) / 2.0, MAX_POSITION_SIDES * max(h, w)
+        ti, d = config.n_kernels * config.n_dims, config.n_dims
+        where_xy = (
+            ("trajectories", self.trajectories[:, :, :2]),
+            ("params", self.params[:, ti + 1 : ti + 1 + 2 * d].reshape(-1, 2, d)[:, :, :2]),
+        )
+        for name, xy in where_xy:  # [M, n, 2]
+            far = np.abs(xy - centre).max(axis=(1, 2)) > reach  # [M]
+            if far.any():
+                row = _first_row(far)
+                value = xy[row].reshape(-1)[np.abs(xy[row] - centre).argmax()].item()
+                what = "a path" if name == "trajectories" else "a goal or start"
+                raise DatasetError(
+                    f"{where}: field {name!r} row {row} holds {what} position {value:g} px, "
+                    f"more than {MAX_POSITION_SIDES} sides of the {w} x {h} image from it"
+                )
+
     def _validate_spans(self, where: str) -> None:
         """The metadata's ``stroke_spans``: one entry per row, increasing spans within the
         time grid, and with a pen channel the pen down at exactly their instants."""
@@ -469,6 +494,8 @@ class DigitData:
                 f"{where}: field 'trajectories' has d={self.trajectories.shape[2]}, "
                 f"dmp_config expects n_dims={config.n_dims}"
             )
+        if self.labels.shape[0]:
+            self._validate_positions(where, config)
         size = self.meta.get("image_size")
         if size is not None and size != list(self.images.shape[1:]):
             raise DatasetError(

@@ -240,6 +240,8 @@ class TrainingData:
             self.dmp_config = layout.config
             self.normaliser = normaliser or stroke_normaliser(a, train_idx, layout)
         else:
+            for rows in (train_idx, val_idx):  # every row a DMP (tau > 0), named if not
+                a.dmp_params(rows)
             self.normaliser = normaliser or ParamNormaliser.fit(
                 a.params[train_idx], self.dmp_config, cfg.cost.parameter_units
             )
