@@ -360,6 +360,13 @@ def test_an_old_predict_record_is_converted(tmp_path, scaling):
     path.write_text(json.dumps(rec))
     with pytest.raises(ValueError, match="field 'trajectory' cannot be reproduced"):
         load_dmp_json(path, image_size=(40, 40))
+    rec["trajectory"]["t"][7] = rec["trajectory"]["t"][6]  # a time stamp repeated
+    path.write_text(json.dumps(rec))
+    with pytest.raises(ValueError) as e:
+        load_dmp_json(path, image_size=(40, 40))
+    t6 = rec["trajectory"]["t"][6]
+    assert str(e.value) == (f"{path}: field 'trajectory.t' must increase strictly, but "
+                            f"t[7] = {t6!r} follows t[6] = {t6!r}")  # fmt: skip
 
 
 def test_a_version_1_file_still_reads_and_the_cli_asks_for_an_old_records_size(tmp_path, capsys):

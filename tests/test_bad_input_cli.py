@@ -789,3 +789,41 @@ def test_write_errors_are_one_line_even_when_pybullet_loads(tmp_path):
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == [r.stderr.strip()], r.stderr
     assert "bad.json" in r.stderr and r.stdout == ""
+
+
+def test_generate_refuses_what_it_could_not_finish_before_drawing_a_sample(
+    tmp_path, capsys, monkeypatch
+):
+    """A data set too large to hold, or a file whose folder is missing: one line, before
+    any sample is drawn (100 million per digit once filled 15 GB of memory in 30 s)."""
+    import img2dmp.data.synthetic as synthetic
+
+    def never(*a, **k):
+        raise AssertionError("a sample was drawn")
+
+    monkeypatch.setattr(synthetic, "_generate_chunks", never)
+    argv = ["generate", "--out", str(tmp_path / "g.safetensors"), "--no-progress"]
+    assert cli.main([*argv, "--per-digit", "100000000"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "samples_per_digit (--per-digit) 100000000: 1,000,000,000 samples of 40 x 40" in err
+    assert "at most" in err and len(err.splitlines()) == 1, err
+    missing = tmp_path / "nodir" / "x.safetensors"
+    assert cli.main(["generate", "--out", str(missing), "--per-digit", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith(f"--out {missing}: directory '{missing.parent}' does not exist"), err
+    with pytest.raises(ValueError, match="at most 41,9"):  # the library says the same
+        generate_dataset(10**6, SyntheticConfig(), progress=False)
+
+
+@pytest.mark.parametrize(("given", "what"), [("J/", "'J/', a directory"), ("", "an empty name")])
+def test_export_joints_needs_a_file_name(tmp_path, dmp_file, capsys, monkeypatch, given, what):
+    """``--export-joints DIR/`` wrote the hidden files DIR/.csv and DIR/.json, and an empty
+    name was ignored: both are one line, before the arm moves."""
+    pytest.importorskip("pybullet")
+    monkeypatch.chdir(tmp_path)
+    argv = ["write", "--dmp", str(dmp_file), "--out-dir", "W", "--export-joints", given]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith(f"--export-joints needs a file name (FILE: FILE.csv and FILE.json are "
+                        f"written), got {what}"), err  # fmt: skip
+    assert not (tmp_path / "W").exists()

@@ -262,6 +262,8 @@ def _dmp_file(tmp_path):
         (["--shift", "1,2,3"], "argument --shift: must be two numbers X,Y, got '1,2,3'"),
         (["--scale", "0"], "argument --scale: must be a finite number > 0, got 0"),
         (["--scale", "inf"], "argument --scale: must be a finite number > 0, got inf"),
+        (["--scale", "1e300"], "scale must be from 1e-06 to 1e+06, got 1e+300"),
+        (["--tempo", "1e-9"], "tempo must be from 1e-06 to 1e+06, got 1e-09"),
         (["--tempo", "-2"], "argument --tempo: must be a finite number > 0, got -2"),
         (["--tempo", "nan"], "argument --tempo: must be a finite number > 0, got nan"),
         (["--rotate=-inf"], "argument --rotate: must be a finite number, got -inf"),

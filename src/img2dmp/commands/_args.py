@@ -401,6 +401,14 @@ def check_output_dir(path, what: str = "output directory") -> None:
         raise NotADirectoryError(f"{what} {p} cannot be made: {there} is a file")
 
 
+def check_file_dir(path, what: str = "--out") -> None:
+    """The folder a data-set file goes into exists (:func:`img2dmp.data.store.save_dataset`
+    makes none), said before the data are made rather than after."""
+    parent = Path(path).parent
+    if not parent.is_dir():
+        raise FileNotFoundError(f"{what} {path}: directory {str(parent)!r} does not exist")
+
+
 def check_outputs(outputs: Iterable, force: bool, inputs: Iterable = ()) -> None:
     """The overwrite rule, checked before any work starts.
 
@@ -567,6 +575,7 @@ __all__ = [
     "add_config",
     "add_device",
     "check_device",
+    "check_file_dir",
     "add_force",
     "check_images",
     "check_inputs",

@@ -111,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
 
     config = synthetic_config(args)
     _args.check_outputs([(args.out, None)], args.force, _args.config_inputs(args))
+    _args.check_file_dir(args.out)
     data = generate_dataset(
         args.per_digit,
         config,

@@ -284,10 +284,23 @@ def _name(path) -> str:
     return os.path.splitext(os.path.basename(path))[0]
 
 
+def _check_export_joints(given) -> None:
+    """``--export-joints FILE`` names a file to write beside others (FILE.csv, FILE.json):
+    not nothing, not a directory (``DIR/`` wrote the hidden ``DIR/.csv``)."""
+    if given is None:
+        return
+    base = os.path.splitext(given)[0] if given.lower().endswith((".csv", ".json")) else given
+    if not os.path.basename(base) or os.path.isdir(given):
+        what = "an empty name" if not given else f"{given!r}, a directory"
+        raise ValueError(f"--export-joints needs a file name (FILE: FILE.csv and FILE.json "
+                         f"are written), got {what}")  # fmt: skip
+
+
 def check_files(args) -> None:
     """The inputs (there, readable, images that open) and the outputs (the overwrite rule,
     one name per input), before anything is loaded or simulated."""
     _default_model(args)
+    _check_export_joints(args.export_joints)
     if args.page:
         _check_page_files(args)
         return

@@ -481,6 +481,10 @@ def _old_trajectory(path: str, where: str, raw, d: int) -> tuple[np.ndarray, np.
         raise _bad(
             path, where, f"must hold t [T] and y [T, {d}], got {list(t.shape)} and {list(y.shape)}"
         )
+    if len(t) > 1 and not (np.diff(t) > 0).all():
+        i = int(np.argmax(~(np.diff(t) > 0)))
+        raise _bad(path, f"{where}.t", f"must increase strictly, but t[{i + 1}] = "
+                   f"{float(t[i + 1])!r} follows t[{i}] = {float(t[i])!r}")  # fmt: skip
     return t, y
 
 

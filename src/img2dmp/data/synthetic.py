@@ -166,6 +166,10 @@ _ARC_POINTS_PER_TURN = 64
 # Generation happens in chunks with their own seeds, so results do not depend on the
 # progress bar or the machine; changing this changes every data set.
 CHUNK = 1000
+#: Largest generated data set, bytes of its arrays (images, paths, times, parameters): a
+#: 40 x 40 set of this size is 420,000 samples; its arrays are held in memory and copied
+#: once more when saved.
+MAX_DATASET_BYTES = 4 * 2**30
 
 
 # ---------------------------------------------------------------------------------------
@@ -632,6 +636,23 @@ def _split_counts(n: int, fractions) -> list[int]:
     return counts
 
 
+def check_dataset_size(samples_per_digit: int, config: SyntheticConfig,
+                       dmp_config: DMPConfig) -> None:  # fmt: skip
+    """``ValueError`` naming ``samples_per_digit`` (``--per-digit``) for a data set whose
+    arrays would take more than :data:`MAX_DATASET_BYTES`, before any sample is drawn."""
+    h, w = config.image_size
+    n = samples_per_digit * len(config.digits)
+    per_sample = 4 * (h * w + config.n_times * (dmp_config.n_dims + 1) + dmp_config.n_params)
+    if n * per_sample > MAX_DATASET_BYTES:
+        most = MAX_DATASET_BYTES // (per_sample * len(config.digits))
+        raise ValueError(
+            f"samples_per_digit (--per-digit) {samples_per_digit}: {n:,} samples of "
+            f"{h} x {w} pixels would take {n * per_sample / 2**30:,.1f} GiB, over the "
+            f"{MAX_DATASET_BYTES / 2**30:g} GiB a generated data set may; at most {most:,} "
+            f"per digit here"
+        )
+
+
 def generate_dataset(
     samples_per_digit: int,
     config: SyntheticConfig | None = None,
@@ -665,6 +686,7 @@ def generate_dataset(
     dmp_config = dmp_config or DMPConfig()
     if not isinstance(samples_per_digit, (int, np.integer)) or samples_per_digit < 1:
         raise ValueError(f"samples_per_digit must be an integer >= 1, got {samples_per_digit!r}")
+    check_dataset_size(int(samples_per_digit), config, dmp_config)
     if not isinstance(workers, (int, np.integer)) or workers < 1:
         raise ValueError(f"workers must be an integer >= 1, got {workers!r}")
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:

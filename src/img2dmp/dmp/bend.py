@@ -45,6 +45,9 @@ from .affine import affine_dmp
 from .config import DMPConfig
 from .params import DMPParams, first_index, strict_numbers
 
+#: Largest scale or tempo factor (and the inverse of the smallest).
+MAX_FACTOR = 1e6
+
 
 def bend_dmp(
     params: DMPParams,
@@ -152,12 +155,20 @@ def _per_dmp(name: str, value, batch: tuple) -> np.ndarray:
 
 
 def _factor(name: str, value, batch: tuple) -> np.ndarray:
-    """:func:`_per_dmp`, each > 0 (the first that is not is named)."""
+    """:func:`_per_dmp`, each > 0 and within a factor :data:`MAX_FACTOR` of 1 (the first
+    that is not is named: a scale of 1e300 overflowed the DMP into a singular matrix)."""
     v = _per_dmp(name, value, batch)
     bad = ~(v > 0)
     if bad.any():
         idx = first_index(bad)
         check_positive(name + (f" at index {list(idx)}" if idx else ""), float(v[idx]))
+    far = (v > MAX_FACTOR) | (v < 1.0 / MAX_FACTOR)
+    if far.any():
+        idx = first_index(far)
+        where = f"{name} at index {list(idx)}" if idx else name
+        raise ValueError(
+            f"{where} must be from {1 / MAX_FACTOR:g} to {MAX_FACTOR:g}, got {float(v[idx])!r}"
+        )
     return v
 
 
