@@ -31,6 +31,7 @@ from img2dmp.data.importer import (
 )
 from img2dmp.data.store import DatasetError, DigitData, load_dataset, save_dataset
 from img2dmp.metrics import on_ink_share
+from img2dmp.predict import load_model
 
 CLASSES = ("L", "O", "T", "V")  # sorted: the labels' order
 SIZES = [(96, 80), (150, 150), (64, 120), (200, 160)]  # (W, H) of the images
@@ -462,6 +463,10 @@ def test_import_train_evaluate_predict_on_the_command_line(letters, tmp_path, ca
     assert cli.main([*preview, "--classes", "T", "L"]) == 0 and grid.is_file()
     assert cli.main([*preview, "--force", "--digits", "2"]) == 2  # no class is named 2
     assert "has no class named '2'" in capsys.readouterr().err
+    model = load_model(run)  # it learnt letters: a V is not cut at its waist into two
+    assert model.class_names == CLASSES and model.reads_letters
+    for name in ("V", "O"):  # both are two characters by the rules for digits
+        assert "several_characters" not in model.predict(letters / name / "001.png").flags
     image = letters / "T" / "001.png"  # any image, of any size
     pred = tmp_path / "pred"
     assert cli.main(["predict", "--model", str(run), str(image), "--out", str(pred)]) == 0

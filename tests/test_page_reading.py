@@ -99,6 +99,7 @@ def test_an_empty_page_has_no_characters_and_says_so(tmp_path, run):
 
 def test_a_single_prediction_of_several_characters_is_flagged(tmp_path, run):
     _photo(tmp_path / "p.png")
+    assert not load_model(run).reads_letters  # a digit model: digits' rules
     pred = load_model(run).predict(tmp_path / "p.png")
     assert "several_characters" in pred.flags
     doc = pred.to_document()

@@ -407,7 +407,7 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
     from .predict import MAX_POINTS, check_count
 
     n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
-    letters = predictor.strokes is not None
+    letters = predictor.reads_letters
     seg = segment_page(image, name=name, cut=not letters or STROKE_PAGE_CUT,
                        join_sides=letters and STROKE_PAGE_JOIN)  # fmt: skip
     levels, reduction, size, label, found = seg.levels, seg.reduction, seg.size, seg.label, seg.ink

@@ -78,6 +78,7 @@ from .data.images import (  # noqa: F401  (re-exported: their home was this modu
     stroke_width,
     typical_stroke_width,
 )
+from .data.store import DIGIT_NAMES
 from .dmp import DMPConfig, DMPParams
 from .dmp._numpy_rollout import rollout_numpy
 from .dmp.affine import affine_dmp
@@ -477,6 +478,24 @@ class Predictor:
         return float(self.meta.get("ink_margin", DEFAULT_MARGIN))
 
     @property
+    def class_names(self) -> tuple[str, ...] | None:
+        """The names of the classes the model learnt, as its training data named them
+        (None: digits 0-9, or a checkpoint trained before runs recorded them)."""
+        names = (self.meta.get("dataset") or {}).get("class_names")
+        return tuple(str(n) for n in names) if isinstance(names, list) and names else None
+
+    @property
+    def reads_letters(self) -> bool:
+        """Whether the model reads characters other than digits (a stroke model, or one
+        trained on other classes): a mark is then not cut at its waists into two
+        characters, and pieces side by side are joined (:func:`count_characters`,
+        :func:`img2dmp.page.read_page`), as letters such as n, m and W need."""
+        names = self.class_names
+        return self.strokes is not None or (
+            names is not None and not set(names) <= set(DIGIT_NAMES)
+        )
+
+    @property
     def stroke_width(self) -> float | None:
         """Typical pen width of the training images in pixels (None: not recorded)."""
         w = self.meta.get("stroke_width_px")
@@ -847,7 +866,7 @@ class Predictor:
                 source=str(image) if isinstance(image, (str, os.PathLike)) else None,
                 refine_steps=int(steps[0]), user_image=image,
                 stroke_width_px=self.stroke_width,
-                n_characters=count_characters(mask, letters=True),
+                n_characters=count_characters(mask, letters=self.reads_letters),
                 n_per_stroke=n_points, count_views=self.count_views,
                 count_probabilities=counts,
                 familiarity=None if familiarity is None else familiarity[0],
@@ -869,7 +888,7 @@ class Predictor:
             refine_steps=steps,
             user_image=image,
             stroke_width_px=self.stroke_width,
-            n_characters=count_characters(mask),
+            n_characters=count_characters(mask, letters=self.reads_letters),
             familiarity=None if familiarity is None else familiarity[0],
             familiar_line=None if self.familiar is None else self.familiar.line,
         )

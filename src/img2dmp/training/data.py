@@ -196,6 +196,8 @@ class TrainingData:
     val : Split
     dataset_sha256 : str or None
         Of the data-set file (stored mode).
+    class_names : tuple of str or None
+        The data set's class names (None: the digits 0-9, as the generator's).
     rows : (train_idx, val_idx) or None
         The data-set file's rows trained and validated on (stored mode; None for the
         generator).
@@ -207,6 +209,7 @@ class TrainingData:
     def __init__(self, cfg: TrainConfig, normaliser: ParamNormaliser | None = None):
         self.cfg = cfg
         self.dataset_sha256 = None
+        self.class_names: tuple[str, ...] | None = None
         self.rows: tuple[np.ndarray, np.ndarray] | None = None
         self._train: Split | None = None
         self._first: DigitData | None = None
@@ -230,6 +233,7 @@ class TrainingData:
         self.dmp_config = a.dmp_config
         self.image_size = list(a.images.shape[1:])
         self.dataset_sha256 = file_digest(cfg.data.path)
+        self.class_names = a.class_names
         train_idx, val_idx = _split_indices(a, cfg)
         self.rows = (train_idx, val_idx)
         self.fit_arrays = (a.params[train_idx], a.times[train_idx])

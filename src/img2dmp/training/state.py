@@ -100,7 +100,11 @@ def checkpoint_meta(cfg: TrainConfig, data: TrainingData, state: RunState, weigh
         "dmp_config": data.dmp_config.to_dict(),
         "strokes": layout.to_dict() if (layout := cfg.strokes.layout()) else None,
         "train_config": cfg.to_dict(),
-        "dataset": {"path": cfg.data.path, "sha256": data.dataset_sha256},
+        "dataset": {
+            "path": cfg.data.path,
+            "sha256": data.dataset_sha256,
+            "class_names": list(data.class_names) if data.class_names else None,
+        },
         "image_size": list(cfg.model.image_size),
         "ink_margin": data.ink_margin,
         "stroke_width_px": data.stroke_width_px,
