@@ -48,6 +48,11 @@ OUTSIDE_TOLERANCE = 0.1
 MNIST_SIZE = 28
 #: How images of a fixed frame reach another size (:func:`frame_fixed`).
 RESIZE_MODES = ("scale", "pad")
+#: Shortest and longest ``duration_s``: a path of less than a millisecond is no pen's
+#: (its DMP's speeds grow as 1 / duration, its stored float32 instants toward their
+#: smallest steps), and no DMP file holds a tau beyond 1e6 s.
+MIN_DURATION_S = 1e-3
+MAX_DURATION_S = 1e6
 _FIT_CHUNK = 2048
 _WARP_CHUNK = 4096  # bounds the memory of the warp
 
@@ -106,7 +111,7 @@ class BuildOptions:
         check_int("seed", self.seed, 0, 2**63 - 1)
         check_number("ridge", self.ridge, 0.0, 1.0)
         if self.duration_s is not None:
-            check_number("duration_s", self.duration_s, 0.0, 1e6, open_low=True)
+            _check_duration(self.duration_s)
         if self.n_dims not in (None, 2, 3):
             raise ValueError(f"n_dims must be 2 (x, y), 3 (x, y, pen) or None, got {self.n_dims!r}")
         if self.scaling not in (None, "goal-start", "none"):
@@ -129,6 +134,18 @@ class BuildOptions:
         d = asdict(self)
         d["affine"] = self.affine.to_dict()
         return d
+
+
+def _check_duration(value) -> None:
+    """``duration_s`` (``--duration``) a number of seconds in ``[MIN_DURATION_S,
+    MAX_DURATION_S]``, else ``ValueError`` saying why."""
+    check_number("duration_s", value, 0.0, MAX_DURATION_S, open_low=True)
+    if value < MIN_DURATION_S:
+        raise ValueError(
+            f"duration_s (--duration) must be at least {MIN_DURATION_S:g} s, got {value!r}: "
+            "every path is rescaled to last that long, and a path of less than a "
+            "millisecond is no pen's (its DMP's speeds would grow as 1 / duration)"
+        )
 
 
 def check_int(name: str, value, lo: int, hi: int) -> None:

@@ -53,6 +53,9 @@ FRAME_OFFSET_PX = -0.5
 FRAME_SIZE_PX = 28
 #: Points may lie outside the image, but not further than this from its border.
 _MARGIN_PX = 14.0
+#: Largest time stamp (ms): beyond it a time stamp is no time of a pen path, and the
+#: arithmetic on it would overflow.
+MAX_TIME_STAMP_MS = 1e15
 _NAME_RE = re.compile(r"(?:^|/)image_(\d+)\.json$")
 _KEYS = ("Image number", "Image shape", "Path")
 
@@ -206,9 +209,9 @@ def parse_recorded(data: bytes | str | dict, name: str) -> RecordedPath:
         raise ValueError(f"{name}: missing key(s) {missing}; expected {list(_KEYS)}")
     n, label = doc["Image number"], doc["Image shape"]
     if not isinstance(n, int) or isinstance(n, bool) or n < 0:
-        raise ValueError(f'{name}: "Image number" must be an integer >= 0, got {n!r}')
+        raise ValueError(f'{name}: "Image number" must be an integer >= 0, got {show(n)}')
     if not isinstance(label, int) or isinstance(label, bool) or not 0 <= label <= 9:
-        raise ValueError(f'{name}: "Image shape" (the label) must be 0-9, got {label!r}')
+        raise ValueError(f'{name}: "Image shape" (the label) must be 0-9, got {show(label)}')
     m = _NAME_RE.search(name)
     if m and int(m.group(1)) != n:
         raise ValueError(f'{name}: file name says image {m.group(1)}, "Image number" says {n}')
@@ -224,6 +227,13 @@ def parse_recorded(data: bytes | str | dict, name: str) -> RecordedPath:
         raise ValueError(
             f'{name}: "Path" point {k} = {arr[k, :2].tolist()} lies outside the '
             f"{h} x {w} frame by more than {margin:g} px"
+        )
+    far = np.abs(arr[:, 2]) > MAX_TIME_STAMP_MS
+    if far.any():
+        k = int(np.argmax(far))
+        raise ValueError(
+            f'{name}: "Path" point {k} has the time stamp {float(arr[k, 2])!r} ms, beyond the '
+            f"{MAX_TIME_STAMP_MS:g} ms from 0 a time stamp may be"
         )
     t_ms = arr[:, 2] - arr[0, 2]  # [T]; "ms from the first point"
     t_ms, repairs = _repair_times(t_ms, name)
@@ -246,8 +256,31 @@ def _frame_size(doc: dict, name: str) -> tuple[int, int]:
         or len(size) != 2
         or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in size)
     ):
-        raise ValueError(f'{name}: "Image size" must be [height, width] in pixels, got {size!r}')
+        raise ValueError(
+            f'{name}: "Image size" must be [height, width] in pixels, got {show(size)}'
+        )
     return size[0], size[1]
+
+
+def check_recorded_path(path: str | os.PathLike) -> None:
+    """``FileNotFoundError`` if ``path`` does not exist, ``ValueError`` if it is a file but
+    no tar archive (:func:`load_recorded` reads the archive or a folder); quick, so a
+    caller checks it before slower work."""
+    path = Path(path)
+    if path.is_dir():
+        return
+    if not path.is_file():
+        raise FileNotFoundError(f"no recorded-path archive or folder at {path}")
+    try:
+        is_tar = tarfile.is_tarfile(path)
+    except (OSError, EOFError, ValueError):
+        is_tar = False
+    if not is_tar:
+        what = "is one recording" if path.suffix.lower() == ".json" else "is no tar archive"
+        raise ValueError(
+            f"{path}: {what}; --recorded (recorded_path) wants the recorded paths' archive "
+            "trajectories.tar.gz or a folder of their image_<n>.json files (docs/MNIST.md)"
+        )
 
 
 def _iter_sources(path: Path):
@@ -257,8 +290,7 @@ def _iter_sources(path: Path):
         for p in sorted(root.glob("image_*.json")):
             yield str(p), p.read_bytes()
         return
-    if not path.is_file():
-        raise FileNotFoundError(f"no recorded-path archive or folder at {path}")
+    check_recorded_path(path)
     try:
         tar = tarfile.open(path, "r:*")
     except (tarfile.TarError, OSError, EOFError) as e:

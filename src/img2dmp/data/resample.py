@@ -207,7 +207,8 @@ def resample_strokes(pen: PenPath, n_times: int) -> Resampled:
             k += 1
         first += int(c)
     times = np.concatenate(grid)  # [n]
-    if not (np.diff(times.astype(np.float32)) > 0).all():
+    # As stored: float32 seconds since the first point (not the time stamps as given).
+    if not (np.diff((times - t[0]).astype(np.float32)) > 0).all():
         raise ValueError(
             f"{pen.name}: two of its instants lie closer than a float32 time stamp can tell "
             f"apart ({times[-1] - t[0]:.6g} s long); give the path fewer instants (--n-times)"

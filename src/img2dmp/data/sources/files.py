@@ -15,6 +15,7 @@ import csv
 from dataclasses import dataclass
 from pathlib import Path
 
+from ...errors import show
 from ..build import BuildOptions, check_number
 from ..images import DEFAULT_MARGIN
 from ..resample import RESAMPLING
@@ -91,12 +92,17 @@ class ImportOptions(BuildOptions):
             check_number("stroke_width_px", self.stroke_width_px, 0.0, widest, open_low=True)
         if self.split_by not in (None, *OMNIGLOT_SPLIT_BY):
             raise ValueError(
-                f"split_by must be one of {list(OMNIGLOT_SPLIT_BY)} or None, got {self.split_by!r}"
+                f"split_by must be one of {list(OMNIGLOT_SPLIT_BY)} or None, "
+                f"got {show(self.split_by)}"
             )
         if self.resample not in RESAMPLING:
-            raise ValueError(f"resample must be one of {list(RESAMPLING)}, got {self.resample!r}")
+            raise ValueError(
+                f"resample must be one of {list(RESAMPLING)}, got {show(self.resample)}"
+            )
         if self.time_unit not in TIME_UNITS:
-            raise ValueError(f"time_unit must be one of {list(TIME_UNITS)}, got {self.time_unit!r}")
+            raise ValueError(
+                f"time_unit must be one of {list(TIME_UNITS)}, got {show(self.time_unit)}"
+            )
         if self.classes is not None:
             self.classes = tuple(self.classes)
             _check_class_list(self.classes)
@@ -111,10 +117,10 @@ def check_class_name(name, where: str) -> str:
     """``name`` if it can name a class (non-empty printable text of at most
     ``MAX_CLASS_NAME_CHARS`` characters, no surrounding spaces), else ``ValueError``."""
     if not isinstance(name, str):
-        raise ValueError(f"{where}: class {name!r} must be text")
+        raise ValueError(f"{where}: class {show(name)} must be text")
     if not name or name != name.strip() or not name.isprintable():
         raise ValueError(
-            f"{where}: class {name!r} is no class name (non-empty printable text without "
+            f"{where}: class {show(name)} is no class name (non-empty printable text without "
             "surrounding spaces)"
         )
     if len(name) > MAX_CLASS_NAME_CHARS:
@@ -285,8 +291,8 @@ def manifest_samples(path: Path) -> tuple[list[SampleSource], list[Exception]]:
     missing = [c for c in MANIFEST_COLUMNS[:3] if c not in columns]
     if unknown or missing or len(set(columns)) != len(columns):
         raise ValueError(
-            f"{path}: has the columns {list(columns)}; expected image, trajectory, class and "
-            "optionally split"
+            f"{path}: has the columns {show(list(columns))}; expected image, trajectory, class "
+            "and optionally split"
         )
     if not rows:
         raise ValueError(f"{path}: lists no samples")
@@ -309,13 +315,19 @@ def _manifest_sample(base: Path, row: dict, where: str) -> SampleSource:
     for key in ("image", "trajectory", "class"):
         if key not in row or not isinstance(row[key], str) or not row[key].strip():
             raise ValueError(
-                f"{where}: field {key!r} is {row.get(key)!r}; it must be non-empty text"
+                f"{where}: field {key!r} is {show(row.get(key))}; it must be non-empty text"
+            )
+    for key in ("image", "trajectory"):
+        if "\0" in row[key]:
+            raise ValueError(
+                f"{where}: field {key!r} is {show(row[key].strip())}, which holds a NUL byte "
+                "(\\x00); no file name holds one"
             )
     split = row.get("split")
     if split in ("", None):
         split = None
     elif not isinstance(split, str) or split not in SPLITS:
-        raise ValueError(f"{where}: field 'split' is {split!r}; expected one of {list(SPLITS)}")
+        raise ValueError(f"{where}: field 'split' is {show(split)}; expected one of {list(SPLITS)}")
     name = check_class_name(row["class"].strip(), where)
     return SampleSource(
         image=base / row["image"].strip(),

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ...errors import show
 from ..build import MNIST_SIZE, RESIZE_MODES, BuildOptions
 from ..mnist import load_mnist
 from ..recorded import FRAME_OFFSET_PX as RECORDED_OFFSET_PX
@@ -78,7 +79,7 @@ class PrepareOptions(BuildOptions):
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
-            raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
+            raise ValueError(f"source must be one of {SOURCES}, got {show(self.source)}")
         self.digits = tuple(sorted({int(d) for d in self.digits}))
         if not self.digits or min(self.digits) < 0 or max(self.digits) > 9:
             raise ValueError(f"digits must be a non-empty set of 0-9, got {self.digits!r}")
@@ -88,21 +89,25 @@ class PrepareOptions(BuildOptions):
             self.scaling = "goal-start" if self.n_dims == 2 else "none"
         super().__post_init__()
         if self.resize_mode not in RESIZE_MODES:
-            raise ValueError(f"resize_mode must be one of {RESIZE_MODES}, got {self.resize_mode!r}")
+            raise ValueError(
+                f"resize_mode must be one of {RESIZE_MODES}, got {show(self.resize_mode)}"
+            )
         if self.resize_mode == "pad" and self.image_size < MNIST_SIZE:
             raise ValueError(f"resize_mode='pad' needs image_size >= {MNIST_SIZE}")
         if isinstance(self.paper, bool) or not (
             isinstance(self.paper, (int, float)) and 0.0 <= self.paper <= 1.0
         ):
-            raise ValueError(f"paper must be a share in [0, 1], got {self.paper!r}")
+            raise ValueError(f"paper must be a share in [0, 1], got {show(self.paper)}")
         if self.paper and not self.augment:
             raise ValueError("paper puts augmented copies on paper: it needs augment >= 1")
         if self.mnist_split not in ("train", "test", "both"):
-            raise ValueError(f"mnist_split must be train, test or both, got {self.mnist_split!r}")
+            raise ValueError(
+                f"mnist_split must be train, test or both, got {show(self.mnist_split)}"
+            )
         if self.source == "recorded" and self.mnist_split != "train":
             raise ValueError("recorded paths exist for MNIST training images only (mnist_split)")
         if self.limit_per_digit is not None and self.limit_per_digit < 1:
-            raise ValueError(f"limit_per_digit must be >= 1, got {self.limit_per_digit!r}")
+            raise ValueError(f"limit_per_digit must be >= 1, got {show(self.limit_per_digit)}")
 
     def to_dict(self) -> dict:
         d = super().to_dict()
@@ -157,6 +162,12 @@ def locations(data_dir, mnist_dir=None, recorded_path=None, strokes_dir=None):
     ``data_dir`` (``mnist``, ``ijs-mnist-trajectories/trajectories.tar.gz``,
     ``mnist-stroke-sequences``)."""
     data_dir = Path(data_dir)
+    if data_dir.exists() and not data_dir.is_dir():
+        raise NotADirectoryError(
+            f"{data_dir}: --data (data_dir) must be the root folder of the real data, holding "
+            "mnist/, ijs-mnist-trajectories/ and mnist-stroke-sequences/ (like ../shared/data), "
+            "not a file"
+        )
     return (
         Path(mnist_dir) if mnist_dir else data_dir / "mnist",
         (

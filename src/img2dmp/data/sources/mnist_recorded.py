@@ -14,7 +14,13 @@ from pathlib import Path
 import numpy as np
 
 from ..mnist import load_mnist
-from ..recorded import FRAME_OFFSET_PX, load_recorded, resample_path, split_of_index
+from ..recorded import (
+    FRAME_OFFSET_PX,
+    check_recorded_path,
+    load_recorded,
+    resample_path,
+    split_of_index,
+)
 from .mnist import MnistSamples, PrepareOptions, limit_per_label
 
 
@@ -23,6 +29,7 @@ def read_recorded(
 ) -> MnistSamples:
     """The recorded paths of ``opt.digits`` (at most ``opt.limit_per_digit`` each) with
     their MNIST training images, resampled to ``opt.n_times`` even instants."""
+    check_recorded_path(recorded)  # before MNIST is read
     images, labels = load_mnist(mnist_dir, "train")
     recs = load_recorded(recorded, digits=opt.digits, progress=progress)
     if not recs:

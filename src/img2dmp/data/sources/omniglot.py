@@ -73,11 +73,13 @@ from pathlib import Path
 
 import numpy as np
 
+from ...errors import show
 from ...metrics import bilinear
 from ..images import ImageFrame
 from ..resample import PenPath
 from .files import IMAGE_SUFFIXES, OMNIGLOT_SPLIT_BY, SampleSource, check_class_name
-from .trajectory import MAX_POINTS, MAX_TRAJECTORY_BYTES
+from .recordings import recordings_in
+from .trajectory import MAX_PATH_DURATION_S, MAX_POINTS, MAX_TRAJECTORY_BYTES
 
 #: The source format of the samples listed here (:attr:`SampleSource.format`).
 FORMAT = "omniglot"
@@ -177,10 +179,15 @@ def _point(name: str, line: str, number: int) -> tuple[float, float, float]:
             v = float(text)
         except ValueError:
             raise ValueError(
-                f"{name}: line {number}: field {key!r} is {text.strip()!r}, not a number"
+                f"{name}: line {number}: field {key!r} is {show(text.strip())}, not a number"
             ) from None
         if not np.isfinite(v):
             raise ValueError(f"{name}: line {number}: field {key!r} is {v!r}, not finite")
+        if key == "t" and abs(v) > MAX_PATH_DURATION_S * 1e3:
+            raise ValueError(
+                f"{name}: line {number}: field 't' is {v!r} ms, beyond the "
+                f"{MAX_PATH_DURATION_S:g} s since the drawing began that a pen path may last"
+            )
         values.append(v)
     return values[0], values[1], values[2]
 
@@ -399,6 +406,14 @@ def omniglot_trees(source: Path, images=None) -> list[tuple[Path, Path]] | None:
     without their images."""
     source = Path(source)
     name = tree_name(source)
+    if name.startswith("strokes_") and source.is_dir() and _flat(source):
+        if recordings_in(source):
+            return None  # named like Omniglot's strokes, but a folder of recordings
+        raise ValueError(
+            f"{source}: a folder named strokes_* is read as Omniglot's strokes "
+            f"({source}/ALPHABET/CHARACTER/NNNN_NN.txt), but it holds no folders; a folder "
+            "of class folders, or of recordings (image_<n>.json), may not be named strokes_*"
+        )
     if name.startswith("strokes_") and (source.is_dir() or source.suffix.lower() == ".zip"):
         image_name = "images_" + name[len("strokes_") :]
         found = Path(images) if images is not None else _tree_beside(source.parent, image_name)
@@ -431,6 +446,11 @@ def omniglot_trees(source: Path, images=None) -> list[tuple[Path, Path]] | None:
             )
         pairs.append((_tree_beside(source, n), found))
     return pairs
+
+
+def _flat(folder: Path) -> bool:
+    """Whether a folder holds no folders (but ``.``-hidden ones): no Omniglot tree."""
+    return not any(p.is_dir() and not p.name.startswith(".") for p in folder.iterdir())
 
 
 def _hidden(parts) -> bool:
@@ -542,7 +562,7 @@ def find_omniglot(
     that make no drawing (a stroke file without its image, a stray file ...)."""
     split_by = split_by or SPLIT_BY[0]
     if split_by not in SPLIT_BY:
-        raise ValueError(f"split_by must be one of {list(SPLIT_BY)}, got {split_by!r}")
+        raise ValueError(f"split_by must be one of {list(SPLIT_BY)}, got {show(split_by)}")
     samples, problems, seen = [], [], {}
     for strokes_tree, images_tree in trees:
         stroke_files, found = tree_files(strokes_tree)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+from ...errors import show
 from .files import SampleSource
 from .trajectory import load_json
 
@@ -48,13 +49,14 @@ def recording_samples(root: Path, files: list[Path], images) -> tuple[list, list
             name, label = doc.get("Image file"), doc.get("Image shape")
             if name is None:
                 raise ValueError(
-                    f'{p}: records MNIST image {doc.get("Image number")!r} (no "Image file"); '
+                    f'{p}: records MNIST image {show(doc.get("Image number"))} (no "Image file"); '
                     f"make a data set of MNIST recordings with img2dmp prepare --recorded {root}"
                 )
-            if not isinstance(name, str) or not name or Path(name).name != name:
-                raise ValueError(f'{p}: "Image file" must be a file name, got {name!r}')
+            ok = isinstance(name, str) and name and "\0" not in name
+            if not ok or Path(name).name != name:
+                raise ValueError(f'{p}: "Image file" must be a file name, got {show(name)}')
             if not isinstance(label, int) or isinstance(label, bool) or not 0 <= label <= 9:
-                raise ValueError(f'{p}: "Image shape" (the digit) must be 0-9, got {label!r}')
+                raise ValueError(f'{p}: "Image shape" (the digit) must be 0-9, got {show(label)}')
             samples.append(SampleSource(images / name, p, str(label)))
         except (ValueError, OSError) as e:
             problems.append(e)

@@ -10,12 +10,14 @@ field or value at fault.
 from __future__ import annotations
 
 import csv
+import math
 import os
 from pathlib import Path
 
 import numpy as np
 
 from ..._files import parse_json
+from ...errors import show
 from ..recorded import parse_recorded
 from ..resample import PenPath
 
@@ -25,6 +27,11 @@ TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 #: Most points of one trajectory file, and most bytes.
 MAX_POINTS = 1_000_000
 MAX_TRAJECTORY_BYTES = 256 << 20
+#: Largest time stamp, in seconds from 0 (a Unix time in seconds is 1.7e9), and longest
+#: path, in seconds (as ``duration_s`` and a DMP file's tau): beyond them a time stamp is
+#: no time of a pen path, and its arithmetic would overflow.
+MAX_TIME_STAMP_S = 1e12
+MAX_PATH_DURATION_S = 1e6
 
 
 def read_trajectory(path: str | os.PathLike, time_unit: str = "s") -> PenPath:
@@ -35,7 +42,7 @@ def read_trajectory(path: str | os.PathLike, time_unit: str = "s") -> PenPath:
     """
     path = Path(path)
     if time_unit not in TIME_UNITS:
-        raise ValueError(f"time_unit must be one of {list(TIME_UNITS)}, got {time_unit!r}")
+        raise ValueError(f"time_unit must be one of {list(TIME_UNITS)}, got {show(time_unit)}")
     if not path.is_file():
         raise FileNotFoundError(f"trajectory file {path} does not exist")
     size = path.stat().st_size
@@ -90,7 +97,7 @@ def _read_csv_trajectory(path: Path):
     header = [c.strip().lower() for c in rows[0]]
     if sorted(header) not in (["t", "x", "y"], ["pen", "t", "x", "y"]):
         raise ValueError(
-            f"{path}: header is {','.join(rows[0])!r}; expected the columns x,y,t or x,y,t,pen"
+            f"{path}: header is {show(','.join(rows[0]))}; expected the columns x,y,t or x,y,t,pen"
         )
     if len(rows) - 1 > MAX_POINTS:
         raise ValueError(f"{path}: has {len(rows) - 1} points, more than {MAX_POINTS}")
@@ -105,7 +112,7 @@ def _read_csv_trajectory(path: Path):
                 values[i, j] = float(text)
             except ValueError:
                 raise ValueError(
-                    f"{path}: line {lines[i + 1]}: field {header[j]!r} is {text.strip()!r}, "
+                    f"{path}: line {lines[i + 1]}: field {header[j]!r} is {show(text.strip())}, "
                     "not a number"
                 ) from None
 
@@ -128,7 +135,7 @@ def _number_list(path: Path, value, field: str) -> np.ndarray:
         raise ValueError(f"{path}: field {field!r} has {len(value)} points, more than {MAX_POINTS}")
     for k, v in enumerate(value):
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ValueError(f"{path}: field {field!r} point {k} is {v!r}, not a number")
+            raise ValueError(f"{path}: field {field!r} point {k} is {show(v)}, not a number")
     return np.asarray(value, dtype=np.float64).reshape(-1)
 
 
@@ -138,8 +145,8 @@ def _xyt_object(path: Path, obj: dict, where: str, pen_allowed: bool) -> dict[st
     missing = [k for k in ("x", "y", "t") if k not in obj]
     if unknown or missing:
         raise ValueError(
-            f"{path}: {where or 'the object'} has keys {sorted(obj)}; expected {', '.join(keys)}"
-            + (" (pen optional)" if pen_allowed else "")
+            f"{path}: {where or 'the object'} has keys {show(sorted(obj))}; expected "
+            f"{', '.join(keys)}" + (" (pen optional)" if pen_allowed else "")
         )
     cols = {k: _number_list(path, obj[k], f"{where}.{k}".lstrip(".")) for k in keys if k in obj}
     sizes = {k: len(v) for k, v in cols.items()}
@@ -159,7 +166,7 @@ def _stroke_columns(path: Path, stroke, k: int) -> dict[str, np.ndarray]:
         )
     for j, p in enumerate(stroke):
         if not isinstance(p, list) or len(p) != 3:
-            raise ValueError(f"{path}: stroke {k} point {j} is {p!r}, expected [x, y, t]")
+            raise ValueError(f"{path}: stroke {k} point {j} is {show(p)}, expected [x, y, t]")
     cols = [
         _number_list(path, [p[i] for p in stroke], f"stroke {k}.{c}") for i, c in enumerate("xyt")
     ]
@@ -174,7 +181,7 @@ def _read_json_trajectory(path: Path):
         return _recording_columns(path, doc)
     if isinstance(doc, dict) and "strokes" in doc:
         if set(doc) != {"strokes"}:
-            raise ValueError(f"{path}: has keys {sorted(doc)}; with 'strokes' no other key")
+            raise ValueError(f"{path}: has keys {show(sorted(doc))}; with 'strokes' no other key")
         doc = doc["strokes"]
     if isinstance(doc, dict):
         return _xyt_object(path, doc, "", pen_allowed=True), _point_k
@@ -212,7 +219,7 @@ def _recording_columns(path: Path, doc: dict):
         ok = ok and all(isinstance(v, int) and not isinstance(v, bool) for v in span)
         if not ok or not last < span[0] < span[1] < n:
             raise ValueError(
-                f'{path}: "Strokes" entry {k} is {span!r}; expected [first, last] point '
+                f'{path}: "Strokes" entry {k} is {show(span)}; expected [first, last] point '
                 f"indices with {last} < first < last < {n}"
             )
         stroke[span[0] : span[1] + 1] = k
@@ -221,19 +228,57 @@ def _recording_columns(path: Path, doc: dict):
     return cols, _point_k, 1.0  # t in seconds whatever --time-unit says
 
 
-def _read_npy_trajectory(path: Path):
+def _npy_header(path: Path, f) -> tuple[tuple, np.dtype]:
+    """The shape and dtype a ``.npy`` file's header declares, checked against the file:
+    a NumPy file, of numbers, holding as many bytes as its shape needs (read before the
+    array is, so a header that claims a huge array is refused without allocating it)."""
+    from numpy.lib import format as npy
+
+    start = f.read(len(npy.MAGIC_PREFIX))
+    if not start:
+        raise ValueError(f"{path}: is empty; expected a NumPy .npy array [T, 3] or [T, 4]")
+    if start != npy.MAGIC_PREFIX:
+        raise ValueError(
+            f"{path}: not a NumPy .npy file (it does not begin with the .npy signature "
+            "\\x93NUMPY); save the array with numpy.save"
+        )
+    f.seek(0)
     try:
-        a = np.load(path, allow_pickle=False)
+        version = npy.read_magic(f)
     except (ValueError, OSError, EOFError) as e:
         raise ValueError(f"{path}: not a readable NumPy .npy array ({e})") from None
-    if not isinstance(a, np.ndarray) or a.dtype.kind not in "iuf":
-        raise ValueError(f"{path}: must hold numbers, got dtype {getattr(a, 'dtype', type(a))}")
-    if a.ndim != 2 or a.shape[1] not in (3, 4):
+    read_header = npy.read_array_header_1_0 if version == (1, 0) else npy.read_array_header_2_0
+    try:
+        shape, _, dtype = read_header(f)
+    except (ValueError, OSError, EOFError, TypeError) as e:
+        raise ValueError(f"{path}: not a readable NumPy .npy array (bad header: {e})") from None
+    if dtype.hasobject or dtype.kind not in "iuf":
+        raise ValueError(f"{path}: must hold numbers, got dtype {dtype}")
+    held = (path.stat().st_size - f.tell()) // dtype.itemsize
+    if math.prod(shape) != held:
+        said = " x ".join(str(n) for n in shape) or "1"
         raise ValueError(
-            f"{path}: has shape {list(a.shape)}; expected [T, 3] (x, y, t) or [T, 4] (x, y, t, pen)"
+            f"{path}: its header says {said} numbers but the file holds {held} (a truncated or "
+            "damaged file)"
         )
-    if len(a) > MAX_POINTS:
-        raise ValueError(f"{path}: has {len(a)} points, more than {MAX_POINTS}")
+    return shape, dtype
+
+
+def _read_npy_trajectory(path: Path):
+    with open(path, "rb") as f:
+        shape, _ = _npy_header(path, f)
+        if len(shape) != 2 or shape[1] not in (3, 4):
+            raise ValueError(
+                f"{path}: has shape {list(shape)}; expected [T, 3] (x, y, t) or [T, 4] "
+                "(x, y, t, pen)"
+            )
+        if shape[0] > MAX_POINTS:
+            raise ValueError(f"{path}: has {shape[0]} points, more than {MAX_POINTS}")
+        f.seek(0)
+        try:
+            a = np.lib.format.read_array(f, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as e:
+            raise ValueError(f"{path}: not a readable NumPy .npy array ({e})") from None
     a = a.astype(np.float64)
     return {name: a[:, j] for j, name in enumerate(("x", "y", "t", "pen")[: a.shape[1]])}, _point_k
 
@@ -251,6 +296,7 @@ def _pen_path(path: Path, cols: dict, point, unit_s: float) -> PenPath:
                 f"{path}: {point(k)}: field {c!r} is {float(cols[c][k])!r}, not a finite number"
             )
     t = cols["t"]
+    _check_time_range(path, t, point, unit_s)
     steps = np.diff(t)
     if (steps <= 0).any():
         k = int(np.argmax(steps <= 0)) + 1
@@ -259,6 +305,7 @@ def _pen_path(path: Path, cols: dict, point, unit_s: float) -> PenPath:
             f"{path}: field 't' does not increase at {point(k)}: {before!r} then {at!r} "
             "(time stamps must be strictly increasing)"
         )
+    _check_duration(path, t, point, unit_s)
     if "stroke" in cols:
         stroke = cols["stroke"].astype(np.int64)
     else:
@@ -272,6 +319,33 @@ def _pen_path(path: Path, cols: dict, point, unit_s: float) -> PenPath:
             )
     xy = np.stack([cols["x"], cols["y"]], axis=-1)
     return PenPath(xy=xy, t_s=t * unit_s, stroke=stroke, name=str(path), point_name=point)
+
+
+def _check_time_range(path: Path, t: np.ndarray, point, unit_s: float) -> None:
+    """``ValueError`` naming the point if a time stamp lies beyond ``MAX_TIME_STAMP_S``
+    from 0 (checked before any arithmetic on the time stamps, which such values would
+    overflow)."""
+    far = np.abs(t) > MAX_TIME_STAMP_S / unit_s
+    if far.any():
+        k = int(np.argmax(far))
+        raise ValueError(
+            f"{path}: {point(k)}: field 't' is {float(t[k])!r} "
+            f"{'s' if unit_s == 1.0 else 'ms'}, beyond the {MAX_TIME_STAMP_S:g} s from 0 "
+            "a time stamp may be"
+        )
+
+
+def _check_duration(path: Path, t: np.ndarray, point, unit_s: float) -> None:
+    """``ValueError`` naming the point if the path (time stamps increasing) lasts longer
+    than ``MAX_PATH_DURATION_S``."""
+    long = t - t[0] > MAX_PATH_DURATION_S / unit_s
+    if long.any():
+        k = int(np.argmax(long))
+        raise ValueError(
+            f"{path}: {point(k)}: field 't' is {float(t[k])!r} {'s' if unit_s == 1.0 else 'ms'}"
+            f", more than {MAX_PATH_DURATION_S:g} s after the first point's {float(t[0])!r}; "
+            "no pen path lasts that long"
+        )
 
 
 def _strokes_of_pen(path: Path, pen: np.ndarray | None, n: int, point) -> np.ndarray:
