@@ -827,3 +827,13 @@ def test_export_joints_needs_a_file_name(tmp_path, dmp_file, capsys, monkeypatch
     assert err.endswith(f"--export-joints needs a file name (FILE: FILE.csv and FILE.json are "
                         f"written), got {what}"), err  # fmt: skip
     assert not (tmp_path / "W").exists()
+
+
+def test_a_nul_byte_in_a_file_name_is_named(capsys):
+    """The system refuses such a name with a bare "embedded null byte"; the commands say
+    which argument and what."""
+    assert cli.main(["predict", "a\x00b.png"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "img2dmp predict: error: image 'a\\x00b.png': the name holds a NUL byte (\\x00)"
+    with pytest.raises(ValueError, match="the name holds a NUL byte"):
+        _files.check_readable("x\x00", "data set")

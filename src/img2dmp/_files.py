@@ -218,6 +218,8 @@ def check_readable(path: str | os.PathLike, what: str = "file") -> Path:
     whose message names ``what``, the file and the reason (no such file, a directory,
     not a regular file, permission denied), before any slow work starts."""
     p = Path(path)
+    if "\0" in str(p):  # the system's calls refuse it with a bare "embedded null byte"
+        raise ValueError(f"{what} {str(p)!r}: the name holds a NUL byte (\\x00)")
     try:
         st = p.stat()
     except FileNotFoundError:
