@@ -596,6 +596,15 @@ def test_a_prediction_record_given_as_a_dmp_file_is_named(tmp_path):
         load_dmp_json(path)
 
 
+def test_a_page_document_given_as_a_dmp_file_says_how_to_write_it(tmp_path):
+    path = tmp_path / "p_page.json"
+    path.write_text(json.dumps({"format": "img2dmp-page", "version": 1, "characters": []}))
+    with pytest.raises(ValueError) as e:
+        load_dmp_json(path)
+    assert str(e.value) == (f"{path}: is a page document (format 'img2dmp-page'), not one "
+                            f"DMP: img2dmp write {path} --page writes it")  # fmt: skip
+
+
 def test_unknown_top_level_keys_are_notes(dmp_doc):
     path, doc = dmp_doc
     doc["source"] = {"image": "x.png"}

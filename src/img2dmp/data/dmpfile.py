@@ -284,6 +284,9 @@ def _object(path: str, where: str, raw, allowed: tuple, required: tuple = ()) ->
 
 
 def _check_version(path: str, doc: dict) -> None:
+    if doc.get("format") == "img2dmp-page":  # img2dmp.robot.pagefile.FORMAT
+        raise ValueError(f"{path}: is a page document (format 'img2dmp-page'), not one DMP: "
+                         f"img2dmp write {path} --page writes it")  # fmt: skip
     if doc.get("format") != FORMAT:
         raise _bad(path, "format", f"must be {FORMAT!r}, got {show_value(doc.get('format'))}")
     v = doc.get("version")
@@ -301,11 +304,11 @@ def check_dmp_document(doc: dict, path: str = "DMP document") -> DMPFile:
     """Check a version-2 document (a dict as :func:`json.loads` gives it; the format in
     the module docstring) and return it as a :class:`DMPFile`; ``ValueError`` naming
     ``path``, the field and the value otherwise."""
+    if "format" in doc or "version" in doc:  # first: another format is said as such
+        _check_version(path, doc)
     for key in REQUIRED:
         if key not in doc:
             raise _bad(path, key, "is missing")
-    if "format" in doc or "version" in doc:
-        _check_version(path, doc)
     config = _read_config(path, doc["dmp_config"])
     params = _read_params(path, "params", doc["params"], config)
     size = _read_size(path, "image_size", doc["image_size"])
