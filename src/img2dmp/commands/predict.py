@@ -168,9 +168,10 @@ def _run_pages(args, predictor) -> int:
     for path, page in pages:
         flagged = page.flagged
         if page.flags or flagged:
-            which = ", ".join(f"{c.character.index} ({'/'.join(c.flags)})" for c in flagged[:8])
+            which = ", ".join(f"#{c.character.index} ({'/'.join(c.flags)})" for c in flagged[:8])
             more = f" and {len(flagged) - 8} more" if len(flagged) > 8 else ""
-            listed = [f"characters flagged: {which}{more}"] if flagged else []
+            noun = "character" if len(flagged) == 1 else "characters"
+            listed = [f"{len(flagged)} {noun} flagged (by index): {which}{more}"] if flagged else []
             what = "; ".join(page.flags + listed)
             print(f"img2dmp predict: warning: {path}: {what}", file=sys.stderr)
         if not args.out:
