@@ -184,8 +184,9 @@ def test_an_unknown_name_lists_the_shipped_models(tmp_path, monkeypatch, capsys)
         line = _one_error_line(capsys.readouterr().err, argv[0])
         assert "'nope'" in line and names[0] in line, line
     # a path stays a path: a missing one is named as a file, not looked up
-    with pytest.raises(FileNotFoundError, match="checkpoint runs/nope does not exist"):
+    with pytest.raises(FileNotFoundError, match="checkpoint runs/nope does not exist") as e:
         img2dmp.load_model("runs/nope")
+    assert str(e.value).endswith(f"or a shipped model's name: {', '.join(names)})")  # a hint
 
 
 @pytest.mark.parametrize("value", [0, -1, 2.0, True, "8"])

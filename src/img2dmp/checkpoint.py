@@ -230,6 +230,12 @@ def resolve_checkpoint(path: str | os.PathLike, name: str = DEFAULT_NAME) -> Pat
         )
     if p.suffix == ".json":
         p = p.with_suffix(SUFFIX)
+    if not os.path.lexists(p):  # a path that is not there: a shipped name may be meant
+        names = ", ".join(_shipped.shipped_model_names()) or "none"
+        raise FileNotFoundError(
+            f"checkpoint {p} does not exist (a run directory, a checkpoint file, or a "
+            f"shipped model's name: {names})"
+        )
     return check_readable(p, "checkpoint")
 
 
