@@ -310,6 +310,10 @@ def test_predict_without_a_model_writes_the_sample_digit(tmp_path, capsys):
     assert doc["refinement"] == {"steps": 30} and doc["flags"] == []
     assert doc["fit"]["path_on_ink"] > 0.95 and doc["fit"]["ink_written"] > 0.9, doc["fit"]
     assert (out / "digit_3_overlay_image.png").is_file()
+    p, fit = doc["hypotheses"][0]["probability"], doc["fit"]  # the line says what it wrote
+    assert (f"digit_3.png: tau = {doc['params']['tau']:.3f} s, top hypothesis of 4: p = "
+            f"{p:.2f}; path on ink {fit['path_on_ink']:.2f}, ink written "
+            f"{fit['ink_written']:.2f} -> {out / 'digit_3_dmp.json'}") in captured.out  # fmt: skip
     assert cli.main(["predict", str(SAMPLE), "--out", str(out), "--force", "--refine", "0"]) == 0
     assert "note" not in capsys.readouterr().err  # told otherwise: nothing to say
     assert json.loads((out / "digit_3_dmp.json").read_text())["refinement"] == {"steps": 0}

@@ -228,5 +228,9 @@ def run(args: argparse.Namespace) -> int:
         sure = getattr(pred, "count_probability", None)
         if sure is not None:
             what += f" (the count's probability {sure:.2f})"
+        elif pred.n_hypotheses > 1:
+            what += f", top hypothesis of {pred.n_hypotheses}: p = {pred.probabilities[0]:.2f}"
+        fit = pred.fit
+        what += f"; path on ink {fit['path_on_ink']:.2f}, ink written {fit['ink_written']:.2f}"
         print(f"{path}: {what} -> " + ", ".join(str(f) for f in files))
     return 0
