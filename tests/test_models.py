@@ -286,6 +286,7 @@ def test_the_default_model_comes_with_its_cards_settings_unless_told_otherwise()
     assert m.shipped.name == default.name and m.refine_options.steps == default.refine
     assert img2dmp.load_model(default.name).refine_options.steps == default.refine
     assert img2dmp.load_model(refine=0).refine_options is None  # an explicit 0 wins
+    assert img2dmp.load_model(refine=0).refine_steps == 0 and m.refine_steps == default.refine
     assert img2dmp.load_model(refine=5).refine_options.steps == 5
     with pytest.raises(ValueError, match="refine must be a whole number"):
         img2dmp.load_model(refine=-1)

@@ -1,6 +1,7 @@
-"""The README (and docs/API.md) as a new user meets them: every Python block runs as
-written, from a folder that holds only the sample images, with the shipped model; the
-files its commands name exist; the page stays short and its picture small."""
+"""The README (and docs/API.md, docs/INTEROP.md, docs/EXPORT.md) as a new user meets
+them: every Python block runs as written, from a folder that holds only the sample images,
+with the shipped model, after the commands the page's text runs first; the files its
+commands name exist; the page stays short and its picture small."""
 
 from __future__ import annotations
 
@@ -13,6 +14,17 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 MAX_README_LINES = 200
 MAX_PICTURE_BYTES = 200_000
+#: The pages whose Python blocks run as written, from a clone's root.
+PAGES = ["README.md", "docs/API.md", "docs/INTEROP.md", "docs/EXPORT.md"]
+#: The commands a page's text has the reader run before its Python blocks (each one is on
+#: the page, as written): EXPORT.md's read the graph its export writes and the DMP file
+#: of its `predict --out pred`.
+FIRST = {
+    "docs/EXPORT.md": [
+        "img2dmp export --model digits-real --onnx digits-real.onnx",
+        "img2dmp predict examples/samples/digit_3.png --out pred",
+    ],
+}
 
 
 def python_blocks(page: Path) -> list[str]:
@@ -37,16 +49,28 @@ def fresh_folder(tmp_path, monkeypatch):
     return tmp_path
 
 
-@pytest.mark.parametrize("page", ["README.md", "docs/API.md"])
+@pytest.mark.parametrize("page", PAGES)
 def test_every_python_block_runs_as_written(page, fresh_folder):
+    from img2dmp.cli import main
+
+    text = " ".join((ROOT / page).read_text(encoding="utf-8").split())
+    for command in FIRST.get(page, []):
+        assert command in text, f"{page} no longer says: {command}"
+        assert main(shlex.split(command)[1:]) == 0, command
     blocks = python_blocks(ROOT / page)
     assert blocks, f"{page} has no Python block"
     for i, code in enumerate(blocks):
         namespace: dict = {"__name__": "__main__"}
         exec(compile(code, f"{page}, Python block {i + 1}", "exec"), namespace)
+        if page == "docs/EXPORT.md" and i == 0:  # the graph's top DMP, as a vector
+            assert namespace["v"].shape == (55,) and namespace["w"].shape == (25, 2)
     if page == "README.md":
         assert (fresh_folder / "digit_3_dmp.json").is_file()
         assert namespace["pred"].flags == [] and namespace["xy"].shape[1] == 2
+    if page == "docs/INTEROP.md":
+        assert namespace["out"].error_px < 0.05  # the peer's rollout within the target
+    if page == "docs/EXPORT.md":  # the DMP file integrated with NumPy alone
+        assert namespace["path"].shape == (1001, 2)
 
 
 def test_the_readme_is_short_and_its_picture_small_and_made_by_a_script():
@@ -67,7 +91,7 @@ def test_every_file_the_readme_commands_read_is_in_the_repository():
     assert named, "the README's commands read no sample"
     for name in sorted(named):
         assert (ROOT / name).is_file(), name
-    for page in ("README.md", "docs/API.md"):
+    for page in PAGES:
         for name in re.findall(r'"(examples/[^"]+)"', "".join(python_blocks(ROOT / page))):
             assert (ROOT / name).is_file(), (page, name)
 

@@ -444,6 +444,13 @@ class Predictor:
         refining = steps or self.refine_unfamiliar
         self.refine_options = RefineOptions(steps=steps, **extra) if refining else None
 
+    @property
+    def refine_steps(self) -> int:
+        """The refinement steps of an image the model knows (0: the network's output as it
+        is; :attr:`refine_unfamiliar` for the others); :attr:`refine_options` is None
+        then."""
+        return 0 if self.refine_options is None else int(self.refine_options.steps)
+
     def refine_steps_for(self, images, batch_size: int = 4096, familiarity=None) -> np.ndarray:
         """The refinement steps of each prepared image ``[B, H, W]``: ``[B]`` ints, those
         of :attr:`refine_options` (0 without refinement), :attr:`refine_unfamiliar` for

@@ -25,7 +25,7 @@ HELP = "generate -> train -> evaluate -> pictures, on a small built-in example"
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="runs/demo", metavar="DIR", help="output directory")
-    _args.add_force(p, "an earlier demo in --out")
+    _args.add_force(p, "files of an earlier demo in --out")
     p.add_argument(
         "--samples-per-digit",
         metavar="N",

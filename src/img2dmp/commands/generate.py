@@ -74,7 +74,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=min(2, machine_cores()),
         help="parallel processes, at most the machine's cores (the data do not depend on it)",
     )
-    _args.add_force(p, "an existing --out file")
+    _args.add_force(p, "--out file")
     _args.add_no_progress(p)
 
 

@@ -95,7 +95,7 @@ def _paths(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="output .safetensors file (required unless --check-frames)",
     )
-    _args.add_force(parser, "an existing --out file")
+    _args.add_force(parser, "--out file")
     parser.add_argument(
         "--check-frames",
         action="store_true",

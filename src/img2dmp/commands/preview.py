@@ -22,7 +22,7 @@ SPLITS = ("train", "validation", "test")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="PNG", help="output PNG file")
-    _args.add_force(p, "an existing --out file")
+    _args.add_force(p, "--out file")
     _args.add_data(p, help="data-set file (.safetensors); default: fresh synthetic digits")
     p.add_argument(
         "--per-digit",
