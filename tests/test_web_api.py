@@ -763,7 +763,7 @@ def test_serve_prints_its_url_and_answers_quietly(runs, tmp_path):
     assert proc.returncode == 0, err
     assert out.strip() == "img2dmp serve: stopped", out
     assert "GET /api/models" not in out + err  # no access log without --verbose
-    assert (tmp_path / "r").is_dir()
+    assert not (tmp_path / "r").exists()  # no image source: no recording, no folder made
 
 
 # --- issue 31: the server's names and origins, slow bodies, odd times, planted links -------

@@ -210,8 +210,9 @@ class Recordings:
         self.data_dir = Path(data_dir)
         if self.data_dir.exists() and not self.data_dir.is_dir():
             raise NotADirectoryError(f"--data-dir {self.data_dir} is a file, not a directory")
-        self.data_dir.mkdir(parents=True, exist_ok=True)
-        os.close(open_lock_file(self.data_dir, "--data-dir"))  # a planted link: refused now
+        if source is not None:  # without images to record on, nothing is ever written
+            self.data_dir.mkdir(parents=True, exist_ok=True)
+            os.close(open_lock_file(self.data_dir, "--data-dir"))  # a planted link: refused now
         self.source = source
         self._lock = threading.Lock()
 
