@@ -607,7 +607,7 @@ def _write_plan(args, name: str, plan, photo, what: str, table: str, noun="chara
     from img2dmp.robot import page_summary_lines, plot_page, save_characters_csv, write_page_plan
 
     os.makedirs(args.out_dir, exist_ok=True)
-    n, started = len(plan.characters), []
+    n, started, labels = len(plan.characters), [], plan.entry_labels()
     with progress_bar(
         total=plan.estimated_steps(),
         unit="step",
@@ -617,7 +617,9 @@ def _write_plan(args, name: str, plan, photo, what: str, table: str, noun="chara
 
         def on_character(cp) -> None:
             started.append(cp)
-            bar.set_description(f"writing {name}: {cp.label}, {len(started)} of {n}")
+            stroke = labels.get(cp.character.index)  # "character C: S of N" on a stroke page
+            said = f"{cp.label}, {len(started)} of {n}" if stroke is None else f"{stroke} strokes"
+            bar.set_description(f"writing {name}: {said}")
 
         try:
             result = write_page_plan(plan, progress=bar.update, on_character=on_character)
@@ -627,7 +629,8 @@ def _write_plan(args, name: str, plan, photo, what: str, table: str, noun="chara
             return 1
         bar.total = bar.n
     base = os.path.join(args.out_dir, name)
-    plot_page(result, base + "_paper.png", image=photo, title=f"{name}: KUKA iiwa writes {what}")
+    plot_page(result, base + "_paper.png", image=photo, title=f"{name}: KUKA iiwa writes {what}",
+              noun=noun)  # fmt: skip
     save_characters_csv(result, base + table, plan.entry_owners())
     written = [base + "_paper.png", base + table] + _save_run(args, result, name, 1)
     print("\n".join(page_summary_lines(name, result, noun, plan.entry_labels())))

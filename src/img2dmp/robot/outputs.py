@@ -326,7 +326,8 @@ _PAGE_TOTALS = (
 )  # fmt: skip
 
 
-def plot_page(result, path, image: np.ndarray | None = None, title=None) -> None:
+def plot_page(result, path, image: np.ndarray | None = None, title=None,
+              noun: str = "character") -> None:  # fmt: skip
     """PNG of a page (a ``PageResult``): the panels of :func:`plot_writing` over the whole
     page - the photo's written area with the DMPs in its pixels, the ink on the paper
     over the commanded paths (travels dotted), force and tracking error over time (one
@@ -335,15 +336,15 @@ def plot_page(result, path, image: np.ndarray | None = None, title=None) -> None
 
     ``image``: the photo (ink = 1), of any resolution: it is stretched over the photo's
     pixel frame (e.g. a reduced view from :func:`img2dmp.data.images.ink_view`).
+    ``noun``: what each entry is, for the titles (``"stroke"`` on a stroke model's page).
     """
-
     fig = new_figure(figsize=(11, 9.4), layout="constrained")
     axes = fig.subplots(2, 2, gridspec_kw={"height_ratios": [3, 2]})
     _plot_pixels(axes[0, 0], result, image)
     axes[0, 0].set_title(
-        "the photo's written area and the characters' DMPs (pixels)"
+        f"the photo's written area and the {noun}s' DMPs (pixels)"
         if image is not None
-        else "the characters' DMPs (photo pixels; no photo)",
+        else f"the {noun}s' DMPs (photo pixels; no photo)",
         fontsize=10,
     )
     _plot_paper(axes[0, 1], result)
