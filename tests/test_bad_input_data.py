@@ -547,10 +547,13 @@ def _ragged(p):
         (lambda d: d["dmp_config"].update(n_kernels=100_000), "from 2 to 200, got 100000"),
         (lambda d: d["dmp_config"].update(n_dims=7), "n_dims must be 2 .* or 3"),
         (lambda d: d.update(image_size=[40, True]), r"'image_size' must be \[H, W\]"),
+        (lambda d: d.update(image_size=[10**9, 10**9]),
+         r"'image_size' is \[1000000000, 1000000000\]: a side of more than 100,000 px"),
     ],
     ids=["tau-bool", "tau-str", "g-str", "w-bool", "null", "nan", "inf", "tau-zero",
          "tau-list", "g-shape", "ragged", "missing", "unknown", "params-list", "config-missing",
-         "config-bool", "config-str", "config-unknown", "kernels", "dims", "image-size"],
+         "config-bool", "config-str", "config-unknown", "kernels", "dims", "image-size",
+         "image-size-huge"],
 )  # fmt: skip
 def test_dmp_file_fields_are_strict(dmp_doc, edit, message):
     path, doc = dmp_doc

@@ -87,6 +87,8 @@ MAX_TAU_S = 1e6
 #: Samples over [0, tau] at which a DMP read from a file is rolled out to check it is
 #: finite.
 ROLLOUT_CHECK_SAMPLES = 101
+#: Largest side of the frame a DMP is in (``image_size``, pixels): a 24-MP photo's is 6,000.
+MAX_IMAGE_SIDE_PX = 100_000
 #: Decimals kept of trajectory samples (seconds, pixels); DMP parameters are kept exact.
 TRAJECTORY_DECIMALS = 6
 #: The top-level fields this version defines; any other top-level key is a note.
@@ -267,6 +269,9 @@ def _read_size(path: str, where: str, size) -> tuple[int, int]:
         or not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in size)
     ):
         raise _bad(path, where, f"must be [H, W], two positive integers, got {show_value(size)}")
+    if max(size) > MAX_IMAGE_SIDE_PX:  # 1e9 px made a digit 0.0 mm tall on the paper
+        raise _bad(path, where, f"is {show_value(size)}: a side of more than "
+                   f"{MAX_IMAGE_SIDE_PX:,} px is no image a DMP was read from")  # fmt: skip
     return size[0], size[1]
 
 

@@ -212,6 +212,7 @@ class Recordings:
             raise NotADirectoryError(f"--data-dir {self.data_dir} is a file, not a directory")
         if source is not None:  # without images to record on, nothing is ever written
             self.data_dir.mkdir(parents=True, exist_ok=True)
+        if self.data_dir.is_dir():
             os.close(open_lock_file(self.data_dir, "--data-dir"))  # a planted link: refused now
         self.source = source
         self._lock = threading.Lock()
