@@ -296,7 +296,7 @@ def _pen_path(path: Path, cols: dict, point, unit_s: float) -> PenPath:
                 f"{path}: {point(k)}: field {c!r} is {float(cols[c][k])!r}, not a finite number"
             )
     t = cols["t"]
-    _check_time_range(path, t, point, unit_s)
+    _check_time_limits(path, t, point, unit_s)
     steps = np.diff(t)
     if (steps <= 0).any():
         k = int(np.argmax(steps <= 0)) + 1
@@ -305,7 +305,7 @@ def _pen_path(path: Path, cols: dict, point, unit_s: float) -> PenPath:
             f"{path}: field 't' does not increase at {point(k)}: {before!r} then {at!r} "
             "(time stamps must be strictly increasing)"
         )
-    _check_duration(path, t, point, unit_s)
+    _check_time_limits(path, t, point, unit_s, since_first=True)
     if "stroke" in cols:
         stroke = cols["stroke"].astype(np.int64)
     else:
@@ -321,31 +321,20 @@ def _pen_path(path: Path, cols: dict, point, unit_s: float) -> PenPath:
     return PenPath(xy=xy, t_s=t * unit_s, stroke=stroke, name=str(path), point_name=point)
 
 
-def _check_time_range(path: Path, t: np.ndarray, point, unit_s: float) -> None:
+def _check_time_limits(path: Path, t: np.ndarray, point, unit_s: float, since_first=False):
     """``ValueError`` naming the point if a time stamp lies beyond ``MAX_TIME_STAMP_S``
     from 0 (checked before any arithmetic on the time stamps, which such values would
-    overflow)."""
-    far = np.abs(t) > MAX_TIME_STAMP_S / unit_s
-    if far.any():
-        k = int(np.argmax(far))
-        raise ValueError(
-            f"{path}: {point(k)}: field 't' is {float(t[k])!r} "
-            f"{'s' if unit_s == 1.0 else 'ms'}, beyond the {MAX_TIME_STAMP_S:g} s from 0 "
-            "a time stamp may be"
-        )
-
-
-def _check_duration(path: Path, t: np.ndarray, point, unit_s: float) -> None:
-    """``ValueError`` naming the point if the path (time stamps increasing) lasts longer
-    than ``MAX_PATH_DURATION_S``."""
-    long = t - t[0] > MAX_PATH_DURATION_S / unit_s
-    if long.any():
-        k = int(np.argmax(long))
-        raise ValueError(
-            f"{path}: {point(k)}: field 't' is {float(t[k])!r} {'s' if unit_s == 1.0 else 'ms'}"
-            f", more than {MAX_PATH_DURATION_S:g} s after the first point's {float(t[0])!r}; "
-            "no pen path lasts that long"
-        )
+    overflow), or with ``since_first`` (time stamps increasing) more than
+    ``MAX_PATH_DURATION_S`` after the first point."""
+    limit, reach = (MAX_PATH_DURATION_S, t - t[0]) if since_first else (MAX_TIME_STAMP_S, abs(t))
+    beyond = reach > limit / unit_s
+    if beyond.any():
+        k = int(np.argmax(beyond))
+        why = (f"more than {limit:g} s after the first point's {float(t[0])!r}; no pen path "
+               "lasts that long" if since_first else
+               f"beyond the {limit:g} s from 0 a time stamp may be")  # fmt: skip
+        raise ValueError(f"{path}: {point(k)}: field 't' is {float(t[k])!r} "
+                         f"{'s' if unit_s == 1.0 else 'ms'}, {why}")  # fmt: skip
 
 
 def _strokes_of_pen(path: Path, pen: np.ndarray | None, n: int, point) -> np.ndarray:
