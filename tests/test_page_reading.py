@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -121,6 +122,30 @@ def test_write_warns_as_predict_does_before_the_arm_writes_a_flagged_image(tmp_p
     err = capsys.readouterr().err
     assert f"img2dmp write: warning: {said}" in err, err
     assert (tmp_path / "W" / "p_paper.png").exists()
+
+
+def test_one_digit_is_one_character_and_touching_digits_two():
+    """predict's count for a digit model: the page's waist cuts part some single digits
+    (an open 0, a 4: one MNIST 4 in seven); a mark is cut into touching digits only when
+    it is wider than tall (TOUCHING_WIDTH), so single digits stay one while most pairs
+    written touching are still two (RESULTS 7.5)."""
+    import sys
+
+    from img2dmp.data.images import prepare_image_found
+    from img2dmp.data.pages import find_characters
+    from img2dmp.data.synthetic import SyntheticConfig, generate_dataset
+    from img2dmp.predict import count_characters
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
+    from several_characters import _pair
+
+    d = generate_dataset(6, SyntheticConfig(), seed=3, progress=False)  # 60 digits
+    masks = [prepare_image_found(np.pad(im, 12), (40, 40))[2] for im in d.images]
+    assert sum(len(find_characters(m).characters) >= 2 for m in masks) >= 2  # the cuts' parts
+    assert all(count_characters(m) == 1 for m in masks)
+    pairs = [_pair(d.images[2 * j], d.images[2 * j + 1], 0) for j in range(len(d) // 2)]
+    counts = [count_characters(prepare_image_found(np.pad(p, 12), (40, 40))[2]) for p in pairs]
+    assert sum(c == 2 for c in counts) >= 0.75 * len(pairs), counts
 
 
 def test_the_warning_says_when_a_run_directory_s_path_is_unrefined(tmp_path, run, capsys):
