@@ -498,3 +498,22 @@ def test_write_command_without_pybullet_says_how_to_install(monkeypatch, tmp_pat
     monkeypatch.setitem(sys.modules, "pybullet", None)
     assert main(["write", "--dmp", str(dmp), "--out-dir", str(tmp_path), "--no-progress"]) == 2
     assert "pip install img2dmp[robot]" in capsys.readouterr().err
+
+
+def test_a_run_that_wrote_almost_nothing_is_warned_about():
+    """A path of no length on the paper (goal-start scaling with g = y0, a huge frame) or
+    a stroke mostly without ink (a tau the arm cannot follow) exit 0 with a warning."""
+    from types import SimpleNamespace
+
+    from img2dmp.robot.outputs import writing_warnings
+
+    def run(*strokes):
+        return SimpleNamespace(metrics={"strokes": [
+            {"length_mm": n, "ink_share": s} for n, s in strokes]})  # fmt: skip
+
+    assert writing_warnings(run((44.7, 1.0), (3.0, 0.9))) == []
+    [line] = writing_warnings(run((0.1, 1.0), (0.2, 1.0)))
+    assert line.startswith("its pen-down path is 0.30 mm long on the paper: almost nothing")
+    [line] = writing_warnings(run((20.0, 0.8), (22.0, 0.011), (5.0, 0.3)))
+    assert line.startswith("stroke 2 got ink along 1.1 % of its 22.0 mm")
+    assert writing_warnings(run()) == []  # nothing planned pen-down: nothing to say

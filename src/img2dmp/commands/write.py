@@ -428,6 +428,7 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
     """One run per input DMP (``IMAGE ... --model``, ``--dmp``)."""
     from img2dmp._progress import bar as progress_bar
     from img2dmp.robot import plot_writing, summary_lines, write_dmp
+    from img2dmp.robot.outputs import writing_warnings
 
     height_mm = args.writing_height_mm
     height_mm = DEFAULT_WRITING_HEIGHT_MM if height_mm is None else height_mm
@@ -464,6 +465,8 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
         written = [base + "_paper.png"] + _save_run(args, result, name, len(args.images) or 1)
         print("\n".join(summary_lines(name, result)))
         print("  wrote " + ", ".join(written))
+        for warning in writing_warnings(result):
+            print(f"img2dmp write: warning: {name}: {warning}", file=sys.stderr)
     return 0
 
 

@@ -281,6 +281,32 @@ def save_videos(result: WritingResult, base, frame_interval_s: float) -> list[st
     return written
 
 
+#: A run whose pen-down path is shorter on the paper (mm), or one of whose strokes got
+#: less ink than this share, is worth a warning: it wrote (almost) nothing of the DMP.
+WARN_LENGTH_MM = 0.5
+WARN_INK_SHARE = 0.5
+
+
+def writing_warnings(result: WritingResult) -> list[str]:
+    """What a finished run wrote that its user would not want, in words (empty for a
+    good run): a path of (almost) no length on the paper (a DMP whose goal-start scaling
+    has g = y0, or a frame far larger than its movement), a stroke mostly without ink
+    (a tau so short that the arm lags its path)."""
+    strokes = result.metrics.get("strokes", [])
+    length = sum(s["length_mm"] for s in strokes)
+    if strokes and length < WARN_LENGTH_MM:
+        return [f"its pen-down path is {length:.2f} mm long on the paper: almost nothing "
+                "was written (check the DMP's image_size, and g - y0 with goal-start "
+                "scaling)"]  # fmt: skip
+    poor = [(i, s) for i, s in enumerate(strokes, start=1) if s["ink_share"] < WARN_INK_SHARE]
+    if poor:
+        i, s = min(poor, key=lambda p: p[1]["ink_share"])
+        return [f"stroke {i} got ink along {100 * s['ink_share']:.1f} % of its "
+                f"{s['length_mm']:.1f} mm (a DMP faster than the arm follows? a longer tau, "
+                "or --tempo below 1, slows it)"]  # fmt: skip
+    return []
+
+
 def summary_lines(name: str, result: WritingResult) -> list[str]:
     """The metrics of a run in words: tracking and force over the pen-down time (DMP
     running), then each stroke's ink share and force share and the time the DMP clock
