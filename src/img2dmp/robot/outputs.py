@@ -202,10 +202,12 @@ def _plot_tracking_error(ax, result: WritingResult) -> None:
 
 
 def _mark_start_and_direction(ax, xy: np.ndarray) -> None:
-    """Mark the first point of the commanded path ``xy [T, 2]`` and put an arrow on the
-    path, 15 % of its length in, pointing the way it is written."""
+    """Mark the first and the last point of the commanded path ``xy [T, 2]`` (where a
+    goal given with ``--goal`` has moved it) and put an arrow on the path, 15 % of its
+    length in, pointing the way it is written."""
     ax.plot(*xy[0], "o", ms=8, mfc="none", mec=COMMANDED_COLOR, mew=1.8, zorder=5,
             label="start")  # fmt: skip
+    ax.plot(*xy[-1], "x", ms=8, color=COMMANDED_COLOR, mew=1.8, zorder=5, label="end")
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])  # [T]
     if s[-1] <= 0.0:
         return
