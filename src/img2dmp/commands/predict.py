@@ -187,6 +187,7 @@ def _run_pages(args, predictor) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    _args.one_thread()  # first: before NumPy is imported, so that OpenBLAS takes it too
     from ..predict import Predictor, write_prediction
 
     _check_options(args)
@@ -194,7 +195,6 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         _args.check_output_dir(args.out, "--out")
     model = _args.model_or_default(args.model)
-    _args.one_thread()
     inputs = [("image", path) for path in args.images] + _args.model_inputs(model)
     _args.check_outputs(output_files(args), args.force, inputs)
     _args.check_images(args.images)

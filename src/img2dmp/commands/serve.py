@@ -122,12 +122,11 @@ def run(args: argparse.Namespace) -> int:
         print("img2dmp serve: error: install img2dmp[web] (pip install 'img2dmp[web]')",
               file=sys.stderr)  # fmt: skip
         return 2
-    import torch
+    _args.one_thread()  # one image at a time: one thread is the fastest (before NumPy)
     import uvicorn
 
     from ..web import create_app
 
-    torch.set_num_threads(1)  # one image at a time: one thread is the fastest
     for path in ([args.mnist] if args.mnist else []) + ([args.images] if args.images else []):
         if not os.path.isdir(path):
             raise NotADirectoryError(f"{path} is not a directory")
@@ -144,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
         refine_unfamiliar=args.refine_unfamiliar,
         allowed_hosts=[args.host, *args.allowed_host],
     )
+    _args.one_thread()  # torch too, if the models brought it in (--backend torch)
     from ..web.models import warm_up
 
     for model in app.state.img2dmp.models.values():

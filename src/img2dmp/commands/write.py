@@ -406,6 +406,7 @@ def _read_image(path):
 
 
 def run(args) -> int:
+    _args.one_thread()  # first: before NumPy is imported, so that OpenBLAS takes it too
     from img2dmp.robot import available
     from img2dmp.robot._pybullet import INSTALL_HINT
 
