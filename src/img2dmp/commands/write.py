@@ -250,10 +250,7 @@ def _inputs(args, predictor=None) -> list[tuple[str, object, object, tuple, obje
             pred = predictor.predict(path)  # the one reading predict gives, flags and all
         _args.warn_flags("write", path, pred)
         image = np.asarray(pred.image, dtype=np.float32)
-        if k == 1:  # the top one (refined alone)
-            params = pred.dmp
-        else:
-            params = predictor.predict_hypotheses(image[None])[0][0, k - 1]
+        params = pred.params[k - 1]  # ranked; the top one refined alone
         out.append((_name(path), params, config, tuple(image.shape[-2:]), image))
     return out
 
