@@ -163,9 +163,10 @@ def count_characters(mask, letters: bool = False) -> int:
     (:func:`img2dmp.data.pages.find_characters`; specks and fragments do not count).
     ``letters``: found as a stroke model's page finds them (no mark cut at its waists,
     pieces side by side joined: :data:`img2dmp.page.STROKE_PAGE_CUT`,
-    :data:`~img2dmp.page.STROKE_PAGE_JOIN`), not as digits. Digits: the marks as they
-    are, and cut into touching digits (at their waists) only when they are together at
-    least :data:`TOUCHING_WIDTH` times as wide as tall: the cuts part one 4 in seven."""
+    :data:`~img2dmp.page.STROKE_PAGE_JOIN`), not as digits. Digits: as a page's, cut into
+    touching digits at their waists, except that an image of one mark is one digit
+    unless it is at least :data:`TOUCHING_WIDTH` times as wide as tall (the cuts part one
+    MNIST 4 in seven)."""
     from .data.pages import find_characters
 
     def tall(chars) -> int:
@@ -178,13 +179,13 @@ def count_characters(mask, letters: bool = False) -> int:
         return tall(find_characters(mask, cut=STROKE_PAGE_CUT,
                                     join_sides=STROKE_PAGE_JOIN).characters)  # fmt: skip
     whole = find_characters(mask, cut=False).characters
-    if tall(whole) >= 2 or not whole:
-        return tall(whole)
-    x0, y0 = min(c.box[0] for c in whole), min(c.box[1] for c in whole)
-    x1, y1 = max(c.box[2] for c in whole), max(c.box[3] for c in whole)
-    if x1 - x0 < TOUCHING_WIDTH * (y1 - y0):
-        return tall(whole)
-    return tall(find_characters(mask).characters)
+    if len(whole) == 1:  # one mark: one digit, unless wide enough to be several touching
+        x0, y0, x1, y1 = whole[0].box
+        if x1 - x0 < TOUCHING_WIDTH * (y1 - y0):
+            return 1
+    # Several marks: as many as the page's cuts find, and never fewer than the marks
+    # (the cuts may take two digits side by side for one).
+    return max(tall(whole), tall(find_characters(mask).characters)) if whole else 0
 
 
 def fit_flags(fit: dict, n_characters: int = 1) -> list[str]:
