@@ -382,3 +382,23 @@ def test_the_arm_writes_a_bent_dmp_slower_to_its_new_goal(tmp_path):
     got_px = mapping.to_pixels(np.array([float(rows[-1]["cmd_x_m"]), float(rows[-1]["cmd_y_m"])]))
     np.testing.assert_allclose(got_px, _roll(bent, [t_end], config)[0], atol=0.01)
     assert np.abs(got_px - _roll(params, [t_end / 2], config)[0]).max() > 2.0
+
+
+@pytest.mark.parametrize("field", ["goal", "start", "shift"])
+def test_a_position_beyond_any_image_is_refused_before_it_overflows(field):
+    """A finite 1e308 became inf inside the bent DMP (the web API answered 500)."""
+    params = DMPParams(np.zeros((25, 2)), 1.0, np.array([10.0, 12.0]), np.array([2.0, 3.0]))
+    with pytest.raises(ValueError, match=rf"^{field} \[1e\+308, 0.0\] is beyond the 1e\+09 px"):
+        bend_dmp(params, DMPConfig(), **{field: [1e308, 0.0]})
+    bend_dmp(params, DMPConfig(), **{field: [1e9, 0.0]})  # the limit itself is a position
+
+
+def test_an_image_frame_of_huge_or_no_numbers_is_one_line():
+    from img2dmp.data.images import ImageFrame
+
+    cases = [(np.diag([1e308, 1e308, 0])[:2], "entries up to 1e+308"),
+             (np.full((2, 3), np.nan), "NaN or inf"), (np.eye(3), "shape [3, 3]")]  # fmt: skip
+    for m, said in cases:
+        with pytest.raises(ValueError) as e:
+            ImageFrame(m, (280, 280), (28, 28))
+        assert str(e.value).endswith(said) and "\n" not in str(e.value), e.value

@@ -76,6 +76,11 @@ def _size_pair(what: str, value) -> tuple[int, int]:
     return int(h), int(w)
 
 
+#: Largest entry of an image frame's affine map (a scale of 1e6 maps a pixel to a
+#: millionth of one; 1e308 overflowed its determinant).
+MAX_FRAME_ENTRY = 1e9
+
+
 class ImageFrame:
     """Where the model's input sits in the user's own image: an affine map of positions.
 
@@ -99,9 +104,13 @@ class ImageFrame:
 
     def __init__(self, image_to_model, image_size, model_size):
         m = np.array(image_to_model, dtype=np.float64)
-        if m.shape != (2, 3) or not np.isfinite(m).all():
+        if m.shape != (2, 3) or not np.isfinite(m).all() or np.abs(m).max() > MAX_FRAME_ENTRY:
+            got = f"shape {list(m.shape)}" if m.shape != (2, 3) else (
+                "NaN or inf" if not np.isfinite(m).all()
+                else f"entries up to {float(np.abs(m).max()):g}")  # fmt: skip
             raise ValueError(
-                f"image_to_model must be a finite 2 x 3 matrix, got {np.asarray(image_to_model)!r}"
+                f"image_to_model must be a 2 x 3 matrix of finite numbers of at most "
+                f"{MAX_FRAME_ENTRY:g}, got {got}"
             )
         det = float(np.linalg.det(m[:, :2]))
         if not abs(det) > 1e-12 * max(1.0, float(np.abs(m[:, :2]).max()) ** 2):

@@ -43,10 +43,12 @@ import numpy as np
 from ..config import check_positive
 from .affine import affine_dmp
 from .config import DMPConfig
-from .params import DMPParams, first_index, strict_numbers
+from .params import DMPParams, first_index, show_value, strict_numbers
 
 #: Largest scale or tempo factor (and the inverse of the smallest).
 MAX_FACTOR = 1e6
+#: Largest coordinate of a goal, start or shift (as a DMP file's: its MAX_MAGNITUDE).
+MAX_POINT = 1e9
 
 
 def bend_dmp(
@@ -177,6 +179,9 @@ def _point(name: str, value, batch: tuple) -> np.ndarray:
     v = strict_numbers(name, value)
     if v.ndim == 0 or v.shape[-1] != 2:
         raise ValueError(f"{name} must be a point (x, y), got shape {list(v.shape)}")
+    if v.size and np.abs(v).max() > MAX_POINT:  # 1e308 overflowed into inf further on
+        raise ValueError(f"{name} {show_value(v.tolist())} is beyond the {MAX_POINT:g} px "
+                         "a DMP's position may be")  # fmt: skip
     try:
         return np.broadcast_to(v, (*batch, 2)).copy()
     except ValueError:
