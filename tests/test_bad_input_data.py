@@ -810,6 +810,7 @@ def test_dmp_constants_refuse_booleans_and_text(field, value, message):
         ({"alpha_x": 0.01}, "table 884,194 steps x 26 responses (at most 8,000,000 entries)"),
         ({"alpha_z": 5000}, "alpha_z=5000, beta_z=1250"),
         ({"alpha_x": 0.5, "n_kernels": 200}, "146,630 steps x 201 responses"),
+        ({"alpha_x": 370}, "alpha_x=370 with 25 kernels puts the last kernels' centres"),
     ],
 )
 def test_dmp_constants_whose_table_would_not_fit_are_refused_before_it_is_built(
@@ -819,6 +820,7 @@ def test_dmp_constants_whose_table_would_not_fit_are_refused_before_it_is_built(
     a checkpoint, a data set or a page may carry any) are one line naming them; the
     paper's constants at the most kernels, and everyday others, build theirs."""
     from img2dmp.dmp import _table
+    from img2dmp.dmp.basis import kernel_widths
 
     monkeypatch.setattr(_table, "_solve_responses", None)  # never reached for these
     with pytest.raises(ValueError, match=re.escape(message)) as e:
@@ -826,9 +828,10 @@ def test_dmp_constants_whose_table_would_not_fit_are_refused_before_it_is_built(
     _one_line(e)
     monkeypatch.undo()
     for fine in ({"n_kernels": 200}, {"alpha_z": 25.0, "alpha_x": 1.0}, {"alpha_z": 1000.0},
-                 {"alpha_z": 1.0}, {"alpha_x": 0.1}):  # fmt: skip
+                 {"alpha_z": 1.0}, {"alpha_x": 0.1}, {"alpha_x": 368}):  # fmt: skip
         h, s_max, table = _table._response_table_f64(DMPConfig(**fine))
         assert table.shape[0] * table.shape[2] <= 8_000_000 and np.isfinite(table).all()
+        assert np.isfinite(kernel_widths(DMPConfig(**fine))).all()
 
 
 @pytest.mark.parametrize(

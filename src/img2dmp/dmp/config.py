@@ -112,7 +112,23 @@ class DMPConfig:
         if self.scaling not in SCALINGS:
             raise ValueError(f"scaling must be one of {SCALINGS}, got {self.scaling!r}")
         object.__setattr__(self, "_beta", float(beta))
+        self._check_kernels()
         self._check_table()
+
+    def _check_kernels(self) -> None:
+        """The narrowest kernel's width ``h = width_factor / (c_{N-1} - c_{N-2})**2`` is a
+        float64 number: a phase that decays too fast (alpha_x above about 360 at 25
+        kernels) puts the last centres closer than float64 tells apart, and the
+        widths, the fit and the rollout become inf and NaN."""
+        n, ax = self.n_kernels, float(self.alpha_x)
+        step = ax / (n - 1)
+        log_gap = -ax * (n - 2) / (n - 1) + math.log(-math.expm1(-step))  # log(c_N-2 - c_N-1)
+        if math.log(self.width_factor) - 2 * log_gap >= math.log(1.7e308):
+            raise ValueError(
+                f"alpha_x={self.alpha_x:g} with {n} kernels puts the last kernels' centres "
+                f"(exp(-alpha_x k / {n - 1})) closer together than float64 can tell apart: "
+                "their widths overflow; a smaller alpha_x (the paper's is 2)"
+            )
 
     def _check_table(self) -> None:
         """The rollout's response table of these constants fits :data:`MAX_TABLE_ENTRIES`."""
