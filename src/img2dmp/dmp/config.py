@@ -112,8 +112,8 @@ class DMPConfig:
         if self.scaling not in SCALINGS:
             raise ValueError(f"scaling must be one of {SCALINGS}, got {self.scaling!r}")
         object.__setattr__(self, "_beta", float(beta))
-        self._check_kernels()
         self._check_table()
+        self._check_kernels()
 
     def _check_kernels(self) -> None:
         """The narrowest kernel's width ``h = width_factor / (c_{N-1} - c_{N-2})**2`` is a
@@ -127,7 +127,8 @@ class DMPConfig:
             raise ValueError(
                 f"alpha_x={self.alpha_x:g} with {n} kernels puts the last kernels' centres "
                 f"(exp(-alpha_x k / {n - 1})) closer together than float64 can tell apart: "
-                "their widths overflow; a smaller alpha_x (the paper's is 2)"
+                f"their widths overflow; a {'smaller' if ax > 1 else 'larger'} alpha_x "
+                "(the paper's is 2)"
             )
 
     def _check_table(self) -> None:
