@@ -187,11 +187,24 @@ def test_bad_input_is_refused_with_one_line_errors(digits):
     cfg, p = digits
     with pytest.raises(ValueError, match="kind must be one of .* got 'promp'"):
         interop.to_mp_pytorch(p[0], cfg, kind="promp")
-    with pytest.raises(ValueError, match="steps must be an integer >= 2.*got 1"):
+    with pytest.raises(ValueError, match="steps must be an integer from 2 to 2,000 .*got 1"):
         interop.to_mp_pytorch(p[0], cfg, steps=1)
+    # bounded work: ProDMP's basis grows with steps squared, the DMP's loop with steps
+    with pytest.raises(ValueError, match="from 2 to 2,000 .*for prodmp.*got 1000000"):
+        interop.to_mp_pytorch(p[0], cfg, steps=10**6)
+    with pytest.raises(ValueError, match="from 2 to 20,000 .*for dmp.*got 10000000"):
+        interop.to_mp_pytorch(p[0], cfg, kind="dmp", steps=10**7)
     for dt in (-0.01, math.nan):
         with pytest.raises(ValueError, match="dt"):
             interop.to_movement_primitives(p[0], cfg, dt=dt)
+    tau = float(p[0].tau)
+    for dt in (1e-8, 2 * tau):  # 1e-8 s asked the peer for 8 GB; a step past the movement
+        with pytest.raises(ValueError, match=r"dt .* s for a DMP of tau .*: give from tau / "):
+            interop.to_movement_primitives(p[0], cfg, dt=dt)
+    peer = interop.to_movement_primitives(p[0], cfg).dmp
+    peer.dt_ = 0.0
+    with pytest.raises(ValueError, match=r"dmps\[0\].dt_ must be a finite number > 0, got 0"):
+        interop.from_movement_primitives(peer, cfg)
     with pytest.raises(ValueError, match="expected a movement_primitives.dmp.DMP.*got str"):
         interop.from_movement_primitives("dmp.json", cfg)
     with pytest.raises(ValueError, match="non-empty sequence"):

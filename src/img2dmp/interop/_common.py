@@ -17,6 +17,11 @@ from ..dmp import DMPConfig, DMPParams, rollout
 #: 0.046 px at 2000), 0.023 px for MP_PyTorch's Euler DMP and 0.004 px for ProDMP, whose
 #: second-order basis table needs far fewer steps (and costs O(steps^2) to build).
 DEFAULT_STEPS = {"movement_primitives": 4000, "dmp": 2000, "prodmp": 500}
+#: Most time steps per tau a peer is asked to integrate: ten times the defaults
+#: (movement_primitives' Python loop and MP_PyTorch's DMP integrate step by step, the
+#: ProDMP's basis grows with the square of its steps: 5,000 took 21 s; dt = 1e-8 s asked
+#: movement_primitives for 8 GB).
+MAX_STEPS = {"movement_primitives": 40_000, "dmp": 20_000, "prodmp": 2_000}
 
 
 @dataclass
@@ -127,13 +132,28 @@ def check_steps(steps, kind: str) -> int:
     """``steps`` (time steps per tau), the default of ``kind`` when None."""
     if steps is None:
         return DEFAULT_STEPS[kind]
-    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 2:
-        raise ValueError(f"steps must be an integer >= 2 (time steps per tau), got {steps!r}")
+    most = MAX_STEPS[kind]
+    if (isinstance(steps, bool) or not isinstance(steps, (int, np.integer))
+            or not 2 <= steps <= most):  # fmt: skip
+        raise ValueError(
+            f"steps must be an integer from 2 to {most:,} (time steps per tau for {kind}), "
+            f"got {steps!r}"
+        )
     return int(steps)
 
 
-def check_dt(dt) -> float:
-    return check_positive("dt", dt)
+def check_dt(dt, tau: float | None = None, what: str = "dt") -> float:
+    """``dt`` > 0, and with ``tau`` at least ``tau / MAX_STEPS["movement_primitives"]``
+    and at most ``tau`` (a step longer than the movement integrates nothing of it)."""
+    dt = check_positive(what, dt)
+    if tau is not None:
+        most = MAX_STEPS["movement_primitives"]
+        if not tau / most <= dt <= tau:
+            raise ValueError(
+                f"{what} {dt:g} s for a DMP of tau {tau:g} s: give from tau / {most:,} to "
+                f"tau ({tau / most:.3g} to {tau:g} s)"
+            )
+    return dt
 
 
 def max_distance(p: DMPParams, t, y, config: DMPConfig) -> np.ndarray:

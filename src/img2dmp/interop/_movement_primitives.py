@@ -23,6 +23,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..config import check_positive
 from ..dmp import DMPConfig, DMPParams, fit_dmp
 from ._common import (
     DEFAULT_STEPS,
@@ -135,7 +136,7 @@ def to_movement_primitives(
             phase_decay=config.alpha_x,
             overlap=math.exp(-config.width_factor),
             execution_time=tau,
-            dt=tau / steps if dt is None else dt,
+            dt=tau / steps if dt is None else check_dt(dt, tau),
             n_weights_per_dim=n,
             alpha_y=config.alpha_z,
             beta_y=config.beta,
@@ -214,10 +215,12 @@ def from_movement_primitives(
             f"got {type(dmps).__name__}"
         )
     parts, exact, times, errors = [], [], [], []
-    for dmp in items:
+    for k, dmp in enumerate(items):
         p, ok = _read(dmp, config)
         t = y = None
-        if not ok or check:
+        if not ok or check:  # the peer integrates in steps of its dt_: bounded first
+            tau = check_positive(f"dmps[{k}].execution_time_", float(dmp.execution_time_))
+            check_dt(float(dmp.dt_), tau, f"dmps[{k}].dt_")
             t, y = dmp.open_loop()
         if not ok:
             p = fit_dmp(t, y, config).params
