@@ -851,3 +851,23 @@ def test_the_one_json_reader_names_what_it_reads(data, needle):
         parse_json(data, "req", allow_nan=False)
     assert needle in str(e.value) and "\n" not in str(e.value)
     assert parse_json(b'\xef\xbb\xbf{"x": 1}', "req") == {"x": 1}  # a BOM is fine
+
+
+def test_sizes_a_python_caller_gives_are_bounded_before_the_work(monkeypatch):
+    """An audit's calls that ran for minutes or filled memory: a fit of 3 million points
+    (6.2 GB), a rollout at 1e8 time stamps (77 GiB asked), an export checked on 1e9
+    images; each is one ValueError naming the argument, at once."""
+    import img2dmp
+    from img2dmp.dmp import fit_dmp
+    from img2dmp.export import default_check_images
+
+    with pytest.raises(ValueError, match=r"a trajectory of 100,001 points is more than the "
+                                         r"100,000 a fit takes"):  # fmt: skip
+        fit_dmp(np.linspace(0, 1, 100_001), np.zeros((100_001, 2)))
+    model = img2dmp.load_model(refine=0)
+    params = model.predict_images(np.zeros((1, 28, 28), np.float32))
+    with pytest.raises(ValueError, match=r"times holds 200,000 stamps, more than 100,000 per"):
+        model.trajectories(params, times=np.linspace(0, 1, 200_000))
+    for n in (2, 10**9, "5"):
+        with pytest.raises(ValueError, match=r"n_check must be an integer from 3 to 4,096"):
+            default_check_images(model, n)

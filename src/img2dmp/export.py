@@ -353,8 +353,11 @@ def default_check_images(predictor: Predictor, n: int = CHECK_IMAGES, seed: int 
     blank image and one of salt-and-pepper noise everywhere."""
     from .data.synthetic import SyntheticConfig, generate
 
-    if n < 3:
-        raise ValueError(f"the check needs at least 3 images, got {n}")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 3 <= n <= MAX_CHECK_BATCH:
+        raise ValueError(
+            f"n_check must be an integer from 3 to {MAX_CHECK_BATCH:,} (images the export is "
+            f"checked on), got {n!r}"
+        )
     rng = np.random.default_rng(seed)
     config = SyntheticConfig(image_size=tuple(predictor.image_size))
     images = generate(np.arange(n - 2) % 10, config, rng).images.astype(np.float32)

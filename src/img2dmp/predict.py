@@ -957,6 +957,11 @@ class Predictor:
             t = np.asarray(p.tau, dtype=np.float64)[..., None] * np.linspace(0.0, 1.0, n_points)
         else:
             t = np.asarray(times, dtype=np.float64)
+            if t.size > MAX_POINTS * max(1, int(np.prod(p.batch_shape))):
+                raise ValueError(
+                    f"times holds {t.size:,} stamps, more than {MAX_POINTS:,} per DMP "
+                    f"({int(np.prod(p.batch_shape)) or 1} here)"
+                )
         y = rollout_numpy(p, t, self.dmp_config)  # either backend: the same to 1e-12 px
         return np.broadcast_to(t, y.shape[:-1]).copy(), y
 

@@ -44,6 +44,10 @@ class FitResult:
     max_error_px: object
 
 
+#: Most points of one trajectory fitted (memory grows by about 2 KB a point).
+MAX_FIT_POINTS = 100_000
+
+
 def fit_dmp(
     t,
     y,
@@ -158,6 +162,11 @@ def _check_inputs(t, y, config: DMPConfig, ridge, chunk_size) -> tuple:
     if y.shape[-2] < 2:
         raise ValueError(
             f"a trajectory needs at least 2 points to fit a DMP, got {y.shape[-2]} (empty?)"
+        )
+    if y.shape[-2] > MAX_FIT_POINTS:  # about 2 KB a point: 3 million took 6.2 GB
+        raise ValueError(
+            f"a trajectory of {y.shape[-2]:,} points is more than the {MAX_FIT_POINTS:,} a "
+            "fit takes; resample it (a DMP of 25 kernels needs a few hundred)"
         )
     if y.shape[-1] != config.n_dims:
         raise ValueError(f"y has d={y.shape[-1]} dimensions, the config expects {config.n_dims}")
