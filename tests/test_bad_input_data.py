@@ -871,3 +871,33 @@ def test_sizes_a_python_caller_gives_are_bounded_before_the_work(monkeypatch):
     for n in (2, 10**9, "5"):
         with pytest.raises(ValueError, match=r"n_check must be an integer from 3 to 4,096"):
             default_check_images(model, n)
+
+
+def test_the_dmp_functions_name_a_config_that_is_no_dmpconfig_and_a_bare_time():
+    """A dict or a scaling's name given as config failed on an attribute deep inside; a
+    0-d time an IndexError; alpha_z None a TypeError; a reversed view torch's strides."""
+    import torch
+
+    from img2dmp import bend_dmp, interop, rollout
+    from img2dmp.dmp import fit_dmp
+
+    t = np.linspace(0.0, 1.0, 50)
+    y = np.stack([10 + 5 * t, 12 - 3 * t**2], -1)
+    p = fit_dmp(t, y).params
+    said = "config must be a DMPConfig (img2dmp.DMPConfig(...); DMPConfig.from_dict for a dict)"
+    calls = [
+        lambda c: rollout(p.to_torch(), torch.as_tensor(t), c),
+        lambda c: bend_dmp(p, c),
+        lambda c: fit_dmp(t, y, c),
+        lambda c: interop.to_movement_primitives(p, c),
+    ]
+    for call in calls:
+        for config in ({"scaling": "none"}, "none"):
+            with pytest.raises(TypeError, match=re.escape(said)):
+                call(config)
+    with pytest.raises(ValueError, match=r"t has shape \(\): give the time stamps as an array"):
+        rollout(p.to_torch(), torch.tensor(0.5, dtype=torch.float64))
+    with pytest.raises(ValueError, match="alpha_z must be a number > 0, got None"):
+        DMPConfig(alpha_z=None)
+    backwards = fit_dmp(t, y[::-1])  # a view with negative strides: fitted as it reads
+    np.testing.assert_allclose(backwards.params.y0, y[-1], atol=1e-6)

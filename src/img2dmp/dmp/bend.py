@@ -42,7 +42,7 @@ import numpy as np
 
 from ..config import check_positive
 from .affine import affine_dmp
-from .config import DMPConfig
+from .config import DMPConfig, as_config
 from .params import DMPParams, first_index, show_value, strict_numbers
 
 #: Largest scale or tempo factor (and the inverse of the smallest).
@@ -110,6 +110,7 @@ def bend_dmp(
     """
     if not isinstance(params, DMPParams):
         raise ValueError(f"params must be a DMPParams, got {type(params).__name__}")
+    config = as_config(config)
     p = params.to_numpy()
     p = DMPParams(*(np.asarray(a, dtype=np.float64) for a in (p.w, p.tau, p.g, p.y0)))
     p.validate(config)

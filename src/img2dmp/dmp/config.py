@@ -104,7 +104,7 @@ class DMPConfig:
             raise ValueError(f"n_dims must be an integer >= 1, got {self.n_dims!r}")
         for name in ("alpha_z", "alpha_x", "beta_z"):
             value = getattr(self, name)
-            if value is not None and check_positive(name, value) > MAX_GAIN:
+            if (value is not None or name != "beta_z") and check_positive(name, value) > MAX_GAIN:
                 raise ValueError(f"{name} must be at most {MAX_GAIN:g}, got {value!r}")
         check_positive("width_factor", self.width_factor)
         beta = self.alpha_z / 4.0 if self.beta_z is None else self.beta_z
@@ -174,3 +174,17 @@ class DMPConfig:
 #: without a config (building one costs a few microseconds, a noticeable part of a
 #: one-DMP rollout).
 DEFAULT_CONFIG = DMPConfig()
+
+
+def as_config(config, default: DMPConfig | None = None) -> DMPConfig:
+    """``config`` if it is a :class:`DMPConfig`, ``default`` (the paper's constants when
+    None) for None; a ``TypeError`` naming what was given otherwise (a dict or the name
+    of a scaling failed later, on an attribute)."""
+    if config is None:
+        return DMPConfig() if default is None else default
+    if not isinstance(config, DMPConfig):
+        raise TypeError(
+            f"config must be a DMPConfig (img2dmp.DMPConfig(...); DMPConfig.from_dict for "
+            f"a dict), got {type(config).__name__}"
+        )
+    return config

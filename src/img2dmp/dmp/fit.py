@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from ..config import check_positive
-from .config import DMPConfig
+from .config import DMPConfig, as_config
 from .params import DMPParams, first_index
 from .rollout import check_time_stamps, unit_responses
 
@@ -79,7 +79,7 @@ def fit_dmp(
     FitResult
         NumPy in, NumPy out; torch in, torch out (float64 inside).
     """
-    config = config or DMPConfig()
+    config = as_config(config)
     as_numpy = not isinstance(y, torch.Tensor)
     t, y, ridge = _check_inputs(t, y, config, ridge, chunk_size)
     batch = tuple(y.shape[:-2])
@@ -141,7 +141,7 @@ def _as_real_tensor(name: str, a) -> torch.Tensor:
             raise ValueError(f"{name} must be an array of numbers: {e}") from None
         if a.dtype.kind not in "iuf":
             raise ValueError(f"{name} must hold real numbers, got an array of dtype {a.dtype}")
-        a = torch.from_numpy(a)
+        a = torch.from_numpy(np.ascontiguousarray(a))  # a reversed view has negative strides
     elif a.is_complex() or a.dtype == torch.bool:
         raise ValueError(f"{name} must hold real numbers, got a tensor of dtype {a.dtype}")
     return a.to(torch.float64)

@@ -35,7 +35,7 @@ import math
 import numpy as np
 
 from .basis import forcing_term, kernel_centres, kernel_widths
-from .config import DMPConfig
+from .config import DMPConfig, as_config
 from .params import DMPParams
 
 # Gauss-Legendre nodes per quadrature piece: exact for polynomials of degree 9.
@@ -134,7 +134,7 @@ class DMPIntegrator:
     ):
         if not isinstance(params, DMPParams):
             raise ValueError(f"params must be a DMPParams, got {type(params).__name__}")
-        self.config = config or DMPConfig()
+        self.config = as_config(config)
         p = params.to_numpy()
         if p.batch_shape != ():
             raise ValueError(

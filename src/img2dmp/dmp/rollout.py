@@ -46,7 +46,7 @@ import torch
 
 from . import _kernels
 from ._table import _cubic_pieces
-from .config import DEFAULT_CONFIG, DMPConfig
+from .config import DEFAULT_CONFIG, DMPConfig, as_config
 from .params import DMPParams, all_finite, as_host_array
 
 # The table is solved, kept on disk and flushed in ._table, which imports no torch: the
@@ -119,6 +119,8 @@ def check_time_stamps(t, name: str = "t", *, non_negative: bool = False) -> None
     x = as_host_array(t) if torch.is_tensor(t) else np.asarray(t)
     if x is None:  # another device or a dtype NumPy lacks: check a float64 copy
         x = t.detach().to("cpu", torch.float64).numpy()
+    if x.ndim == 0:
+        raise ValueError(f"{name} has shape (): give the time stamps as an array [T]")
     if x.size == 0 or x.shape[-1] == 0:
         raise ValueError(f"{name} is empty: a trajectory needs at least one time stamp")
     # NumPy below that size until the kernels are loaded: loading compiled code costs ~0.3 s
@@ -177,7 +179,7 @@ def rollout(
     -------
     tensor [*batch, T, d]
     """
-    config = config or DEFAULT_CONFIG
+    config = as_config(config, DEFAULT_CONFIG)
     y = _direct_rollout(params, t, config, validate, backend)
     if y is not None:  # a call that records no gradient, once the kernels are loaded
         return y

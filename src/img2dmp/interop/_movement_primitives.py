@@ -25,6 +25,7 @@ import numpy as np
 
 from ..config import check_positive
 from ..dmp import DMPConfig, DMPParams, fit_dmp
+from ..dmp.config import as_config
 from ._common import (
     DEFAULT_STEPS,
     PeerExport,
@@ -117,7 +118,7 @@ def to_movement_primitives(
         DMP, else a list of them in C order of the batch; ``exact`` is True.
     """
     _peer()
-    config = config or DMPConfig()
+    config = as_config(config)
     p = as_numpy_params(params, config)
     batch = p.batch_shape
     if dt is not None:
@@ -206,7 +207,7 @@ def from_movement_primitives(
     PeerImport
     """
     peer = _peer()
-    config = config or DMPConfig()
+    config = as_config(config)
     one = isinstance(dmps, peer)
     items = [dmps] if one else list(dmps) if isinstance(dmps, Sequence) else None
     if not items or not all(isinstance(d, peer) for d in items):

@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from ..dmp import DMPConfig, DMPParams, fit_dmp, kernel_centres, kernel_widths, rollout
+from ..dmp.config import as_config
 from ._common import (
     PeerExport,
     PeerImport,
@@ -124,7 +125,7 @@ def to_mp_pytorch(
         ``exact`` is False only for a ProDMP of a DMP whose ``beta_z`` is not
         ``alpha_z / 4``.
     """
-    config = config or DMPConfig()
+    config = as_config(config)
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     steps = check_steps(steps, kind)
@@ -216,7 +217,7 @@ def from_mp_pytorch(prim, config: DMPConfig | None = None, *, check: bool = True
         Batch shape: the object's ``add_dim``.
     """
     mp, _, _ = _mp_pytorch()
-    config = config or DMPConfig()
+    config = as_config(config)
     if not isinstance(prim, (mp.DMP, mp.ProDMP)):
         raise ValueError(f"expected an mp_pytorch DMP or ProDMP, got {type(prim).__name__}")
     if prim.params is None or prim.init_pos is None:
