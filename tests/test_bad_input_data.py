@@ -901,3 +901,23 @@ def test_the_dmp_functions_name_a_config_that_is_no_dmpconfig_and_a_bare_time():
         DMPConfig(alpha_z=None)
     backwards = fit_dmp(t, y[::-1])  # a view with negative strides: fitted as it reads
     np.testing.assert_allclose(backwards.params.y0, y[-1], atol=1e-6)
+
+
+def test_prepared_images_hold_ink_levels_in_0_1():
+    """1e30 gave NaN weights, 0-255 weights of 1e6 and the familiarity of NaN images NaN:
+    every call on prepared images refuses them alike."""
+    import img2dmp
+
+    model = img2dmp.load_model(refine=0)
+    cases = [
+        (np.full((1, 28, 28), 255, np.uint8), "got values from 255 to 255"),
+        (np.full((1, 28, 28), 1e30, np.float32), "from 1e+30 to 1e+30"),
+        (np.full((1, 28, 28), np.nan, np.float32), "images contain NaN or inf"),
+    ]
+    calls = (model.predict_images, model.predict_hypotheses, model.familiarity,
+             model.encoder_features)  # fmt: skip
+    for bad, said in cases:
+        for call in calls:
+            with pytest.raises(ValueError, match=re.escape(said)):
+                call(bad)
+    model.predict_images(np.ones((1, 28, 28), np.float32))  # all ink: a prepared image

@@ -231,6 +231,19 @@ def check_count(name: str, value, lo: int, hi: int) -> int:
     return int(value)
 
 
+def _check_levels(x: np.ndarray) -> None:
+    """Prepared images hold ink levels in [0, 1] (ink = 1): NaN, inf or 0-255 values are
+    no prepared image (1e30 made NaN weights, 255 weights of 1e6)."""
+    if not np.isfinite(x).all():
+        raise ValueError("images contain NaN or inf")
+    if x.size and (float(x.min()) < -1e-3 or float(x.max()) > 1.0 + 1e-3):
+        raise ValueError(
+            f"images must hold ink levels in [0, 1] (prepared images, ink = 1; "
+            f"Predictor.prepare makes them), got values from {float(x.min()):g} to "
+            f"{float(x.max()):g}"
+        )
+
+
 def _check_framing(record: dict, image_size) -> None:
     """A checkpoint record's framing of its training images (``ink_margin``,
     ``stroke_width_px``), as :func:`prepare_image` will take them; ``ValueError`` naming
@@ -542,8 +555,7 @@ class Predictor:
                 f"images must have shape [B, {self.image_size[0]}, {self.image_size[1]}], "
                 f"got {tuple(x.shape)} (use prepare_image for other sizes)"
             )
-        if not np.isfinite(x).all():
-            raise ValueError("images contain NaN or inf")
+        _check_levels(x)
         return x
 
     def _raw_outputs(self, images, batch_size: int):
@@ -731,6 +743,7 @@ class Predictor:
         if x.ndim != 3 or x.shape[1:] != self.image_size:
             raise ValueError(f"images must be [B, {self.image_size[0]}, {self.image_size[1]}] "
                              f"prepared images, got shape {x.shape}")  # fmt: skip
+        _check_levels(x)
         seen = self._seen
         if seen is not None and seen[0].shape == x.shape and np.array_equal(seen[0], x):
             return seen[1]  # the network read these images last: their features are kept
