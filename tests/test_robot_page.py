@@ -416,6 +416,9 @@ def test_a_page_that_does_not_fit_is_refused_before_anything_moves(page_document
     plan_page(page, width_mm=widest - 0.1)  # fits
     with pytest.raises(ValueError, match="does not fit the sheet"):
         plan_page(page, width_mm=widest + 0.2)
+    for width in (1e-300, 1e308):  # a page 0.0 mm wide was written, 1e308 overflowed
+        with pytest.raises(ValueError, match=r"width_mm .* must be from 5 to 1e\+06 mm"):
+            plan_page(page, width_mm=width)
     # Out of the arm's reach: named by character, before anything moves.
     far = WritingOptions(scene_config=SceneConfig(paper_center_m=(1.3, 0.0)))
     with pytest.raises(

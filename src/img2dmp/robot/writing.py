@@ -57,6 +57,9 @@ PROGRESS_EVERY_STEPS = 24
 # The longest write phase, in control steps (17 min at 240 Hz): the plan, the log and
 # the simulation all grow with it.
 MAX_WRITING_STEPS = 250_000
+#: Narrowest and widest a page may be asked to be written, mm (whether it fits the
+#: sheet, 148 mm wide, is checked after, naming the width that would).
+PAGE_WIDTH_RANGE_MM = (5.0, 1e6)
 # Bounds of the camera pictures: each side of a frame or render, and all video frames.
 IMAGE_SIDE_PX = (16, 4096)
 MAX_VIDEO_BYTES = 1 << 30
@@ -148,6 +151,10 @@ class PaperMapping:
         """The mapping that writes ``area_px`` ``width_mm`` wide (its aspect kept)."""
         x0, y0, x1, y1 = area_px
         width_mm = check_positive("width_mm", width_mm)
+        lo, hi = PAGE_WIDTH_RANGE_MM
+        if not lo <= width_mm <= hi:  # 1e-300 wrote a page 0.0 mm wide, 1e308 overflowed
+            raise ValueError(f"width_mm {width_mm:g} must be from {lo:g} to {hi:g} mm (the "
+                             "written area's width on the paper)")  # fmt: skip
         return cls(image_size, width_mm * (y1 - y0) / (x1 - x0), center_m, area_px)
 
     @property
