@@ -921,3 +921,21 @@ def test_prepared_images_hold_ink_levels_in_0_1():
             with pytest.raises(ValueError, match=re.escape(said)):
                 call(bad)
     model.predict_images(np.ones((1, 28, 28), np.float32))  # all ink: a prepared image
+
+
+def test_a_stem_with_a_folder_in_it_writes_nothing_outside(tmp_path):
+    """PagePrediction.save(dir, "../x") wrote beside dir, and None as "None_page.json"."""
+    import img2dmp
+    from img2dmp.predict import write_prediction
+
+    samples = Path(__file__).resolve().parents[1] / "examples" / "samples"
+    model = img2dmp.load_model(refine=0)
+    page = model.predict_page(samples / "page.jpg")
+    pred = model.predict(samples / "digit_3.png")
+    out = tmp_path / "out"
+    for stem in ("../escaped", None, "", "..", "a/b"):
+        with pytest.raises(ValueError, match="stem must be a file name without a folder"):
+            page.save(out, stem, picture=False)
+        with pytest.raises(ValueError, match="stem must be a file name without a folder"):
+            write_prediction(out, stem, pred)
+    assert not any(tmp_path.rglob("*.json"))

@@ -213,6 +213,15 @@ def save_figure(fig, path: str | os.PathLike, *, dpi: int = 100) -> Path:
 # --- reading --------------------------------------------------------------------------
 
 
+def check_stem(stem, what: str = "stem") -> str:
+    """``stem``, the start of the names of files written into a folder, if it is a plain
+    file name (no folder in it: ``"../x"`` wrote outside the folder); else ``ValueError``."""
+    if (not isinstance(stem, str) or not stem or stem in (".", "..") or "\0" in stem
+            or os.sep in stem or (os.altsep and os.altsep in stem)):  # fmt: skip
+        raise ValueError(f"{what} must be a file name without a folder, got {stem!r}")
+    return stem
+
+
 def check_readable(path: str | os.PathLike, what: str = "file") -> Path:
     """``path`` if it is a regular file this process can read; otherwise an ``OSError``
     whose message names ``what``, the file and the reason (no such file, a directory,
@@ -359,6 +368,7 @@ __all__ = [
     "lock_directory",
     "open_lock_file",
     "parse_json",
+    "check_stem",
     "new_figure",
     "save_figure",
 ]

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._files import atomic_write_bytes, atomic_write_text
+from ._files import atomic_write_bytes, atomic_write_text, check_stem
 from .data import images as _images
 from .data.pages import PageCharacter, PageLayout, find_characters
 from .data.paper import paper_ink
@@ -250,6 +250,7 @@ class PagePrediction:
     def save(self, out_dir: str | os.PathLike, stem: str, picture: bool = True) -> list[Path]:
         """Write ``<stem>_page.json`` and (``picture``) ``<stem>_page.png`` into
         ``out_dir``, atomically; returns the files written."""
+        check_stem(stem)
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         written = [out / f"{stem}_page.json"]

@@ -54,6 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._files import check_stem
 from .checkpoint import (
     Checkpoint,
     CheckpointError,
@@ -1484,6 +1485,7 @@ def write_prediction(
     (the model's input with the paths in the model frame) and
     ``<stem>_overlay_image.png`` (the user's own image with the paths in the image frame;
     several hypotheses ranked, the top one bold). Atomic writes."""
+    check_stem(stem)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written = [out / f"{stem}_dmp.json", out / f"{stem}_trajectory.csv"]

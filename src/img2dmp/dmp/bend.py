@@ -103,15 +103,14 @@ def bend_dmp(
     Raises
     ------
     ValueError
-        One line naming the value: a goal, start, shift, scale or angle that is not
-        finite, a scale or tempo <= 0, shapes that do not fit the batch, positions asked
+        One line naming the value: a goal, start, shift, scale or angle not finite or
+        out of bounds, a scale or tempo <= 0, shapes that do not fit the batch, positions asked
         of a DMP of fewer than 2 dimensions, or (``"goal-start"``) a rotation that maps a
         coordinate of ``g - y0`` to 0 (:func:`img2dmp.dmp.affine.affine_dmp`).
     """
     if not isinstance(params, DMPParams):
         raise ValueError(f"params must be a DMPParams, got {type(params).__name__}")
-    config = as_config(config)
-    p = params.to_numpy()
+    config, p = as_config(config), params.to_numpy()
     p = DMPParams(*(np.asarray(a, dtype=np.float64) for a in (p.w, p.tau, p.g, p.y0)))
     p.validate(config)
     batch = p.batch_shape
