@@ -939,3 +939,18 @@ def test_a_stem_with_a_folder_in_it_writes_nothing_outside(tmp_path):
         with pytest.raises(ValueError, match="stem must be a file name without a folder"):
             write_prediction(out, stem, pred)
     assert not any(tmp_path.rglob("*.json"))
+
+
+def test_a_list_of_images_and_a_dmp_to_save_are_named_when_they_are_not():
+    import img2dmp
+    from img2dmp.robot import save_dmp_json
+
+    model = img2dmp.load_model(refine=0)
+    for paths in ([], "x.png"):  # a path's characters were read as paths
+        with pytest.raises(ValueError, match="paths must be a non-empty list of image paths"):
+            model.prepare_paths(paths)
+    with pytest.raises(TypeError, match="x.json: params must be a DMPParams, got NoneType"):
+        save_dmp_json("x.json", None, DMPConfig(), (28, 28))
+    params = DMPParams(np.zeros((25, 2)), 1.0, np.zeros(2), np.ones(2))
+    with pytest.raises(TypeError, match="x.json: config must be a DMPConfig, got dict"):
+        save_dmp_json("x.json", params, {}, (28, 28))

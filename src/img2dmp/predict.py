@@ -840,6 +840,8 @@ class Predictor:
     def prepare_paths(self, paths, match_stroke_width: bool = True) -> np.ndarray:
         """Image files as the model's input ``[B, H, W]`` (:func:`prepare_image` with the
         training images' framing and, with ``match_stroke_width``, their pen width)."""
+        if isinstance(paths, (str, bytes, os.PathLike)) or not len(paths := list(paths)):
+            raise ValueError(f"paths must be a non-empty list of image paths, got {paths!r}")
         width = self.stroke_width if match_stroke_width else None
         return np.stack(
             [

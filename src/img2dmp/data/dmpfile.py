@@ -697,6 +697,10 @@ def dmp_document(
     params: DMPParams, config: DMPConfig, image_size, path="DMP document", **extra
 ) -> dict:
     """The version-2 document of one DMP (``extra``: optional fields and notes)."""
+    for name, value, kind in (("params", params, DMPParams), ("config", config, DMPConfig)):
+        if not isinstance(value, kind):
+            raise TypeError(f"{path}: {name} must be a {kind.__name__}, got "
+                            f"{type(value).__name__}")  # fmt: skip
     p = params.to_numpy()
     if p.batch_shape != ():
         raise ValueError(f"{path}: params must hold one DMP, got batch shape {p.batch_shape}")
