@@ -954,3 +954,12 @@ def test_a_list_of_images_and_a_dmp_to_save_are_named_when_they_are_not():
     params = DMPParams(np.zeros((25, 2)), 1.0, np.zeros(2), np.ones(2))
     with pytest.raises(TypeError, match="x.json: config must be a DMPConfig, got dict"):
         save_dmp_json("x.json", params, {}, (28, 28))
+
+
+def test_a_model_that_is_no_path_is_named():
+    import img2dmp
+
+    said = "the model must be a run directory, a checkpoint file or a shipped model's name"
+    for given, shown in ((5, "int 5"), (b"run", "bytes b'run'")):
+        with pytest.raises(TypeError, match=re.escape(f"{said}, got {shown}")):
+            img2dmp.load_model(given)

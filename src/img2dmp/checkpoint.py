@@ -217,6 +217,9 @@ def resolve_checkpoint(path: str | os.PathLike, name: str = DEFAULT_NAME) -> Pat
     the name of a model shipped with img2dmp (``digits-real``: its weights, their SHA-256
     checked, :func:`img2dmp.models.resolve`; an unknown name is refused listing the
     shipped ones)."""
+    if not isinstance(path, (str, os.PathLike, _shipped.ShippedModel)):
+        raise TypeError(f"the model must be a run directory, a checkpoint file or a shipped "
+                        f"model's name, got {type(path).__name__} {path!r:.60}")  # fmt: skip
     shipped = _shipped.resolve(path)
     if shipped is not None:
         return _shipped.verified_weights(shipped)
