@@ -963,3 +963,29 @@ def test_a_model_that_is_no_path_is_named():
     for given, shown in ((5, "int 5"), (b"run", "bytes b'run'")):
         with pytest.raises(TypeError, match=re.escape(f"{said}, got {shown}")):
             img2dmp.load_model(given)
+
+
+def test_the_api_audit_s_last_few_are_one_line():
+    """An empty batch to MP_PyTorch (a reshape error), a seed of text (NumPy's words),
+    refinement steps of no images (a TypeError) and a page's path at 1e308 (written)."""
+    import json
+
+    import img2dmp
+    from img2dmp import interop
+    from img2dmp.export import default_check_images
+    from img2dmp.robot import check_page_document
+
+    none = DMPParams(np.zeros((0, 25, 2)), np.ones(0), np.zeros((0, 2)), np.zeros((0, 2)))
+    with pytest.raises(ValueError, match=r"params holds no DMP \(batch shape \[0\]\)"):
+        interop.to_mp_pytorch(none, DMPConfig())
+    model = img2dmp.load_model(refine=0)
+    with pytest.raises(ValueError, match="seed must be an integer >= 0, got 'x'"):
+        default_check_images(model, 8, "x")
+    with pytest.raises(ValueError, match=r"images must be prepared images \[B, H, W\], got None"):
+        model.refine_steps_for(None)
+    samples = Path(__file__).resolve().parents[1] / "examples" / "samples"
+    doc = json.loads(model.predict_page(samples / "page.jpg").to_json())
+    doc["characters"][0]["path_image_px"][3] = [1e308, 0.0]
+    with pytest.raises(ValueError, match=r"page: field 'characters\[0\].path_image_px' point 3 "
+                                         r"is \[1e\+308, 0.0\], beyond the 1e\+09 px"):  # fmt: skip
+        check_page_document(doc, "page")

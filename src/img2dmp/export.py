@@ -358,6 +358,8 @@ def default_check_images(predictor: Predictor, n: int = CHECK_IMAGES, seed: int 
             f"n_check must be an integer from 3 to {MAX_CHECK_BATCH:,} (images the export is "
             f"checked on), got {n!r}"
         )
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     rng = np.random.default_rng(seed)
     config = SyntheticConfig(image_size=tuple(predictor.image_size))
     images = generate(np.arange(n - 2) % 10, config, rng).images.astype(np.float32)

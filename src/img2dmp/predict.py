@@ -488,6 +488,8 @@ class Predictor:
         an image below the :attr:`familiar` line (the one the ``"unfamiliar"`` flag
         uses); ``familiarity [B]``: the images' own, when already computed."""
         o = self.refine_options
+        if not hasattr(images, "__len__"):
+            raise ValueError(f"images must be prepared images [B, H, W], got {images!r:.60}")
         steps = np.full(len(images), 0 if o is None else int(o.steps), dtype=np.int64)
         adaptive = o is not None and self.refine_unfamiliar is not None
         if adaptive and self.familiar is not None and len(images):

@@ -131,6 +131,8 @@ def to_mp_pytorch(
     steps = check_steps(steps, kind)
     p = as_numpy_params(params, config)
     batch = p.batch_shape
+    if 0 in batch:  # MP_PyTorch holds a batch in one primitive: an empty one is none
+        raise ValueError(f"params holds no DMP (batch shape {list(batch)}); give at least one")
     prim = _build(kind, config, steps, dtype)
     s = np.linspace(0.0, 1.0, steps + 1)
     times = p.tau[..., None] * s  # [*batch, T]

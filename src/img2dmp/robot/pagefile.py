@@ -56,6 +56,8 @@ VERSION = 1
 # A page of a few hundred characters with two hypotheses each is a few MB.
 MAX_FILE_BYTES = 64 << 20
 MAX_CHARACTERS = 5000
+#: Largest coordinate of a path point, pixels (as a DMP file's values: 1e9).
+MAX_POSITION_PX = 1e9
 TOP_FIELDS = ("format", "version", "image", "image_size_px", "lines", "characters")
 CHARACTER_FIELDS = (
     "index",
@@ -257,6 +259,10 @@ def _samples(path: str, where: str, raw) -> tuple[np.ndarray, np.ndarray, np.nda
         raise _bad(
             path, f"{where}.path_image_px", f"must be [T][2] points, got shape {list(xy.shape)}"
         )
+    if np.abs(xy).max() > MAX_POSITION_PX:  # 1e308 was planned and written (an audit)
+        k = int(np.abs(xy).max(axis=1).argmax())
+        raise _bad(path, f"{where}.path_image_px", f"point {k} is {xy[k].tolist()}, beyond "
+                   f"the {MAX_POSITION_PX:g} px a photo's position may be")  # fmt: skip
     for key, a in (("pen", pen), ("times_s", t)):
         if a.shape != (len(xy),):
             raise _bad(
