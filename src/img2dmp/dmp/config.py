@@ -13,6 +13,7 @@ with ``S = diag(g - y0)`` (the paper's scaling, ``scaling="goal-start"``) or ``S
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import asdict, dataclass, field
 
 from ..config import check_positive
@@ -107,8 +108,7 @@ class DMPConfig:
             if (value is not None or name != "beta_z") and check_positive(name, value) > MAX_GAIN:
                 raise ValueError(f"{name} must be at most {MAX_GAIN:g}, got {value!r}")
         check_positive("width_factor", self.width_factor)
-        beta = self.alpha_z / 4.0 if self.beta_z is None else self.beta_z
-        check_positive("beta_z", beta)
+        beta = self.alpha_z / 4.0 if self.beta_z is None else self.beta_z  # > 0: checked
         if self.scaling not in SCALINGS:
             raise ValueError(f"scaling must be one of {SCALINGS}, got {self.scaling!r}")
         object.__setattr__(self, "_beta", float(beta))
@@ -123,7 +123,7 @@ class DMPConfig:
         n, ax = self.n_kernels, float(self.alpha_x)
         step = ax / (n - 1)
         log_gap = -ax * (n - 2) / (n - 1) + math.log(-math.expm1(-step))  # log(c_N-2 - c_N-1)
-        if math.log(self.width_factor) - 2 * log_gap >= math.log(1.7e308):
+        if math.log(self.width_factor) - 2 * log_gap >= math.log(sys.float_info.max):
             raise ValueError(
                 f"alpha_x={self.alpha_x:g} with {n} kernels puts the last kernels' centres "
                 f"(exp(-alpha_x k / {n - 1})) closer together than float64 can tell apart: "
