@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import csv
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -387,6 +389,41 @@ def test_typed_log_is_consistent_and_gives_the_old_metrics(tmp_path):
     assert sum(int(r[CSV_HEADER.index("dwell")]) for r in rows[1:]) == log.dwell.sum()
     plot_writing(result, tmp_path / "paper.png")
     assert (tmp_path / "paper.png").stat().st_size > 10_000 and not plt.get_fignums()
+
+
+def test_planning_a_path_needs_no_torch_and_takes_tensors_alike():
+    """The robot plans in NumPy: a fresh interpreter plans a DMP's path without importing
+    torch (2-3 s of a write's start-up), and a DMP of torch tensors plans the same path."""
+    code = """
+import sys
+import numpy as np
+from img2dmp.dmp import DMPConfig, DMPParams
+from img2dmp.robot import PaperMapping, plan_path
+cfg = DMPConfig(n_kernels=5)
+w = np.linspace(-50.0, 50.0, 10).reshape(5, 2)
+p = DMPParams(w, np.array(1.0), np.array([20.0, 20.0]), np.array([8.0, 8.0]))
+plan = plan_path(p, cfg, PaperMapping((28, 28), 40.0, (0.55, 0.0)), 1 / 240)
+assert np.isfinite(plan.xy_m).all() and len(plan.time_s) == 241
+assert "torch" not in sys.modules, "planning a path imported torch"
+"""
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            timeout=120)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+
+    import torch
+
+    from img2dmp.dmp import DMPParams, rollout
+    from img2dmp.robot import PaperMapping, plan_path
+
+    params, config = fitted(plus_path())
+    mapping = PaperMapping(IMAGE_SIZE, 40.0, (0.55, 0.0))
+    plan = plan_path(params, config, mapping, 1 / 240)
+    fields = (params.w, params.tau, params.g, params.y0)
+    tensors = DMPParams(*(torch.as_tensor(np.asarray(a)) for a in fields))
+    np.testing.assert_array_equal(plan_path(tensors, config, mapping, 1 / 240).xy_px, plan.xy_px)
+    # The NumPy path is torch's rollout, to rounding.
+    y = rollout(params.to_torch(torch.float64), torch.from_numpy(plan.time_s), config).numpy()
+    np.testing.assert_allclose(plan.xy_px, y[:, :2], rtol=0, atol=1e-9)
 
 
 @needs_pybullet

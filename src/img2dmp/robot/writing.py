@@ -4,10 +4,11 @@ The sequence of :func:`write_dmp`:
 
 1. **Plan and check** (before anything moves): check the DMP and the settings
    (:func:`checked_dmp`, :class:`WritingOptions`: finite numbers, a duration and a video
-   of bounded size), sample its exact path (:func:`img2dmp.dmp.rollout`) at the control
-   rate, map every point from image pixels to the paper (:class:`PaperMapping`), and
-   raise ``ValueError`` if a point leaves the sheet or the arm cannot reach it with the
-   pen vertical (inverse kinematics along the whole path, within joint limits).
+   of bounded size), sample its exact path (:func:`img2dmp.dmp.rollout`'s interpolant,
+   in NumPy: writing never imports torch) at the control rate, map every point from
+   image pixels to the paper (:class:`PaperMapping`), and raise ``ValueError`` if a
+   point leaves the sheet or the arm cannot reach it with the pen vertical (inverse
+   kinematics along the whole path, within joint limits).
 2. **Approach** (:meth:`WritingRun.approach`): the arm starts at rest with the tip
    ``lift_height_m`` above the first point; the admittance law lowers the pen until it
    presses with the set force.
@@ -32,10 +33,11 @@ from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, fields
 
 import numpy as np
-import torch
 
+from .._lazy import is_tensor
 from ..config import check_positive
-from ..dmp import DMPConfig, DMPIntegrator, DMPParams, rollout
+from ..dmp import DMPConfig, DMPIntegrator, DMPParams
+from ..dmp._numpy_rollout import rollout_numpy
 from .animation import PaperInset
 from .controller import ControllerConfig, WritingController
 from .scene import HOME_JOINTS_RAD, SceneConfig, WritingScene
@@ -445,7 +447,7 @@ def checked_dmp(params: DMPParams, config: DMPConfig) -> DMPParams:
     fields_ = {}
     for name in ("w", "tau", "g", "y0"):
         a = getattr(params, name)
-        if isinstance(a, torch.Tensor):
+        if is_tensor(a):
             a = a.detach().cpu().numpy()
         a = np.asarray(a)
         if a.dtype.kind not in "iuf":
@@ -468,7 +470,7 @@ def checked_dmp(params: DMPParams, config: DMPConfig) -> DMPParams:
 def plan_path(
     params: DMPParams, config: DMPConfig, mapping: PaperMapping, dt_s: float
 ) -> PlannedPath:
-    """The exact path of one DMP (:func:`img2dmp.dmp.rollout`) at steps of ``dt_s`` over
+    """The exact path of one DMP (:func:`img2dmp.dmp.rollout`, in NumPy) at steps of ``dt_s`` over
     ``[0, tau]``, mapped to the paper.
 
     ``ValueError`` (naming the value) for a DMP that :func:`checked_dmp` refuses or that
@@ -490,7 +492,7 @@ def plan_path(
         )
     n = max(1, round(steps))
     t = np.arange(n + 1) * dt_s
-    y = rollout(params.to_torch(torch.float64), torch.from_numpy(t), config).numpy()  # [T, d]
+    y = rollout_numpy(params, t, config)  # [T, d]
     if not np.isfinite(y).all():  # finite parameters can still overflow (w of 1e308)
         raise ValueError("params: the DMP's movement (its rollout) is not finite")
     return PlannedPath(
