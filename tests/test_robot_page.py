@@ -13,6 +13,7 @@ import copy
 import csv
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -416,6 +417,13 @@ def test_a_page_that_does_not_fit_is_refused_before_anything_moves(page_document
     plan_page(page, width_mm=widest - 0.1)  # fits
     with pytest.raises(ValueError, match="does not fit the sheet"):
         plan_page(page, width_mm=widest + 0.2)
+    # Without a width: the widest that fits (to 0.1 mm below), here under 160 mm; on a
+    # sheet twice as large, 160 mm.
+    default = plan_page(page)
+    assert widest - 0.15 <= default.width_mm <= widest + 0.05 and default.width_mm < 160
+    assert default.mapping.area_size_mm[0] == pytest.approx(default.width_mm)
+    large = WritingOptions(scene_config=SceneConfig(paper_size_m=(0.296, 0.42)))
+    assert plan_page(page, large).width_mm == 160.0
     for width in (1e-300, 1e308):  # a page 0.0 mm wide was written, 1e308 overflowed
         with pytest.raises(ValueError, match=r"width_mm .* must be from 5 to 1e\+06 mm"):
             plan_page(page, width_mm=width)
@@ -472,6 +480,25 @@ def test_write_page_command_skips_flagged_characters(page_document, tmp_path, ca
     # The overwrite rule, checked before anything runs.
     assert main(argv) == 2
     assert "exists; pass --force" in capsys.readouterr().err
+
+
+@needs_pybullet
+def test_write_page_command_says_the_width_it_takes(page_document, tmp_path, capsys):
+    """Without --width-mm a page too wide for the sheet at 160 mm is written at the widest
+    width that fits, said in a note (the arm placed out of reach here, so that nothing is
+    simulated: the note comes from the plan, before the reach is checked)."""
+    from img2dmp.cli import main
+
+    doc = _save(page_document, tmp_path / "p.json")
+    argv = ["write", doc, "--page", "--center-m", "1.3", "0", "--out-dir", str(tmp_path / "o"),
+            "--no-progress"]  # fmt: skip
+    assert main(argv) != 0
+    err = capsys.readouterr().err
+    assert re.search(r"note: p is written 15\d\.\d mm wide, the widest that fits the sheet "
+                     r"\(default 160 mm; --width-mm to choose\)", err), err  # fmt: skip
+    assert "the arm cannot reach" in err
+    assert main([*argv, "--width-mm", "150"]) != 0
+    assert "note: p is written" not in capsys.readouterr().err
 
 
 @needs_pybullet

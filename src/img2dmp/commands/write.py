@@ -139,8 +139,9 @@ def _add_page_arguments(parser: argparse.ArgumentParser) -> None:
         type=_args.positive_float,
         default=None,
         help=f"with --page: width on paper of the page's characters (the union of their "
-        f"boxes, aspect kept; default {DEFAULT_PAGE_WIDTH_MM:g}); refused if the page does "
-        "not fit the sheet or the arm's reach",
+        f"boxes, aspect kept; default {DEFAULT_PAGE_WIDTH_MM:g}, or the widest that fits the "
+        "sheet if narrower); a width given is refused if the page does not fit the sheet or "
+        "the arm's reach",
     )
     parser.add_argument(
         "--skip-flagged",
@@ -558,8 +559,11 @@ def _run_page(args, scene_cfg, ctl_cfg) -> int:
 
     options = _writing_options(args, scene_cfg, ctl_cfg)
     name, page, photo = _page_input(args)
-    width_mm = DEFAULT_PAGE_WIDTH_MM if args.width_mm is None else args.width_mm
-    plan = plan_page(page, options, width_mm=width_mm, skip_flagged=args.skip_flagged)
+    plan = plan_page(page, options, width_mm=args.width_mm, skip_flagged=args.skip_flagged)
+    if args.width_mm is None and plan.width_mm < DEFAULT_PAGE_WIDTH_MM:
+        print(f"img2dmp write: note: {name} is written {plan.width_mm:g} mm wide, the widest "
+              f"that fits the sheet (default {DEFAULT_PAGE_WIDTH_MM:g} mm; --width-mm to choose)",
+              file=sys.stderr)  # fmt: skip
     what, noun = plan.words()  # a stroke model's page: each entry a stroke
     return _write_plan(args, name, plan, photo, what, "_characters.csv", noun)
 

@@ -8,9 +8,10 @@ trajectory and the video are continuous:
 1. **Layout** (:func:`page_mapping`): the page's written area, the union of all its
    characters' boxes (flagged ones included, so that ``skip_flagged`` moves nothing),
    is written ``width_mm`` wide with its aspect kept (one scale for x and y) and its
-   centre on the paper's centre. Each character's DMP is its top hypothesis in the
-   photo's pixels, mapped to the paper by this one :class:`PaperMapping`; the blank
-   margins of the photo play no part.
+   centre on the paper's centre; by default ``DEFAULT_WIDTH_MM``, or the widest width
+   that fits the sheet when that is narrower (:func:`plan_page`). Each character's DMP
+   is its top hypothesis in the photo's pixels, mapped to the paper by this one
+   :class:`PaperMapping`; the blank margins of the photo play no part.
 2. **Plan and check, before anything moves** (:func:`plan_page`, then
    :func:`write_page_plan`): every character's exact path at the control rate must lie
    on the sheet (``ValueError`` naming the character, by how many mm it sticks out and
@@ -251,7 +252,7 @@ def plan_page(
     page: Page,
     options: WritingOptions | None = None,
     *,
-    width_mm: float = DEFAULT_WIDTH_MM,
+    width_mm: float | None = None,
     skip_flagged: bool = False,
     travel_height_m: float = TRAVEL_HEIGHT_M,
 ) -> PagePlan:
@@ -264,8 +265,11 @@ def plan_page(
     options : WritingOptions
         The control rate, the scene (where the paper is) and the controller; its
         ``writing_height_mm`` is not used (``width_mm`` sets the scale).
-    width_mm : float
-        Width of the page's written area on paper.
+    width_mm : float or None
+        Width of the page's written area on paper. None: ``DEFAULT_WIDTH_MM`` (160 mm),
+        or the widest width that fits the sheet, to 0.1 mm below, when that is narrower
+        (:attr:`PagePlan.width_mm` says which). A width given is written as given, or
+        refused.
     skip_flagged : bool
         Leave out the characters with flags (they keep their place in the layout).
     travel_height_m : float
@@ -290,14 +294,23 @@ def plan_page(
             f"travel_height_m must be in ({lift_m:g}, 0.2] m (above the lift height), "
             f"got {travel_height_m!r}"
         )
-    mapping = page_mapping(page, width_mm, options.scene_config.paper_center_m)
     chosen = [c for c in page.characters if not (skip_flagged and c.flags)]
     skipped = tuple(c for c in page.characters if skip_flagged and c.flags)
     if not chosen:
         why = "all of them are flagged (skip_flagged)" if page.characters else "it has none"
         raise ValueError(f"{page.path}: no characters to write: {why}")
-    plans = tuple(_plan_character(page, c, mapping, options.dt_s) for c in chosen)
-    plan = PagePlan(page, mapping, plans, skipped, float(width_mm), float(travel_height_m), options)
+
+    def laid_out(width: float) -> PagePlan:
+        mapping = page_mapping(page, width, options.scene_config.paper_center_m)
+        plans = tuple(_plan_character(page, c, mapping, options.dt_s) for c in chosen)
+        return PagePlan(page, mapping, plans, skipped, float(width), float(travel_height_m),
+                        options)  # fmt: skip
+
+    plan = laid_out(DEFAULT_WIDTH_MM if width_mm is None else width_mm)
+    if width_mm is None:  # the default: narrower if the sheet asks for it
+        widest = math.floor(widest_width_mm(plan, options.scene_config) * 10) / 10
+        if widest < DEFAULT_WIDTH_MM:
+            plan = laid_out(widest)
     check_page_fits(plan, options.scene_config)
     options.check_video(_duration_bound_s(plan, options))
     return plan
@@ -325,34 +338,37 @@ def _duration_bound_s(plan: PagePlan, options: WritingOptions) -> float:
 _EDGES = ("bottom", "right", "top", "left")  # world -x, -y, +x, +y as the writer sees it
 
 
+def widest_width_mm(plan: PagePlan, scene_config) -> float:
+    """The widest width (mm) at which every planned path of ``plan`` lies on the sheet
+    less its margin: the layout scales about the paper's centre, so each point's offset
+    from it grows in proportion to the width (``inf`` for a page of one point there)."""
+    lo, hi = sheet_bounds_m(scene_config)
+    center = np.array(plan.mapping.center_m)
+    widest = math.inf
+    for cp in plan.characters:
+        u = (cp.plan.xy_m - center) / plan.width_mm  # [T, 2] metres per mm of width
+        with np.errstate(divide="ignore"):
+            limit = np.where(u > 0, (hi - center) / u, np.where(u < 0, (lo - center) / u, np.inf))
+        widest = min(widest, float(limit.min()))
+    return widest
+
+
 def check_page_fits(plan: PagePlan, scene_config) -> None:
     """``ValueError`` if a character's path leaves the sheet (less its margin): naming
     the first such character in reading order, how many mm it sticks out past which
-    edge, and the widest page that fits (the layout scales about the paper's centre)."""
+    edge, and the widest page that fits (:func:`widest_width_mm`)."""
     lo, hi = sheet_bounds_m(scene_config)
-    center = np.array(plan.mapping.center_m)
-    max_width_mm = math.inf
-    first = None
     for cp in plan.characters:
-        xy = cp.plan.xy_m  # [T, 2]
-        over = np.concatenate([lo - xy, xy - hi], axis=1)  # [T, 4] > 0: outside
-        if first is None and over.max() > 0:
+        over = np.concatenate([lo - cp.plan.xy_m, cp.plan.xy_m - hi], axis=1)  # [T, 4] > 0: out
+        if over.max() > 0:
             t, edge = np.unravel_index(int(np.argmax(over)), over.shape)
-            first = (cp, float(over[t, edge]) * 1e3, _EDGES[edge])
-        # Each offset from the centre grows with the width; the page fits while every
-        # point's offset stays inside the bounds.
-        u = (xy - center) / plan.width_mm  # [T, 2] metres per mm of width
-        with np.errstate(divide="ignore"):
-            limit = np.where(u > 0, (hi - center) / u, np.where(u < 0, (lo - center) / u, np.inf))
-        max_width_mm = min(max_width_mm, float(limit.min()))
-    if first is not None:
-        cp, excess_mm, edge = first
-        raise ValueError(
-            f"{plan.page.path}: the page does not fit the sheet at a width of "
-            f"{plan.width_mm:g} mm: {cp.label} reaches {excess_mm:.1f} mm past the sheet's "
-            f"{edge} edge (less its {SHEET_MARGIN_M * 1e3:g} mm margin); the page fits at a width "
-            f"of at most {max_width_mm:.1f} mm (width_mm, --width-mm)"
-        )
+            raise ValueError(
+                f"{plan.page.path}: the page does not fit the sheet at a width of "
+                f"{plan.width_mm:g} mm: {cp.label} reaches {over[t, edge] * 1e3:.1f} mm past "
+                f"the sheet's {_EDGES[edge]} edge (less its {SHEET_MARGIN_M * 1e3:g} mm "
+                f"margin); the page fits at a width of at most "
+                f"{widest_width_mm(plan, scene_config):.1f} mm (width_mm, --width-mm)"
+            )
 
 
 def check_page_reach(scene: WritingScene, plan: PagePlan, controller_config) -> np.ndarray:
@@ -419,7 +435,7 @@ def write_page(
     page,
     options: WritingOptions | None = None,
     *,
-    width_mm: float = DEFAULT_WIDTH_MM,
+    width_mm: float | None = None,
     skip_flagged: bool = False,
     travel_height_m: float = TRAVEL_HEIGHT_M,
     progress: Callable[[int], object] | None = None,
@@ -770,6 +786,7 @@ __all__ = [
     "plan_page",
     "read_page",
     "travel_targets",
+    "widest_width_mm",
     "write_page",
     "write_page_plan",
 ]

@@ -124,7 +124,12 @@ class BendRequest(_Body):
 class PageWriteRequest(_Body):
     """``POST /api/pages/{id}/write``: how the arm writes a page read lately."""
 
-    width_mm: float = Field(DEFAULT_WIDTH_MM, gt=0, description="the page's written width, mm")
+    width_mm: float | None = Field(
+        None,
+        gt=0,
+        description=f"the page's written width, mm (default {DEFAULT_WIDTH_MM:g}, "
+        "or the widest that fits the sheet if narrower)",
+    )
     skip_flagged: bool = Field(False, description="leave out the characters with flags")
     video: bool = True
 

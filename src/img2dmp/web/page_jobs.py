@@ -60,7 +60,7 @@ _TOTALS = (
 )  # fmt: skip
 
 
-def plan_page_job(text: str, filename: str, width_mm: float, skip_flagged: bool,
+def plan_page_job(text: str, filename: str, width_mm: float | None, skip_flagged: bool,
                   travel_height_m: float = TRAVEL_HEIGHT_M) -> tuple:  # fmt: skip
     """The indices of the characters a job of this page document (its JSON ``text``, named
     ``filename``) writes, in order, from its layout at ``width_mm``; 422 with the
@@ -72,7 +72,7 @@ def plan_page_job(text: str, filename: str, width_mm: float, skip_flagged: bool,
     return tuple(cp.character.index for cp in plan.characters)
 
 
-def _plan(doc: dict, filename: str, width_mm: float, skip_flagged: bool,
+def _plan(doc: dict, filename: str, width_mm: float | None, skip_flagged: bool,
           travel_height_m: float = TRAVEL_HEIGHT_M):  # fmt: skip
     from ..robot import WritingOptions, check_page_document, plan_page
 
@@ -82,11 +82,13 @@ def _plan(doc: dict, filename: str, width_mm: float, skip_flagged: bool,
                      travel_height_m=travel_height_m)  # fmt: skip
 
 
-def submit_page(jobs, pages, page_id: str, width_mm: float, skip_flagged: bool, video: bool):
+def submit_page(jobs, pages, page_id: str, width_mm: float | None, skip_flagged: bool,
+                video: bool):  # fmt: skip
     """Queue the arm writing page ``page_id`` of ``pages`` (404 if not kept) with the
     ``jobs`` manager; the job's state."""
     text, filename = pages.document(page_id)
-    options = {"filename": filename, "width_mm": float(width_mm),
+    width_mm = None if width_mm is None else float(width_mm)  # None: plan_page's default
+    options = {"filename": filename, "width_mm": width_mm,
                "skip_flagged": bool(skip_flagged), "video": bool(video)}  # fmt: skip
     return _submit(jobs, "page", text, options)
 
