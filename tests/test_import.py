@@ -217,6 +217,33 @@ def test_strokes_resample_with_the_pen_up_between_them(tmp_path):
         resample_pen_path(pen, 2)  # both instants on a stroke: the lift is lost
 
 
+def test_a_stroke_of_one_point_is_a_dot_of_its_own(tmp_path):
+    """A tap of the pen (an i's dot, a diacritic) in any trajectory format: a stroke of
+    one point, kept as a stroke of its own and given one instant of the grid."""
+    image, _ = write_sample(tmp_path / "T", "T", 0, "json-strokes")
+    strokes = json.loads((tmp_path / "T/000.json").read_text())
+    x, y, t = strokes[0][len(strokes[0]) // 2]  # on the bar's ink, after the stem
+    dot = [[x, y + 1.0, strokes[-1][-1][2] + 0.3]]
+    (tmp_path / "T/000.json").write_text(json.dumps([*strokes, dot]))
+    as_dict = [{"x": [p[0] for p in s], "y": [p[1] for p in s], "t": [p[2] for p in s]}
+               for s in [*strokes, dot]]  # fmt: skip
+    (tmp_path / "D").mkdir()
+    (tmp_path / "D/000.json").write_text(json.dumps({"strokes": as_dict}))
+    (tmp_path / "D/000.png").write_bytes(image.read_bytes())
+    for traj in (tmp_path / "T/000.json", tmp_path / "D/000.json"):
+        pen = read_trajectory(traj)
+        assert pen.n_strokes == 3 and (pen.stroke == 2).sum() == 1
+        times, path = resample_pen_path(pen, 60)
+        down = path[:, 2] > 0.5
+        starts = np.flatnonzero(down & ~np.r_[False, down[:-1]])
+        assert len(starts) == 3 and down[starts[-1] :].sum() == 1  # the dot: one instant
+        assert path[starts[-1], :2] == pytest.approx([x, y + 1.0])
+    data = import_dataset(tmp_path, ImportOptions(n_times=60, val_fraction=0, test_fraction=0))
+    assert [len(s) for s in data.meta["stroke_spans"][0]] == [2, 2, 2]  # [first, last] each
+    first, last = data.meta["stroke_spans"][0][2]
+    assert first == last  # the dot's one instant
+
+
 def test_manifests_give_classes_splits_and_paths(letters, tmp_path):
     rows = [
         ("L/000.png", "L/000.csv", "L", "train"),
@@ -574,10 +601,12 @@ BAD = [
         ["T/001.csv", "line 3: field 'pen' is 2"],
     ),
     (
-        "one-point stroke",
-        lambda r: (r / "T/000.json").write_text("[[[5, 5, 0], [30, 5, 0.2]], [[20, 5, 0.5]]]"),
+        "empty stroke of lists",
+        lambda r: (r / "T/000.json").write_text(
+            '[[[5, 5, 0], [30, 5, 0.2]], {"x": [], "y": [], "t": []}]'
+        ),  # fmt: skip
         [],
-        ["T/000.json", "stroke 1 has 1 point (stroke 1 point 0)"],
+        ["T/000.json", "stroke 1 has no points; a stroke needs at least one"],
     ),
     (
         "path off the image",

@@ -158,7 +158,10 @@ def _xyt_object(path: Path, obj: dict, where: str, pen_allowed: bool) -> dict[st
 def _stroke_columns(path: Path, stroke, k: int) -> dict[str, np.ndarray]:
     """One stroke of a list of strokes: ``{"x", "y", "t"}`` or ``[[x, y, t], ...]``."""
     if isinstance(stroke, dict):
-        return _xyt_object(path, stroke, f"stroke {k}", pen_allowed=False)
+        cols = _xyt_object(path, stroke, f"stroke {k}", pen_allowed=False)
+        if len(cols["x"]) == 0:
+            raise ValueError(f"{path}: stroke {k} has no points; a stroke needs at least one")
+        return cols
     if not isinstance(stroke, list) or not stroke:
         raise ValueError(
             f'{path}: stroke {k} must be {{"x": [...], "y": [...], "t": [...]}} or a '
@@ -310,13 +313,7 @@ def _pen_path(path: Path, cols: dict, point, unit_s: float) -> PenPath:
         stroke = cols["stroke"].astype(np.int64)
     else:
         stroke = _strokes_of_pen(path, cols.get("pen"), n, point)
-    for s in range(int(stroke.max()) + 1):
-        members = np.flatnonzero(stroke == s)
-        if len(members) < 2:
-            raise ValueError(
-                f"{path}: stroke {s} has 1 point ({point(int(members[0]))}); a stroke needs "
-                "at least 2"
-            )
+    # A stroke of one point is a dot, kept as a stroke of its own (one instant of the grid).
     xy = np.stack([cols["x"], cols["y"]], axis=-1)
     return PenPath(xy=xy, t_s=t * unit_s, stroke=stroke, name=str(path), point_name=point)
 
