@@ -579,6 +579,21 @@ def test_write_has_the_arm_write_each_stroke_and_lift_the_pen_between(
     assert "--goal" not in printed
     assert cli.main(argv + ["--goal", "3,4", "--force"]) == 2
     assert "bending is for one-DMP models" in capsys.readouterr().err
+    # What predict --out wrote (the stroke document) is written by write --dmp, as the
+    # image was: the same strokes, the same commanded paths.
+    predict = ["predict", str(image), "--model", str(trained), "--out", str(tmp_path / "p")]
+    assert cli.main(predict) == 0
+    doc = tmp_path / "p" / "0102_20_dmp.json"
+    argv = ["write", "--dmp", str(doc), "--out-dir", str(out), "--no-progress"]
+    assert cli.main(argv) == 0
+    assert "2 of 2 strokes written" in capsys.readouterr().out
+    with open(out / "0102_20_dmp_log.csv", newline="") as f:
+        from_doc = [(r["cmd_x_m"], r["cmd_y_m"]) for r in csv.DictReader(f)]
+    with open(out / "0102_20_log.csv", newline="") as f:
+        from_image = [(r["cmd_x_m"], r["cmd_y_m"]) for r in csv.DictReader(f)]
+    assert from_doc == from_image
+    assert cli.main(argv + ["--hypothesis", "2", "--force"]) == 2
+    assert "is a stroke model's prediction" in capsys.readouterr().err
 
 
 def test_the_onnx_graph_of_a_stroke_model_reads_as_its_strokes(omni_root, trained, tmp_path):

@@ -64,7 +64,13 @@ from .checkpoint import (
     read_checkpoint_meta,
     resolve_checkpoint,
 )
-from .data.dmpfile import dmp_document, dmp_json_text, trajectory_entry, write_dmp_document
+from .data.dmpfile import (
+    box_around_px,
+    dmp_document,
+    dmp_json_text,
+    trajectory_entry,
+    write_dmp_document,
+)
 from .data.images import (  # noqa: F401  (re-exported: their home was this module)
     DEFAULT_MARGIN,
     INK_THRESHOLD,
@@ -1311,7 +1317,7 @@ class StrokePrediction:
             rows = self.stroke_rows(j)
             xy, t = path[0, rows, :2], self.times[rows]
             entries.append({
-                "box_image_px": _box_px(xy, size),
+                "box_image_px": box_around_px(xy, size),
                 "path_image_px": np.round(xy, 3).tolist(), "pen": [1] * len(xy),
                 "times_s": np.round(t - t[0], 6).tolist(),
                 "confidence": round(float(self.presence[j]), 6), "fit": dict(self.fit),
@@ -1342,18 +1348,6 @@ class StrokePrediction:
 
     def __repr__(self) -> str:
         return f"StrokePrediction({self.n_strokes} strokes, fit={self.fit}, flags={self.flags})"
-
-
-def _box_px(xy: np.ndarray, size: tuple[int, int]) -> list[int]:
-    """Half-open integer pixel bounds ``[x0, y0, x1, y1]`` around the points ``[n, 2]``
-    (the centre of pixel ``[i, j]`` at ``(j, i)``), inside an image of ``size`` (H, W)
-    and at least one pixel each way (a dot)."""
-    h, w = size
-    lo = np.floor(np.min(xy, axis=0) + 0.5).astype(int)
-    hi = np.floor(np.max(xy, axis=0) + 0.5).astype(int) + 1
-    x0, y0 = int(np.clip(lo[0], 0, w - 1)), int(np.clip(lo[1], 0, h - 1))
-    x1, y1 = int(np.clip(hi[0], x0 + 1, w)), int(np.clip(hi[1], y0 + 1, h))
-    return [x0, y0, x1, y1]
 
 
 def _stroke_starts(tau: np.ndarray) -> np.ndarray:

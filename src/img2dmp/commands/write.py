@@ -8,7 +8,9 @@ Input is either images and a trained model (``IMAGE ... [--model RUN|NAME]``; wi
 or the one of rank ``--hypothesis K``, in the frame of the file's ``image_size`` (for a
 prediction: the model's input, whose height is ``--writing-height-mm``). An
 ``img2dmp predict`` record from before the format's version 2 does not store the model's
-input size: give it with ``--image-size H W``. For each input it writes
+input size: give it with ``--image-size H W``. A stroke model's ``NAME_dmp.json`` (format
+``img2dmp-strokes``) is written stroke by stroke, as ``IMAGE --model`` writes it. For
+each input it writes
 ``NAME_paper.png`` (the ink next to the commanded path and the input), ``NAME_render.png``
 (camera: the arm at the end | the paper), ``NAME_log.csv`` (joint positions and velocities
 included), with ``--video`` ``NAME.gif`` and, where imageio-ffmpeg is installed,
@@ -64,7 +66,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="trained network that reads IMAGE: run directory, checkpoint or the name of a "
         f"model shipped with img2dmp (default: the shipped model {_args.DEFAULT_MODEL_NAME})",
     )
-    parser.add_argument("--dmp", metavar="JSON", help="one DMP to write (instead of IMAGE)")
+    parser.add_argument(
+        "--dmp",
+        metavar="JSON",
+        help="a DMP file to write (instead of IMAGE): one DMP, or a stroke model's prediction",
+    )
     parser.add_argument(
         "--image", metavar="PNG", help="with --dmp: an image to show next to the result"
     )
@@ -321,6 +327,8 @@ def check_files(args) -> None:
     _args.check_images(images)
     _args.check_output_dir(args.out_dir, "--out-dir")
     suffixes = _output_suffixes(args, False)
+    if args.dmp and _stroke_document(args.dmp) is not None:
+        suffixes.append("_strokes.csv")
     outputs = [
         (os.path.join(args.out_dir, _name(path) + suffix), path)
         for path in inputs
@@ -431,6 +439,9 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
 
     height_mm = args.writing_height_mm
     height_mm = DEFAULT_WRITING_HEIGHT_MM if height_mm is None else height_mm
+    stroke_doc = _stroke_document(args.dmp) if args.dmp else None
+    if stroke_doc is not None:
+        return _run_stroke_document(args, scene_cfg, ctl_cfg, stroke_doc)
     predictor = None if args.dmp else _predictor(args)
     if getattr(predictor, "strokes", None) is not None:
         return _run_strokes(args, scene_cfg, ctl_cfg, predictor)
@@ -575,33 +586,80 @@ def _run_strokes(args, scene_cfg, ctl_cfg, predictor) -> int:
     ``--writing-height-mm`` for the model's frame (as a one-DMP model's digit)."""
     import numpy as np
 
-    from img2dmp.robot import check_page_document, plan_page
-    from img2dmp.robot.page import STROKE_LIFT_M
+    from img2dmp.robot import check_page_document
 
-    if bend_options(args) or args.hypothesis != 1:
-        what = "bending" if bend_options(args) else "--hypothesis"
-        raise ValueError(f"{what} is for one-DMP models; {args.model} is a stroke model")
+    _refuse_one_dmp_options(args, f"{args.model} is a stroke model")
     outputs = [(os.path.join(args.out_dir, _name(p) + "_strokes.csv"), p) for p in args.images]
     _args.check_outputs(outputs, args.force, _args.model_inputs(args.model))
     options = _writing_options(args, scene_cfg, ctl_cfg)
-    height_mm = args.writing_height_mm
-    height_mm = DEFAULT_WRITING_HEIGHT_MM if height_mm is None else height_mm
-    travel_m = options.controller_config.lift_height_m + STROKE_LIFT_M
     for path in args.images:
         with _args.reading_image(path):
             pred = predictor.predict(path)
         _args.warn_flags("write", path, pred)
         where = f"{path} (the strokes read by {args.model})"
         page = check_page_document(pred.to_page_document(), where)
-        x0, y0, x1, y1 = page.written_area_px
-        width_mm = height_mm * (x1 - x0) / pred.frame.model_size[0]
-        plan = plan_page(page, options, width_mm=width_mm, travel_height_m=travel_m)
         image = np.asarray(pred.image, dtype=np.float32)
-        code = _write_plan(args, _name(path), plan, image, f"{pred.n_strokes} strokes",
-                           "_strokes.csv", "stroke")  # fmt: skip
+        code = _write_stroke_page(args, options, _name(path), page, image)
         if code:
             return code
     return 0
+
+
+def _refuse_one_dmp_options(args, why: str) -> None:
+    if bend_options(args) or args.hypothesis != 1:
+        what = "bending" if bend_options(args) else "--hypothesis"
+        raise ValueError(f"{what} is for one-DMP models; {why}")
+
+
+def _write_stroke_page(args, options, name: str, page, image) -> int:
+    """One character's strokes (a page of one line in the model's frame) at the scale of
+    ``--writing-height-mm`` for that frame, the pen lifted between strokes."""
+    from img2dmp.robot import plan_page
+    from img2dmp.robot.page import STROKE_LIFT_M
+
+    height_mm = args.writing_height_mm
+    height_mm = DEFAULT_WRITING_HEIGHT_MM if height_mm is None else height_mm
+    x0, _, x1, _ = page.written_area_px
+    width_mm = height_mm * (x1 - x0) / page.image_size_px[1]
+    travel_m = options.controller_config.lift_height_m + STROKE_LIFT_M
+    plan = plan_page(page, options, width_mm=width_mm, travel_height_m=travel_m)
+    n = len(page.characters)
+    return _write_plan(args, name, plan, image, f"{n} stroke{'s' if n > 1 else ''}",
+                       "_strokes.csv", "stroke")  # fmt: skip
+
+
+def _stroke_document(path):
+    """The JSON of ``path`` if it is a stroke model's prediction (``img2dmp-strokes``, as
+    ``img2dmp predict --out`` writes it for a stroke model), else None (the DMP file's
+    reader says what else is wrong)."""
+    from img2dmp._files import parse_json
+    from img2dmp.robot.dmpfile import MAX_FILE_BYTES
+    from img2dmp.robot.pagefile import STROKES_FORMAT
+
+    with open(path, "rb") as f:
+        raw = f.read(MAX_FILE_BYTES + 1)
+    if len(raw) > MAX_FILE_BYTES or STROKES_FORMAT.encode() not in raw:
+        return None
+    try:
+        doc = parse_json(raw, path, allow_nan=False)
+    except ValueError:
+        return None
+    return doc if isinstance(doc, dict) and doc.get("format") == STROKES_FORMAT else None
+
+
+def _run_stroke_document(args, scene_cfg, ctl_cfg, doc) -> int:
+    """``--dmp FILE`` of a stroke model's prediction: its strokes, as ``write IMAGE
+    --model`` writes them (:func:`img2dmp.robot.pagefile.strokes_page_document`)."""
+    from img2dmp.robot import check_page_document
+    from img2dmp.robot.pagefile import strokes_page_document
+
+    _refuse_one_dmp_options(args, f"{args.dmp} is a stroke model's prediction")
+    if args.image_size:
+        raise ValueError(f"--image-size: {args.dmp} gives its own image_size")
+    page = check_page_document(strokes_page_document(doc, args.dmp), args.dmp)
+    image = _read_image(args.image) if args.image else None
+    options = _writing_options(args, scene_cfg, ctl_cfg)
+    return _write_stroke_page(args, options, _name(args.dmp), page, image)
 
 
 def _write_plan(args, name: str, plan, photo, what: str, table: str, noun="character") -> int:

@@ -292,6 +292,10 @@ def _check_version(path: str, doc: dict) -> None:
     if doc.get("format") == "img2dmp-page":  # img2dmp.robot.pagefile.FORMAT
         raise ValueError(f"{path}: is a page document (format 'img2dmp-page'), not one DMP: "
                          f"img2dmp write {path} --page writes it")  # fmt: skip
+    if doc.get("format") == "img2dmp-strokes":  # img2dmp.predict.STROKES_FORMAT
+        raise ValueError(f"{path}: is a stroke model's prediction (format 'img2dmp-strokes'), "
+                         "a DMP per stroke, not one DMP: img2dmp write --dmp writes it "
+                         "(in Python img2dmp.robot.pagefile.strokes_page_document)")  # fmt: skip
     if doc.get("format") != FORMAT:
         raise _bad(path, "format", f"must be {FORMAT!r}, got {show_value(doc.get('format'))}")
     v = doc.get("version")
@@ -637,6 +641,19 @@ def load_dmp_json(
 # --- writing --------------------------------------------------------------------------
 
 
+def box_around_px(xy, size: tuple[int, int]) -> list[int]:
+    """Half-open integer pixel bounds ``[x0, y0, x1, y1]`` around the points ``[n, 2]``
+    (the centre of pixel ``[i, j]`` at ``(j, i)``), inside an image of ``size`` (H, W)
+    and at least one pixel each way (a dot): a page document's ``box_image_px``."""
+    xy = np.asarray(xy, dtype=np.float64)
+    h, w = size
+    lo = np.floor(np.min(xy, axis=0) + 0.5).astype(int)
+    hi = np.floor(np.max(xy, axis=0) + 0.5).astype(int) + 1
+    x0, y0 = int(np.clip(lo[0], 0, w - 1)), int(np.clip(lo[1], 0, h - 1))
+    x1, y1 = int(np.clip(hi[0], x0 + 1, w)), int(np.clip(hi[1], y0 + 1, h))
+    return [x0, y0, x1, y1]
+
+
 def trajectory_entry(times, xy_model=None, xy_image=None) -> dict:
     """The ``trajectory`` of a hypothesis: ``t_s [T]`` and positions ``[T, d]`` in the
     model's and/or the user's frame (a third column is the pen: ``pen [T]``), rounded to
@@ -744,6 +761,7 @@ __all__ = [
     "TRAJECTORY_DECIMALS",
     "VERSION",
     "DMPFile",
+    "box_around_px",
     "check_dmp_document",
     "dmp_document",
     "dmp_json_text",

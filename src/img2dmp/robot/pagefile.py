@@ -46,7 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._files import check_readable, parse_json
-from ..data.dmpfile import DMPFile, check_dmp_document
+from ..data.dmpfile import DMPFile, box_around_px, check_dmp_document
 from ..dmp import DMPParams
 from ..dmp.affine import affine_dmp
 from ..dmp.params import show_value, strict_numbers
@@ -377,6 +377,69 @@ def check_page_document(doc, path: str = "page document") -> Page:
     return Page(path, image, size, lines, chars, doc)
 
 
+#: The format of a stroke model's prediction (:data:`img2dmp.predict.STROKES_FORMAT`,
+#: docs/TRAINING.md), which :func:`strokes_page_document` turns into a page of its strokes.
+STROKES_FORMAT = "img2dmp-strokes"
+STROKES_VERSION = 1
+#: Points of each stroke's path in that page (the robot executes the DMP, not the path).
+STROKE_PATH_POINTS = 100
+
+
+def strokes_page_document(doc, path: str = "stroke document") -> dict:
+    """A stroke model's prediction (format ``img2dmp-strokes``, version 1, as ``img2dmp
+    predict --out`` writes it) as the page document of its strokes, in the model's frame:
+    one entry per stroke, all on line 0 in writing order, each its own 2-D DMP (checked
+    by the DMP file's reader) with its path rolled out from it. What ``img2dmp write
+    --dmp FILE`` writes, as ``StrokePrediction.to_page_document()`` is for ``write IMAGE``;
+    ``ValueError`` naming ``path`` and the field otherwise."""
+    from ..dmp._numpy_rollout import rollout_numpy
+
+    path = os.fspath(path)
+    if not isinstance(doc, dict) or doc.get("format") != STROKES_FORMAT:
+        got = show_value(doc.get("format") if isinstance(doc, dict) else doc)
+        raise _bad(path, "format", f"must be {STROKES_FORMAT!r}, got {got}")
+    v = doc.get("version")
+    if not (_is_int(v) and 1 <= v <= STROKES_VERSION):
+        raise _bad(path, "version", f"must be 1 (a newer img2dmp wrote it?), got {show_value(v)}")
+    missing = [k for k in ("dmp_config", "image_size", "strokes") if k not in doc]
+    if missing:
+        raise _bad(path, missing[0], "is missing")
+    strokes = doc["strokes"]
+    if not (isinstance(strokes, list) and 1 <= len(strokes) <= MAX_CHARACTERS):
+        raise _bad(path, "strokes", f"must be a list of 1 to {MAX_CHARACTERS} strokes, got "
+                   f"{show_value(strokes)}")  # fmt: skip
+    entries = []
+    for j, stroke in enumerate(strokes):
+        if not (isinstance(stroke, dict) and "params" in stroke):
+            raise _bad(path, f"strokes[{j}]", f"must be an object with params, got "
+                       f"{show_value(stroke)}")  # fmt: skip
+        dmp = {
+            "format": "img2dmp-dmp",
+            "version": 2,
+            "dmp_config": doc["dmp_config"],
+            "params": stroke["params"],
+            "image_size": doc["image_size"],
+            "frame": "image",
+        }
+        f = check_dmp_document(dmp, f"{path}: strokes[{j}]")
+        t = np.linspace(0.0, float(f.params.tau), STROKE_PATH_POINTS)
+        xy = rollout_numpy(f.params, t, f.config)[:, :2]
+        presence = stroke.get("presence", 1.0)
+        entries.append({
+            "index": j, "line": 0, "box_image_px": box_around_px(xy, f.image_size),
+            "path_image_px": np.round(xy, 3).tolist(), "pen": [1] * len(xy),
+            "times_s": np.round(t, 6).tolist(),
+            "confidence": presence if _is_number(presence) and 0 <= presence <= 1 else 1.0,
+            "fit": {"path_on_ink": None, "ink_written": None}, "flags": [], "dmp": dmp,
+            "stroke": j + 1,
+        })  # fmt: skip
+    h, w = f.image_size
+    return {"format": FORMAT, "version": VERSION, "image": None, "image_size_px": [w, h],
+            "frame": "model", "source": path,
+            "lines": [{"index": 0, "characters": list(range(len(entries)))}],
+            "characters": entries}  # fmt: skip
+
+
 def read_page(path) -> Page:
     """Read and check a page document file (module docstring).
 
@@ -403,4 +466,5 @@ __all__ = [
     "PageCharacter",
     "check_page_document",
     "read_page",
+    "strokes_page_document",
 ]
