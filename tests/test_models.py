@@ -254,8 +254,11 @@ def test_count_views_on_a_one_dmp_model_is_one_line_naming_it(capsys):
 def test_a_folder_of_the_same_name_wins_over_the_shipped_model(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     name = models.default_model().name
+    # A path of one word names the shipped model as the string does, until a folder has it.
+    assert models.resolve(Path(name)) == models.resolve(name) == models.default_model()
+    assert img2dmp.load_model(Path(name), refine=0).n_hypotheses >= 1
     (tmp_path / name).mkdir()
-    assert models.resolve(name) is None
+    assert models.resolve(name) is None and models.resolve(Path(name)) is None
     with pytest.raises(FileNotFoundError, match="holds no checkpoint"):
         img2dmp.load_model(name)
 

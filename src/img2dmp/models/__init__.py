@@ -310,13 +310,15 @@ def default_model(root: str | os.PathLike | None = None) -> ShippedModel:
 def resolve(source, root: str | os.PathLike | None = None) -> ShippedModel | None:
     """The shipped model ``source`` names, or None when ``source`` is a path.
 
-    ``source`` is a path if it is not a string written like a name
-    (:func:`is_model_name`), or if a file or folder of that name exists here; otherwise
-    it must name a shipped model (:func:`find_shipped`: unknown words are refused,
-    listing the shipped names).
+    ``source`` is a path if it is not written like a name (:func:`is_model_name`, as a
+    string or a path of one word such as ``Path("digits-real")``), or if a file or
+    folder of that name exists here; otherwise it must name a shipped model
+    (:func:`find_shipped`: unknown words are refused, listing the shipped names).
     """
     if isinstance(source, ShippedModel):
         return source
+    if isinstance(source, os.PathLike):
+        source = os.fspath(source)
     if not is_model_name(source) or os.path.lexists(source):
         return None
     return find_shipped(source, root)
