@@ -236,13 +236,20 @@ def test_pen_lifts_between_strokes():
     [
         ({"writing_height_mm": 400.0}, "leaves the paper"),
         ({"scene_config": "far"}, "cannot reach"),
+        # so far off that the IK overflowed: refused before it, a short number
+        (
+            {"scene_config": "very far"},
+            r"maps to world \(1e\+308, [-\d.]+\) m, more than 2 m "
+            r"from the arm's base; move",
+        ),  # fmt: skip
     ],
 )
 def test_bad_path_fails_before_the_arm_moves(monkeypatch, kwargs, message):
     from img2dmp.robot import SceneConfig, WritingScene, write_dmp
 
-    if kwargs.get("scene_config") == "far":
-        kwargs = {"scene_config": SceneConfig(paper_center_m=(1.3, 0.0))}
+    far = {"far": (1.3, 0.0), "very far": (1e308, 0.0)}.get(kwargs.get("scene_config"))
+    if far:
+        kwargs = {"scene_config": SceneConfig(paper_center_m=far)}
     steps = []
     monkeypatch.setattr(WritingScene, "step", lambda self, tau: steps.append(tau))
     params, config = fitted(two_path())
@@ -257,6 +264,10 @@ def test_invalid_settings_are_named():
 
     with pytest.raises(ValueError, match="force_set_n"):
         ControllerConfig(force_set_n=-1.0)
+    assert ControllerConfig(force_set_n=30.0).force_set_n == 30.0
+    for force in (30.5, 1e308):  # 1e308 N started a simulation that never settled
+        with pytest.raises(ValueError, match=r"force_set_n is .* N, more than 30 N"):
+            ControllerConfig(force_set_n=force)
     with pytest.raises(ValueError, match="paper_size_m"):
         SceneConfig(paper_size_m=(0.1, 0.0))
     params, config = fitted(circle_path())
@@ -479,6 +490,11 @@ def test_write_command_with_dmp_file(tmp_path, capsys):
     dmp = tmp_path / "two.json"
     save_dmp_json(dmp, params, config, IMAGE_SIZE)
     out = tmp_path / "out"
+    # Refused before anything runs, and no output folder left behind.
+    for bad, said in ((["--force-n", "1e308"], "force_set_n is 1e+308 N, more than 30 N"),
+                      (["--center-m", "3", "0"], "the arm cannot reach the DMP path")):  # fmt: skip
+        assert main(["write", "--dmp", str(dmp), "--out-dir", str(out), *bad]) == 2
+        assert said in capsys.readouterr().err and not out.exists()
     code = main(["write", "--dmp", str(dmp), "--out-dir", str(out), "--no-progress"])
     assert code == 0
     printed = capsys.readouterr().out

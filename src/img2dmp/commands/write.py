@@ -449,7 +449,6 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
         params, bent_line = _bent(args, name, params, config)
         if bent_line:
             print(bent_line)
-        os.makedirs(args.out_dir, exist_ok=True)  # once the first input is read and checked
         est_steps = int((float(params.tau) + 2.0) * args.rate_hz)
         with progress_bar(
             total=est_steps, unit="step", desc=f"writing {name}", enabled=not args.no_progress
@@ -470,6 +469,7 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
                 print(f"img2dmp write: {name}: simulation failed: {e}", file=sys.stderr)
                 return 1
             bar.total = bar.n
+        os.makedirs(args.out_dir, exist_ok=True)  # once written: a refusal leaves no folder
         base = os.path.join(args.out_dir, name)
         plot_writing(result, base + "_paper.png", image=image, title=f"{name}: KUKA iiwa writes")
         written = [base + "_paper.png"] + _save_run(args, result, name, len(args.images) or 1)
@@ -669,7 +669,6 @@ def _write_plan(args, name: str, plan, photo, what: str, table: str, noun="chara
     from img2dmp._progress import bar as progress_bar
     from img2dmp.robot import page_summary_lines, plot_page, save_characters_csv, write_page_plan
 
-    os.makedirs(args.out_dir, exist_ok=True)
     n, started, labels = len(plan.characters), [], plan.entry_labels()
     with progress_bar(
         total=plan.estimated_steps(),
@@ -691,6 +690,7 @@ def _write_plan(args, name: str, plan, photo, what: str, table: str, noun="chara
             print(f"img2dmp write: {name}: simulation failed{where}: {e}", file=sys.stderr)
             return 1
         bar.total = bar.n
+    os.makedirs(args.out_dir, exist_ok=True)  # once written: a refusal leaves no folder
     base = os.path.join(args.out_dir, name)
     plot_page(result, base + "_paper.png", image=photo, title=f"{name}: KUKA iiwa writes {what}",
               noun=noun)  # fmt: skip

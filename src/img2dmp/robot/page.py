@@ -389,7 +389,7 @@ def check_page_reach(scene: WritingScene, plan: PagePlan, controller_config) -> 
         n = max(2, math.ceil(float(np.linalg.norm(b - a)) / 1e-3) + 1)  # 1 mm apart
         for xy in np.linspace(a, b, n):
             q, residual = scene.solve_ik([*xy, z_m], PEN_DOWN_ROTATION, q, max_iterations=100)
-            if residual > IK_TOLERANCE_M:
+            if not residual <= IK_TOLERANCE_M:  # NaN too (a point far off)
                 prev, nxt = plan.characters[k - 1].label, plan.characters[k].label
                 raise ValueError(
                     f"{plan.page.path}: the arm cannot reach the travel from {prev} to {nxt} "

@@ -49,6 +49,9 @@ PEN_DOWN_ROTATION = np.diag([-1.0, 1.0, -1.0])
 PHASES = ("approach", "write", "lift", "travel")
 PEN_THRESHOLD = 0.5
 IK_TOLERANCE_M = 1e-4
+#: Points farther than this from the arm's base are refused without solving the IK (the
+#: iiwa reaches about 0.8 m; a point at 1e308 m overflowed the solver).
+BEYOND_REACH_M = 2.0
 # Writing starts once the force has stayed this close to the set point (relative).
 SETTLE_BAND = 0.05
 # A pen that goes down soon starts lowering to the approach clearance this much earlier
@@ -532,10 +535,13 @@ def check_path(scene: WritingScene, plan: PlannedPath, controller_config: Contro
         )
     surface = cfg.paper_top_z
     lift = surface + controller_config.lift_height_m
+    far = np.hypot(plan.xy_m[:, 0], plan.xy_m[:, 1]) > BEYOND_REACH_M  # no IK out there
+    if far.any():
+        _unreachable(plan, int(np.argmax(far)), math.nan)
     q, residual = scene.solve_ik(
         [*plan.xy_m[0], lift], PEN_DOWN_ROTATION, np.array(HOME_JOINTS_RAD), max_iterations=200
     )
-    if residual > IK_TOLERANCE_M:
+    if not residual <= IK_TOLERANCE_M:  # NaN too (a point far off)
         _unreachable(plan, 0, residual)
     q_start = q
     # Every point along the path, at most 1 mm apart, on and above the paper.
@@ -552,17 +558,22 @@ def check_path(scene: WritingScene, plan: PlannedPath, controller_config: Contro
             q, residual = scene.solve_ik(
                 [*plan.xy_m[i], height], PEN_DOWN_ROTATION, q, max_iterations=100
             )
-            if residual > IK_TOLERANCE_M:
+            if not residual <= IK_TOLERANCE_M:  # NaN too (a point far off)
                 _unreachable(plan, i, residual)
     return q_start
 
 
 def _unreachable(plan: PlannedPath, i: int, residual_m: float):
+    """``ValueError`` for point ``i`` of ``plan``: by how much the pen tip misses it, or
+    (``residual_m`` NaN) that it lies beyond ``BEYOND_REACH_M``."""
+    x, y = (f"{v:.3f}" if abs(v) < 1e6 else f"{v:.3g}" for v in plan.xy_m[i])
+    why = (f"which the pen tip misses by {residual_m * 1e3:.1f} mm with the pen vertical"
+           if math.isfinite(residual_m) else
+           f"more than {BEYOND_REACH_M:g} m from the arm's base")  # fmt: skip
     raise ValueError(
         f"the arm cannot reach the DMP path: at t = {plan.time_s[i]:.3f} s the point "
-        f"({plan.xy_px[i, 0]:.1f}, {plan.xy_px[i, 1]:.1f}) px maps to world "
-        f"({plan.xy_m[i, 0]:.3f}, {plan.xy_m[i, 1]:.3f}) m, which the pen tip misses by "
-        f"{residual_m * 1e3:.1f} mm with the pen vertical; move the writing area closer"
+        f"({plan.xy_px[i, 0]:.1f}, {plan.xy_px[i, 1]:.1f}) px maps to world ({x}, {y}) m, "
+        f"{why}; move the writing area closer"
     )
 
 
