@@ -43,7 +43,6 @@ import numpy as np
 
 from ..config import check_positive_fields
 
-
 #: The largest contact force the controller is asked to hold (N). Writing a "5" at 240 Hz
 #: (2026-12-07): 20, 25, 30, 35 N held within 0.1 N; at 40 N and above the pen bounces
 #: off the paper and never settles.
