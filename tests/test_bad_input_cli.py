@@ -11,6 +11,7 @@ where an earlier result exists the test shows it undamaged.
 from __future__ import annotations
 
 import errno
+import json
 import os
 import shutil
 import signal
@@ -275,6 +276,35 @@ def test_predict_refuses_two_inputs_of_one_output_name(model, images, tmp_path, 
     else:
         assert str(c) in line and str(out / "x_dmp.json") in line
     assert not out.exists()  # refused before anything was written
+
+
+def test_a_document_given_as_an_image_is_named_with_the_command_that_takes_it(
+    model, dmp_file, tmp_path, capsys
+):
+    page = tmp_path / "note_page.json"
+    page.write_text(json.dumps({"format": "img2dmp-page", "version": 1}))
+    for command, path, said in (
+        ("predict", page, f"; it is a page document: img2dmp write {page} --page writes it"),
+        ("write", dmp_file, f"; it is a DMP file: img2dmp write --dmp {dmp_file} writes it"),
+    ):
+        line = _fails(capsys, [command, str(path), "--model", str(model)])
+        assert line.endswith(said), line
+    other = tmp_path / "other.json"
+    other.write_text('{"format": "something-else"}')
+    assert _fails(capsys, ["predict", str(other), "--model", str(model)]).endswith(
+        "cannot identify image file " + repr(str(other))
+    )
+
+
+def test_a_warning_prints_the_familiarity_and_its_line_apart(capsys):
+    from types import SimpleNamespace
+
+    from img2dmp.commands._args import warn_flags
+
+    pred = SimpleNamespace(flags=["unfamiliar"], familiarity=0.99654, familiar_line=0.99687,
+                           refine_steps=30, fit={"path_on_ink": 1.0, "ink_written": 1.0})  # fmt: skip
+    warn_flags("predict", "x.png", pred)
+    assert "familiarity 0.9965, the model's line 0.9969;" in capsys.readouterr().err
 
 
 def test_predict_help_says_how_names_are_made(capsys):

@@ -349,7 +349,31 @@ def reading_image(path):
     except Image.DecompressionBombError as e:
         raise ValueError(f"image file {path} is refused as too large: {e}") from e
     except OSError as e:  # PIL's UnidentifiedImageError is one
-        raise ValueError(f"image file {path} cannot be read as an image: {e}") from e
+        raise ValueError(f"image file {path} cannot be read as an image: {e}"
+                         f"{_document_hint(path)}") from e  # fmt: skip
+
+
+#: What a JSON file img2dmp wrote is, by its format, and the command that writes it.
+_DOCUMENTS = {
+    "img2dmp-page": "a page document: img2dmp write {path} --page writes it",
+    "img2dmp-dmp": "a DMP file: img2dmp write --dmp {path} writes it",
+    "img2dmp-strokes": "a stroke model's prediction: img2dmp write --dmp {path} writes it",
+}
+
+
+def _document_hint(path) -> str:
+    """``"; it is a page document: ..."`` for a document of img2dmp's given where an image
+    belongs (its ``"format"`` read from the file's first 64 KiB), else ``""``."""
+    import re
+
+    try:
+        with open(path, "rb") as f:
+            head = f.read(1 << 16).decode("utf-8", errors="replace")
+    except OSError:
+        return ""
+    m = re.search(r'"format"\s*:\s*"(img2dmp-[a-z]+)"', head)
+    what = _DOCUMENTS.get(m.group(1)) if m else None
+    return f"; it is {what.format(path=path)}" if what else ""
 
 
 def warn_flags(command: str, path, pred) -> None:
@@ -360,8 +384,12 @@ def warn_flags(command: str, path, pred) -> None:
     if not flags:
         return
     familiarity, line = pred.familiarity, pred.familiar_line
+    digits = 3  # more where three would print the two alike
+    while familiarity is not None and line is not None and digits < 8 and (
+            f"{familiarity:.{digits}f}" == f"{line:.{digits}f}"):  # fmt: skip
+        digits += 1
     known = "" if familiarity is None or line is None else (
-        f"familiarity {familiarity:.3f}, the model's line {line:.3f}; ")  # fmt: skip
+        f"familiarity {familiarity:.{digits}f}, the model's line {line:.{digits}f}; ")  # fmt: skip
     # Unrefined (--refine 0, or a run whose reading recommends none): a path off the ink
     # may be off it only for that.
     unrefined = pred.refine_steps == 0 and bool({"off_ink", "unexplained_ink"} & set(flags))
