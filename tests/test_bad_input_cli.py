@@ -301,8 +301,10 @@ def test_a_warning_prints_the_familiarity_and_its_line_apart(capsys):
 
     from img2dmp.commands._args import warn_flags
 
-    pred = SimpleNamespace(flags=["unfamiliar"], familiarity=0.99654, familiar_line=0.99687,
-                           refine_steps=30, fit={"path_on_ink": 1.0, "ink_written": 1.0})  # fmt: skip
+    fit = {"path_on_ink": 1.0, "ink_written": 1.0}
+    pred = SimpleNamespace(
+        flags=["unfamiliar"], familiarity=0.99654, familiar_line=0.99687, refine_steps=30, fit=fit
+    )
     warn_flags("predict", "x.png", pred)
     assert "familiarity 0.9965, the model's line 0.9969;" in capsys.readouterr().err
 
