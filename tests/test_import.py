@@ -195,6 +195,7 @@ def test_import_stores_the_class_names_and_the_paths_on_the_ink(letters, importe
         "path": str(letters),
         "samples": 24,
         "skipped": [],
+        "median_duration_s": pytest.approx(np.median(data.times[:, -1]), rel=1e-5),
     }
 
 
@@ -750,19 +751,22 @@ def test_skip_bad_leaves_bad_samples_out_and_lists_them(small_source, tmp_path, 
     assert "the source itself" in capsys.readouterr().err
 
 
-def test_time_units_and_durations(tmp_path):
-    image, traj = write_sample(tmp_path / "s" / "L", "L", 0)
+def _in_ms(image: Path, traj: Path, folder: Path) -> None:
+    """A copy of a sample (CSV ``x,y,t``) in ``folder``, its t in milliseconds."""
     rows = traj.read_text().splitlines()
-    ms = tmp_path / "ms" / "L"
-    ms.mkdir(parents=True)
-    shutil.copy(image, ms / image.name)
-    (ms / traj.name).write_text(
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copy(image, folder / image.name)
+    (folder / traj.name).write_text(
         "\n".join(
             [rows[0]]
             + [f"{x},{y},{float(t) * 1000:.2f}" for x, y, t in (r.split(",") for r in rows[1:])]
         )
         + "\n"
     )
+
+
+def test_time_units_and_durations(tmp_path):
+    _in_ms(*write_sample(tmp_path / "s" / "L", "L", 0), tmp_path / "ms" / "L")
     opt = {"test_fraction": 0.0, "val_fraction": 0.0}
     seconds = import_dataset(tmp_path / "s", ImportOptions(**opt))
     millis = import_dataset(tmp_path / "ms", ImportOptions(time_unit="ms", **opt))
@@ -775,6 +779,24 @@ def test_time_units_and_durations(tmp_path):
         ImportOptions(time_unit="min")
     with pytest.raises(ValueError, match=r"val_fraction \+ test_fraction must be < 1"):
         ImportOptions(val_fraction=0.5, test_fraction=0.5)
+
+
+def test_milliseconds_read_as_seconds_are_noted_not_refused(tmp_path, capsys):
+    for k in range(2):
+        _in_ms(*write_sample(tmp_path / "s" / "L", "L", k), tmp_path / "ms" / "L")
+    out = tmp_path / "ms.safetensors"
+    argv = ["import", str(tmp_path / "ms"), "--out", str(out), "--no-progress", "--force"]
+    argv += ["--val-fraction", "0", "--test-fraction", "0"]
+    assert cli.main(argv) == 0  # a note, not a refusal: the unit is the user's to say
+    printed = capsys.readouterr().out
+    assert "implausibly long for handwriting (more than 60 s" in printed
+    assert "--time-unit ms" in printed
+    assert load_dataset(out).meta["source"]["median_duration_s"] > 60
+    for more in (["--time-unit", "ms"], ["--duration", "2"]):  # said, or made irrelevant
+        assert cli.main([*argv, *more]) == 0
+        assert "note:" not in capsys.readouterr().out
+    assert cli.main([*argv[:1], str(tmp_path / "s"), *argv[2:]]) == 0  # seconds: no note
+    assert "note:" not in capsys.readouterr().out
 
 
 def test_poor_dmp_fits_are_reported_with_their_remedy(tmp_path, capsys):

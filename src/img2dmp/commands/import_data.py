@@ -249,6 +249,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _report(out: Path, data) -> None:
     """What was written, then a note for each thing a user may want to act on."""
+    from ..data.importer import time_unit_note
+
     meta = data.meta
     counts = meta["counts_by_split"]
     by_class = meta["counts_by_class"]
@@ -275,6 +277,8 @@ def _report(out: Path, data) -> None:
             "'_'); number your drawers into those, or --split-by character to test on "
             "whole characters never seen in training"
         )
+    if note := time_unit_note(meta):
+        print(note)
     if meta["fit"]["poor"]["rows"]:
         print(_poor_fit_note(data))
     shifted = meta["source"].get("shifted") or {}

@@ -144,6 +144,7 @@ __all__ = [
     "MIN_STROKE_INSTANTS",
     "OMNIGLOT_SPLIT_BY",
     "OUTSIDE_TOLERANCE",
+    "PLAUSIBLE_MEDIAN_S",
     "POOR_FIT_PX",
     "RECORDING_NAME",
     "RESAMPLING",
@@ -341,6 +342,7 @@ def _source_record(opt: ImportOptions, good: list[_Imported], source, skipped, r
         "path": None if source is None else str(source),
         "samples": len(good),
         "skipped": skipped,
+        "median_duration_s": float(np.median([g.pen.t_s[-1] - g.pen.t_s[0] for g in good])),
     }
     if any(g.source.format == "omniglot" for g in good):
         shifted = {
@@ -377,6 +379,31 @@ def _meta(opt, config, good, classes, rows, copy, fit, root: Path | None) -> dic
     if class_names is not None:
         meta["class_names"] = list(class_names)
     return meta
+
+
+#: Longest median duration (s) of a data set's paths, as read, that ``img2dmp import``
+#: takes for handwriting timed in seconds; beyond it, it notes that the files' t may be
+#: milliseconds (``--time-unit ms``). Omniglot's 2,720 drawings
+#: (``strokes_background_small1``) last 3.5 s in the median, 99 % of them under 35 s; a
+#: character timed in ms and read as seconds lasts a thousand times as long.
+PLAUSIBLE_MEDIAN_S = 60.0
+
+
+def time_unit_note(meta: dict) -> str | None:
+    """A one-line note when an imported data set's paths last implausibly long for
+    handwriting in seconds (their median beyond ``PLAUSIBLE_MEDIAN_S``, t read in seconds,
+    no ``duration_s``), suggesting ``--time-unit ms``; else None."""
+    median = meta["source"].get("median_duration_s")
+    opt = meta["import"]
+    if median is None or median <= PLAUSIBLE_MEDIAN_S or opt.get("time_unit") != "s":
+        return None
+    if opt.get("duration_s") is not None:  # rescaled: the unit made no difference
+        return None
+    return (
+        f"note: the paths last {median:.4g} s in the median (t read in seconds), implausibly "
+        f"long for handwriting (more than {PLAUSIBLE_MEDIAN_S:g} s; Omniglot's drawings: "
+        "3.5 s); if the files' t are milliseconds, import again with --time-unit ms"
+    )
 
 
 #: A DMP fit whose mean error exceeds this (px) is reported as poor (``fit.poor``).
