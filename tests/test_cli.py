@@ -522,3 +522,28 @@ def test_the_one_image_commands_set_one_blas_thread_before_numpy_loads(command, 
     if command == "write" and "pybullet" in done.stderr and "install" in done.stderr:
         pytest.skip("pybullet is not installed")
     assert done.stdout.split()[-3:] == ["0", "[False]", "1"], done.stdout + done.stderr
+
+
+def test_a_glyph_the_figures_font_lacks_is_said_once_in_one_line(tmp_path, capsys):
+    """matplotlib warns twice per label in a script its font lacks (with source lines);
+    a command says it once, at its end; other warnings pass as they are."""
+    import warnings
+
+    from img2dmp._files import new_figure, save_figure
+    from img2dmp.cli import _missing_glyphs_said
+
+    with warnings.catch_warnings(record=True) as passed:
+        warnings.simplefilter("always")
+        with _missing_glyphs_said("img2dmp preview"):
+            fig = new_figure(figsize=(2, 1))
+            fig.suptitle("\u4e2d and \u05d0")
+            fig.tight_layout()
+            save_figure(fig, tmp_path / "f.png")
+            warnings.warn("something else", UserWarning, stacklevel=1)
+    assert [str(w.message) for w in passed] == ["something else"]
+    err = capsys.readouterr().err
+    notes = [line for line in err.splitlines() if "note:" in line]
+    assert notes == [
+        "img2dmp preview: note: the figures' font (DejaVu Sans) has no glyph for \u4e2d: those "
+        "characters show as boxes"
+    ]

@@ -25,11 +25,14 @@ atomically (:mod:`img2dmp._files`): a failure or a kill leaves the earlier file 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import pkgutil
+import re
 import shlex
 import sys
 import traceback
+import warnings
 
 from . import __version__, commands
 from .commands import _args
@@ -115,6 +118,34 @@ def describe(e: BaseException) -> str:
     return line
 
 
+@contextlib.contextmanager
+def _missing_glyphs_said(prog: str):
+    """matplotlib's warnings of a glyph its font lacks (a class named in a script the
+    figures' font does not cover; two per label, with source lines) said once, in one
+    line, at the end of the command."""
+    missing: dict[str, str] = {}
+    shown = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        m = re.match(r"Glyph (\d+) \(.+\) missing from font\(s\) (.+)\.$", str(message))
+        if m is None:
+            return shown(message, category, filename, lineno, file, line)
+        missing.setdefault(chr(int(m.group(1))), m.group(2))
+
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = shown
+        if missing:
+            fonts = ", ".join(sorted(set(missing.values())))
+            print(
+                f"{prog}: note: the figures' font ({fonts}) has no glyph for "
+                f"{', '.join(missing)}: those characters show as boxes",
+                file=sys.stderr,
+            )
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command; its exit status (see the module docstring)."""
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -124,7 +155,8 @@ def main(argv: list[str] | None = None) -> int:
         return e.code if isinstance(e.code, int) else (0 if e.code is None else 2)
     prog = f"img2dmp {args.command}"
     try:
-        return int(args._run(args) or 0)
+        with _missing_glyphs_said(prog):
+            return int(args._run(args) or 0)
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
