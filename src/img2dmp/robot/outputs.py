@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 
 import numpy as np
 
@@ -385,19 +386,33 @@ def plot_page(result, path, image: np.ndarray | None = None, title=None,
     save_figure(fig, path, dpi=FIGURE_DPI)
 
 
+#: A page of more characters than this gets smaller numbers, "(skipped)" said by colour
+#: (grey) and the dashed box alone, and over time only numbers that stand apart.
+MANY_CHARACTERS = 20
+#: ... at least this share of the time axis apart (at most 25 numbers across it).
+TIME_LABEL_GAP = 0.04
+
+
 def _number_characters(axes, result) -> None:
     """Each character's index at its box (pixels and paper) and over its time; dashed
-    boxes for the characters not written."""
+    boxes (and grey numbers) for the characters not written. On a page of many, smaller
+    numbers, and over time only those at least ``TIME_LABEL_GAP`` of the axis apart."""
     from matplotlib.patches import Rectangle
 
-    text = {"fontsize": 8, "color": "tab:blue", "ha": "right", "va": "bottom"}
+    many = len(result.characters) > MANY_CHARACTERS
+    text = {"fontsize": 6 if many else 8, "ha": "right", "va": "bottom"}
+    span = float(result.log.time_s[-1] - result.log.time_s[0]) if len(result.log.time_s) else 0
+    last_t = -math.inf
     for r in result.characters:
         x0, y0, x1, y1 = r.character.box_image_px
         corners_px = [[x0 - 0.5, y0 - 0.5], [x1 - 0.5, y1 - 0.5]]
         corners_mm = _paper_mm(result, result.mapping.to_table(corners_px))
-        label = str(r.character.index) if r.written else f"{r.character.index} (skipped)"
-        axes[0, 0].text(x0 - 0.5, y0 - 0.5, label, **text)
-        axes[0, 1].text(*corners_mm[0], label, **text)
+        label = str(r.character.index)
+        if not r.written and not many:
+            label += " (skipped)"
+        color = "tab:blue" if r.written else "gray"
+        axes[0, 0].text(x0 - 0.5, y0 - 0.5, label, color=color, **text)
+        axes[0, 1].text(*corners_mm[0], label, color=color, **text)
         if not r.written:
             box = {"fill": False, "ls": "--", "color": "gray"}
             axes[0, 0].add_patch(Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, **box))
@@ -406,6 +421,9 @@ def _number_characters(axes, result) -> None:
             continue
         a, b = r.steps
         t_mid = (result.log.time_s[a] + result.log.time_s[b - 1]) / 2
+        if t_mid - last_t < TIME_LABEL_GAP * span:
+            continue
+        last_t = t_mid
         for ax in axes[1]:
             ax.annotate(
                 str(r.character.index),
