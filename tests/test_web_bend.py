@@ -137,3 +137,38 @@ def test_bending_is_refused_to_other_origins_and_names(client):
     assert r.status_code == 400 and "Host" in r.json()["detail"]
     r = client.post("/api/bend", json=body, headers={"Origin": LOCAL})
     assert r.status_code == 200
+
+
+def test_a_dmp_slowed_beyond_what_the_arm_writes_is_refused_before_it_is_queued(client):
+    """A DMP bent to tempo 0.0001 (tau ~ 20,000 s) was queued (202), then its job failed."""
+    from img2dmp.robot import available
+
+    if not available():
+        pytest.skip("the robot extra is not installed: /api/write answers 503 first")
+    bent = client.post("/api/bend", json={"dmp": _document(), "tempo": 0.0001}).json()["dmp"]
+    for video in (True, False):
+        r = client.post("/api/write", json={"dmp": bent, "video": video})
+        assert r.status_code == 422, r.text
+        detail = r.json()["detail"]
+        assert detail.startswith("dmp: params.tau is 2") and "\n" not in detail, detail
+        assert "more than the 250000 the arm writes" in detail, detail
+
+
+def test_a_long_dmp_is_filmed_as_a_time_lapse_instead_of_failing(client):
+    """tau = 400 s filmed every 0.1 s is 4,000 frames (1.7 GiB): its job failed. Its
+    video keeps a frame every 3.35 s (120 frames), as a page's does."""
+    pytest.importorskip("pybullet")
+    from img2dmp.robot import WritingOptions
+    from img2dmp.web.jobs import FRAME_INTERVAL_S, plan_write
+
+    bent = client.post("/api/bend", json={"dmp": _document(), "tempo": 0.005}).json()["dmp"]
+    tau = read_document(bent, 1).params.tau
+    assert tau == pytest.approx(400.0, rel=1e-3)
+    with pytest.raises(ValueError, match="keeps up to 4"):  # what the job was given
+        WritingOptions(frame_interval_s=FRAME_INTERVAL_S).check_video(float(tau))
+    doc, interval_s = plan_write(bent, 1, True)
+    assert interval_s == pytest.approx(np.ceil(100 * (float(tau) + 2) / 120) / 100)
+    WritingOptions(frame_interval_s=interval_s).check_video(float(tau))
+    assert read_document(doc, 1).params.tau == tau
+    assert plan_write(bent, 1, False)[1] is None
+    assert plan_write(_document(), 1, True)[1] == FRAME_INTERVAL_S  # a digit: every 0.1 s

@@ -36,7 +36,7 @@ from .. import __version__
 from .._files import parse_json
 from .bending import BEND_FIELDS, bend_answer
 from .errors import WebError, one_line, show
-from .jobs import JobManager, check_write
+from .jobs import JobManager, plan_write
 from .models import LoadedModel, load_models, predict_with, prediction_answer
 from .page_jobs import DEFAULT_WIDTH_MM, submit_page, submit_strokes
 from .pages import PAGE_TYPES, PAGE_UPLOAD_MB, PageStore, check_page_type, page_answer, read_photo
@@ -609,8 +609,8 @@ def _job_routes(app: FastAPI, state: ServerState) -> None:
                 raise WebError(422, "hypothesis: a stroke model's character has one (1), "
                                f"got {body.hypothesis}")  # fmt: skip
             return _json(submit_strokes(state.jobs, body.strokes_page, body.video), 202)
-        doc = check_write(body.dmp, body.hypothesis)
-        return _json(state.jobs.submit(doc, body.hypothesis, body.video), 202)
+        doc, interval_s = plan_write(body.dmp, body.hypothesis, body.video)
+        return _json(state.jobs.submit(doc, body.hypothesis, body.video, interval_s), 202)
 
     @app.post("/api/pages/{page_id}/write", status_code=202)
     def write_page(page_id: str, body: PageWriteRequest) -> Response:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import collections
 import json
+import math
 import multiprocessing
 import multiprocessing.forkserver
 import os
@@ -40,8 +41,13 @@ from .errors import WebError, one_line, show
 JOB_FILES = {"paper": "paper.png", "animation": "animation.gif", "log": "log.csv"}
 #: Most jobs waiting to start; more are refused (429).
 MAX_WAITING = 20
-#: Simulated seconds between two frames of the animation.
+#: Simulated seconds between two frames of the animation (each shown that long).
 FRAME_INTERVAL_S = 0.1
+#: Most frames of a run's video (a 12 s time lapse); a longer run is filmed at longer
+#: intervals (:func:`frame_interval_s`).
+MAX_VIDEO_FRAMES = 120
+#: Seconds of a DMP's run besides its tau (the approach and the lift), for the estimates.
+RUN_EXTRA_S = 2.0
 #: The controller's rate (that of ``img2dmp write``), for the progress estimate.
 CONTROL_RATE_HZ = 240.0
 #: Share of the progress bar the simulation fills; the pictures the rest.
@@ -55,11 +61,13 @@ def run_job(job_dir: str, options: dict, report) -> None:
     """Write the job's DMP with the simulated arm (the child process's whole work).
 
     Reads ``job_dir/dmp.json``, writes the outputs of :data:`JOB_FILES` (the animation only
-    with ``options["video"]``) and ``result.json`` (:func:`run_in_job_dir`), the
-    hypothesis of rank ``options["hypothesis"]``. ``report[SHARE]``: the progress (0-1).
+    with ``options["video"]``, a frame every ``options["frame_interval_s"]`` simulated
+    seconds) and ``result.json`` (:func:`run_in_job_dir`), the hypothesis of rank
+    ``options["hypothesis"]``. ``report[SHARE]``: the progress (0-1).
     """
-    hypothesis, video = options["hypothesis"], options["video"]
-    run_in_job_dir(job_dir, lambda d: {"summary": _write(d, hypothesis, video, report)})
+    hypothesis = options["hypothesis"]
+    interval_s = options.get("frame_interval_s", FRAME_INTERVAL_S) if options["video"] else None
+    run_in_job_dir(job_dir, lambda d: {"summary": _write(d, hypothesis, interval_s, report)})
 
 
 def run_in_job_dir(job_dir: str, work) -> None:
@@ -86,7 +94,7 @@ def run_in_job_dir(job_dir: str, work) -> None:
     sys.stderr.flush()
 
 
-def _write(d: Path, hypothesis: int, video: bool, report) -> list[str]:
+def _write(d: Path, hypothesis: int, interval_s: float | None, report) -> list[str]:
     from ..robot import (
         load_dmp_json,
         plot_writing,
@@ -97,7 +105,7 @@ def _write(d: Path, hypothesis: int, video: bool, report) -> list[str]:
     )
 
     params, config, size = load_dmp_json(d / "dmp.json", hypothesis=hypothesis)
-    steps = {"done": 0, "expected": max(1.0, (float(params.tau) + 2.0) * CONTROL_RATE_HZ)}
+    steps = {"done": 0, "expected": max(1.0, (float(params.tau) + RUN_EXTRA_S) * CONTROL_RATE_HZ)}
 
     def advance(n: int) -> None:
         steps["done"] += n
@@ -108,7 +116,7 @@ def _write(d: Path, hypothesis: int, video: bool, report) -> list[str]:
         config,
         size,
         control_rate_hz=CONTROL_RATE_HZ,
-        frame_interval_s=FRAME_INTERVAL_S if video else None,
+        frame_interval_s=interval_s,
         render_size_px=None,
         progress=advance,
     )
@@ -116,10 +124,46 @@ def _write(d: Path, hypothesis: int, video: bool, report) -> list[str]:
     name = f"hypothesis {hypothesis}"
     plot_writing(result, d / JOB_FILES["paper"], title=f"{name}: KUKA iiwa writes")
     save_log_csv(result, d / JOB_FILES["log"])
-    if video:
+    lines = summary_lines(name, result)
+    if interval_s is not None:
         save_video(result, d / JOB_FILES["animation"], FRAME_INTERVAL_S)
+        if interval_s > FRAME_INTERVAL_S:
+            lines.append(f"video: a time lapse, a frame every {interval_s:g} simulated s, "
+                         f"{interval_s / FRAME_INTERVAL_S:.3g} times as fast")  # fmt: skip
     report[SHARE] = 1.0
-    return summary_lines(name, result)
+    return lines
+
+
+def frame_interval_s(duration_s: float) -> float:
+    """Simulated seconds between two video frames of a run of about ``duration_s``:
+    FRAME_INTERVAL_S, or longer so that it keeps at most MAX_VIDEO_FRAMES."""
+    return max(FRAME_INTERVAL_S, math.ceil(100 * duration_s / MAX_VIDEO_FRAMES) / 100)
+
+
+def plan_write(doc, hypothesis, video: bool) -> tuple[dict, float | None]:
+    """``POST /api/write``'s document checked (:func:`check_write`) and its path planned
+    as its job will plan it (no simulation), before it is queued: 422 with the library's
+    line for a DMP the arm cannot write (more control steps than it writes, e.g. a DMP
+    slowed down 10,000 times, or a movement that is not finite). The document and the
+    simulated seconds between two frames of its video (None without one):
+    :func:`frame_interval_s` of its duration, so that a long DMP is filmed as a time
+    lapse instead of filling the memory."""
+    from ..robot import PaperMapping, WritingOptions, plan_path
+
+    f = read_document(doc, hypothesis)
+    params = f.hypothesis(hypothesis)
+    tau = float(params.tau)
+    interval_s = frame_interval_s(tau + RUN_EXTRA_S) if video else None
+    options = WritingOptions(control_rate_hz=CONTROL_RATE_HZ, frame_interval_s=interval_s,
+                             render_size_px=None)  # fmt: skip
+    center_m = options.scene_config.paper_center_m
+    try:
+        options.check_video(tau)
+        mapping = PaperMapping(f.image_size, options.writing_height_mm, center_m)
+        plan_path(params, f.config, mapping, options.dt_s)
+    except ValueError as e:
+        raise WebError(422, f"dmp: {e}") from None
+    return f.document, interval_s
 
 
 def check_write(doc, hypothesis) -> dict:
@@ -212,9 +256,12 @@ class JobManager:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
-    def submit(self, doc: dict, hypothesis: int, video: bool) -> dict:
-        """Queue a run of a checked document (:func:`check_write`); its state."""
-        options = {"hypothesis": hypothesis, "video": bool(video)}
+    def submit(self, doc: dict, hypothesis: int, video: bool,
+               interval_s: float | None = FRAME_INTERVAL_S) -> dict:  # fmt: skip
+        """Queue a run of a checked document (:func:`plan_write`), its video's frames
+        ``interval_s`` simulated seconds apart; its state."""
+        interval_s = FRAME_INTERVAL_S if interval_s is None else float(interval_s)
+        options = {"hypothesis": hypothesis, "video": bool(video), "frame_interval_s": interval_s}
 
         def write_input(d: Path) -> None:
             write_dmp_document(d / "dmp.json", doc)
@@ -375,10 +422,13 @@ def _character(job: Job, begun: int) -> dict | None:
 __all__ = [
     "BEGUN",
     "JOB_FILES",
+    "MAX_VIDEO_FRAMES",
     "SHARE",
     "Job",
     "JobManager",
     "check_write",
+    "frame_interval_s",
+    "plan_write",
     "read_document",
     "run_in_job_dir",
     "run_job",

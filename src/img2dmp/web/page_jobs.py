@@ -14,11 +14,11 @@ does:
    (:func:`~img2dmp.robot.page.write_page_plan`), reporting the characters it begins, then
    writes :data:`PAGE_FILES` and the measures of the page and of every character.
 
-The video is a time lapse of at most :data:`MAX_PAGE_FRAMES` frames, each shown 0.1 s:
-a frame costs about 0.09 s to render and 0.03 s to encode (AMD EPYC, 2 cores shared)
-and 0.5 MB of memory until the GIF is written, so a page of a few minutes kept every
-0.1 s, as one DMP's video is, would take longer to film than to write and hold
-gigabytes.
+The video is a time lapse of at most :data:`MAX_PAGE_FRAMES` frames, each shown 0.1 s
+(as one long DMP's, :func:`~.jobs.frame_interval_s`): a frame costs about 0.09 s to
+render and 0.03 s to encode (AMD EPYC, 2 cores shared) and 0.5 MB of memory until the
+GIF is written, so a page of a few minutes kept every 0.1 s would take longer to film
+than to write and hold gigabytes.
 
 A stroke model's character is written the same way (``POST /api/write`` with
 ``strokes_page``, :func:`submit_strokes`): its strokes as a page of one line, as
@@ -40,16 +40,18 @@ from .jobs import (
     CONTROL_RATE_HZ,
     FRAME_INTERVAL_S,
     JOB_FILES,
+    MAX_VIDEO_FRAMES,
     SHARE,
     SIMULATION_SHARE,
+    frame_interval_s,
     run_in_job_dir,
 )
 
 #: The outputs of a page's job, by the key of ``files`` in ``GET /api/jobs/{id}``.
 PAGE_FILES = {**JOB_FILES, "characters": "characters.csv"}
 #: Most frames of a page's video (a 12 s time lapse); a longer page is kept at longer
-#: intervals.
-MAX_PAGE_FRAMES = 120
+#: intervals (:func:`~.jobs.frame_interval_s`, as one DMP's).
+MAX_PAGE_FRAMES = MAX_VIDEO_FRAMES
 #: The page's totals in the job's answer (:func:`img2dmp.robot.page.page_metrics` and
 #: the run's), those of the first lines of ``img2dmp write --page``.
 _TOTALS = (
@@ -154,7 +156,7 @@ def _write_page(d: Path, options: dict, report) -> dict:
     travel_m, noun = options.get("travel_height_m", TRAVEL_HEIGHT_M), options.get("noun")
     plan = _plan(doc, filename, options["width_mm"], options["skip_flagged"], travel_m)
     expected = max(1, plan.estimated_steps())
-    interval_s = _frame_interval_s(expected / CONTROL_RATE_HZ) if options["video"] else None
+    interval_s = frame_interval_s(expected / CONTROL_RATE_HZ) if options["video"] else None
     plan = dataclasses.replace(
         plan, options=dataclasses.replace(plan.options, frame_interval_s=interval_s)
     )
@@ -195,12 +197,6 @@ def _save_outputs(result, d: Path, title: str, video: bool, owners=None) -> None
     if video:
         # Every frame shown FRAME_INTERVAL_S: a long page plays as a time lapse.
         save_video(result, d / PAGE_FILES["animation"], FRAME_INTERVAL_S)
-
-
-def _frame_interval_s(duration_s: float) -> float:
-    """Simulated seconds between two video frames: FRAME_INTERVAL_S, or longer so that a
-    page of about ``duration_s`` keeps at most MAX_PAGE_FRAMES."""
-    return max(FRAME_INTERVAL_S, math.ceil(100 * duration_s / MAX_PAGE_FRAMES) / 100)
 
 
 def page_measures(result, video_speed: float | None) -> dict:
