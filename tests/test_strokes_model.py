@@ -212,6 +212,9 @@ class _Drawings:
     def stroke_spans(self, row):
         return [(2 * j, 2 * j + 1) for j in range(self.counts[row])]
 
+    def __len__(self):
+        return len(self.labels)
+
 
 def test_the_count_target_mixes_a_drawing_s_count_with_its_class_s_among_training_rows():
     a = _Drawings([0, 0, 0, 0, 1, 2], [2, 2, 3, 9, 1, 4])
@@ -232,7 +235,21 @@ def test_training_notes_drawings_of_more_strokes_than_slots_and_is_silent_withou
     note = slots_note(a, np.arange(5), slots=5)
     assert note.startswith("note: 2 of 5 training drawings (40.0 %) have more than")
     assert "strokes.slots = 5 strokes (up to 12)" in note and "\n" not in note
+    assert note.endswith("--set strokes.slots=12 holds them all (at most 32)")
     assert slots_note(a, np.arange(5), slots=12) is None
+
+
+def test_the_slots_note_names_the_limit_and_the_drawings_beyond_it():
+    a = _Drawings([0, 1, 1, 1, 2], [2, 40, 40, 33, 9])  # rows 1 and 2: one file, augmented
+    a.label_names, files = ("eye", "grid", "hook"), ["e/0.csv", "g/0.csv", "g/0.csv", "g/1.csv"]
+    a.meta = {"rows": {"trajectory": [*files, "h/0.csv"]}}
+    note = slots_note(a, np.arange(5), slots=8)
+    assert "(up to 40)" in note and "strokes.slots is at most 32" in note and "\n" not in note
+    assert "the 2 drawing(s) of the class grid (g/0.csv, g/1.csv), which have more" in note
+    assert note.endswith("or learn their first 32 strokes (--set strokes.slots=32)")
+    assert slots_note(a, np.arange(5), slots=32).endswith("their first 32 strokes")
+    a.meta = {}  # no files recorded: the rows
+    assert "(row 1, row 2, row 3)" in slots_note(a, np.arange(5), slots=8)
 
 
 def test_a_one_count_target_is_the_count_s_own_cross_entropy_and_a_class_s_pulls_its_mode():

@@ -136,19 +136,51 @@ def count_targets(
 
 def slots_note(a: DigitData, idx: np.ndarray, slots: int) -> str | None:
     """A one-line note when some of the rows ``idx`` have more strokes than a stroke
-    model's ``slots`` (None when none has): how many, the most strokes, and what it means.
-    Such a row trains on its first ``slots`` strokes and its count is taught as ``slots``
-    (:func:`count_targets`), so no prediction of it can have its count right."""
+    model's ``slots`` (None when none has): how many, the most strokes, what it means and
+    what to do. Such a row trains on its first ``slots`` strokes and its count is taught
+    as ``slots`` (:func:`count_targets`), so no prediction of it can have its count right.
+    Beyond ``MAX_SLOTS`` no model holds them: the note names those drawings."""
+    from ..nn.strokes import MAX_SLOTS
+
     counts = np.array([len(a.stroke_spans(int(i))) for i in idx], dtype=np.int64)
     over = counts > slots
     if not over.any():
         return None
+    most = int(counts.max())
+    if most <= MAX_SLOTS:
+        remedy = f"--set strokes.slots={most} holds them all (at most {MAX_SLOTS})"
+    else:
+        keep = "" if slots == MAX_SLOTS else f" (--set strokes.slots={MAX_SLOTS})"
+        remedy = (
+            f"strokes.slots is at most {MAX_SLOTS}, so no stroke model holds "
+            f"{_drawings(a, idx[counts > MAX_SLOTS])}, which have more: leave them out of the "
+            f"data set or train without their classes (--classes), or learn their first "
+            f"{MAX_SLOTS} strokes{keep}"
+        )
     return (
         f"note: {int(over.sum())} of {len(counts)} training drawings ({100 * over.mean():.1f} %) "
-        f"have more than strokes.slots = {slots} strokes (up to {int(counts.max())}); the "
-        f"model learns their first {slots} and cannot read their count right "
-        f"(--set strokes.slots=N for more)"
+        f"have more than strokes.slots = {slots} strokes (up to {most}); the model learns "
+        f"their first {slots} and cannot read their count right; {remedy}"
     )
+
+
+#: Most drawings a note names by their files.
+_NAMED = 3
+
+
+def _drawings(a: DigitData, rows: np.ndarray) -> str:
+    """``"the 6 drawings of the class grid (grid/000.csv, grid/001.csv, ...)"``: the rows'
+    classes and their files (an imported data set's ``rows.trajectory``; else the rows)."""
+    files = (a.meta.get("rows") or {}).get("trajectory") if isinstance(a.meta, dict) else None
+    names = (
+        list(dict.fromkeys(files[int(r)] for r in rows))  # augmented copies: one file
+        if files is not None and len(files) == len(a)
+        else [f"row {int(r)}" for r in rows]
+    )
+    shown = ", ".join(names[:_NAMED]) + (", ..." if len(names) > _NAMED else "")
+    classes = sorted({a.label_names[int(a.labels[r])] for r in rows})
+    which = "class" if len(classes) == 1 else "classes"
+    return f"the {len(names)} drawing(s) of the {which} {', '.join(classes)} ({shown})"
 
 
 def _split_indices(a: DigitData, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarray]:
