@@ -677,6 +677,45 @@ def test_robot_runs_wait_their_turn_and_serve_only_their_files(serve):
     _one_line_error(c.get(f"/api/jobs/{b['id']}/files/paper.png"), 404)
 
 
+@pytest.mark.skipif(not available(), reason="needs pybullet (img2dmp[robot])")
+def test_the_arm_s_model_file_is_gone_once_loaded(tmp_path, monkeypatch):
+    """A run ended by the server's stop left /tmp/img2dmp-robot-XXXX/iiwa_pen.urdf."""
+    import tempfile
+
+    from img2dmp.robot import WritingScene
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    scene = WritingScene()
+    try:
+        assert list(tmp_path.iterdir()) == []  # a process killed now leaves nothing
+        picture = scene.render(64, 48)  # pybullet needs the file no longer
+        assert picture.shape == (48, 64, 3) and picture.std() > 0
+    finally:
+        scene.close()
+
+
+@pytest.mark.skipif(not available(), reason="needs pybullet (img2dmp[robot])")
+def test_the_jobs_a_stop_ends_say_so_in_their_folders(tmp_path):
+    app = create_app([], data_dir=tmp_path / "r", jobs_dir=tmp_path / "jobs")
+    slow = _seven_dmp()
+    slow["params"]["tau"] = 60.0  # 14,400 control steps: running when the server stops
+    with TestClient(app, base_url=LOCAL) as c:
+        ids = [c.post("/api/write", json={"dmp": slow, "video": False}).json()["id"]
+               for _ in range(2)]  # fmt: skip
+        end = time.monotonic() + 60
+        while c.get(f"/api/jobs/{ids[0]}").json()["status"] == "queued":
+            assert time.monotonic() < end
+            time.sleep(0.05)
+    for job_id, was in zip(ids, ("running", "queued"), strict=True):
+        d = tmp_path / "jobs" / job_id
+        last = (d / "job.log").read_text().splitlines()[-1]
+        assert last.startswith("img2dmp serve: interrupted: the server stopped"), last
+        assert f"while the job was {was}" in last, last
+        result = json.loads((d / "result.json").read_text())
+        assert result == {"status": "failed", "error": "interrupted: the server stopped"}
+        assert (d / "dmp.json").is_file()
+
+
 def _seven_dmp() -> dict:
     """The DMP document of a "7" fitted in a 40 x 40 image (it stays on the paper)."""
     from img2dmp.data.dmpfile import dmp_document

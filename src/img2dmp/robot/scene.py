@@ -12,7 +12,8 @@ Frames (all in metres, world frame = robot base frame):
   mass, not its URDF frame.
 
 The robot model is pybullet_data's ``kuka_iiwa/model.urdf`` with two links appended (pen
-body and tip), written to a temporary file whose mesh paths point back into pybullet_data.
+body and tip), written to a temporary file whose mesh paths point back into pybullet_data,
+removed as soon as pybullet has read it (a process killed later leaves nothing behind).
 """
 
 from __future__ import annotations
@@ -168,9 +169,6 @@ class WritingScene:
             raise ValueError(f"time_step_s must be in (0, 0.01] seconds, got {time_step_s!r}")
         self.time_step_s = float(time_step_s)
         cfg = self.config
-        self._tmp = tempfile.TemporaryDirectory(prefix="img2dmp-robot-")
-        urdf = robot_urdf_path(cfg.pen_length_m, cfg.pen_tip_radius_m, self._tmp.name)
-
         self.client = p.connect(p.DIRECT)
         self.ik_client = p.connect(p.DIRECT)
         c = self.client
@@ -191,11 +189,7 @@ class WritingScene:
             position=(px, py, cfg.paper_thickness_m / 2),
             rgba=(0.97, 0.97, 0.95, 1.0),
         )
-        flags = p.URDF_USE_INERTIA_FROM_FILE
-        self.robot_id = p.loadURDF(urdf, useFixedBase=True, flags=flags, physicsClientId=c)
-        self.ik_robot_id = p.loadURDF(
-            urdf, useFixedBase=True, flags=flags, physicsClientId=self.ik_client
-        )
+        self.robot_id, self.ik_robot_id = self._load_robot()
         self.joint_ids, self.tip_link, self.pen_link = self._index_joints()
         info = [p.getJointInfo(self.robot_id, j, physicsClientId=c) for j in self.joint_ids]
         self.joint_names = tuple(i[1].decode() for i in info)
@@ -235,6 +229,17 @@ class WritingScene:
         self._ink_ids: list[int] = []
 
     # -- construction helpers -------------------------------------------------------------
+    def _load_robot(self) -> tuple[int, int]:
+        """The arm with its pen in both clients (ids), from a URDF in a temporary folder
+        removed as soon as pybullet has read it: pybullet keeps no reference to the file
+        (its meshes are pybullet_data's), and a process killed while it writes (e.g. a
+        robot run of a server that stops) would otherwise leave the folder in /tmp."""
+        p, cfg, flags = self.p, self.config, self.p.URDF_USE_INERTIA_FROM_FILE
+        with tempfile.TemporaryDirectory(prefix="img2dmp-robot-") as tmp:
+            urdf = robot_urdf_path(cfg.pen_length_m, cfg.pen_tip_radius_m, tmp)
+            return tuple(p.loadURDF(urdf, useFixedBase=True, flags=flags, physicsClientId=c)
+                         for c in (self.client, self.ik_client))  # fmt: skip
+
     def _box(self, half_extents, position, rgba) -> int:
         p, c = self.p, self.client
         col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half_extents, physicsClientId=c)
@@ -267,13 +272,12 @@ class WritingScene:
 
     # -- state ----------------------------------------------------------------------------
     def close(self) -> None:
-        """Disconnect both pybullet clients and remove the temporary URDF."""
+        """Disconnect both pybullet clients."""
         for cid in (self.client, self.ik_client):
             try:
                 self.p.disconnect(physicsClientId=cid)
             except Exception:  # noqa: BLE001 - already disconnected
                 pass
-        self._tmp.cleanup()
 
     def __enter__(self) -> WritingScene:
         return self

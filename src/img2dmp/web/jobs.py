@@ -54,6 +54,8 @@ CONTROL_RATE_HZ = 240.0
 SIMULATION_SHARE = 0.9
 #: The places in a job's shared report: the progress (0-1), the characters begun.
 SHARE, BEGUN = 0, 1
+#: The error of a job the server's stop ended or forgot (and its folder's last line).
+INTERRUPTED = "interrupted: the server stopped"
 _POLL_S = 0.1
 
 
@@ -385,7 +387,8 @@ class JobManager:
 
     def close(self, timeout_s: float = 5.0) -> None:
         """Stop: end the running processes (the ones started here), forget the waiting
-        ones, remove the jobs' folder if it is a temporary one made here."""
+        ones (each folder of these says so: :func:`_mark_interrupted`), remove the jobs'
+        folder if it is a temporary one made here."""
         self._stop.set()
         self._wake.set()
         if self._thread is not None:
@@ -396,7 +399,10 @@ class JobManager:
                     job.process.terminate()
                     job.process.join(timeout_s)
                 if job.status in ("queued", "running"):
-                    job.status, job.error = "failed", "the server stopped"
+                    was = job.status
+                    job.status, job.error = "failed", INTERRUPTED
+                    if not self._own_dir:
+                        _mark_interrupted(job.dir, was)
             self._waiting.clear()
         if self._own_dir:
             shutil.rmtree(self.dir, ignore_errors=True)
@@ -409,6 +415,23 @@ class JobManager:
             if state["status"] in ("done", "failed") or time.monotonic() > end:
                 return state
             time.sleep(_POLL_S / 2)
+
+
+def _mark_interrupted(job_dir: Path, was: str) -> None:
+    """A job's folder after the server stopped it (``was``: "queued" or "running"): a
+    line at the end of its ``job.log`` and its ``result.json`` saying so (the latter
+    unless the run wrote its own just before it was ended)."""
+    line = f"img2dmp serve: {INTERRUPTED} while the job was {was}; it will not be resumed\n"
+    try:
+        log = os.open(job_dir / "job.log", os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW,
+                      0o644)  # fmt: skip
+        with os.fdopen(log, "a", encoding="utf-8") as f:
+            f.write(line)
+        if not (job_dir / "result.json").exists():
+            atomic_write_text(job_dir / "result.json",
+                              json.dumps({"status": "failed", "error": INTERRUPTED}))  # fmt: skip
+    except OSError:  # the folder is gone or read-only: the stop goes on
+        pass
 
 
 def _character(job: Job, begun: int) -> dict | None:
