@@ -337,6 +337,26 @@ def test_a_short_training_learns_the_stroke_counts_and_shapes(small_omniglot, tr
     assert np.mean(np.equal(counts, truth)) >= 0.9
 
 
+def test_a_stroke_run_names_its_error_the_stroke_shape_error_not_the_trajectory_error(
+    small_omniglot, tmp_path, capsys
+):
+    from img2dmp.checkpoint import read_checkpoint_meta
+
+    run = tmp_path / "run"
+    args = ["train", "--config", "omniglot", "--data", str(small_omniglot), "--run-dir",
+            str(run), "--epochs", "2", "--set", "optim.batch_size=16", "--set", "threads=1",
+            "--set", "progress=true", "--set", "cost.ink_weight=0",
+            "--set", "cost.coverage_weight=0"]  # fmt: skip
+    assert cli.main(args) == 0
+    out, err = capsys.readouterr()
+    assert "best validation stroke shape error" in out and "trajectory error" in out
+    assert "matched predicted stroke" in out and "epoch 2/2: stroke shape error train" in err
+    meta = read_checkpoint_meta(run / "checkpoints" / "best.json")
+    assert meta["val_error_measure"] == "stroke-shape"  # the keys stay as they were
+    curve = np.genfromtxt(run / "metrics.csv", delimiter=",", names=True)
+    assert meta["best_val_error_px"] == pytest.approx(curve["val_error_px"].min())
+
+
 def test_predict_writes_a_stroke_document_with_the_whole_characters_path_and_pen(
     omni_root, trained, tmp_path
 ):

@@ -100,6 +100,10 @@ def test_training_lowers_validation_error(small_data, trained):
     rows = read_metrics_csv(run / "metrics.csv")
     assert [r["epoch"] for r in rows] == list(range(25))
     assert min(r["val_error_px"] for r in rows) == pytest.approx(res.best_val_error_px)
+    assert res.error_measure == "trajectory"  # Table I's, as evaluate reports it
+    assert read_checkpoint_meta(run / "checkpoints" / "best.json")["val_error_measure"] == (
+        "trajectory"
+    )
 
 
 def test_saved_model_predicts_the_same_numbers(small_data, trained):

@@ -39,6 +39,13 @@ CONFIG_OPTIONS = (
 )  # fmt: skip
 
 
+#: What a stroke model's error is, after it in the summary line (records.ERROR_MEASURES).
+STROKE_SHAPE = (
+    ": each true stroke against its matched predicted stroke, without the count, order, "
+    "timing and pen-up travel that evaluate's trajectory error of the whole path includes"
+)
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     _args.add_config(p, "TrainConfig sections (default: built-in defaults)")
     _args.add_data(p, help="data-set file (.safetensors) = data.path; omit to use the generator")
@@ -143,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
     check_resume(args)
     _args.check_device(args.device)
     from ..train import load_config, train
+    from ..training.records import ERROR_MEASURES
 
     _args.check_output_dir(args.run_dir, "--run-dir")
     if args.data is not None:
@@ -160,8 +168,9 @@ def run(args: argparse.Namespace) -> int:
     )
     print(
         f"{res.epochs_run} epoch{'s' if res.epochs_run != 1 else ''} in {res.wall_s:.1f} s; "
-        "best validation trajectory error "
-        f"{res.best_val_error_px:.4f} px (epoch {res.best_epoch}); run in {res.run_dir}"
+        f"best validation {ERROR_MEASURES[res.error_measure]} {res.best_val_error_px:.4f} px "
+        f"(epoch {res.best_epoch}{STROKE_SHAPE if res.error_measure == 'stroke-shape' else ''}); "
+        f"run in {res.run_dir}"
     )
     settings = {k: v for k, v in cfg.reading.recommended().items() if v}
     if settings:

@@ -8,9 +8,11 @@ epochs. Each epoch: :func:`train_epoch` (batches through :func:`train_step`),
 The run directory receives::
 
     config.yaml              the resolved configuration
-    metrics.csv              one row per epoch (train/validation error in px, lr, cost)
+    metrics.csv              one row per epoch (train/validation error in px, lr, cost;
+                             a stroke model's errors: its stroke shape error,
+                             records.ERROR_MEASURES)
     training_curve.png       the same, as a picture
-    checkpoints/best.*       lowest validation trajectory error (weights only)
+    checkpoints/best.*       lowest validation error (weights only)
     checkpoints/last.*       end of the latest epoch, with optimiser state (for resume)
     familiar.safetensors     at the end: how familiar an image is to the best checkpoint
                              (img2dmp.familiar; trained on a data-set file only)
@@ -49,7 +51,7 @@ from ..nn.inference import dmp_trajectories
 from .config import TrainConfig
 from .data import Augmenter, Split, TrainingData
 from .distributed import epoch_generator, on_rank0, process_group
-from .records import plot_training_curve, write_metrics_csv
+from .records import ERROR_MEASURES, error_measure, plot_training_curve, write_metrics_csv
 from .setup import Run, open_run
 from .state import EpochStats, checkpoint_meta, save_state
 
@@ -69,6 +71,9 @@ class TrainResult:
     last_val_error_px: float
     history: list[dict]  # EpochStats.as_dict() per epoch, as in metrics.csv
     wall_s: float
+    # What the errors measure: a key of records.ERROR_MEASURES ("trajectory": Table I's;
+    # "stroke-shape": a stroke model's matched stroke shape error)
+    error_measure: str = "trajectory"
 
 
 @dataclass
@@ -317,7 +322,9 @@ def trajectory_errors(
 
 
 def validate(run: Run, epoch: int, fallback: float) -> float:
-    """Mean validation error (px); ``fallback`` (the training error) with no validation."""
+    """Mean validation error (px): Table I's trajectory error, or a stroke model's stroke
+    shape error (:data:`~.records.ERROR_MEASURES`); ``fallback`` (the training error) with
+    no validation."""
     val = run.data.val
     if not isinstance(run.cost, Cost):  # a stroke model: the mean shape error per stroke
         err = _stroke_errors(run, val)
@@ -339,7 +346,9 @@ def validate(run: Run, epoch: int, fallback: float) -> float:
 
 @torch.no_grad()
 def _stroke_errors(run: Run, split) -> np.ndarray:
-    """A stroke model's shape error per sample (px) on ``split``, in batches."""
+    """A stroke model's stroke shape error per sample (px) on ``split``, in batches: each
+    true stroke against the predicted stroke matched to it (``StrokeCost``), not Table I's
+    error of the whole path (:data:`~.records.ERROR_MEASURES`)."""
     model, out = run.state.model, []
     model.eval()
     try:
@@ -400,8 +409,10 @@ def _report(run: Run, epochs, s: EpochStats) -> None:
         )
     else:
         val = "validation (trained on)" if run.cfg.data.train_on_validation else "validation"
+        measure = ERROR_MEASURES[error_measure(bool(run.cfg.strokes.slots))]
         say(
-            f"epoch {s.epoch + 1}/{run.cfg.optim.epochs}: train {s.train_error_px:.4f} px, "
+            f"epoch {s.epoch + 1}/{run.cfg.optim.epochs}: {measure} train "
+            f"{s.train_error_px:.4f} px, "
             f"{val} {s.val_error_px:.4f} px (best {s.best_val_error_px:.4f}), "
             f"lr {s.lr:.2g}, {s.epoch_time_s:.1f} s"
         )
@@ -415,7 +426,10 @@ def _plot(run: Run) -> None:
     title = (
         f"{run.run_dir.name}: cost {_COST_EQ[run.cfg.cost.name]}, {run.cfg.model.encoder} encoder"
     )
-    plot_training_curve(run.run_dir / "training_curve.png", run.state.history_dicts(), title)
+    measure = error_measure(bool(run.cfg.strokes.slots))
+    plot_training_curve(
+        run.run_dir / "training_curve.png", run.state.history_dicts(), title, measure
+    )
 
 
 def _result(run: Run, wall_s: float) -> TrainResult:
@@ -428,6 +442,7 @@ def _result(run: Run, wall_s: float) -> TrainResult:
         last_val_error_px=s.history[-1].val_error_px if s.history else math.nan,
         history=s.history_dicts(),
         wall_s=wall_s,
+        error_measure=error_measure(bool(run.cfg.strokes.slots)),
     )
 
 

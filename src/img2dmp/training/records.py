@@ -22,6 +22,25 @@ METRIC_FIELDS = (
 )
 
 
+#: What a run's errors (``train_error_px``, ``val_error_px``, ``best_val_error_px`` in
+#: ``metrics.csv`` and the checkpoints) measure, by the checkpoints' ``val_error_measure``
+#: (a record without it, of an earlier img2dmp: ``"stroke-shape"`` when its ``strokes`` is
+#: set, else ``"trajectory"``): Table I's trajectory error, the mean distance
+#: between the whole path and the DMP rolled out at its time stamps (a one-DMP model; as
+#: ``img2dmp evaluate`` reports it), or a stroke model's stroke shape error, the root mean
+#: squared distance between each true stroke and the predicted stroke matched to it, each
+#: over its own duration, averaged over the true strokes (no count, order, timing or
+#: pen-up travel in it: smaller than ``evaluate``'s trajectory error of the same model,
+#: often ten times).
+ERROR_MEASURES = {"trajectory": "trajectory error", "stroke-shape": "stroke shape error"}
+
+
+def error_measure(strokes: bool) -> str:
+    """The key of :data:`ERROR_MEASURES` of a stroke model's run (``strokes``) or a
+    one-DMP model's."""
+    return "stroke-shape" if strokes else "trajectory"
+
+
 def write_metrics_csv(path: str | os.PathLike, history: list[dict]) -> None:
     """``history`` (one dict per epoch) as ``metrics.csv``, written atomically."""
     buf = io.StringIO()
@@ -42,8 +61,11 @@ def read_metrics_csv(path: str | os.PathLike) -> list[dict]:
     return out
 
 
-def plot_training_curve(path: str | os.PathLike, history: list[dict], title: str = "") -> Path:
-    """Train and validation trajectory error (px, log scale) per epoch, saved atomically."""
+def plot_training_curve(
+    path: str | os.PathLike, history: list[dict], title: str = "", measure: str = "trajectory"
+) -> Path:
+    """Train and validation error (px, log scale; ``measure`` a key of
+    :data:`ERROR_MEASURES`) per epoch, saved atomically."""
     import matplotlib.ticker
 
     ep = [r["epoch"] for r in history]
@@ -55,7 +77,7 @@ def plot_training_curve(path: str | os.PathLike, history: list[dict], title: str
     ax.yaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
     ax.yaxis.set_minor_formatter(matplotlib.ticker.FormatStrFormatter("%.2g"))
     ax.set_xlabel("epoch")
-    ax.set_ylabel("mean trajectory error (px)")
+    ax.set_ylabel(f"mean {ERROR_MEASURES[measure]} (px)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     if title:
@@ -63,4 +85,11 @@ def plot_training_curve(path: str | os.PathLike, history: list[dict], title: str
     return save_figure(fig, path)
 
 
-__all__ = ["METRIC_FIELDS", "plot_training_curve", "read_metrics_csv", "write_metrics_csv"]
+__all__ = [
+    "ERROR_MEASURES",
+    "METRIC_FIELDS",
+    "error_measure",
+    "plot_training_curve",
+    "read_metrics_csv",
+    "write_metrics_csv",
+]

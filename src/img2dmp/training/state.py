@@ -25,6 +25,7 @@ from ..checkpoint import (
 )
 from .config import TrainConfig
 from .data import TrainingData
+from .records import error_measure
 
 
 @dataclass
@@ -111,6 +112,8 @@ def checkpoint_meta(cfg: TrainConfig, data: TrainingData, state: RunState, weigh
         "epoch": last.epoch if last else -1,
         "val_error_px": last.val_error_px if last else None,
         "best_val_error_px": state.best_error_px,
+        # what the two errors measure (records.ERROR_MEASURES; absent: "trajectory")
+        "val_error_measure": error_measure(bool(cfg.strokes.slots)),
         "best_epoch": state.best_epoch,
         "torch_version": torch.__version__,
     }
