@@ -781,6 +781,20 @@ def test_time_units_and_durations(tmp_path):
         ImportOptions(val_fraction=0.5, test_fraction=0.5)
 
 
+def test_a_class_given_that_no_sample_has_is_kept_and_noted(small_source, tmp_path, capsys):
+    out = tmp_path / "c.safetensors"
+    argv = ["import", str(small_source), "--out", str(out), "--no-progress"]
+    assert cli.main([*argv, "--classes", "T,ghost,L"]) == 0  # the label order is kept
+    printed = capsys.readouterr().out
+    assert "classes: T 2, ghost 0, L 2" in printed
+    assert "note: no sample has the class(es) 'ghost' given (--classes)" in printed
+    data = load_dataset(out)
+    assert data.class_names == ("T", "ghost", "L") and set(data.labels) == {0, 2}
+    assert data.meta["counts_by_class"] == {"T": 2, "ghost": 0, "L": 2}
+    assert cli.main([*argv, "--force", "--classes", "T,L"]) == 0
+    assert "note:" not in capsys.readouterr().out
+
+
 def test_milliseconds_read_as_seconds_are_noted_not_refused(tmp_path, capsys):
     for k in range(2):
         _in_ms(*write_sample(tmp_path / "s" / "L", "L", k), tmp_path / "ms" / "L")

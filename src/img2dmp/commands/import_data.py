@@ -279,6 +279,12 @@ def _report(out: Path, data) -> None:
         )
     if note := time_unit_note(meta):
         print(note)
+    if empty := [name for name, n in by_class.items() if not n]:
+        print(
+            f"note: no sample has the class(es) {', '.join(map(repr, empty))} given (--classes): "
+            "they keep their labels, but nothing in the data set teaches or tests them; check "
+            "the names against the source's classes, or leave them out of --classes"
+        )
     if meta["fit"]["poor"]["rows"]:
         print(_poor_fit_note(data))
     shifted = meta["source"].get("shifted") or {}

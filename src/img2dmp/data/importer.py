@@ -360,9 +360,11 @@ def _meta(opt, config, good, classes, rows, copy, fit, root: Path | None) -> dic
     class_names, labels = classes
     names = class_names or DIGIT_NAMES
     sources = [good[r].source for r in rows]
+    # Every class named (``classes`` may name one no sample has: 0), or the digits found.
+    counted = np.unique(labels) if class_names is None else range(len(class_names))
     meta = {
         "import": {**opt.to_dict(), "n_dims": config.n_dims, "scaling": config.scaling},
-        "counts_by_class": {names[c]: int((labels == c).sum()) for c in np.unique(labels)},
+        "counts_by_class": {names[c]: int((labels == c).sum()) for c in counted},
         "units": "pixels of the stored images (x = column, y = row); a point (x, y) of a "
         "row's own image is at A @ (x, y) + b in the stored image before any augmentation, "
         "[A | b] = rows.image_to_model (img2dmp.data.images.ImageFrame)",
