@@ -372,6 +372,12 @@ RAW_BODIES = {
         "Infinity",
     ),  # fmt: skip
     "-Infinity in a DMP": (b'{"dmp": {"params": {"tau": -Infinity}}}', 400, "-Infinity"),
+    "1e999 (infinity as a double)": (
+        b'{"strokes": [[[1, 1, 0]]], "canvas": [1e999, 280]}',
+        400,
+        "body: canvas[0] is a number too large for a double (it reads as infinity)",
+    ),  # fmt: skip
+    "-1e400 in a DMP": (b'{"dmp": {"params": {"tau": -1e400}}}', 400, "dmp.params.tau"),
     "malformed JSON": (b'{"strokes": [[[1, 1, 0]]], "canvas": [280, 280]', 400, "not valid JSON"),
     "not UTF-8": (b'{"image": "\xff\xfe"}', 400, "body"),
     "nested too deeply": (b"[" * 100_000 + b"]" * 100_000, 400, "body"),
@@ -695,17 +701,21 @@ def test_the_arm_s_model_file_is_gone_once_loaded(tmp_path, monkeypatch):
 
 
 @pytest.mark.skipif(not available(), reason="needs pybullet (img2dmp[robot])")
-def test_the_jobs_a_stop_ends_say_so_in_their_folders(tmp_path):
+def test_the_jobs_a_stop_ends_say_so_in_their_folders(tmp_path, monkeypatch):
+    """... and a job beyond the waiting ones allowed (MAX_WAITING, here 1) is 429."""
+    monkeypatch.setattr("img2dmp.web.jobs.MAX_WAITING", 1)
     app = create_app([], data_dir=tmp_path / "r", jobs_dir=tmp_path / "jobs")
-    slow = _seven_dmp()
-    slow["params"]["tau"] = 60.0  # 14,400 control steps: running when the server stops
+    slow = {"dmp": _seven_dmp(), "video": False}
+    slow["dmp"]["params"]["tau"] = 60.0  # 14,400 control steps: running when it stops
     with TestClient(app, base_url=LOCAL) as c:
-        ids = [c.post("/api/write", json={"dmp": slow, "video": False}).json()["id"]
-               for _ in range(2)]  # fmt: skip
+        ids = [c.post("/api/write", json=slow).json()["id"]]
         end = time.monotonic() + 60
         while c.get(f"/api/jobs/{ids[0]}").json()["status"] == "queued":
             assert time.monotonic() < end
             time.sleep(0.05)
+        ids.append(c.post("/api/write", json=slow).json()["id"])  # waits
+        detail = _one_line_error(c.post("/api/write", json=slow), 429)
+        assert detail == "1 robot runs are waiting already; try later"
     for job_id, was in zip(ids, ("running", "queued"), strict=True):
         d = tmp_path / "jobs" / job_id
         last = (d / "job.log").read_text().splitlines()[-1]

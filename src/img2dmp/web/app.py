@@ -8,14 +8,16 @@ of the server's names or a state-changing request from another ``Origin``
 (:class:`HostGuard`, before anything else), request bodies larger than ``max_upload_mb``
 (``max_page_mb`` for a page's photo; from ``Content-Length`` and while reading, before
 parsing) or that stop half-way, JSON that is not strict JSON (no ``NaN`` or ``Infinity``,
-no key twice), FastAPI's validation errors, and the checks of the modules below. The
-endpoints that work are plain functions, run in FastAPI's thread pool.
+no number beyond a double, no key twice), FastAPI's validation errors, and the checks of
+the modules below. The endpoints that work are plain functions, run in FastAPI's thread
+pool.
 """
 
 from __future__ import annotations
 
 import asyncio
 import json
+import math
 import time
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -147,16 +149,42 @@ class RecordingRequest(_Body):
 
 
 class _StrictJSONRequest(Request):
-    """A request whose JSON body is read strictly: ``NaN``, ``Infinity`` refused."""
+    """A request whose JSON body is read strictly: ``NaN``, ``Infinity`` and numbers
+    beyond a double (``1e999``, read as infinity) refused (400)."""
 
     async def json(self):
         if not hasattr(self, "_json"):
             body = await self.body()
             try:
                 self._json = parse_json(body, "body", allow_nan=False)
+                _check_finite(self._json)
             except ValueError as e:
                 raise HTTPException(400, str(e)) from None
         return self._json
+
+
+def _check_finite(value) -> None:
+    """``ValueError`` naming the first number of a parsed JSON body that is not finite
+    (a literal such as ``1e999``, too large for a double, which JSON's grammar allows)."""
+    try:
+        json.dumps(value, allow_nan=False)  # in C: the body of any size at once
+        return
+    except (ValueError, RecursionError):  # then found and named below
+        pass
+    too_large = "is a number too large for a double (it reads as infinity); give a finite number"
+    if not isinstance(value, (dict, list)):
+        raise ValueError(f"body: {too_large}")
+    stack = [((), value)]
+    while stack:
+        where, container = stack.pop()
+        nested = []
+        for k, v in container.items() if isinstance(container, dict) else enumerate(container):
+            at = (*where, k)
+            if isinstance(v, float) and not math.isfinite(v):
+                raise ValueError(f"body: {_field(at)} {too_large}")
+            if isinstance(v, (dict, list)):
+                nested.append((at, v))
+        stack.extend(reversed(nested))
 
 
 class _StrictJSONRoute(APIRoute):
