@@ -394,8 +394,26 @@ def test_bodies_that_are_not_strict_json_are_refused(client, case):
 
 
 def test_a_body_of_another_type_is_refused(client):
+    """A PNG posted as image/png got 422 "body: Input should be a valid dictionary ...
+    got b'\\x89PNG..."; /api/predict_page answered the same mistake with 415."""
     r = client.post("/api/predict", content=b"strokes", headers={"content-type": "text/plain"})
-    assert "body" in _one_line_error(r, 422)
+    assert _one_line_error(r, 415) == (
+        "Content-Type: /api/predict takes a JSON body, sent as application/json, got 'text/plain'"
+    )
+    png = {"content-type": "image/png"}
+    raw = base64.b64decode(_data_url(np.zeros((8, 8), np.uint8)).split(",", 1)[1])
+    detail = _one_line_error(client.post("/api/predict", content=raw, headers=png), 415)
+    assert "as \"image\": a data:image/png;base64,... URL), got 'image/png'" in detail, detail
+    for url in ("/api/bend", "/api/write", "/api/recordings", "/api/pages/x/write"):
+        detail = _one_line_error(client.post(url, content=raw, headers=png), 415)
+        assert detail.startswith(f"Content-Type: {url} takes a JSON body"), detail
+        assert "POST /api/predict_page" in detail, detail
+    r = client.post("/api/predict", content=b'{"strokes": []}')  # no Content-Type
+    assert _one_line_error(r, 415).endswith("got none")
+    body = json.dumps({"strokes": SEVEN, "canvas": CANVAS})
+    for kind in ("application/json; charset=utf-8", "application/merge-patch+json"):
+        r = client.post("/api/predict", content=body, headers={"content-type": kind})
+        assert r.status_code == 200, r.text
 
 
 def test_bodies_above_the_limit_get_413_before_they_are_read(serve):

@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import re
 import time
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -188,13 +189,35 @@ def _check_finite(value) -> None:
 
 
 class _StrictJSONRoute(APIRoute):
+    """A route whose JSON body is read strictly (:class:`_StrictJSONRequest`) and must be
+    sent as JSON (:func:`check_json_type`)."""
+
     def get_route_handler(self):
         handler = super().get_route_handler()
+        takes_json = self.body_field is not None
 
         async def strict(request: Request):
+            if takes_json:
+                check_json_type(request.url.path, request.headers.get("content-type"))
             return await handler(_StrictJSONRequest(request.scope, request.receive))
 
         return strict
+
+
+def check_json_type(path: str, content_type: str | None) -> None:
+    """415 for a body sent to a JSON endpoint as something else (an image file, a form,
+    text) or without ``Content-Type`` (which FastAPI would not read as JSON)."""
+    kind = (content_type or "").split(";")[0].strip().lower()
+    if kind == "application/json" or re.fullmatch(r"application/[\w.-]+\+json", kind):
+        return
+    hint = ""
+    if kind.startswith("image/") and path == "/api/predict":
+        hint = ' (an image goes in it as "image": a data:image/png;base64,... URL)'
+    elif kind.startswith("image/"):
+        hint = " (a page's photo goes to POST /api/predict_page as its own bytes)"
+    got = show(kind) if kind else "none"
+    raise WebError(415, f"Content-Type: {path} takes a JSON body, sent as application/json"
+                   f"{hint}, got {got}")  # fmt: skip
 
 
 class BodyLimit:
