@@ -515,6 +515,29 @@ def test_image_size_comes_from_the_data_and_the_config_is_not_changed(tmp_path, 
         train(cfg, tmp_path / "run2")
 
 
+def test_too_few_to_train_says_the_splits_the_hold_out_and_what_to_do(small_data, tmp_path):
+    full = load_dataset(small_data)
+    two = tmp_path / "two.safetensors"
+    rows = np.flatnonzero(full.split == 0)[:2]
+    save_dataset(two, full.subset(rows))  # train 2, validation 0, test 0
+    with pytest.raises(ValueError) as e:
+        train(tiny_config(two), tmp_path / "run")
+    said = str(e.value)
+    assert "has 1 sample(s) to train on (train 2, validation 0, test 0; with no " in said
+    assert "1 of the training split is held out to validate on: data.val_fraction = 0.1" in said
+    assert "--val-fraction" in said and "data.train_on_validation=true" in said
+    one_each = full.subset(np.r_[rows[:1], np.flatnonzero(full.split == 1)[:1]])
+    save_dataset(two, one_each)  # train 1, validation 1: nothing held out
+    with pytest.raises(ValueError) as e:
+        train(tiny_config(two), tmp_path / "run")
+    said = str(e.value)
+    assert "has 1 sample(s) to train on (train 1, validation 1, test 0); need at least 2" in said
+    assert "held out" not in said and "train on the validation split too" in said
+    cfg = tiny_config(two, patience=0, epochs=1)
+    cfg.data.train_on_validation = True  # the remedy it names trains
+    assert train(cfg, tmp_path / "run").epochs_run == 1
+
+
 def test_a_diverging_run_ends_with_one_line_and_exit_2(small_data, tmp_path, capsys):
     args = ["train", "--data", str(small_data), "--run-dir", str(tmp_path / "run")]
     args += ["--epochs", "3", "--no-progress", "--set", "optim.lr=1e30", "threads=1"]

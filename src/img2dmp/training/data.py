@@ -18,7 +18,7 @@ import torch
 from .._files import file_digest
 from ..config import ConfigError
 from ..data.images import ink_margin, typical_stroke_width
-from ..data.store import DigitData, digits_named, load_dataset
+from ..data.store import SPLITS, DigitData, digits_named, load_dataset
 from ..dmp import DMPConfig
 from ..nn import ParamNormaliser
 from ..nn.costs import ParameterWeighting
@@ -204,13 +204,40 @@ def _split_indices(a: DigitData, cfg: TrainConfig) -> tuple[np.ndarray, np.ndarr
         n_val = max(1, int(round(d.val_fraction * len(perm))))
         val_idx, train_idx = np.sort(perm[:n_val]), np.sort(perm[n_val:])
     if len(train_idx) < 2:
-        raise ValueError(
-            f"data set {d.path} has {len(train_idx)} training samples"
-            + (f" with labels {d.digits}" if d.digits is not None else "")
-            + (f" of the classes {d.classes}" if d.classes is not None else "")
-            + "; need at least 2"
-        )
+        raise _too_few(a.split[keep], cfg, len(train_idx))
     return train_idx, val_idx
+
+
+def _too_few(split: np.ndarray, cfg: TrainConfig, n_train: int) -> ValueError:
+    """The error of too few rows to train on: how many each split of the rows kept
+    (``split``) holds, how many of the training split validation took, what to do."""
+    d = cfg.data
+    counts = ", ".join(f"{name} {int((split == i).sum())}" for name, i in SPLITS.items())
+    held = int((split == 0).sum()) - n_train if not d.train_on_validation else 0
+    took = (
+        f"; with no validation split, {held} of the training split "
+        f"{'is' if held == 1 else 'are'} held out to validate on: data.val_fraction = "
+        f"{d.val_fraction:g}, at least 1"
+        if held > 0
+        else ""
+    )
+    remedy = "import more samples"
+    if held > 0:
+        remedy += (
+            ", or import them with a validation split (--val-fraction) and train on it too "
+            "(--set data.train_on_validation=true --set optim.patience=0)"
+        )
+    elif not d.train_on_validation:
+        remedy += (
+            ", or train on the validation split too (--set data.train_on_validation=true "
+            "--set optim.patience=0)"
+        )
+    return ValueError(
+        f"data set {d.path}"
+        + (f" with labels {d.digits}" if d.digits is not None else "")
+        + (f" of the classes {d.classes}" if d.classes is not None else "")
+        + f" has {n_train} sample(s) to train on ({counts}{took}); need at least 2: {remedy}"
+    )
 
 
 class TrainingData:
