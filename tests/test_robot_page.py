@@ -424,6 +424,13 @@ def test_a_page_that_does_not_fit_is_refused_before_anything_moves(page_document
     assert default.mapping.area_size_mm[0] == pytest.approx(default.width_mm)
     large = WritingOptions(scene_config=SceneConfig(paper_size_m=(0.296, 0.42)))
     assert plan_page(page, large).width_mm == 160.0
+    # Skipping by flag name: character 1 alone has unexplained_ink.
+    for skip in (("unexplained_ink",), "unexplained_ink", {"unexplained_ink", "unfamiliar"}):
+        assert [c.index for c in plan_page(page, skip_flagged=skip).skipped] == [1]
+    assert plan_page(page, skip_flagged=["unfamiliar"]).skipped == ()  # a flag, none here
+    for bad in (["unfamilar"], [3], 3):
+        with pytest.raises(ValueError, match=r"skip_flagged|no character flag"):
+            plan_page(page, skip_flagged=bad)
     for width in (1e-300, 1e308):  # a page 0.0 mm wide was written, 1e308 overflowed
         with pytest.raises(ValueError, match=r"width_mm .* must be from 5 to 1e\+06 mm"):
             plan_page(page, width_mm=width)
@@ -506,6 +513,10 @@ def test_write_page_command_says_the_width_it_takes(page_document, tmp_path, cap
     "extra, message",
     [
         (["--width-mm", "50"], "--width-mm is for --page"),
+        (["--skip-flags", "off_ink"], "--skip-flags is for --page"),
+        (["--page", "--skip-flagged", "--skip-flags", "off_ink"], "not both"),
+        (["--page", "--skip-flags", "off_ink,"], "flag names separated by commas"),
+        (["--page", "--skip-flags", "offink"], "'offink' is no character flag"),
         (["--page", "--hypothesis", "2"], "--hypothesis is not for --page"),
         (["--page", "--writing-height-mm", "30"], "--width-mm scales a page"),
         (["--page", "--refine", "3"], "--refine refines what --model reads"),

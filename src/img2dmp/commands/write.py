@@ -29,9 +29,10 @@ stderr before the arm writes it.
 (``Predictor.predict_page``). The characters' boxes together are written
 ``--width-mm`` wide (aspect kept, centred on the paper), in reading order, the pen
 lifted and travelling between characters; ``--skip-flagged`` leaves out the characters
-with flags. The outputs are those of one DMP for the whole page (one log, one joint
-trajectory, one video) plus ``NAME_characters.csv``, one row of measures per character
-and the page's totals; NAME is the page document's or the photo's name.
+with flags, ``--skip-flags FLAGS`` those with any of these. The outputs are those of
+one DMP for the whole page (one log, one joint trajectory, one video) plus
+``NAME_characters.csv``, one row of measures per character and the page's totals; NAME
+is the page document's or the photo's name.
 ``--goal X,Y``, ``--start X,Y``, ``--shift DX,DY``, ``--scale S``, ``--rotate DEG`` and
 ``--tempo K`` bend the DMP before the arm writes it (:func:`img2dmp.dmp.bend_dmp`; which
 changes are exact and which change the shape: docs/DMP.md, "Bending a DMP"). Positions are
@@ -133,7 +134,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_page_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--page``, ``--width-mm``, ``--skip-flagged``: a whole page in one run."""
+    """``--page``, ``--width-mm``, ``--skip-flagged``, ``--skip-flags``: a whole page."""
     parser.add_argument(
         "--page",
         action="store_true",
@@ -152,8 +153,14 @@ def _add_page_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--skip-flagged",
         action="store_true",
-        help="with --page: do not write the characters that have flags (e.g. no_ink); "
+        help="with --page: do not write the characters that have flags (e.g. off_ink); "
         "the others keep their places",
+    )
+    parser.add_argument(
+        "--skip-flags",
+        metavar="FLAGS",
+        help="with --page: do not write the characters that have any of these flags (e.g. "
+        "off_ink,unexplained_ink: those only unfamiliar are written)",
     )
 
 
@@ -311,6 +318,7 @@ def check_files(args) -> None:
     for given, flag in (
         (args.width_mm is not None, "--width-mm"),
         (args.skip_flagged, "--skip-flagged"),
+        (args.skip_flags is not None, "--skip-flags"),
     ):
         if given:
             raise ValueError(f"{flag} is for --page (a whole page)")
@@ -570,13 +578,26 @@ def _run_page(args, scene_cfg, ctl_cfg) -> int:
 
     options = _writing_options(args, scene_cfg, ctl_cfg)
     name, page, photo = _page_input(args)
-    plan = plan_page(page, options, width_mm=args.width_mm, skip_flagged=args.skip_flagged)
+    plan = plan_page(page, options, width_mm=args.width_mm, skip_flagged=_skip_flags(args))
     if args.width_mm is None and plan.width_mm < DEFAULT_PAGE_WIDTH_MM:
         print(f"img2dmp write: note: {name} is written {plan.width_mm:g} mm wide, the widest "
               f"that fits the sheet (default {DEFAULT_PAGE_WIDTH_MM:g} mm; --width-mm to choose)",
               file=sys.stderr)  # fmt: skip
     what, noun = plan.words()  # a stroke model's page: each entry a stroke
     return _write_plan(args, name, plan, photo, what, "_characters.csv", noun)
+
+
+def _skip_flags(args) -> bool | tuple[str, ...]:
+    """``--skip-flagged`` (True: any flag), or ``--skip-flags`` (these names), or False."""
+    given = args.skip_flags
+    if given is None:
+        return args.skip_flagged
+    if args.skip_flagged:
+        raise ValueError("give --skip-flagged (any flag) or --skip-flags FLAGS, not both")
+    names = tuple(n.strip() for n in given.split(","))
+    if not all(names):
+        raise ValueError(f"--skip-flags takes flag names separated by commas, got {given!r}")
+    return names
 
 
 def _run_strokes(args, scene_cfg, ctl_cfg, predictor) -> int:

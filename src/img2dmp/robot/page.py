@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -66,6 +66,9 @@ from .writing import (
 )
 
 DEFAULT_WIDTH_MM = 160.0
+#: The flags a page's character may carry (docs/PAGE.md, "Fit scores and flags").
+CHARACTER_FLAGS = ("off_ink", "unexplained_ink", "several_characters", "cut_by_border",
+                   "unfamiliar")  # fmt: skip
 # The pen travels between characters this high above the paper: clear of the ink and of
 # the 6 mm lift height it writes with, reachable everywhere on the sheet.
 TRAVEL_HEIGHT_M = 0.02
@@ -253,7 +256,7 @@ def plan_page(
     options: WritingOptions | None = None,
     *,
     width_mm: float | None = None,
-    skip_flagged: bool = False,
+    skip_flagged: bool | Collection[str] = False,
     travel_height_m: float = TRAVEL_HEIGHT_M,
 ) -> PagePlan:
     """Lay out a page on the paper and plan every character to write (no simulation).
@@ -270,8 +273,11 @@ def plan_page(
         or the widest width that fits the sheet, to 0.1 mm below, when that is narrower
         (:attr:`PagePlan.width_mm` says which). A width given is written as given, or
         refused.
-    skip_flagged : bool
-        Leave out the characters with flags (they keep their place in the layout).
+    skip_flagged : bool or collection of str
+        Leave out the characters with flags (True), or with any of these flags (e.g.
+        ``{"off_ink", "unexplained_ink"}``, keeping those only ``"unfamiliar"``); they
+        keep their place in the layout. A name neither in ``CHARACTER_FLAGS`` nor on a
+        character of the page is refused (a misspelt one would skip nothing).
     travel_height_m : float
         Height of the pen above the paper while it travels between characters; above
         the controller's ``lift_height_m``.
@@ -286,16 +292,15 @@ def plan_page(
     options = options or WritingOptions()
     if not isinstance(page, Page):
         raise ValueError(f"page must be a Page (read_page), got {type(page).__name__}")
-    if not isinstance(skip_flagged, bool):
-        raise ValueError(f"skip_flagged must be True or False, got {skip_flagged!r}")
+    skip = _skipped_flags(page, skip_flagged)
     lift_m = options.controller_config.lift_height_m
     if not (isinstance(travel_height_m, (int, float)) and lift_m < travel_height_m <= 0.2):
         raise ValueError(
             f"travel_height_m must be in ({lift_m:g}, 0.2] m (above the lift height), "
             f"got {travel_height_m!r}"
         )
-    chosen = [c for c in page.characters if not (skip_flagged and c.flags)]
-    skipped = tuple(c for c in page.characters if skip_flagged and c.flags)
+    chosen = [c for c in page.characters if not skip(c.flags)]
+    skipped = tuple(c for c in page.characters if skip(c.flags))
     if not chosen:
         why = "all of them are flagged (skip_flagged)" if page.characters else "it has none"
         raise ValueError(f"{page.path}: no characters to write: {why}")
@@ -314,6 +319,28 @@ def plan_page(
     check_page_fits(plan, options.scene_config)
     options.check_video(_duration_bound_s(plan, options))
     return plan
+
+
+def _skipped_flags(page: Page, skip_flagged) -> Callable[[tuple], bool]:
+    """Whether a character of these flags is left out, as ``skip_flagged`` says
+    (:func:`plan_page`); ``ValueError`` naming a value that is no flag."""
+    if isinstance(skip_flagged, bool):
+        return lambda flags: skip_flagged and bool(flags)
+    names = [skip_flagged] if isinstance(skip_flagged, str) else skip_flagged
+    try:
+        names = frozenset(names)
+    except TypeError:
+        raise ValueError(f"skip_flagged must be True, False or flag names, got "
+                         f"{skip_flagged!r}") from None  # fmt: skip
+    on_page = {f for c in page.characters for f in c.flags}
+    for name in sorted(names, key=str):
+        if not isinstance(name, str) or name not in set(CHARACTER_FLAGS) | on_page:
+            here = ", ".join(sorted(on_page)) or "none"
+            raise ValueError(
+                f"skip_flagged (--skip-flags): {name!r} is no character flag (the flags: "
+                f"{', '.join(CHARACTER_FLAGS)}; on this page: {here})"
+            )
+    return lambda flags: bool(names.intersection(flags))
 
 
 def _plan_character(page: Page, c: PageCharacter, mapping, dt_s: float) -> CharacterPlan:
@@ -436,7 +463,7 @@ def write_page(
     options: WritingOptions | None = None,
     *,
     width_mm: float | None = None,
-    skip_flagged: bool = False,
+    skip_flagged: bool | Collection[str] = False,
     travel_height_m: float = TRAVEL_HEIGHT_M,
     progress: Callable[[int], object] | None = None,
     on_character: Callable[[CharacterPlan], object] | None = None,
@@ -770,6 +797,7 @@ def page_metrics(log: WritingLog, runs: list[CharacterRun], force_set_n: float) 
 
 
 __all__ = [
+    "CHARACTER_FLAGS",
     "DEFAULT_WIDTH_MM",
     "TRAVEL_HEIGHT_M",
     "CharacterPlan",
