@@ -465,6 +465,9 @@ def test_import_train_evaluate_predict_on_the_command_line(letters, tmp_path, ca
     train += ["--no-progress", "--set", "threads=1", "optim.batch_size=8"]
     train += ["model.encoder_layers=[64, 20]", "model.decoder_layers=[35]"]
     assert cli.main(train) == 0, capsys.readouterr().err
+    note = capsys.readouterr().err  # the T's two strokes: a stroke model is made for them
+    assert "training drawings" in note and "have several strokes (up to 2)" in note
+    assert "a stroke model learns one DMP per stroke: --config omniglot" in note
     evaluation = tmp_path / "eval"
     argv = ["evaluate", "--model", str(run), "--data", str(data), "--out", str(evaluation)]
     assert cli.main([*argv, "--figures", "4"]) == 0, capsys.readouterr().err

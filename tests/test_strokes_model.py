@@ -38,7 +38,7 @@ from img2dmp.nn.strokes import (
     stroke_targets,
 )
 from img2dmp.training.config import load_config
-from img2dmp.training.data import count_targets, slots_note
+from img2dmp.training.data import count_targets, one_dmp_note, slots_note
 
 
 def _path(strokes: list[np.ndarray], gap: int = 3) -> tuple[np.ndarray, np.ndarray]:
@@ -237,6 +237,14 @@ def test_training_notes_drawings_of_more_strokes_than_slots_and_is_silent_withou
     assert "strokes.slots = 5 strokes (up to 12)" in note and "\n" not in note
     assert note.endswith("--set strokes.slots=12 holds them all (at most 32)")
     assert slots_note(a, np.arange(5), slots=12) is None
+
+
+def test_a_one_dmp_model_of_drawings_of_several_strokes_is_pointed_to_stroke_models():
+    a = _Drawings([0, 0, 1, 1], [1, 1, 3, 1])
+    assert one_dmp_note(a, np.array([0, 1, 3])) is None  # one stroke each: nothing to say
+    note = one_dmp_note(a, np.arange(4))
+    assert note.startswith("note: 1 of 4 training drawings (25.0 %) have several strokes")
+    assert "(up to 3)" in note and "--config omniglot" in note and "\n" not in note
 
 
 def test_the_slots_note_names_the_limit_and_the_drawings_beyond_it():

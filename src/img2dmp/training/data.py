@@ -164,6 +164,23 @@ def slots_note(a: DigitData, idx: np.ndarray, slots: int) -> str | None:
     )
 
 
+def one_dmp_note(a: DigitData, idx: np.ndarray) -> str | None:
+    """A one-line note when a model of one DMP per drawing (``strokes.slots`` 0) is to
+    learn rows ``idx`` of which some have several strokes (None when none has): a stroke
+    model, one DMP per stroke, is the configuration made for them."""
+    counts = np.array([len(a.stroke_spans(int(i))) for i in idx], dtype=np.int64)
+    several = counts > 1
+    if not several.any():
+        return None
+    return (
+        f"note: {int(several.sum())} of {len(counts)} training drawings "
+        f"({100 * several.mean():.1f} %) have several strokes (up to {int(counts.max())}), "
+        "which this configuration learns as one DMP per drawing with a pen channel "
+        "(strokes.slots = 0); a stroke model learns one DMP per stroke: --config omniglot "
+        "(docs/TRAINING.md, Stroke models)"
+    )
+
+
 #: Most drawings a note names by their files.
 _NAMED = 3
 
@@ -303,6 +320,8 @@ class TrainingData:
             self.dmp_config = layout.config
             self.normaliser = normaliser or stroke_normaliser(a, train_idx, layout)
         else:
+            if note := one_dmp_note(a, train_idx):
+                print(note, file=sys.stderr)
             for rows in (train_idx, val_idx):  # every row a DMP (tau > 0), named if not
                 a.dmp_params(rows)
             self.normaliser = normaliser or ParamNormaliser.fit(
