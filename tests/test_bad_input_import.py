@@ -275,3 +275,32 @@ def test_a_nul_byte_in_a_manifest_names_the_file_row_and_field(tmp_path, capsys)
         import_dataset(manifest, progress=False)
     line = _import(manifest, tmp_path, capsys)
     assert f"{manifest}: row 1: field 'image' is 'L/000.png\\x00'" in line
+
+
+def test_a_class_named_with_a_comma_is_refused_naming_it(tmp_path, capsys):
+    root = _source(tmp_path / "src")
+    manifest = root / "m.csv"
+    manifest.write_text('image,trajectory,class\nL/000.png,L/000.csv,"a,b"\n')
+    line = _import(manifest, tmp_path, capsys)
+    assert f"{manifest}: row 1: class 'a,b' holds a comma, which --classes reads" in line
+    (root / "L").rename(root / "L,l")  # a class folder too
+    line = _import(root, tmp_path, capsys)
+    assert f"{root / 'L,l'}: class 'L,l' holds a comma" in line
+    with pytest.raises(ValueError, match="classes entry 1: class 'a,b' holds a comma"):
+        ImportOptions(classes=("T", "a,b"))  # in a --config file or --set
+
+
+def test_class_names_are_unicode_nfc_so_e_acute_is_one_class_however_written(tmp_path):
+    nfc, nfd = "\u00e9", "e\u0301"  # the same "é", one code point or e + accent
+    root = _source(tmp_path / "src")
+    (root / "L").rename(root / nfc)
+    (root / "T").rename(root / nfd)  # as macOS names a folder
+    data = import_dataset(root, ImportOptions(val_fraction=0, test_fraction=0))
+    assert data.class_names == (nfc,)
+    assert data.meta["counts_by_class"] == {nfc: 4}
+    (root / nfd).rename(root / "T")
+    data = import_dataset(root, ImportOptions(classes=("T", nfd)))  # --classes in NFD
+    assert data.class_names == ("T", nfc) and sorted(data.meta["counts_by_class"].values()) == [
+        2,
+        2,
+    ]

@@ -12,6 +12,7 @@ listed here, by recordings (:mod:`.recordings`) and by Omniglot (:mod:`.omniglot
 from __future__ import annotations
 
 import csv
+import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -104,8 +105,7 @@ class ImportOptions(BuildOptions):
                 f"time_unit must be one of {list(TIME_UNITS)}, got {show(self.time_unit)}"
             )
         if self.classes is not None:
-            self.classes = tuple(self.classes)
-            _check_class_list(self.classes)
+            self.classes = _check_class_list(tuple(self.classes))
 
     def to_dict(self) -> dict:
         d = super().to_dict()
@@ -114,14 +114,22 @@ class ImportOptions(BuildOptions):
 
 
 def check_class_name(name, where: str) -> str:
-    """``name`` if it can name a class (non-empty printable text of at most
-    ``MAX_CLASS_NAME_CHARS`` characters, no surrounding spaces), else ``ValueError``."""
+    """``name`` in Unicode NFC if it can name a class (non-empty printable text of at most
+    ``MAX_CLASS_NAME_CHARS`` characters, no surrounding spaces, no comma), else
+    ``ValueError``. NFC: an "é" written as one character or as "e" and its accent (as
+    macOS names folders) is one class; a comma would split the name in ``--classes``."""
     if not isinstance(name, str):
         raise ValueError(f"{where}: class {show(name)} must be text")
     if not name or name != name.strip() or not name.isprintable():
         raise ValueError(
             f"{where}: class {show(name)} is no class name (non-empty printable text without "
             "surrounding spaces)"
+        )
+    name = unicodedata.normalize("NFC", name)
+    if "," in name:
+        raise ValueError(
+            f"{where}: class {name!r} holds a comma, which --classes reads as a separator "
+            "(this class could never be selected); rename it without one"
         )
     if len(name) > MAX_CLASS_NAME_CHARS:
         raise ValueError(
@@ -131,13 +139,15 @@ def check_class_name(name, where: str) -> str:
     return name
 
 
-def _check_class_list(names: tuple) -> None:
+def _check_class_list(names: tuple) -> tuple[str, ...]:
+    """The class names ``names`` in NFC (:func:`check_class_name`), each once."""
     if not 1 <= len(names) <= MAX_CLASSES:
         raise ValueError(f"classes must name 1 to {MAX_CLASSES} classes, got {len(names)}")
+    names = tuple(check_class_name(name, f"classes entry {i}") for i, name in enumerate(names))
     for i, name in enumerate(names):
-        check_class_name(name, f"classes entry {i}")
         if names.index(name) != i:
             raise ValueError(f"classes entry {i} repeats {name!r}")
+    return names
 
 
 # --- where the samples are ------------------------------------------------------------
