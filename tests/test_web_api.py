@@ -702,6 +702,36 @@ def test_robot_runs_wait_their_turn_and_serve_only_their_files(serve):
 
 
 @pytest.mark.skipif(not available(), reason="needs pybullet (img2dmp[robot])")
+def test_the_image_sent_with_a_dmp_is_under_its_path_in_the_paper_figure(serve):
+    """The Draw page's run showed "no input image" though the page had it."""
+    c = serve(models=[], max_jobs=2)
+    ink = np.full((40, 40), 255, np.uint8)
+    ink[8:32, 8:32] = 0  # a dark square behind the "7"
+    runs = [c.post("/api/write", json={"dmp": _seven_dmp(), "video": False, **extra})
+            for extra in ({"image": _data_url(ink)}, {})]  # fmt: skip
+    assert [r.status_code for r in runs] == [202, 202], runs[0].text
+    papers = []
+    for r in runs:
+        job = c.app.state.img2dmp.jobs.wait(r.json()["id"], 120)
+        assert job["status"] == "done", job["error"]
+        papers.append(np.asarray(Image.open(io.BytesIO(c.get(job["files"]["paper"]).content))))
+    with_image, without = (p[..., :3].astype(float) for p in papers)
+    assert with_image.shape == without.shape
+    h, w = with_image.shape[:2]
+    differs = np.abs(with_image - without).max(axis=2) > 60
+    assert differs[: h // 2, : w // 2].mean() > 0.05  # the image panel: the square
+    assert differs[:, w // 2 :].mean() < 0.01  # the paper and the measures: the same
+    for body, detail in (
+        ({"image": "data:image/png;base64,@@"}, "image: the base64"),
+        ({"image": _data_url(np.zeros((1100, 20), np.uint8))}, "image: 20 x 1100 pixels"),
+    ):
+        r = c.post("/api/write", json={"dmp": _seven_dmp(), **body})
+        assert _one_line_error(r, 422).startswith(detail)
+    r = c.post("/api/write", json={"strokes_page": {}, "image": _data_url(ink)})
+    assert _one_line_error(r, 422) == "image: goes with dmp, not with strokes_page"
+
+
+@pytest.mark.skipif(not available(), reason="needs pybullet (img2dmp[robot])")
 def test_the_arm_s_model_file_is_gone_once_loaded(tmp_path, monkeypatch):
     """A run ended by the server's stop left /tmp/img2dmp-robot-XXXX/iiwa_pen.urdf."""
     import tempfile

@@ -285,6 +285,20 @@ def test_draw_with_the_mouse_predicts_plays_and_downloads_the_dmp(page, server, 
     assert dl.value.suggested_filename == "drawing.csv"
 
 
+def test_the_unfamiliar_note_is_worded_for_the_model_s_kind(page, server):
+    """The digit model's note said "its strokes and their count are a guess"."""
+    page.goto(server["url"] + "/")
+    page.locator("#site-header .tabs a", has_text="Draw").wait_for()
+    dmp, strokes = page.evaluate(
+        """async () => {
+          const { flagText } = await import('/static/common.js');
+          return [flagText(['unfamiliar'], {}, 'dmp'), flagText(['unfamiliar'], {}, 'strokes')];
+        }"""
+    )
+    assert dmp.endswith("so its path is a guess") and "stroke" not in dmp, dmp
+    assert strokes.endswith("so its strokes and their count are a guess"), strokes
+
+
 def _cdp_pen_stroke(cdp, points) -> None:
     """One stroke of a pen through Chromium's input pipeline (real pointer events)."""
     kind = ["mousePressed"] + ["mouseMoved"] * (len(points) - 2) + ["mouseReleased"]
@@ -439,6 +453,7 @@ def test_the_goal_dragged_bends_the_path_the_speed_retimes_it_and_the_robot_writ
         page.locator("#write").click()
     sent = request.value.post_data_json
     assert sent["hypothesis"] == 1 and sent["dmp"]["bent"] == bent  # the bent DMP
+    assert sent["image"].startswith("data:image/png;base64,")  # shown in paper.png
     page.locator('#job[data-status="done"], #job[data-status="failed"]').wait_for(timeout=90_000)
     assert page.locator("#job").get_attribute("data-status") == "done", page.locator(
         "#robot-error"
@@ -589,6 +604,8 @@ def test_a_page_photo_is_boxed_counted_written_and_its_flagged_character_marked(
     assert "border" in box.get_attribute("title")
     item = page.locator('#flagged .flag-item[data-index="4"]')
     assert "border" in item.inner_text()
+    hint = page.locator("#flagged-card .hint").inner_text()
+    assert "border" in hint and "unfamiliar" in hint, hint
     item.hover()
     assert "focus" in box.get_attribute("class")
     page.screenshot(path=str(shots / "page-read.png"), full_page=True)

@@ -125,7 +125,19 @@ def test_the_whole_page_document_downloads_with_every_dmp(client, handwritten_pa
     assert {k: v for k, v in doc.items() if k != "characters"} == {
         k: v for k, v in answer["page"].items() if k != "characters"
     }
+    assert doc["image"] == "Page 1.png"  # the file's name, without its folder
     _one_line_error(client.get("/api/pages/0123456789abcdef"), 404)
+
+
+def test_a_file_name_with_folders_is_kept_as_its_last_part(client):
+    """The download's name was cleaned, the document kept "../../../tmp/evil.png"."""
+    blank = np.full((60, 80), 255, np.uint8)
+    for name, kept in (("../../../tmp/evil.png", "evil.png"), ("..\\a\\b.png", "b.png"),
+                       ("..", None), ("Übung\n(2).jpg", "Übung_(2).jpg")):  # fmt: skip
+        answer = _read(client, _file(blank), name=name)
+        assert answer["page"]["image"] == kept, (name, answer["page"]["image"])
+        assert client.get(answer["document"]).json()["image"] == kept
+    assert answer["filename"] == "bung__2_page.json"  # the download's: ASCII
 
 
 def test_a_photo_stored_on_its_side_is_read_upright(client, handwritten_page):

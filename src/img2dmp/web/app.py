@@ -39,7 +39,7 @@ from .. import __version__
 from .._files import parse_json
 from .bending import BEND_FIELDS, bend_answer
 from .errors import WebError, one_line, show
-from .jobs import JobManager, plan_write
+from .jobs import JobManager, check_image, plan_write
 from .models import LoadedModel, load_models, predict_with, prediction_answer
 from .page_jobs import DEFAULT_WIDTH_MM, submit_page, submit_strokes
 from .pages import PAGE_TYPES, PAGE_UPLOAD_MB, PageStore, check_page_type, page_answer, read_photo
@@ -103,6 +103,11 @@ class WriteRequest(_Body):
     )
     hypothesis: int = Field(1, ge=1)
     video: bool = True
+    image: str | None = Field(
+        None,
+        description="with dmp: data:image/png;base64,... of the image its params are in "
+        "(/api/predict's input_image), shown under the path in paper.png",
+    )
 
 
 XY = Annotated[list[float], Field(min_length=2, max_length=2, description="[x, y], pixels")]
@@ -659,9 +664,13 @@ def _job_routes(app: FastAPI, state: ServerState) -> None:
             if body.hypothesis != 1:
                 raise WebError(422, "hypothesis: a stroke model's character has one (1), "
                                f"got {body.hypothesis}")  # fmt: skip
+            if body.image is not None:
+                raise WebError(422, "image: goes with dmp, not with strokes_page")
             return _json(submit_strokes(state.jobs, body.strokes_page, body.video), 202)
         doc, interval_s = plan_write(body.dmp, body.hypothesis, body.video)
-        return _json(state.jobs.submit(doc, body.hypothesis, body.video, interval_s), 202)
+        image = None if body.image is None else check_image(body.image)
+        answer = state.jobs.submit(doc, body.hypothesis, body.video, interval_s, image)
+        return _json(answer, 202)
 
     @app.post("/api/pages/{page_id}/write", status_code=202)
     def write_page(page_id: str, body: PageWriteRequest) -> Response:

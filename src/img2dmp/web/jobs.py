@@ -39,6 +39,9 @@ from .errors import WebError, one_line, show
 
 #: The outputs of a job, by the key of ``files`` in ``GET /api/jobs/{id}``.
 JOB_FILES = {"paper": "paper.png", "animation": "animation.gif", "log": "log.csv"}
+#: The image a DMP's job shows under its path in ``paper.png`` (in the job's folder, not
+#: served), and the most pixels a side it may have.
+PAPER_IMAGE, MAX_PAPER_IMAGE_PX = "image.png", 1024
 #: Most jobs waiting to start; more are refused (429).
 MAX_WAITING = 20
 #: Simulated seconds between two frames of the animation (each shown that long).
@@ -107,6 +110,7 @@ def _write(d: Path, hypothesis: int, interval_s: float | None, report) -> list[s
     )
 
     params, config, size = load_dmp_json(d / "dmp.json", hypothesis=hypothesis)
+    image = _paper_image(d / PAPER_IMAGE)
     steps = {"done": 0, "expected": max(1.0, (float(params.tau) + RUN_EXTRA_S) * CONTROL_RATE_HZ)}
 
     def advance(n: int) -> None:
@@ -124,7 +128,7 @@ def _write(d: Path, hypothesis: int, interval_s: float | None, report) -> list[s
     )
     report[SHARE] = SIMULATION_SHARE
     name = f"hypothesis {hypothesis}"
-    plot_writing(result, d / JOB_FILES["paper"], title=f"{name}: KUKA iiwa writes")
+    plot_writing(result, d / JOB_FILES["paper"], image, title=f"{name}: KUKA iiwa writes")
     save_log_csv(result, d / JOB_FILES["log"])
     lines = summary_lines(name, result)
     if interval_s is not None:
@@ -134,6 +138,32 @@ def _write(d: Path, hypothesis: int, interval_s: float | None, report) -> list[s
                          f"{interval_s / FRAME_INTERVAL_S:.3g} times as fast")  # fmt: skip
     report[SHARE] = 1.0
     return lines
+
+
+def _paper_image(path: Path):
+    """The ink (``[H, W]``, 1 = ink) of the image a job was given (:func:`check_image`),
+    None without one."""
+    if not path.is_file():
+        return None
+    import numpy as np
+    from PIL import Image
+
+    with Image.open(path) as im:
+        return 1.0 - np.asarray(im.convert("L"), dtype=np.float64) / 255.0
+
+
+def check_image(data_url: str):
+    """``POST /api/write``'s ``image`` (a data URL, dark ink on white, e.g. a
+    prediction's ``input_image``) as a greyscale PIL image; 422 naming it when it does
+    not decode or has more than :data:`MAX_PAPER_IMAGE_PX` pixels a side."""
+    from .strokes import decode_data_url
+
+    im = decode_data_url(data_url)
+    if max(im.size) > MAX_PAPER_IMAGE_PX:
+        raise WebError(422, f"image: {im.size[0]} x {im.size[1]} pixels; the image under the "
+                       f"path is at most {MAX_PAPER_IMAGE_PX} a side (a prediction's "
+                       "input_image is the model's input)")  # fmt: skip
+    return im.convert("L")
 
 
 def frame_interval_s(duration_s: float) -> float:
@@ -259,14 +289,17 @@ class JobManager:
         self._thread: threading.Thread | None = None
 
     def submit(self, doc: dict, hypothesis: int, video: bool,
-               interval_s: float | None = FRAME_INTERVAL_S) -> dict:  # fmt: skip
+               interval_s: float | None = FRAME_INTERVAL_S, image=None) -> dict:  # fmt: skip
         """Queue a run of a checked document (:func:`plan_write`), its video's frames
-        ``interval_s`` simulated seconds apart; its state."""
+        ``interval_s`` simulated seconds apart, ``image`` (a PIL image of
+        :func:`check_image`, or None) under its path in ``paper.png``; its state."""
         interval_s = FRAME_INTERVAL_S if interval_s is None else float(interval_s)
         options = {"hypothesis": hypothesis, "video": bool(video), "frame_interval_s": interval_s}
 
         def write_input(d: Path) -> None:
             write_dmp_document(d / "dmp.json", doc)
+            if image is not None:
+                image.save(d / PAPER_IMAGE, format="PNG")
 
         return self.submit_job("dmp", self.target, options, JOB_FILES, write_input)
 
@@ -449,6 +482,7 @@ __all__ = [
     "SHARE",
     "Job",
     "JobManager",
+    "check_image",
     "check_write",
     "frame_interval_s",
     "plan_write",

@@ -69,6 +69,16 @@ class PageStore:
         return page.to_json(), document_name(page.source)
 
 
+def clean_name(name: str | None) -> str | None:
+    """A photo's file name as the page keeps it: its last part (no folders, whatever the
+    slashes), letters and digits of any script, spaces and ``._-()`` kept, anything else
+    ``_``, no leading dots or spaces; None for none left (``../../../tmp/evil.png`` ->
+    ``evil.png``)."""
+    last = PurePath((name or "").replace("\\", "/")).name
+    safe = re.sub(r"[^\w .()-]+", "_", last).lstrip(". ")[:255].rstrip()
+    return safe or None
+
+
 def document_name(name: str | None) -> str:
     """``<stem>_page.json`` for a photo's file name (its stem in safe characters)."""
     stem = re.sub(r"[^A-Za-z0-9._-]+", "_", PurePath(name or "").stem).strip("._")[:100]
@@ -89,8 +99,8 @@ def check_page_type(content_type: str | None) -> None:
 def read_photo(model: LoadedModel, raw: bytes, n_points: int, name: str | None, reading):
     """The :class:`~img2dmp.page.PagePrediction` of the photo whose file is ``raw``.
 
-    ``name`` (the file's name, or None) becomes the document's ``"image"``; ``reading``
-    is held throughout.
+    ``name`` (the file's name, or None) becomes the document's ``"image"``, cleaned
+    (:func:`clean_name`); ``reading`` is held throughout.
 
     Raises
     ------
@@ -98,6 +108,7 @@ def read_photo(model: LoadedModel, raw: bytes, n_points: int, name: str | None, 
         422 for an empty body, bytes that are no PNG or JPEG of at most
         ``MAX_IMAGE_PIXELS`` pixels, or a photo the library refuses (naming it).
     """
+    name = clean_name(name)
     label = name or "photo"
     if not raw:
         raise WebError(422, "body: is empty; send the photo's bytes (a PNG or JPEG file)")
@@ -130,6 +141,7 @@ __all__ = [
     "PAGE_UPLOAD_MB",
     "PageStore",
     "check_page_type",
+    "clean_name",
     "document_name",
     "page_answer",
     "read_photo",

@@ -104,19 +104,25 @@ export function showError(box, err, prefix = "") {
 
 const pct = (share) => `${Math.round(100 * share)}\u00a0%`;
 
-/** What each flag of a prediction means (`fit`: its path_on_ink and ink_written). */
+/**
+ * What each flag of a prediction means (`fit`: its path_on_ink and ink_written; `kind`:
+ * the model's, "dmp" or "strokes").
+ */
 const FLAG_TEXT = {
   off_ink: (fit) => `the path leaves the ink (on ink ${pct(fit.path_on_ink)})`,
   unexplained_ink: (fit) => `part of the ink is not written (written ${pct(fit.ink_written)})`,
   several_characters: () => "the image holds several characters",
   cut_by_border: () => "it touches the photo's border, so part of it may be cut off",
-  unfamiliar: () =>
-    "it looks unlike the characters the model learnt, so its strokes and their count are a guess",
+  unfamiliar: (fit, kind) => "it looks unlike the characters the model learnt, so " +
+    (kind === "strokes" ? "its strokes and their count are a guess" : "its path is a guess"),
 };
 
-/** The flags as one clause ("the path leaves the ink (on ink 62 %); ..."), "" for none. */
-export function flagText(flags, fit) {
-  return (flags || []).map((f) => (FLAG_TEXT[f] ? FLAG_TEXT[f](fit || {}) : f)).join("; ");
+/**
+ * The flags as one clause ("the path leaves the ink (on ink 62 %); ..."), "" for none;
+ * `kind`: the model's ("dmp", one path, or "strokes").
+ */
+export function flagText(flags, fit, kind = "dmp") {
+  return (flags || []).map((f) => (FLAG_TEXT[f] ? FLAG_TEXT[f](fit || {}, kind) : f)).join("; ");
 }
 
 /**

@@ -344,7 +344,7 @@ function showConfidence(answer) {
 
 /** One line under the result when the prediction is flagged; nothing when it is not. */
 function showFlags(answer) {
-  const text = flagText(answer.flags, answer.fit);
+  const text = flagText(answer.flags, answer.fit, answer.kind);
   ui.result.dataset.flags = (answer.flags || []).join(" ");
   ui.fitNote.replaceChildren();
   ui.fitNote.hidden = !text;
@@ -747,7 +747,7 @@ async function writeWithRobot() {
   const { dmp, rank } = shownDocument();
   const body = isStrokes()
     ? { strokes_page: state.answer.strokes_page, video: true }
-    : { dmp, hypothesis: rank, video: true };
+    : { dmp, hypothesis: rank, video: true, image: state.answer.input_image };
   try {
     const job = await api("/api/write", { method: "POST", body });
     state.job = job.id;

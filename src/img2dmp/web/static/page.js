@@ -20,6 +20,8 @@ const boxKey = (c) => (c.character === undefined ? c.index : c.character);
 const owners = (page) => (isStrokes(page) ? page.characters.filter((c) => c.stroke === 1)
   : page.characters);
 const unit = (page) => (isStrokes(page) ? "stroke" : "character");
+/** The kind of the model that read `page` (for the flags' words). */
+const modelKind = (page) => (isStrokes(page) ? "strokes" : "dmp");
 
 const $ = (id) => document.getElementById(id);
 const ui = {
@@ -156,7 +158,7 @@ function showPage(answer) {
   ui.download.download = answer.filename;
   ui.download.hidden = false;
   drawBoxes(page);
-  listFlagged(flagged);
+  listFlagged(flagged, modelKind(page));
   arm.show(answer);
   ui.legend.hidden = chars.length === 0;
   if (chars.length === 0) {
@@ -206,24 +208,25 @@ function placeBox(node, box, w, h) {
   });
 }
 
-function boxTitle(c) {
+function boxTitle(c, kind) {
   const pct = (v) => `${Math.round(100 * v)}\u00a0%`;
   const sure = c.count_probability == null ? "" : ` (${pct(c.count_probability)} sure)`;
   const read = c.stroke === undefined ? `probability ${pct(c.probability)}`
     : `${c.n_strokes}\u00a0stroke${c.n_strokes === 1 ? "" : "s"}${sure}`;
   const head = `#${boxKey(c)}: ${read}, path on ink ` +
     `${pct(c.fit.path_on_ink)}, ink written ${pct(c.fit.ink_written)}`;
-  return c.flags.length ? `${head}\nFlagged: ${flagText(c.flags, c.fit)}` : head;
+  return c.flags.length ? `${head}\nFlagged: ${flagText(c.flags, c.fit, kind)}` : head;
 }
 
 function drawBoxes(page) {
   const [w, h] = page.image_size_px;
+  const kind = modelKind(page);
   ui.boxes.replaceChildren(
     ...owners(page).map((c) => {
       const flagged = c.flags.length > 0;
       const box = el(
         "div",
-        { class: flagged ? "box flagged" : "box", title: boxTitle(c), "data-index": boxKey(c),
+        { class: flagged ? "box flagged" : "box", title: boxTitle(c, kind), "data-index": boxKey(c),
           "data-flags": c.flags.join(" ") },
         el("span", { class: "index" }, String(boxKey(c))),
       );
@@ -242,7 +245,7 @@ function boxOf(index) {
   return ui.boxes.querySelector(`.box[data-index="${index}"]`);
 }
 
-function listFlagged(flagged) {
+function listFlagged(flagged, kind) {
   ui.flaggedCard.hidden = flagged.length === 0;
   ui.flagged.replaceChildren(
     ...flagged.map((c) => {
@@ -250,7 +253,7 @@ function listFlagged(flagged) {
         "button",
         { type: "button", class: "flag-item", "data-index": boxKey(c) },
         el("span", { class: "index" }, `#${boxKey(c)}`),
-        el("span", {}, flagText(c.flags, c.fit)),
+        el("span", {}, flagText(c.flags, c.fit, kind)),
       );
       const mark = (on) => boxOf(boxKey(c))?.classList.toggle("focus", on);
       item.addEventListener("mouseenter", () => mark(true));
