@@ -204,6 +204,11 @@ def test_affine_dmp_takes_one_map_per_dmp():
         (dict(tempo=-1.5), r"^tempo must be a finite number > 0, got -1\.5$"),
         (dict(tempo=np.inf), r"^tempo must be finite, got Infinity$"),
         (dict(rotate_deg=np.nan), r"^rotate_deg must be finite, got NaN$"),
+        (
+            dict(rotate_deg=1e308),
+            r"^rotate_deg must be from -1e\+06 to 1e\+06 degrees, got 1e\+308$",
+        ),
+        (dict(rotate_deg=-1000001.0), r"^rotate_deg must be from -1e\+06 .* got -1000001\.0$"),
         (dict(tempo=True), r"^tempo must be a number or a list of numbers, got true$"),
         (dict(goal=[1.0, 2.0, 3.0]), r"^goal must be a point \(x, y\), got shape \[3\]$"),
         (dict(goal=5.0), r"^goal must be a point \(x, y\), got shape \[\]$"),
@@ -221,6 +226,12 @@ def test_bad_shapes_in_a_batch_and_impossible_bends_are_refused():
     p = _movement(config, n=2)
     with pytest.raises(ValueError, match=r"^tempo at index \[1\] must be a finite number > 0"):
         bend_dmp(p, config, tempo=[1.0, -1.0])
+    with pytest.raises(ValueError, match=r"^rotate_deg at index \[0\] must be from -1e\+06"):
+        bend_dmp(p, config, rotate_deg=[-2e6, 30.0])
+    turned = bend_dmp(p, config, rotate_deg=[1e6, -1e6])  # the bound itself: an exact angle
+    np.testing.assert_allclose(
+        turned.to_vector(), bend_dmp(p, config, rotate_deg=[280.0, -280.0]).to_vector(), atol=1e-9
+    )
     with pytest.raises(
         ValueError, match=r"scale must be one number or one per DMP \(shape \[2\]\)"
     ):

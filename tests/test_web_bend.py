@@ -110,6 +110,7 @@ def test_each_bend_is_the_librarys(client):
     [
         ({"tempo": 0}, 422, "tempo must be a finite number > 0, got 0.0"),
         ({"scale": -1.5}, 422, "scale must be a finite number > 0, got -1.5"),
+        ({"rotate_deg": 1e308}, 422, "rotate_deg must be from -1e+06 to 1e+06 degrees, got 1e+308"),
         ({"goal": [1.0]}, 422, "goal: List should have at least 2 items"),
         ({"goal": ["1", 2]}, 422, "goal[0]: Input should be a valid number"),
         ({"hypothesis": 3}, 422, "a rank in 1..2, got 3"),

@@ -47,6 +47,9 @@ from .params import DMPParams, first_index, show_value, strict_numbers
 
 #: Largest scale or tempo factor (and the inverse of the smallest).
 MAX_FACTOR = 1e6
+#: Largest rotation either way, degrees (2,777 turns; 1e308 % 360 keeps no digit of the
+#: angle asked for).
+MAX_ROTATE_DEG = 1e6
 #: Largest coordinate of a goal, start or shift (as a DMP file's: its MAX_MAGNITUDE).
 MAX_POINT = 1e9
 
@@ -91,7 +94,7 @@ def bend_dmp(
     rotate_deg : float or array [*batch], optional
         Angle ``q`` in degrees about the start, from the x axis toward the y axis (exact;
         in image pixels, whose y axis points down, a positive angle turns clockwise as
-        seen).
+        seen), ``|q| <=`` :data:`MAX_ROTATE_DEG`.
     tempo : float or array [*batch], optional
         Speed ``k > 0``, the duration divided by it: ``y'(t) = y(k t)`` (2: twice as fast).
 
@@ -118,7 +121,7 @@ def bend_dmp(
                                                   ("shift", shift)) if v is not None}  # fmt: skip
     s = None if scale is None else _factor("scale", scale, batch)
     k = None if tempo is None else _factor("tempo", tempo, batch)
-    q = None if rotate_deg is None else np.deg2rad(_per_dmp("rotate_deg", rotate_deg, batch))
+    q = None if rotate_deg is None else np.deg2rad(_angle("rotate_deg", rotate_deg, batch))
     if (points or s is not None or q is not None) and p.n_dims < 2:
         raise ValueError(f"moving positions needs d >= 2 dimensions (x, y), got d = {p.n_dims}")
     if s is not None or q is not None or "shift" in points:
@@ -171,6 +174,19 @@ def _factor(name: str, value, batch: tuple) -> np.ndarray:
         raise ValueError(
             f"{where} must be from {1 / MAX_FACTOR:g} to {MAX_FACTOR:g}, got {float(v[idx])!r}"
         )
+    return v
+
+
+def _angle(name: str, value, batch: tuple) -> np.ndarray:
+    """:func:`_per_dmp`, each within :data:`MAX_ROTATE_DEG` of 0 (the first that is not
+    is named: 1e308 degrees turned the DMP by an angle of no meaning)."""
+    v = _per_dmp(name, value, batch)
+    far = np.abs(v) > MAX_ROTATE_DEG
+    if far.any():
+        idx = first_index(far)
+        where = f"{name} at index {list(idx)}" if idx else name
+        raise ValueError(f"{where} must be from {-MAX_ROTATE_DEG:g} to {MAX_ROTATE_DEG:g} "
+                         f"degrees, got {float(v[idx])!r}")  # fmt: skip
     return v
 
 
