@@ -23,6 +23,7 @@ from img2dmp.data.omniglot import parse_strokes
 from img2dmp.data.prepare import PrepareOptions, prepare_dataset
 from img2dmp.data.recorded import load_recorded, parse_recorded
 from img2dmp.data.sources.trajectory import read_trajectory
+from img2dmp.data.store import load_dataset
 
 SIDE = 64  # of the images drawn here
 N_POINTS = 20
@@ -304,3 +305,29 @@ def test_class_names_are_unicode_nfc_so_e_acute_is_one_class_however_written(tmp
         2,
         2,
     ]
+
+
+def test_repeated_time_stamps_are_refused_or_spread_as_omniglot_s(tmp_path, capsys):
+    root = _source(tmp_path / "src")
+    path = root / "L" / "000.csv"
+    t = [0.01 * i for i in range(N_POINTS)]
+    t[3] = t[4] = t[5] = t[2]  # a tablet logging 4 points in one 10 ms tick
+    t[-1] = t[-2]  # and 2 at the very end
+    _csv(path, _line("L"), t)
+    line = _import(root, tmp_path, capsys)
+    assert "field 't' does not increase at line 5: 0.02 then 0.02" in line
+    assert "--spread-repeated-times spreads a repeat" in line
+    spread = read_trajectory(path, spread_repeated=True).t_s
+    assert spread[2:6] == pytest.approx([0.02, 0.03, 0.04, 0.05])  # up to the next, 0.06
+    assert spread[-2:] == pytest.approx([0.175, 0.18])  # the last run: back from the one before
+    out = tmp_path / "spread.safetensors"
+    argv = ["import", str(root), "--out", str(out), "--no-progress"]
+    assert cli.main([*argv, "--spread-repeated-times"]) == 0 and out.is_file()
+    assert load_dataset(out).meta["import"]["spread_repeated_times"] is True
+    t[8] = t[7] - 0.001  # a step back is no repeat: refused, named before the repeats' place
+    _csv(path, _line("L"), t)
+    line = _import(root, tmp_path, capsys, "--spread-repeated-times")
+    assert "does not increase at line 10:" in line and "spreads" not in line
+    _csv(path, _line("L"), [0.5] * N_POINTS)  # one stamp for every point: nothing to spread
+    line = _import(root, tmp_path, capsys, "--spread-repeated-times")
+    assert "does not increase at line 3: 0.5 then 0.5" in line

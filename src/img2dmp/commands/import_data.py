@@ -30,15 +30,15 @@ The split comes from the manifest's split column, or is drawn per class (--val-f
 metadata's class_names).
 
 A bad sample (a missing trajectory or image, an unreadable file, NaN, time stamps that do
-not increase, too few points, a path off its image, an unknown class ...) stops the import
-with one line naming the file and what is wrong; --skip-bad leaves such samples out and
-lists them instead. An existing --out file is replaced only with --force (checked before
-anything is read).
+not increase (--spread-repeated-times spreads a repeated one), too few points, a path off
+its image, an unknown class ...) stops the import with one line naming the file and what
+is wrong; --skip-bad leaves such samples out and lists them instead. An existing --out
+file is replaced only with --force (checked before anything is read).
 
 The options (img2dmp.data.importer.ImportOptions: image_size, margin, n_times, resample,
-duration_s, time_unit, n_dims, scaling, n_kernels, ridge, augment, affine, seed,
-val_fraction, test_fraction, split_by, classes, min_on_ink, stroke_width_px) come from
-the defaults, then
+duration_s, time_unit, spread_repeated_times, n_dims, scaling, n_kernels, ridge, augment,
+affine, seed, val_fraction, test_fraction, split_by, classes, min_on_ink,
+stroke_width_px) come from the defaults, then
 --config FILE, then the flags below (each only when given), then --set KEY=VALUE.
 
   img2dmp import letters --out letters.safetensors --augment 10
@@ -85,6 +85,7 @@ FLAG_FIELDS = {
     "resample": "resample",
     "duration": "duration_s",
     "time_unit": "time_unit",
+    "spread_repeated_times": "spread_repeated_times",
     "dims": "n_dims",
     "scaling": "scaling",
     "n_kernels": "n_kernels",
@@ -166,6 +167,14 @@ def _options(p: argparse.ArgumentParser) -> None:
         metavar="SECONDS",
     )
     add("--time-unit", "unit of the files' t", choices=("s", "ms"))
+    add(
+        "--spread-repeated-times",
+        "spread a time stamp equal to the one before it (two points logged in one clock "
+        "tick) evenly up to the next, as Omniglot's reader does, instead of refusing the file",
+        "refuse",
+        action="store_const",
+        const=True,
+    )
     _args.add_dmp_fit_options(add, "3 if any sample has strokes")
     add("--augment", "affine copies added per training sample", type=_args.int_at_least(0), **n)
     add("--seed", "seed of the augmentation and the random split", type=_args.int_at_least(0), **n)

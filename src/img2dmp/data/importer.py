@@ -25,7 +25,8 @@ pen path that wrote it. :func:`import_dataset` reads them from
 
 **Trajectory files** (:func:`read_trajectory`), in pixels of the sample's own image:
 x = column, y = row (y points down), the centre of pixel ``[i, j]`` at ``(x=j, y=i)``;
-t in seconds (``time_unit="ms"``: milliseconds), strictly increasing.
+t in seconds (``time_unit="ms"``: milliseconds), strictly increasing (with
+``spread_repeated_times`` a repeated stamp is spread, as Omniglot's reader does).
 
 - CSV with the header ``x,y,t`` or ``x,y,t,pen`` (any column order): ``pen`` is 1 where
   the pen touches the paper and 0 where it is lifted, so one file holds any number of
@@ -181,7 +182,7 @@ def _import_one(src: SampleSource, opt: ImportOptions) -> _Imported:
         raise ValueError(
             f"{src.name}: class {src.class_name!r} is not one of the classes {list(opt.classes)}"
         )
-    image, pen, clean, place = read_sample(src, opt.time_unit)
+    image, pen, clean, place = read_sample(src, opt.time_unit, opt.spread_repeated_times)
     sample = frame_pen_path(image, pen, opt, name=str(src.image), clean=clean, place=place)
     return _Imported(src, sample, pen)
 

@@ -93,11 +93,12 @@ def _listed(source: Path, images) -> tuple[list[SampleSource], list[Exception]]:
     )
 
 
-def read_sample(src: SampleSource, time_unit: str = "s") -> tuple:
+def read_sample(src: SampleSource, time_unit: str = "s", spread_repeated: bool = False) -> tuple:
     """One listed sample read: ``(image, pen, clean, place)``, the image as
     :func:`img2dmp.data.images.prepare_image_framed` reads it, its :class:`PenPath`,
     whether the image is a photo to clean of its paper, and how the path is put on the
-    prepared image (:data:`img2dmp.data.build.Place`; None: checked to lie within it)."""
+    prepared image (:data:`img2dmp.data.build.Place`; None: checked to lie within it).
+    ``time_unit`` and ``spread_repeated``: a trajectory file's (:func:`.read_trajectory`)."""
     from . import omniglot
     from .trajectory import read_trajectory
 
@@ -105,4 +106,4 @@ def read_sample(src: SampleSource, time_unit: str = "s") -> tuple:
         pen: PenPath = omniglot.read_strokes(src.trajectory)
         place: Place = omniglot.fit_to_image
         return omniglot.image_of(src.image), pen, False, place
-    return src.image, read_trajectory(src.trajectory, time_unit), True, None
+    return src.image, read_trajectory(src.trajectory, time_unit, spread_repeated), True, None

@@ -50,6 +50,9 @@ class ImportOptions(BuildOptions):
         loses (:func:`img2dmp.data.resample.resample_pen_path`, the only way before).
     time_unit : {"s", "ms"}
         Unit of the files' ``t``.
+    spread_repeated_times : bool
+        Spread a time stamp equal to the one before it, as Omniglot's reader does
+        (:func:`~.trajectory.spread_repeated_stamps`), instead of refusing the file.
     val_fraction, test_fraction : float
         Share of each class put in validation / test when the source gives no split (of
         each alphabet's characters, or of the alphabets, with ``split_by``).
@@ -70,6 +73,7 @@ class ImportOptions(BuildOptions):
     margin: float = DEFAULT_MARGIN
     resample: str = "strokes"
     time_unit: str = "s"
+    spread_repeated_times: bool = False
     val_fraction: float = 0.1
     test_fraction: float = 0.2
     split_by: str | None = None
@@ -99,6 +103,11 @@ class ImportOptions(BuildOptions):
         if self.resample not in RESAMPLING:
             raise ValueError(
                 f"resample must be one of {list(RESAMPLING)}, got {show(self.resample)}"
+            )
+        if not isinstance(self.spread_repeated_times, bool):
+            raise ValueError(
+                "spread_repeated_times must be true or false, got "
+                f"{show(self.spread_repeated_times)}"
             )
         if self.time_unit not in TIME_UNITS:
             raise ValueError(

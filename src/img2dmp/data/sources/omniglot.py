@@ -79,7 +79,12 @@ from ..images import ImageFrame
 from ..resample import PenPath
 from .files import IMAGE_SUFFIXES, OMNIGLOT_SPLIT_BY, SampleSource, check_class_name
 from .recordings import recordings_in
-from .trajectory import MAX_PATH_DURATION_S, MAX_POINTS, MAX_TRAJECTORY_BYTES
+from .trajectory import (
+    MAX_PATH_DURATION_S,
+    MAX_POINTS,
+    MAX_TRAJECTORY_BYTES,
+    spread_repeated_stamps,
+)
 
 #: The source format of the samples listed here (:attr:`SampleSource.format`).
 FORMAT = "omniglot"
@@ -235,23 +240,6 @@ def _stroke_lines(text: str, name: str) -> list[list[tuple[float, float, float, 
     return strokes
 
 
-def _spread(t: np.ndarray) -> np.ndarray:
-    """Stamps of one stroke (ms, non-decreasing, not all equal) with every run of equal
-    stamps spread evenly up to the next stamp (the last run: back to the one before)."""
-    out = t.copy()
-    starts = np.flatnonzero(np.concatenate([[True], t[1:] != t[:-1]]))  # first of each run
-    ends = np.concatenate([starts[1:], [len(t)]])  # one past the last
-    for a, b in zip(starts, ends, strict=True):
-        k = b - a
-        if k == 1:
-            continue
-        if b < len(t):
-            out[a:b] = t[a] + (t[b] - t[a]) * np.arange(k) / k
-        else:
-            out[a:b] = t[a] - (t[a] - t[a - 1]) * np.arange(k - 1, -1, -1) / k
-    return out
-
-
 def _stroke_times(name: str, k: int, points: list) -> np.ndarray:
     """Strictly increasing stamps (ms) of stroke ``k``'s points (module docstring)."""
     t = np.array([p[2] for p in points])  # [n]
@@ -269,7 +257,7 @@ def _stroke_times(name: str, k: int, points: list) -> np.ndarray:
             f"{name}: lines {points[0][3]}-{points[-1][3]}: the {len(t)} points of stroke {k} "
             f"all have the time stamp {t[0]:g} ms; a stroke of several points takes time"
         )
-    return _spread(top) if len(t) > 1 else top
+    return spread_repeated_stamps(top) if len(t) > 1 else top
 
 
 def parse_strokes(text: str, name: str = "stroke file") -> PenPath:

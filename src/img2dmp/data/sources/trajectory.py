@@ -3,8 +3,9 @@ format, read and checked (:func:`read_trajectory`; the formats: :mod:`img2dmp.da
 
 In pixels of the sample's own image: x = column, y = row (y points down), the centre of
 pixel ``[i, j]`` at ``(x=j, y=i)``; t in seconds (``time_unit="ms"``: milliseconds),
-strictly increasing. Every bad file raises one ``ValueError`` naming it and the line,
-field or value at fault.
+strictly increasing, or with ``spread_repeated`` non-decreasing, a run of equal stamps
+spread as Omniglot's reader spreads them (:func:`spread_repeated_stamps`). Every bad file
+raises one ``ValueError`` naming it and the line, field or value at fault.
 """
 
 from __future__ import annotations
@@ -34,8 +35,12 @@ MAX_TIME_STAMP_S = 1e12
 MAX_PATH_DURATION_S = 1e6
 
 
-def read_trajectory(path: str | os.PathLike, time_unit: str = "s") -> PenPath:
+def read_trajectory(
+    path: str | os.PathLike, time_unit: str = "s", spread_repeated: bool = False
+) -> PenPath:
     """Read and check one trajectory file (CSV, JSON or ``.npy``; the module docstring).
+    ``spread_repeated``: a time stamp equal to the one before is spread
+    (:func:`spread_repeated_stamps`) instead of refused.
 
     Raises ``FileNotFoundError`` for a missing file and ``ValueError`` naming the file and
     the row, field or value at fault.
@@ -65,7 +70,7 @@ def read_trajectory(path: str | os.PathLike, time_unit: str = "s") -> PenPath:
     # its t when its format fixes them (a recording: milliseconds, already converted).
     columns, point_name, *own_unit_s = read(path)
     unit_s = own_unit_s[0] if own_unit_s else TIME_UNITS[time_unit]
-    return _pen_path(path, columns, point_name, unit_s)
+    return _pen_path(path, columns, point_name, unit_s, spread_repeated)
 
 
 def _point_k(k: int) -> str:
@@ -286,9 +291,30 @@ def _read_npy_trajectory(path: Path):
     return {name: a[:, j] for j, name in enumerate(("x", "y", "t", "pen")[: a.shape[1]])}, _point_k
 
 
-def _pen_path(path: Path, cols: dict, point, unit_s: float) -> PenPath:
+def spread_repeated_stamps(t: np.ndarray) -> np.ndarray:
+    """Non-decreasing time stamps ``t``, not all equal, with every run of equal stamps
+    spread evenly up to the next stamp (the last run: back from the one before up to
+    theirs): a tablet that logs two points in one clock tick. Omniglot's rule for the
+    stamps of one stroke (:mod:`.omniglot`); ``img2dmp import --spread-repeated-times``
+    applies it to a whole trajectory file."""
+    out = t.copy()
+    starts = np.flatnonzero(np.concatenate([[True], t[1:] != t[:-1]]))  # first of each run
+    ends = np.concatenate([starts[1:], [len(t)]])  # one past the last
+    for a, b in zip(starts, ends, strict=True):
+        k = b - a
+        if k == 1:
+            continue
+        if b < len(t):
+            out[a:b] = t[a] + (t[b] - t[a]) * np.arange(k) / k
+        else:
+            out[a:b] = t[a] - (t[a] - t[a - 1]) * np.arange(k - 1, -1, -1) / k
+    return out
+
+
+def _pen_path(path: Path, cols: dict, point, unit_s: float, spread: bool = False) -> PenPath:
     """Check the columns of a trajectory file and make its :class:`PenPath`; ``point(k)``
-    names point ``k`` in messages."""
+    names point ``k`` in messages; ``spread``: repeated time stamps spread
+    (:func:`spread_repeated_stamps`)."""
     n = len(cols["x"])
     if n < 2:
         raise ValueError(f"{path}: has {n} point(s); a path needs at least 2")
@@ -301,12 +327,18 @@ def _pen_path(path: Path, cols: dict, point, unit_s: float) -> PenPath:
     t = cols["t"]
     _check_time_limits(path, t, point, unit_s)
     steps = np.diff(t)
-    if (steps <= 0).any():
-        k = int(np.argmax(steps <= 0)) + 1
+    if spread and (steps >= 0).all() and t[-1] > t[0]:
+        t = spread_repeated_stamps(t)
+        steps = np.diff(t)
+    # Spread, a repeat is no error; a step back is, named before any repeat before it.
+    bad = steps < 0 if spread and (steps < 0).any() else steps <= 0
+    if bad.any():
+        k = int(np.argmax(bad)) + 1
         before, at = float(t[k - 1]), float(t[k])
+        hint = "" if spread or steps[k - 1] < 0 else "; --spread-repeated-times spreads a repeat"
         raise ValueError(
             f"{path}: field 't' does not increase at {point(k)}: {before!r} then {at!r} "
-            "(time stamps must be strictly increasing)"
+            f"(time stamps must be strictly increasing{hint})"
         )
     _check_time_limits(path, t, point, unit_s, since_first=True)
     if "stroke" in cols:
