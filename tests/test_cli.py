@@ -547,3 +547,10 @@ def test_a_glyph_the_figures_font_lacks_is_said_once_in_one_line(tmp_path, capsy
         "img2dmp preview: note: the figures' font (DejaVu Sans) has no glyph for \u4e2d: those "
         "characters show as boxes"
     ]
+
+
+def test_class_names_on_the_command_line_are_read_in_unicode_nfc():
+    """import stores class names in NFC; --classes of train, evaluate, preview finds them
+    however the accent was typed."""
+    decomposed, composed = "cafe\u0301", "caf\u00e9"
+    assert _args.parse_classes(f"{decomposed}, L") == [composed, "L"]

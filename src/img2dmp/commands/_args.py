@@ -98,8 +98,11 @@ def add_digits(p: argparse.ArgumentParser, help: str) -> None:
 
 def parse_classes(text: str) -> list[str]:
     """An argparse ``type``: class names separated by commas, in order (a name may hold
-    spaces: ``"big circle,square"``)."""
-    names = [n.strip() for n in text.split(",")]
+    spaces: ``"big circle,square"``), in Unicode NFC as ``img2dmp import`` stores them (an
+    é typed as e and an accent names the same class)."""
+    import unicodedata
+
+    names = [unicodedata.normalize("NFC", n.strip()) for n in text.split(",")]
     if not all(names):
         raise argparse.ArgumentTypeError(f"must be class names separated by commas, got {text!r}")
     return names
