@@ -176,7 +176,7 @@ def test_predicting_strokes_is_the_library_prediction_of_the_drawn_image(client,
     assert a["model"] == f"net{k}" and a["elapsed_ms"] > 0
     assert a["model_size"] == [40, 40] and a["image_size"] == [280, 280]
     image = render_strokes([np.array(s) for s in SEVEN], (280, 280))
-    pred = load_model(runs[k]).predict(image, n_points=50)
+    pred = load_model(runs[k]).predict(image, n_points=50, clean=False)  # a blank canvas
     assert len(a["hypotheses"]) == k
     for rank, h in enumerate(a["hypotheses"], start=1):
         assert h["rank"] == rank and len(h["t"]) == 50 and h["pen"] is None
@@ -194,6 +194,24 @@ def test_predicting_strokes_is_the_library_prediction_of_the_drawn_image(client,
     assert len(a["csv"].splitlines()) == 1 + 50 * k
     shown = _decode_png(a["input_image"])  # the model's input, dark ink on white
     np.testing.assert_allclose(shown / 255.0, 1.0 - pred.image, atol=1 / 255 + 1e-6)
+
+
+def test_a_drawing_is_read_as_drawn_without_the_paper_cleaning_of_photos(client, runs):
+    """The canvas is blank: every stroke drawn is ink, also one that runs to its edge,
+    which the cleaning meant for photos takes for the sheet's edge and removes."""
+    hook = [[[160, 177, 0], [128, 215, 20], [162, 235, 40], [168, 227, 60], [205, 275, 80],
+             [250, 275, 100], [259, 275, 120]],
+            [[140, 156, 200], [108, 166, 220], [118, 184, 240], [89, 167, 260], [78, 138, 280],
+             [121, 126, 300], [130, 119, 320], [169, 152, 340]]]  # fmt: skip
+    image = render_strokes([np.array(s) for s in hook], (280, 280))
+    model = load_model(runs[1])
+    drawn, cleaned = model.predict(image, clean=False), model.predict(image)
+    assert np.abs(drawn.image - cleaned.image).max() > 0.5  # the cleaning lost a stroke
+    assert drawn.frame.image_to_model[1, 2] != cleaned.frame.image_to_model[1, 2]
+    r = client.post("/api/predict", json={"strokes": hook, "canvas": CANVAS, "model": "net1"})
+    assert r.status_code == 200, r.text
+    shown = _decode_png(r.json()["input_image"])
+    np.testing.assert_allclose(shown / 255.0, 1.0 - drawn.image, atol=1 / 255 + 1e-6)
 
 
 @pytest.mark.parametrize("fmt", ["PNG", "JPEG"])

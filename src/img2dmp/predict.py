@@ -877,6 +877,7 @@ class Predictor:
         n_points: int = 100,
         match_stroke_width: bool = True,
         name: str | None = None,
+        clean: bool = True,
     ) -> Prediction:
         """The DMP(s) that write the digit in one image: the one call from Python.
 
@@ -893,6 +894,10 @@ class Predictor:
             Bring the strokes to the training images' pen width (default).
         name : str, optional
             Names an array or PIL image in error messages.
+        clean : bool
+            Separate the ink from its paper (lighting, ruled lines, specks; default). False
+            for a clean image, e.g. strokes rendered on a blank canvas as the browser's
+            drawings are: the same input for such an image, about 30 ms sooner.
 
         Returns
         -------
@@ -903,8 +908,9 @@ class Predictor:
         n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
         width = self.stroke_width if match_stroke_width else None
         prepared, frame, mask = prepare_image_found(
-            image, self.image_size, margin=self.margin, stroke_width_px=width, name=name
-        )
+            image, self.image_size, margin=self.margin, stroke_width_px=width, name=name,
+            clean=clean,
+        )  # fmt: skip
         if self.strokes is not None:
             (strokes,), (counts,) = self.predict_strokes(prepared[None], return_counts=True)
             familiarity = self.familiarity(prepared[None])

@@ -691,8 +691,10 @@ def prepare_image_found(
     clean: bool = True,
 ):
     """:func:`prepare_image_framed`, and the mask of the pen strokes found in ``source``
-    (``bool [h, w]`` at the resolution the image was read at; None with ``clean=False``):
-    what tells whether the image holds one character or several."""
+    (``bool [h, w]`` at the resolution the image was read at; with ``clean=False`` the
+    plain ink above half): what tells whether the image holds one character or several.
+    ``clean=False`` reads a clean image (a drawing rendered on a blank canvas) without
+    the paper cleaning meant for photos, which costs tens of milliseconds."""
     h_out, w_out = _check_preparation(image_size, margin, stroke_width_px)
     levels, reduction, size, label = _levels_framed(source, name)
     mask = None
@@ -705,6 +707,7 @@ def prepare_image_found(
         ink, mask = found.ink.astype(np.float64), found.mask
     else:
         ink = _ink_levels(levels, label, clean=False)
+        mask = ink > 0.5
     out, edge = frame_ink(ink, (h_out, w_out), margin, stroke_width_px, label)
     # Positions are tracked on pixel edges (pixel j spans [j, j + 1]), where a reduction
     # or a resize is a pure scaling; CONTRACTS.md's centres are half a pixel less.

@@ -561,7 +561,7 @@ def _predict_routes(app: FastAPI, state: ServerState) -> None:
         else:
             image, name = decode_data_url(body.image), "image"
         try:
-            pred = predict_with(model, image, body.n_points, name)
+            pred = predict_with(model, image, body.n_points, name, clean=name == "image")
         except ValueError as e:
             raise WebError(422, str(e) if str(e).startswith(name) else f"{name}: {e}") from None
         elapsed_ms = 1e3 * (time.perf_counter() - t0)

@@ -172,15 +172,16 @@ def warm_up(model: LoadedModel) -> None:
         model.predictor.predict_page(np.tile(image, (1, 2)), name="warm-up page")
 
 
-def predict_with(model: LoadedModel, image, n_points: int,
-                 name: str) -> Prediction | StrokePrediction:  # fmt: skip
+def predict_with(model: LoadedModel, image, n_points: int, name: str,
+                 clean: bool = True) -> Prediction | StrokePrediction:  # fmt: skip
     """``model``'s prediction for ``image`` (array or PIL image), one at a time per model
-    (a stroke model's: ``n_points`` samples per stroke).
+    (a stroke model's: ``n_points`` samples per stroke); ``clean=False`` for strokes
+    rendered on a blank canvas (no paper to separate the ink from).
 
     Raises ``ValueError`` for an image the library refuses (e.g. one without ink).
     """
     with model.lock:
-        return model.predictor.predict(image, n_points=n_points, name=name)
+        return model.predictor.predict(image, n_points=n_points, name=name, clean=clean)
 
 
 def prediction_answer(model: LoadedModel, pred: Prediction | StrokePrediction,
