@@ -19,8 +19,11 @@ clients. The model is ``--model RUN``, else ``out/demo/run`` if it exists (what
 digits, a few seconds; it predicts nonsense, but costs what a small fully connected
 network costs); the line ``model:`` says which.
 
-Run: ``.venv/bin/python benchmarks/bench_web.py [--model RUN] [--requests 200]
-[--clients 50] [--total 2000]``
+``--refine N`` serves with ``img2dmp serve --refine N`` (0: the network's output as it
+is); without it, as the model recommends (a shipped model's card: ``digits-real`` 30).
+
+Run: ``.venv/bin/python benchmarks/bench_web.py [--model RUN] [--refine N] [--requests
+200] [--clients 50] [--total 2000]``
 """
 
 from __future__ import annotations
@@ -39,9 +42,12 @@ import threading
 import time
 from pathlib import Path
 
-import numpy as np
+from img2dmp.commands._args import one_thread
 
-import _machine
+one_thread()  # before NumPy starts its BLAS threads: compute as the server does, on one
+import numpy as np  # noqa: E402
+
+import _machine  # noqa: E402
 
 #: The "7" of the Draw page: strokes of [x, y, t_ms] in a 280 x 280 canvas.
 SEVEN = [[[70.0, 60.0, 0.0], [110.0, 59.0, 20.0], [150.0, 58.0, 40.0], [185.0, 60.0, 60.0],
@@ -89,10 +95,12 @@ def choose_model(given: str | None, work: Path) -> tuple[Path, str]:
     return run, f"a tiny network trained here in {time.perf_counter() - t0:.1f} s ({run})"
 
 
-def start_server(run: Path, work: Path, timeout_s: float = 120.0):
-    """``img2dmp serve --model RUN --port 0``; the process and its (host, port)."""
+def start_server(run: Path, work: Path, refine: int | None = None, timeout_s: float = 120.0):
+    """``img2dmp serve --model RUN --port 0 [--refine N]``; the process and its (host,
+    port)."""
     cmd = img2dmp_command() + ["serve", "--model", str(run), "--port", "0",
                                "--data-dir", str(work / "recordings")]  # fmt: skip
+    cmd += [] if refine is None else ["--refine", str(refine)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     line = [None]
     reader = threading.Thread(target=lambda: line.__setitem__(0, proc.stdout.readline()))
@@ -187,15 +195,13 @@ def concurrent(address, body: bytes, clients: int, total: int) -> dict:
     return {"wall_s": time.perf_counter() - t0, "latencies": latencies, "errors": errors}
 
 
-def in_process(run: Path, n: int, warmup: int) -> list:
-    """``Predictor.predict`` (ms) of the drawn "7" in this process, one torch thread."""
-    import torch
-
+def in_process(run: Path, n: int, warmup: int, refine: int | None = None) -> list:
+    """``Predictor.predict`` (ms) of the drawn "7" in this process, refined as the server
+    refines (``refine``, else as the model recommends), one thread as the server."""
     from img2dmp import load_model
     from img2dmp.web.strokes import render_strokes
 
-    torch.set_num_threads(1)
-    model = load_model(run)
+    model = load_model(run) if refine is None else load_model(run, refine=refine)
     image = render_strokes([np.array(s) for s in SEVEN], tuple(CANVAS))
     for _ in range(warmup):
         model.predict(image)
@@ -235,22 +241,25 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--warmup", type=int, default=20, help="untimed requests first")
     ap.add_argument("--clients", type=int, default=50, help="concurrent clients (b)")
     ap.add_argument("--total", type=int, default=2000, help="requests of (b) in all")
+    ap.add_argument("--refine", type=int, metavar="N",
+                    help="serve with --refine N (default: as the model recommends)")  # fmt: skip
     args = ap.parse_args(argv)
     print(_machine.describe())
     work = Path(tempfile.mkdtemp(prefix="img2dmp-bench-web-"))
     proc = None
     try:
         run, said = choose_model(args.model, work)
-        print(f"model: {said}")
+        refine = "as the model recommends" if args.refine is None else args.refine
+        print(f"model: {said}; refinement steps: {refine}")
         body = json.dumps({"strokes": SEVEN, "canvas": CANVAS}).encode()
-        proc, address = start_server(run, work)
+        proc, address = start_server(run, work, args.refine)
         print(f"server: {' '.join(img2dmp_command())} serve on {address[0]}:{address[1]}, "
               f"pid {proc.pid}; request {len(body)} bytes")  # fmt: skip
         trips, server = sequential(address, body, args.requests, args.warmup)
         load = concurrent(address, body, args.clients, args.total)
         stop_server(proc)
         proc = None
-        local = in_process(run, args.requests, args.warmup)  # the server has stopped
+        local = in_process(run, args.requests, args.warmup, args.refine)  # server stopped
         report(trips, server, local)
         p50, p95, top = quantiles(load["latencies"])
         print(f"\n(b) {args.clients} clients at once, {args.total} requests in all")
