@@ -855,6 +855,27 @@ def test_serve_options_are_checked_while_read(capsys):
     assert "not allowed with argument" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM], ids=["Ctrl+C", "SIGTERM"])
+def test_serve_stops_cleanly_on_ctrl_c_and_on_sigterm(runs, tmp_path, stop):
+    """SIGTERM (kill, a service manager) as Ctrl+C: a clean stop, exit 0, "stopped", and
+    multiprocessing's temporary folder gone (a process killed by the signal left it)."""
+    exe = Path(sys.executable).with_name("img2dmp")
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "img2dmp"]
+    cmd += ["serve", "--model", str(runs[1]), "--port", "0", "--jobs-dir", str(tmp_path / "j")]
+    env = {**os.environ, "TMPDIR": str(tmp_path / "tmp")}
+    (tmp_path / "tmp").mkdir()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=env)  # fmt: skip
+    try:
+        assert proc.stdout.readline().startswith("img2dmp serve: listening on")
+    finally:
+        proc.send_signal(stop)
+        out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    assert out.strip() == "img2dmp serve: stopped", out
+    assert list((tmp_path / "tmp").iterdir()) == []
+
+
 def test_serve_prints_its_url_and_answers_quietly(runs, tmp_path):
     exe = Path(sys.executable).with_name("img2dmp")
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "img2dmp"]

@@ -33,7 +33,9 @@ import argparse
 import importlib.util
 import ipaddress
 import os
+import signal
 import sys
+import threading
 
 from . import _args
 
@@ -158,11 +160,28 @@ def run(args: argparse.Namespace) -> int:
         print(f"img2dmp serve: note: listening on {host}: other machines can reach this server "
               f"by the names it answers to ({host}, {names})")  # fmt: skip
     print(f"img2dmp serve: listening on http://{shown}:{port}/ (Ctrl+C stops)", flush=True)
+    previous = _stop_on_sigterm()
     try:
         uvicorn.Server(config).run(sockets=[sock])
-    except KeyboardInterrupt:  # uvicorn raises Ctrl+C again once it has shut down
+    except KeyboardInterrupt:  # uvicorn raises Ctrl+C (or SIGTERM) again once shut down
         pass
     finally:
         sock.close()
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
     print("img2dmp serve: stopped", flush=True)
     return 0
+
+
+def _stop_on_sigterm():
+    """SIGTERM (``kill``, a service manager) stops the server as Ctrl+C does: uvicorn
+    shuts down on it, then raises it again under the handler it found, which was the
+    default one (the process died there, before its clean-up: no "stopped", temporary
+    folders left). The handler before, or None outside the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt
+
+    return signal.signal(signal.SIGTERM, interrupt)
