@@ -20,9 +20,11 @@ import io
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import urllib.request
@@ -862,18 +864,23 @@ def test_serve_stops_cleanly_on_ctrl_c_and_on_sigterm(runs, tmp_path, stop):
     exe = Path(sys.executable).with_name("img2dmp")
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "img2dmp"]
     cmd += ["serve", "--model", str(runs[1]), "--port", "0", "--jobs-dir", str(tmp_path / "j")]
-    env = {**os.environ, "TMPDIR": str(tmp_path / "tmp")}
-    (tmp_path / "tmp").mkdir()
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=env)  # fmt: skip
+    # A short TMPDIR of its own (under pytest's long paths multiprocessing's socket name
+    # would pass the 108 bytes an AF_UNIX address may have).
+    tmp = Path(tempfile.mkdtemp(prefix="img2dmp-t"))
     try:
-        assert proc.stdout.readline().startswith("img2dmp serve: listening on")
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, env={**os.environ, "TMPDIR": str(tmp)})  # fmt: skip
+        try:
+            line = proc.stdout.readline()
+        finally:
+            proc.send_signal(stop)
+            out, err = proc.communicate(timeout=60)
+        assert line.startswith("img2dmp serve: listening on"), err
+        assert proc.returncode == 0, err
+        assert out.strip() == "img2dmp serve: stopped", out
+        assert list(tmp.iterdir()) == []
     finally:
-        proc.send_signal(stop)
-        out, err = proc.communicate(timeout=60)
-    assert proc.returncode == 0, err
-    assert out.strip() == "img2dmp serve: stopped", out
-    assert list((tmp_path / "tmp").iterdir()) == []
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def test_serve_prints_its_url_and_answers_quietly(runs, tmp_path):

@@ -159,9 +159,9 @@ def run(args: argparse.Namespace) -> int:
         names = ", ".join(args.allowed_host) or "none: give --allowed-host NAME"
         print(f"img2dmp serve: note: listening on {host}: other machines can reach this server "
               f"by the names it answers to ({host}, {names})")  # fmt: skip
-    print(f"img2dmp serve: listening on http://{shown}:{port}/ (Ctrl+C stops)", flush=True)
-    previous = _stop_on_sigterm()
+    previous = _stop_on_sigterm()  # first: a stop may come as soon as the line is out
     try:
+        print(f"img2dmp serve: listening on http://{shown}:{port}/ (Ctrl+C stops)", flush=True)
         uvicorn.Server(config).run(sockets=[sock])
     except KeyboardInterrupt:  # uvicorn raises Ctrl+C (or SIGTERM) again once shut down
         pass
