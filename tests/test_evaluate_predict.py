@@ -197,6 +197,53 @@ def test_the_scale_of_white_follows_the_bits_an_image_uses():
     ]
 
 
+def test_float_levels_a_little_above_1_are_an_overshoot_and_below_0_refused():
+    """Bicubic resampling rings past 1: such levels are [0, 1], clipped (they were read as
+    [0, 255], a black image with "no ink"); normalised values are named for what they
+    are."""
+    img = np.zeros((28, 28))
+    img[5:23, 12:16] = 1.0
+    plain = prepare_image(img)
+    for top in (1.0 + 1e-6, 1.02, 1.5):
+        np.testing.assert_array_equal(prepare_image(np.where(img > 0, top, 0.0)), plain)
+    assert prepare_image(np.where(img > 0, 255.0, 0.0)).max() == pytest.approx(plain.max())
+    with pytest.raises(ValueError, match=r"has levels below 0 \(down to -0\.4194\).*\(x - mean\)"):
+        prepare_image((img - 0.13) / 0.31)
+
+
+def test_plausible_misuse_of_the_python_api_is_named_or_taken(model_and_data):
+    """What a researcher's pipeline plausibly hands over: a torch tensor that requires
+    grad or is bfloat16 (read as its values), prepare()'s (image, frame), a list of paths
+    given to predict, a Predictor to pickle (one line each, not numpy's or torch's)."""
+    import copy
+    import pickle
+
+    import torch
+
+    run, _ = model_and_data
+    model = Predictor.load(run)
+    img = np.zeros((28, 28))
+    img[5:23, 12:16] = 1.0
+    ref = model.predict(img).params
+    for tensor in (torch.tensor(img, requires_grad=True), torch.tensor(img).to(torch.bfloat16)):
+        np.testing.assert_array_equal(model.predict(tensor).params.w, ref.w)
+    prepared = model.prepare(img)
+    with pytest.raises(ValueError, match=r"prepare\(\) returns \(image, frame\)"):
+        model.predict_images(prepared)
+    grad = torch.tensor(prepared[0][None], requires_grad=True)
+    np.testing.assert_allclose(
+        model.predict_images(grad).w, model.predict_images(prepared[0][None]).w
+    )
+    with pytest.raises(
+        ValueError, match="must be one image .* got a list of 2; several: prepare_paths"
+    ):
+        model.predict(["a.png", "b.png"])
+    for copier in (pickle.dumps, copy.deepcopy, copy.copy):
+        with pytest.raises(TypeError, match="a Predictor is not pickled or copied .* initializer"):
+            copier(model)
+    assert pickle.loads(pickle.dumps(model.predict(img))).params.w.shape == ref.w.shape
+
+
 def test_bad_images_give_clear_errors(tmp_path, model_and_data):
     (tmp_path / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n this is not a PNG")
     with pytest.raises(ValueError, match="cannot decode image file .*broken.png"):

@@ -233,6 +233,11 @@ def test_one_prediction_computes_its_familiarity_once(monkeypatch):
     first = predictor.familiarity(pred.image[None])
     first[0] = -5.0  # the caller's copy: the kept answer is not changed through it
     assert predictor.familiarity(pred.image[None])[0] == pytest.approx(float(fresh[0]), abs=1e-6)
+    features = predictor.encoder_features(pred.image[None])
+    features[:] = 0.0  # nor the kept features through the caller's array
+    np.testing.assert_array_equal(
+        predictor.encoder_features(pred.image[None]), predictor.network.features(pred.image[None])
+    )
 
 
 def test_predict_warns_of_an_unfamiliar_character_with_its_familiarity(tmp_path, capsys):

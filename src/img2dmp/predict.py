@@ -55,6 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from ._files import check_stem
+from ._lazy import is_tensor
 from .checkpoint import (
     Checkpoint,
     CheckpointError,
@@ -548,6 +549,13 @@ class Predictor:
         w = self.meta.get("stroke_width_px")
         return float(w) if w else None
 
+    def __reduce__(self):
+        raise TypeError(
+            "a Predictor is not pickled or copied (it holds a network, compiled kernels and "
+            "caches): load one in each process, e.g. img2dmp.load_model(...) in a process "
+            "pool's initializer (docs/API.md); its Predictions pickle"
+        )
+
     @property
     def n_hypotheses(self) -> int:
         """K, the DMPs the network proposes per image (1: the paper's network)."""
@@ -557,7 +565,15 @@ class Predictor:
 
     def _check_images(self, images) -> np.ndarray:
         """Prepared images as float32 ``[B, H, W]``, or ``ValueError`` saying what is wrong."""
-        x = np.asarray(images, dtype=np.float32)
+        if isinstance(images, tuple) and any(isinstance(v, ImageFrame) for v in images):
+            raise ValueError("images must be prepared images [B, H, W]; prepare() returns "
+                             "(image, frame): give its image, prepare(path)[0][None]")  # fmt: skip
+        if is_tensor(images):
+            images = images.detach().cpu().float().numpy()
+        try:
+            x = np.asarray(images, dtype=np.float32)
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"images must be prepared images [B, H, W] of numbers ({e})") from None
         if x.ndim == 2:
             x = x[None]
         if x.ndim != 3 or tuple(x.shape[1:]) != self.image_size:
@@ -748,7 +764,14 @@ class Predictor:
 
     def encoder_features(self, images, batch_size: int = 4096) -> np.ndarray:
         """The encoder's features ``[B, F]`` of prepared images ``[B, H, W]`` (what the
-        decoder reads; float32)."""
+        decoder reads; float32), a new array: the caller's to change."""
+        features = self._features(images, batch_size)
+        kept = self._seen is not None and features is self._seen[1]
+        return features.copy() if kept else features
+
+    def _features(self, images, batch_size: int) -> np.ndarray:
+        """:meth:`encoder_features`, or the very array kept from the network's last pass
+        over the same images (not to be changed: :meth:`familiarity` reads it)."""
         x = np.asarray(images, dtype=np.float32)
         if x.ndim != 3 or x.shape[1:] != self.image_size:
             raise ValueError(f"images must be [B, {self.image_size[0]}, {self.image_size[1]}] "
@@ -775,7 +798,7 @@ class Predictor:
         the model carries no :attr:`familiar`."""
         if self.familiar is None:
             return None
-        features = self.encoder_features(images, batch_size)
+        features = self._features(images, batch_size)
         known = self._familiar_seen  # the last answer, for the very features kept last
         if known is not None and known[0] is features and known[1] is self.familiar:
             return known[2].copy()

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from .._files import check_readable
+from .._lazy import is_tensor
 
 # How a prepared image frames the ink: the ink's bounding box, padded to a square, fills
 # the image except for this share of the side on each border (see prepare_image). A model
@@ -424,6 +425,12 @@ def _decode(path: Path) -> np.ndarray:
     return grey_of(_decode_framed(path)[0])
 
 
+#: Float levels up to this are levels in [0, 1] with a resampling's overshoot (bicubic
+#: interpolation rings past 1), clipped to 1; above it, [0, 255] or more
+#: (:func:`full_scale`). In [0, 255] a brightest pixel of 1.5 would be a black image.
+MAX_OVERSHOOT = 1.5
+
+
 def _array_levels(source, label: str) -> tuple[np.ndarray, float]:
     """A NumPy array ``[H, W]`` (grey), ``[H, W, 3]`` (RGB) or ``[H, W, 4]`` (RGBA,
     composited on white) as levels at full size (grey ``[H, W]`` or RGB ``[H, W, 3]``),
@@ -440,7 +447,15 @@ def _array_levels(source, label: str) -> tuple[np.ndarray, float]:
         )
     if a.dtype.kind == "f" and not np.isfinite(a).all():
         raise ValueError(f"{label} contains NaN or inf")
-    full = full_scale(a.max())
+    if a.dtype.kind in "if" and a.min() < 0:
+        raise ValueError(
+            f"{label} has levels below 0 (down to {float(a.min()):.4g}): an image array holds "
+            "grey levels, in [0, 1] or [0, 255], not normalised values such as (x - mean) / std"
+        )
+    top = float(a.max())
+    if a.dtype.kind == "f" and 1.0 < top <= MAX_OVERSHOOT:  # a resampling's overshoot
+        a = np.minimum(a, np.asarray(1.0, a.dtype))
+    full = full_scale(float(a.max()))
     if a.ndim == 2 or a.shape[2] == 3:
         return a, full
     alpha = a[..., 3:].astype(np.float32) / np.float32(full)  # composite on white
@@ -473,6 +488,15 @@ def _levels_framed(source, name: str | None, max_pixels: int = MAX_WORK_PIXELS):
             f"{name or 'image'} must be a file path, a PIL image or a NumPy array, got "
             f"{type(source).__name__}"
         )
+    if isinstance(source, (list, tuple)) and any(isinstance(v, (str, os.PathLike, Image.Image))
+                                                 for v in source):  # fmt: skip
+        raise ValueError(
+            f"{name or 'image'} must be one image (a file path, a PIL image or an array), got "
+            f"a {type(source).__name__} of {len(source)}; several: prepare_paths, then "
+            "predict_images"
+        )
+    if is_tensor(source):  # a torch tensor: its values, whatever its dtype or grad
+        source = source.detach().cpu().float().numpy()
     label = name or "image array"
     levels, full = _array_levels(source, label)
     size = (int(levels.shape[0]), int(levels.shape[1]))
@@ -614,8 +638,9 @@ def prepare_image(
         PNG/JPEG file (any size, RGB, grey or with transparency), a ``PIL.Image.Image``
         (both turned upright as an EXIF orientation tag says, :func:`upright`), or an
         array: grey levels ``[H, W]``, RGB ``[H, W, 3]`` or RGBA ``[H, W, 4]``
-        (values in [0, 1]; when any is above 1, in [0, 255] or, above 255, in the range
-        of the fewest bits that hold them, as for 16-bit files: :func:`full_scale`).
+        (values in [0, 1], floats up to 1.5 clipped to 1 as a resampling's overshoot;
+        when any is above that, in [0, 255] or, above 255, in the range of the fewest
+        bits that hold them, as for 16-bit files: :func:`full_scale`; none below 0).
     image_size : (H, W)
         The model's input size.
     margin : float
