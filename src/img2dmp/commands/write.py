@@ -335,7 +335,8 @@ def check_files(args) -> None:
     _args.check_images(images)
     _args.check_output_dir(args.out_dir, "--out-dir")
     suffixes = _output_suffixes(args, False)
-    if args.dmp and _stroke_document(args.dmp) is not None:
+    args.stroke_doc = _stroke_document(args.dmp) if args.dmp else None  # read once, here
+    if args.stroke_doc is not None:
         suffixes.append("_strokes.csv")
     outputs = [
         (os.path.join(args.out_dir, _name(path) + suffix), path)
@@ -447,9 +448,8 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
 
     height_mm = args.writing_height_mm
     height_mm = DEFAULT_WRITING_HEIGHT_MM if height_mm is None else height_mm
-    stroke_doc = _stroke_document(args.dmp) if args.dmp else None
-    if stroke_doc is not None:
-        return _run_stroke_document(args, scene_cfg, ctl_cfg, stroke_doc)
+    if getattr(args, "stroke_doc", None) is not None:  # check_files read it
+        return _run_stroke_document(args, scene_cfg, ctl_cfg, args.stroke_doc)
     predictor = None if args.dmp else _predictor(args)
     if getattr(predictor, "strokes", None) is not None:
         return _run_strokes(args, scene_cfg, ctl_cfg, predictor)

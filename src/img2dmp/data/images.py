@@ -454,8 +454,8 @@ def _array_levels(source, label: str) -> tuple[np.ndarray, float]:
         )
     top = float(a.max())
     if a.dtype.kind == "f" and 1.0 < top <= MAX_OVERSHOOT:  # a resampling's overshoot
-        a = np.minimum(a, np.asarray(1.0, a.dtype))
-    full = full_scale(float(a.max()))
+        a, top = np.minimum(a, np.asarray(1.0, a.dtype)), 1.0
+    full = full_scale(top)
     if a.ndim == 2 or a.shape[2] == 3:
         return a, full
     alpha = a[..., 3:].astype(np.float32) / np.float32(full)  # composite on white
