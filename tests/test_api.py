@@ -222,6 +222,67 @@ def test_a_prediction_in_the_image_frame_is_an_exact_dmp(runs, seven):
     assert (pred.path_image <= corners[1] + slack).all()
 
 
+def test_a_predicted_dmp_carries_its_constants_and_refuses_others(runs, seven):
+    from dataclasses import replace
+
+    from img2dmp.dmp import DMPIntegrator
+    from img2dmp.dmp._numpy_rollout import rollout_numpy
+
+    pred = img2dmp.load_model(runs[2]).predict(seven["png"], n_points=60)
+    own = pred.dmp_config
+    for p in (pred.dmp, pred.params, pred.params_image, pred.params[1], pred.dmp.to_torch()):
+        assert p.config == own
+    t = torch.as_tensor(pred.times[0])
+    top = pred.params[0].to_torch()
+    np.testing.assert_array_equal(rollout(top, t).numpy(), rollout(top, t, own).numpy())
+    np.testing.assert_allclose(rollout(top, t).numpy(), pred.path_model[0], atol=1e-4)
+    other = replace(own, scaling="goal-start" if own.scaling == "none" else "none")
+    message = f"scaling '{other.scaling}' \\(carried '{own.scaling}'\\)"
+    calls = (
+        lambda c: rollout(top, t, c),
+        lambda c: rollout_numpy(pred.params[0], pred.times[0], c),
+        lambda c: img2dmp.bend_dmp(pred.dmp, c, tempo=2.0),
+        lambda c: affine_dmp(pred.dmp, c, [[1, 0, 0], [0, 1, 0]]),
+        lambda c: DMPIntegrator(pred.dmp, c),
+    )
+    for call in calls:
+        with pytest.raises(ValueError, match=message):
+            call(other)
+        call(own)  # the same constants given again are fine
+    bent = img2dmp.bend_dmp(pred.dmp, tempo=2.0)  # the carried constants, carried on
+    assert bent.config == own and affine_dmp(bent, None, np.eye(2, 3)).config == own
+    relabelled = pred.params[0].with_config(other)  # on purpose: another movement
+    assert relabelled.config == other and np.shares_memory(relabelled.w, pred.params.w)
+    moved = rollout_numpy(relabelled, pred.times[0])
+    assert np.abs(moved - rollout_numpy(pred.params[0], pred.times[0])).max() > 1e-3
+
+
+def test_dmp_parameters_keep_their_constants_through_every_conversion():
+    import pickle
+
+    config = DMPConfig(n_kernels=6, scaling="none")
+    t = np.linspace(0.0, 1.0, 80)
+    y = np.stack([5 + 3 * np.sin(3 * t), 2 * t], -1)
+    fitted = fit_dmp(np.stack([t, t]), np.stack([y, y + 1.0]), config).params
+    assert fitted.config == config
+    for p in (fitted[0], fitted[:1], fitted.to_torch(), fitted.to_torch().to_numpy(),
+              pickle.loads(pickle.dumps(fitted)),
+              DMPParams.from_vector(fitted.to_vector(), 6, 2, config=config),
+              DMPParams.from_dict(fitted[0].to_dict(), config=config, batch_shape=())):  # fmt: skip
+        assert p.config == config
+    assert DMPParams(fitted.w, fitted.tau, fitted.g, fitted.y0).config is None
+    # unlabelled numbers take what they are given, or the paper's constants
+    bare = fitted[0].with_config(None)
+    np.testing.assert_array_equal(
+        rollout(bare.to_torch(), torch.as_tensor(t), config).numpy(),
+        rollout(fitted[0].to_torch(), torch.as_tensor(t)).numpy(),
+    )
+    with pytest.raises(ValueError, match="N=6 kernels.*expects N=25"):
+        fitted.with_config(DMPConfig())
+    with pytest.raises(TypeError, match="config must be a DMPConfig or None, got dict"):
+        DMPParams(fitted.w, fitted.tau, fitted.g, fitted.y0, config={"scaling": "none"})
+
+
 @pytest.mark.parametrize("scaling", ["goal-start", "none"])
 @pytest.mark.parametrize("d", [2, 3])
 def test_an_affinely_mapped_dmp_rolls_out_to_the_mapped_path(scaling, d):

@@ -93,6 +93,23 @@ def test_movement_primitives_round_trip_gives_back_the_parameters(digits):
     assert one.params.batch_shape == () and one.error_px is None and bool(one.exact)
 
 
+def test_the_bridges_take_the_constants_a_dmp_carries_and_refuse_others(digits):
+    from dataclasses import replace
+
+    cfg, p = digits
+    own = p[:2].with_config(cfg)
+    other = replace(cfg, scaling="goal-start" if cfg.scaling == "none" else "none")
+    for export, back in ((interop.to_movement_primitives, interop.from_movement_primitives),
+                         (interop.to_mp_pytorch, interop.from_mp_pytorch)):  # fmt: skip
+        out = export(own)  # no config given: the carried one, not the paper's default
+        assert out.exact and out.error_px.max() < 0.05
+        imported = back(out.dmp, cfg).params
+        assert imported.config == cfg
+        np.testing.assert_allclose(imported.to_vector(), own.to_vector(), rtol=1e-13, atol=1e-9)
+        with pytest.raises(ValueError, match="config differs from the constants these DMP"):
+            export(own, other)
+
+
 def test_movement_primitives_export_keeps_the_phase_when_its_duration_changes(digits):
     cfg, p = digits
     one = p[2]

@@ -90,6 +90,7 @@ from .data.store import DIGIT_NAMES
 from .dmp import DMPConfig, DMPParams
 from .dmp._numpy_rollout import rollout_numpy
 from .dmp.affine import affine_dmp
+from .dmp.params import config_of
 from .familiar import run_familiar, shipped_familiar
 from .models import Reading, ShippedModel, checkpoint_reading, default_model
 from .models import resolve as resolve_shipped
@@ -705,7 +706,8 @@ class Predictor:
         z = np.take_along_axis(z, order[..., None], axis=1)
         v = self.normaliser.denormalise_numpy(z.astype(np.float64))
         n, d = self.dmp_config.n_kernels, self.dmp_config.n_dims
-        return DMPParams.from_vector(v, n, d), np.take_along_axis(probs, order, axis=1)
+        params = DMPParams.from_vector(v, n, d, config=self.dmp_config)
+        return params, np.take_along_axis(probs, order, axis=1)
 
     def hypothesis_trajectories(self, images, times, batch_size: int = 4096):
         """Every hypothesis rolled out at time stamps ``[B, T]``, in the network's order:
@@ -862,7 +864,7 @@ class Predictor:
         z = self._top_refined(images, batch_size)
         v = self.normaliser.denormalise_numpy(z.astype(np.float64))
         n, d = self.dmp_config.n_kernels, self.dmp_config.n_dims
-        return DMPParams.from_vector(v, n, d)
+        return DMPParams.from_vector(v, n, d, config=self.dmp_config)
 
     def predict_paths(
         self, paths, match_stroke_width: bool = True
@@ -1123,7 +1125,7 @@ class Prediction:
         familiarity: float | None = None,
         familiar_line: float | None = None,
     ):
-        self.params = params.to_numpy()
+        self.params = params.to_numpy().with_config(config_of(params, dmp_config))
         if len(self.params.batch_shape) != 1:
             raise ValueError(f"params must have batch shape [K], got {self.params.batch_shape}")
         self.probabilities = np.asarray(probabilities, dtype=np.float64)
@@ -1259,7 +1261,7 @@ class StrokePrediction:
         )  # fmt: skip
         self.dmp_config, self.frame, self.image = layout.config, frame, image
         self.presence = np.asarray(presence, dtype=np.float64)
-        self.strokes = stroke_params(vectors, normaliser)
+        self.strokes = stroke_params(vectors, normaliser).with_config(self.dmp_config)
         self.strokes_image = affine_dmp(self.strokes, self.dmp_config, frame.model_to_image)
         (path,) = character_paths([strokes], normaliser, layout, n_per_stroke, LIFT_POINTS)
         self.times = _character_times(np.asarray(self.strokes.tau), n_per_stroke, LIFT_POINTS)

@@ -509,7 +509,8 @@ def _old_constants(path: str, tracks: list) -> DMPConfig:
         config = DMPConfig(n_kernels=n, n_dims=d, scaling=scaling)
         err = 0.0
         for params, t, y in tracks:
-            y_hat = rollout_numpy(params.to_numpy(), np.asarray(t, dtype=np.float64), config)
+            p = params.to_numpy().with_config(config)  # each candidate on purpose
+            y_hat = rollout_numpy(p, np.asarray(t, dtype=np.float64))
             err = max(err, float(np.abs(y_hat - y).max()) / (1.0 + float(np.abs(y).max())))
         if err <= _OLD_RECORD_TOLERANCE:
             return config

@@ -327,7 +327,7 @@ class DigitData:
                 f"{self._row_name(row)}: field 'params' has tau (column {tau_col}) = "
                 f"{self.params[row, tau_col].item()!r}; a DMP's duration must be > 0 s"
             )
-        return DMPParams.from_vector(v, config.n_kernels, config.n_dims)
+        return DMPParams.from_vector(v, config.n_kernels, config.n_dims, config=config)
 
     def select_split(self, split: str | int) -> DigitData:
         """Only the samples of one split (``"train"``, ``"validation"``, ``"test"`` or 0-2)."""

@@ -30,7 +30,7 @@ import numpy as np
 from .._lazy import is_tensor
 from ._table import _cubic_pieces
 from .config import DEFAULT_CONFIG, DMPConfig
-from .params import DMPParams
+from .params import DMPParams, config_of
 
 _FIELDS = ("w", "tau", "g", "y0")
 # Stamps rolled out at once: each holds its piece of the table (4 (N + 1) numbers, 832
@@ -191,7 +191,8 @@ def rollout_numpy(
     t : array [*batch, T] or [T]
         Time stamps in seconds, from the start of the movement (``t = 0`` is ``y0``).
     config : DMPConfig
-        DMP constants; default ``DMPConfig()``.
+        DMP constants; default: the ones ``params`` carries (a different one is
+        refused), else ``DMPConfig()``.
     validate : bool
         Check the values (finite, tau > 0, t >= 0 and strictly increasing); shapes are
         always checked. Without it a NaN tau gives NaN positions.
@@ -200,7 +201,7 @@ def rollout_numpy(
     -------
     ndarray [*batch, T, d]
     """
-    config = config or DEFAULT_CONFIG
+    config = config_of(params, config, DEFAULT_CONFIG)
     (w, tau, g, y0), t, batch = _flat_inputs(params, t, config, validate)
     parts = [_Rollout(w[c], tau[c], g[c], y0[c], t[c], config).y for c in _chunks(t.shape)]
     y = parts[0] if len(parts) == 1 else np.concatenate(parts)  # [B, T, d]
@@ -239,7 +240,7 @@ def rollout_numpy_vjp(
         NumPy float64 gradients of the shapes of ``params``' fields (not validated: a
         gradient may be negative or NaN).
     """
-    config = config or DEFAULT_CONFIG
+    config = config_of(params, config, DEFAULT_CONFIG)
     (w, tau, g, y0), t, batch = _flat_inputs(params, t, config, validate)
     gy = np.asarray(grad_y, dtype=np.float64)
     expected = (*batch, t.shape[-1], config.n_dims)

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 
 from .config import DMPConfig
-from .params import DMPParams
+from .params import DMPParams, config_of
 
 
 def _full_map(matrix, d: int, batch: tuple) -> tuple[np.ndarray, np.ndarray]:
@@ -58,15 +58,16 @@ def _full_map(matrix, d: int, batch: tuple) -> tuple[np.ndarray, np.ndarray]:
     return full, shift
 
 
-def affine_dmp(params: DMPParams, config: DMPConfig, matrix) -> DMPParams:
+def affine_dmp(params: DMPParams, config: DMPConfig | None, matrix) -> DMPParams:
     """The DMP whose movement is ``matrix`` applied to ``params``'s movement, exactly.
 
     Parameters
     ----------
     params : DMPParams
         Batch shape ``[*batch]``, ``d >= 2`` (x, y first), NumPy or torch.
-    config : DMPConfig
-        Its constants (the result shares them).
+    config : DMPConfig or None
+        Its constants (the result carries them); None: the ones ``params`` carries (a
+        different one is refused), else the paper's.
     matrix : array [2, 3] or [*batch, 2, 3]
         ``[x', y'] = A @ [x, y] + b`` (the convention of :mod:`img2dmp.data.affine`): one
         map for every DMP, or one per DMP (any batch shape that broadcasts to ``[*batch]``).
@@ -86,9 +87,9 @@ def affine_dmp(params: DMPParams, config: DMPConfig, matrix) -> DMPParams:
     """
     if not isinstance(params, DMPParams):
         raise ValueError(f"params must be a DMPParams, got {type(params).__name__}")
-    p = params.to_numpy()
-    p = DMPParams(*(np.asarray(a, dtype=np.float64) for a in (p.w, p.tau, p.g, p.y0)))
-    p.validate(config)
+    config, p = config_of(params, config), params.to_numpy()
+    p = DMPParams(*(np.asarray(a, dtype=np.float64) for a in (p.w, p.tau, p.g, p.y0)),
+                  config=config)  # fmt: skip
     if p.n_dims < 2:
         raise ValueError(f"an affine map of x, y needs d >= 2 dimensions, got d = {p.n_dims}")
     m, c = _full_map(matrix, p.n_dims, p.batch_shape)  # [*b, D, D], [*b, D]
@@ -117,7 +118,7 @@ def affine_dmp(params: DMPParams, config: DMPConfig, matrix) -> DMPParams:
         # (d = 0 on an axis-aligned map); its weights are kept, acting on nothing.
         lin = np.where(forced[..., None], lin, np.eye(p.n_dims))
     w = p.w @ np.swapaxes(lin, -1, -2)  # w'_k = L w_k for every kernel (rows of w)
-    return DMPParams(w, p.tau.copy(), g, y0)
+    return DMPParams(w, p.tau.copy(), g, y0, config=config)
 
 
 def _apply(m: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -42,8 +42,8 @@ import numpy as np
 
 from ..config import check_positive
 from .affine import affine_dmp
-from .config import DMPConfig, as_config
-from .params import DMPParams, first_index, show_value, strict_numbers
+from .config import DMPConfig
+from .params import DMPParams, config_of, first_index, show_value, strict_numbers
 
 #: Largest scale or tempo factor (and the inverse of the smallest).
 MAX_FACTOR = 1e6
@@ -56,7 +56,7 @@ MAX_POINT = 1e9
 
 def bend_dmp(
     params: DMPParams,
-    config: DMPConfig,
+    config: DMPConfig | None = None,
     *,
     goal=None,
     start=None,
@@ -81,9 +81,9 @@ def bend_dmp(
     ----------
     params : DMPParams
         One DMP (batch shape ``[]``) or a batch ``[*batch]``; NumPy or torch.
-    config : DMPConfig
-        Its constants (the result shares them); ``config.scaling`` decides what a new goal
-        or start does to the shape.
+    config : DMPConfig, optional
+        Its constants (default: the ones ``params`` carries; the result carries them);
+        ``config.scaling`` decides what a new goal or start does to the shape.
     goal, start : array [2] or [*batch, 2], optional
         New goal ``g`` / start ``y0`` (x, y), in the DMP's own frame and units (pixels
         for img2dmp's DMPs); one for every DMP or one per DMP.
@@ -113,9 +113,9 @@ def bend_dmp(
     """
     if not isinstance(params, DMPParams):
         raise ValueError(f"params must be a DMPParams, got {type(params).__name__}")
-    config, p = as_config(config), params.to_numpy()
-    p = DMPParams(*(np.asarray(a, dtype=np.float64) for a in (p.w, p.tau, p.g, p.y0)))
-    p.validate(config)
+    config, p = config_of(params, config), params.to_numpy()
+    p = DMPParams(*(np.asarray(a, dtype=np.float64) for a in (p.w, p.tau, p.g, p.y0)),
+                  config=config)  # fmt: skip
     batch = p.batch_shape
     points = {k: _point(k, v, batch) for k, v in (("goal", goal), ("start", start),
                                                   ("shift", shift)) if v is not None}  # fmt: skip
@@ -133,7 +133,7 @@ def bend_dmp(
         g[..., :2] = points["goal"]
     if k is not None:
         tau = tau / k
-    return DMPParams(p.w.copy(), tau, g, y0)
+    return DMPParams(p.w.copy(), tau, g, y0, config=config)
 
 
 def _about_start(y0, s, q, c) -> np.ndarray:

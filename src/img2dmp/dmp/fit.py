@@ -31,7 +31,8 @@ class FitResult:
     Attributes
     ----------
     params : DMPParams
-        Fitted parameters, batch shape ``[*batch]``, same array kind as the input.
+        Fitted parameters, batch shape ``[*batch]``, same array kind as the input;
+        they carry the ``config`` they were fitted under.
     error_px : array [*batch]
         Mean Euclidean distance between the demonstration and the fitted DMP's rollout at
         the demonstration's time stamps (units of the input, e.g. pixels).
@@ -99,6 +100,7 @@ def fit_dmp(
         tau=tau.reshape(batch),
         g=g.reshape(*batch, -1),
         y0=y0.reshape(*batch, -1),
+        config=config,
     )
     err, emax = err.reshape(batch), emax.reshape(batch)
     if as_numpy:

@@ -35,8 +35,8 @@ import math
 import numpy as np
 
 from .basis import forcing_term, kernel_centres, kernel_widths
-from .config import DMPConfig, as_config
-from .params import DMPParams
+from .config import DMPConfig
+from .params import DMPParams, config_of
 
 # Gauss-Legendre nodes per quadrature piece: exact for polynomials of degree 9.
 _GAUSS = np.polynomial.legendre.leggauss(5)
@@ -113,7 +113,8 @@ class DMPIntegrator:
     params : DMPParams
         One DMP (no batch dimensions): ``w [N, d]``, scalar ``tau``, ``g [d]``, ``y0 [d]``.
     config : DMPConfig
-        DMP constants.
+        DMP constants; default: the ones ``params`` carries (a different one is
+        refused), else ``DMPConfig()``.
     max_step : float or None
         Longest quadrature piece in seconds, on top of the automatic one (a fraction of
         the system's shortest time scale, ``tau / 96`` with the default constants); a
@@ -134,7 +135,7 @@ class DMPIntegrator:
     ):
         if not isinstance(params, DMPParams):
             raise ValueError(f"params must be a DMPParams, got {type(params).__name__}")
-        self.config = as_config(config)
+        self.config = config_of(params, config)
         p = params.to_numpy()
         if p.batch_shape != ():
             raise ValueError(

@@ -18,6 +18,14 @@ torch tensor is refused with an error naming both fields. :meth:`DMPParams.from_
 (the reader of JSON-like records) is strict: every number must be a JSON number (not a
 boolean or a string), finite, and only the fields ``w``, ``tau``, ``g``, ``y0`` may be
 present.
+
+A ``DMPParams`` may carry its constants, the :class:`DMPConfig` it is a movement of
+(``config``; a model's predictions, data sets, DMP files, ``fit_dmp`` and the bridges
+set it). Every function that takes a ``config`` uses the carried one when given none,
+and refuses a different one by name: the same numbers under other constants are another
+movement (a shipped model's DMP rolled out under the paper's ``"goal-start"`` scaling
+lands tens of pixels off). Operations that make new parameters (indexing, ``to_torch``,
+``to_numpy``, ``affine_dmp``, ``bend_dmp``) keep it.
 """
 
 from __future__ import annotations
@@ -25,12 +33,12 @@ from __future__ import annotations
 import json
 import math
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
 from .._lazy import is_tensor
-from .config import DMPConfig
+from .config import DMPConfig, as_config
 
 _is_torch = is_tensor
 
@@ -233,6 +241,10 @@ class DMPParams:
         Goal position.
     y0 : array [*batch, d]
         Start position.
+    config : DMPConfig or None
+        The constants these numbers are a movement of (keyword only; default None: not
+        known, and functions then take the ``config`` they are given, or the paper's).
+        When set, ``w`` must have its ``n_kernels x n_dims``.
 
     The arrays may be NumPy arrays or torch tensors (all of one kind; see the module
     docstring for what is converted and what is refused).
@@ -242,11 +254,24 @@ class DMPParams:
     tau: object
     g: object
     y0: object
+    config: DMPConfig | None = field(default=None, kw_only=True, compare=False)
 
     def __post_init__(self) -> None:
         # NumPy scalars and Python numbers (e.g. from indexing one sample) become 0-d arrays.
         _coerce_fields(self)
+        if self.config is not None and not isinstance(self.config, DMPConfig):
+            raise TypeError(
+                f"DMPParams.config must be a DMPConfig or None, got {type(self.config).__name__}"
+            )
         self.validate()
+
+    def with_config(self, config: DMPConfig | None) -> DMPParams:
+        """The same arrays (not copied) labelled with other constants (None: unlabelled).
+
+        This is how to say on purpose that the numbers are to be read under ``config``;
+        a function given a ``config`` that differs from the carried one refuses it.
+        """
+        return DMPParams(self.w, self.tau, self.g, self.y0, config=config)
 
     def _values_stamp(self) -> tuple | None:
         # Which tensors, in which state, the values were last checked on: torch bumps a
@@ -262,8 +287,10 @@ class DMPParams:
 
         The values of torch tensors are checked once: validating the same, unchanged
         tensors again (as :func:`img2dmp.dmp.rollout` does with parameters that were
-        checked when they were made) only checks the shapes.
+        checked when they were made) only checks the shapes. ``config`` (default: the
+        carried one) checks ``w``'s number of kernels and dimensions.
         """
+        config = self.config if config is None else config
         stamp = self._values_stamp()
         if stamp is None or stamp != self.__dict__.get("_checked"):
             self._check_values()
@@ -341,8 +368,11 @@ class DMPParams:
         return _cat([w_flat, self.tau[..., None], self.g, self.y0], self.w)
 
     @classmethod
-    def from_vector(cls, v, n_kernels: int, n_dims: int) -> DMPParams:
-        """Inverse of :meth:`to_vector`; ``v`` has shape ``[*batch, N*d + 1 + 2d]``."""
+    def from_vector(
+        cls, v, n_kernels: int, n_dims: int, *, config: DMPConfig | None = None
+    ) -> DMPParams:
+        """Inverse of :meth:`to_vector`; ``v`` has shape ``[*batch, N*d + 1 + 2d]``;
+        the result carries ``config``."""
         n, d = n_kernels, n_dims
         expected = n * d + 1 + 2 * d
         if v.shape[-1] != expected:
@@ -355,7 +385,7 @@ class DMPParams:
         tau = v[..., n * d]
         g = v[..., n * d + 1 : n * d + 1 + d]
         y0 = v[..., n * d + 1 + d :]
-        return cls(w=w, tau=tau, g=g, y0=y0)
+        return cls(w=w, tau=tau, g=g, y0=y0, config=config)
 
     def to_torch(self, dtype=None, device=None) -> DMPParams:
         """The same parameters as torch tensors (``dtype`` default float64)."""
@@ -363,15 +393,20 @@ class DMPParams:
 
         dtype = torch.float64 if dtype is None else dtype
         conv = lambda a: torch.as_tensor(a, dtype=dtype, device=device)  # noqa: E731
-        return DMPParams(conv(self.w), conv(self.tau), conv(self.g), conv(self.y0))
+        return self._like(conv(self.w), conv(self.tau), conv(self.g), conv(self.y0))
 
     def to_numpy(self) -> DMPParams:
+        """The same parameters as NumPy arrays (views of CPU tensors' memory)."""
         conv = lambda a: a.detach().cpu().numpy() if _is_torch(a) else np.asarray(a)  # noqa: E731
-        return DMPParams(conv(self.w), conv(self.tau), conv(self.g), conv(self.y0))
+        return self._like(conv(self.w), conv(self.tau), conv(self.g), conv(self.y0))
 
     def __getitem__(self, idx) -> DMPParams:
         """Index the batch dimensions: ``params[3]``, ``params[:10]``."""
-        return DMPParams(self.w[idx], self.tau[idx], self.g[idx], self.y0[idx])
+        return self._like(self.w[idx], self.tau[idx], self.g[idx], self.y0[idx])
+
+    def _like(self, w, tau, g, y0) -> DMPParams:
+        """New fields under these parameters' constants."""
+        return DMPParams(w, tau, g, y0, config=self.config)
 
     def to_dict(self) -> dict:
         """JSON-ready nested lists (NumPy view)."""
@@ -386,7 +421,8 @@ class DMPParams:
 
         Errors name the field and the value at fault (``field 'tau' must be a number or a
         list of numbers, got true``). With ``config`` and ``batch_shape`` the fields'
-        shapes are checked too (``batch_shape=()`` for one DMP).
+        shapes are checked too (``batch_shape=()`` for one DMP). The result carries
+        ``config``.
         """
         if not isinstance(d, dict):
             raise ValueError(
@@ -405,7 +441,35 @@ class DMPParams:
         if not (tau > 0).all():
             idx = first_index(~(tau > 0))
             raise ValueError(f"field 'tau' must be > 0 (a duration in seconds){_at(idx, tau)}")
-        return cls(**arrs)
+        return cls(**arrs, config=config)
+
+
+def config_of(params, config, default: DMPConfig | None = None) -> DMPConfig:
+    """The constants to read ``params`` under: ``config``, or the ones ``params`` carries
+    when ``config`` is None, or ``default`` (the paper's when None).
+
+    A ``config`` that differs from the carried one is refused with a ``ValueError``
+    naming the constants that differ: the same numbers under other constants are
+    another movement, silently. ``params.with_config(config)`` relabels on purpose.
+    """
+    own = getattr(params, "config", None)
+    if config is None or config is own:
+        if own is not None:
+            return own
+        return as_config(config, default)
+    config = as_config(config)
+    if own is not None and config != own:
+        differ = ", ".join(
+            f"{f.name} {getattr(config, f.name)!r} (carried {getattr(own, f.name)!r})"
+            for f in fields(DMPConfig)
+            if f.compare and getattr(config, f.name) != getattr(own, f.name)
+        )
+        raise ValueError(
+            f"config differs from the constants these DMP parameters carry: {differ}; "
+            "leave config out to use the carried ones, or relabel with "
+            "params.with_config(config)"
+        )
+    return config
 
 
 def _check_shapes(arrs: dict, config: DMPConfig, batch: tuple) -> None:

@@ -46,8 +46,8 @@ import torch
 
 from . import _kernels
 from ._table import _cubic_pieces
-from .config import DEFAULT_CONFIG, DMPConfig, as_config
-from .params import DMPParams, all_finite, as_host_array
+from .config import DEFAULT_CONFIG, DMPConfig
+from .params import DMPParams, all_finite, as_host_array, config_of
 
 # The table is solved, kept on disk and flushed in ._table, which imports no torch: the
 # NumPy rollout (._numpy_rollout) interpolates the very same pieces.
@@ -161,7 +161,8 @@ def rollout(
     t : tensor [*batch, T] or [T]
         Time stamps in seconds, strictly increasing along the last axis.
     config : DMPConfig
-        DMP constants; default ``DMPConfig()``.
+        DMP constants; default: the ones ``params`` carries, else ``DMPConfig()``. One
+        that differs from the carried ones is refused (``ValueError``).
     validate : bool
         Check inputs (costs a few host syncs; turn off in a hot training loop only once
         the inputs are known to be good).
@@ -179,7 +180,7 @@ def rollout(
     -------
     tensor [*batch, T, d]
     """
-    config = as_config(config, DEFAULT_CONFIG)
+    config = config_of(params, config, DEFAULT_CONFIG)
     y = _direct_rollout(params, t, config, validate, backend)
     if y is not None:  # a call that records no gradient, once the kernels are loaded
         return y
@@ -339,7 +340,7 @@ def _torch_params(params: DMPParams) -> DMPParams:
     floats = [a.dtype for a in fields if a.dtype.is_floating_point]
     dtype = functools.reduce(torch.promote_types, floats) if floats else torch.float64
     conv = (a if a.dtype.is_floating_point else a.to(dtype) for a in fields)
-    return DMPParams(*conv)
+    return DMPParams(*conv, config=params.config)
 
 
 def _time_tensor(t, w: torch.Tensor) -> torch.Tensor:

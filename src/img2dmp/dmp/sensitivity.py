@@ -27,8 +27,8 @@ from __future__ import annotations
 import torch
 
 from .basis import basis_functions_and_derivative, kernel_centres, kernel_widths, negligible
-from .config import DMPConfig, as_config
-from .params import DMPParams
+from .config import DMPConfig
+from .params import DMPParams, config_of
 from .rollout import check_time_stamps
 
 
@@ -61,7 +61,7 @@ def sensitivity_rollout(
         ``"w"``: ``dy_j/dw_kj`` ``[B, T, N, d]``; ``"g"``, ``"y0"``: ``dy_j/dg_j``,
         ``dy_j/dy0_j`` ``[B, T, d]``; ``"tau"``: ``dy/dtau`` ``[B, T, d]``.
     """
-    config = as_config(config)
+    config = config_of(params, config)
     if not (isinstance(max_step, (int, float)) and 0 < max_step <= 1):
         raise ValueError(f"max_step must be in (0, 1], got {max_step!r}")
     w, tau, g, y0, t = _checked_inputs(params, t, config)
@@ -232,5 +232,5 @@ def rollout_sensitivity(
     Returns ``y [B, T, d]``; ``backward()`` through it uses the integrated sensitivities
     (the paper's eqs. 11-27) instead of autograd.
     """
-    config = as_config(config)
+    config = config_of(params, config)
     return _SensitivityRollout.apply(params.w, params.tau, params.g, params.y0, t, config, max_step)

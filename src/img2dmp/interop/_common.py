@@ -95,8 +95,7 @@ def as_numpy_params(params: DMPParams, config: DMPConfig) -> DMPParams:
     if not isinstance(params, DMPParams):
         raise TypeError(f"expected a DMPParams, got {type(params).__name__}")
     p = params.to_numpy()
-    p = DMPParams(*(np.asarray(a, np.float64) for a in (p.w, p.tau, p.g, p.y0)))
-    return p.validate(config)
+    return DMPParams(*(np.asarray(a, np.float64) for a in (p.w, p.tau, p.g, p.y0)), config=config)
 
 
 def scale(p: DMPParams, config: DMPConfig) -> np.ndarray:

@@ -26,6 +26,7 @@ import numpy as np
 from ..config import check_positive
 from ..dmp import DMPConfig, DMPParams, fit_dmp
 from ..dmp.config import as_config
+from ..dmp.params import config_of
 from ._common import (
     DEFAULT_STEPS,
     PeerExport,
@@ -100,7 +101,8 @@ def to_movement_primitives(
     params : DMPParams
         One DMP or a batch (NumPy or torch).
     config : DMPConfig
-        img2dmp's constants; default ``DMPConfig()``.
+        img2dmp's constants; default: the ones
+        ``params`` carries (a different one is refused), else ``DMPConfig()``.
     dt : float or None
         The peer's step (``dt_``, seconds); default ``tau / 4000`` per DMP. Its RK4 step
         evaluates the forcing term one step late (movement_primitives 0.9.1), so its
@@ -118,7 +120,7 @@ def to_movement_primitives(
         DMP, else a list of them in C order of the batch; ``exact`` is True.
     """
     _peer()
-    config = as_config(config)
+    config = config_of(params, config)
     p = as_numpy_params(params, config)
     batch = p.batch_shape
     if dt is not None:
@@ -197,7 +199,7 @@ def from_movement_primitives(
     dmps : movement_primitives.dmp.DMP or sequence of them
         A sequence gives a batch of that length.
     config : DMPConfig
-        img2dmp's constants for the result; default ``DMPConfig()``.
+        img2dmp's constants for the result (which carries them); default ``DMPConfig()``.
     check : bool
         Compare img2dmp's rollout with the peer's at the peer's time stamps
         (``error_px``; a re-fit always measures it).
@@ -234,7 +236,9 @@ def from_movement_primitives(
     params = DMPParams(stack("w"), stack("tau"), stack("g"), stack("y0"))
     if one:
         params = params[0]
-    out = PeerImport(params=params, exact=np.asarray(exact[0] if one else exact))
+    out = PeerImport(
+        params=params.with_config(config), exact=np.asarray(exact[0] if one else exact)
+    )
     if len(errors) == len(items):
         out.error_px = np.asarray(errors[0] if one else errors)
         out.times = times[0] if one else _stack(times, (len(items),))

@@ -27,6 +27,7 @@ import torch
 
 from ..dmp import DMPConfig, DMPParams, fit_dmp, kernel_centres, kernel_widths, rollout
 from ..dmp.config import as_config
+from ..dmp.params import config_of
 from ._common import (
     PeerExport,
     PeerImport,
@@ -105,7 +106,8 @@ def to_mp_pytorch(
     params : DMPParams
         One DMP or a batch (NumPy or torch).
     config : DMPConfig
-        img2dmp's constants; default ``DMPConfig()``.
+        img2dmp's constants; default: the ones
+        ``params`` carries (a different one is refused), else ``DMPConfig()``.
     kind : {"prodmp", "dmp"}
         ``"prodmp"``: the closed-form ProDMP (differentiable, second-order basis table);
         ``"dmp"``: the Euler-integrated DMP.
@@ -125,7 +127,7 @@ def to_mp_pytorch(
         ``exact`` is False only for a ProDMP of a DMP whose ``beta_z`` is not
         ``alpha_z / 4``.
     """
-    config = as_config(config)
+    config = config_of(params, config)
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     steps = check_steps(steps, kind)
@@ -208,7 +210,7 @@ def from_mp_pytorch(prim, config: DMPConfig | None = None, *, check: bool = True
     ----------
     prim : mp_pytorch.mp.DMP or mp_pytorch.mp.ProDMP
     config : DMPConfig
-        img2dmp's constants for the result; default ``DMPConfig()``.
+        img2dmp's constants for the result (which carries them); default ``DMPConfig()``.
     check : bool
         Compare img2dmp's rollout with the object's at its time stamps (``error_px``;
         skipped when it has none; a re-fit always measures it).
@@ -251,7 +253,7 @@ def from_mp_pytorch(prim, config: DMPConfig | None = None, *, check: bool = True
     if not exact:
         params = fit_dmp(times, y, config).params
         times = times - times[..., :1]
-    out = PeerImport(params=params, exact=np.full(batch, exact))
+    out = PeerImport(params=params.with_config(config), exact=np.full(batch, exact))
     if times is not None:
         out.times, out.error_px = times, max_distance(params, times, y, config)
     return out

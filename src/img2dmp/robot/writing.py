@@ -38,6 +38,7 @@ from .._lazy import is_tensor
 from ..config import check_positive
 from ..dmp import DMPConfig, DMPIntegrator, DMPParams
 from ..dmp._numpy_rollout import rollout_numpy
+from ..dmp.params import config_of
 from .animation import PaperInset
 from .controller import ControllerConfig, WritingController
 from .scene import HOME_JOINTS_RAD, SceneConfig, WritingScene
@@ -467,7 +468,7 @@ def checked_dmp(params: DMPParams, config: DMPConfig) -> DMPParams:
         raise ValueError(f"params.tau must be one number (one DMP), got shape {tau.shape}")
     if not tau > 0:
         raise ValueError(f"params.tau is {float(tau)!r} s: the duration must be > 0")
-    return DMPParams(**fields_).validate(config)
+    return DMPParams(**fields_, config=config_of(params, config))
 
 
 def plan_path(
