@@ -90,9 +90,9 @@ class JointTrajectory:
     def n_samples(self) -> int:
         return len(self.time_s)
 
-    def check_limits(self, where: str = "joint trajectory") -> None:
-        """``ValueError`` naming ``where``, the joint, the time, the value and the limit at
-        the first sample outside the iiwa's position or velocity limits."""
+    def limit_violation(self) -> str | None:
+        """The first sample outside the iiwa's position or velocity limits in words (the
+        joint, the value, the time and the limit), or None if every sample is inside."""
         for kind, values, limits, unit in (
             ("position", self.position_rad, IIWA_POSITION_LIMITS_RAD, "rad"),
             ("velocity", self.velocity_rad_s, IIWA_VELOCITY_LIMITS_RAD_S, "rad/s"),
@@ -100,12 +100,21 @@ class JointTrajectory:
             over = np.abs(values) > limits  # [N, 7]
             if over.any():
                 i, j = np.argwhere(over)[0]
-                raise ValueError(
-                    f"{where}: {self.joint_names[j]} {kind} {values[i, j]:.4f} {unit} at "
+                return (
+                    f"{self.joint_names[j]} {kind} {values[i, j]:.4f} {unit} at "
                     f"t = {self.time_s[i]:.4f} s exceeds the iiwa's limit of "
                     f"±{limits[j]:.4f} {unit} ({math.degrees(limits[j]):.0f} deg"
-                    f"{'/s' if kind == 'velocity' else ''}); nothing written"
+                    f"{'/s' if kind == 'velocity' else ''})"
                 )
+        return None
+
+    def check_limits(self, where: str = "joint trajectory") -> None:
+        """``ValueError`` naming ``where``, the joint, the time, the value and the limit at
+        the first sample outside the iiwa's position or velocity limits
+        (:meth:`limit_violation`)."""
+        violation = self.limit_violation()
+        if violation is not None:
+            raise ValueError(f"{where}: {violation}; nothing written")
 
     def to_json(self) -> str:
         doc = {

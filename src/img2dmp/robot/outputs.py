@@ -294,20 +294,58 @@ def writing_warnings(result: WritingResult) -> list[str]:
     """What a finished run wrote that its user would not want, in words (empty for a
     good run): a path of (almost) no length on the paper (a DMP whose goal-start scaling
     has g = y0, or a frame far larger than its movement), a stroke mostly without ink
-    (a tau so short that the arm lags its path)."""
+    (a tau so short that the arm lags its path), a joint faster than a real iiwa's
+    (:func:`joint_speed_warning`)."""
+    warnings = []
     strokes = result.metrics.get("strokes", [])
     length = sum(s["length_mm"] for s in strokes)
-    if strokes and length < WARN_LENGTH_MM:
-        return [f"its pen-down path is {length:.2f} mm long on the paper: almost nothing "
-                "was written (check the DMP's image_size, and g - y0 with goal-start "
-                "scaling)"]  # fmt: skip
     poor = [(i, s) for i, s in enumerate(strokes, start=1) if s["ink_share"] < WARN_INK_SHARE]
-    if poor:
+    if strokes and length < WARN_LENGTH_MM:
+        warnings.append(f"its pen-down path is {length:.2f} mm long on the paper: almost "
+                        "nothing was written (check the DMP's image_size, and g - y0 with "
+                        "goal-start scaling)")  # fmt: skip
+    elif poor:
         i, s = min(poor, key=lambda p: p[1]["ink_share"])
-        return [f"stroke {i} got ink along {100 * s['ink_share']:.1f} % of its "
-                f"{s['length_mm']:.1f} mm (a DMP faster than the arm follows? a longer tau, "
-                "or --tempo below 1, slows it)"]  # fmt: skip
-    return []
+        warnings.append(f"stroke {i} got ink along {100 * s['ink_share']:.1f} % of its "
+                        f"{s['length_mm']:.1f} mm (a DMP faster than the arm follows? a "
+                        "longer tau, or --tempo below 1, slows it)")  # fmt: skip
+    speed = joint_speed_warning(result.metrics)
+    return warnings + ([speed] if speed else [])
+
+
+def joint_speed_line(metrics: dict) -> str | None:
+    """The run's peak joint speed against the real iiwa's limits in words (None for a
+    run without joint speeds)."""
+    share = metrics.get("joint_speed_peak_share", math.nan)
+    if not math.isfinite(share):
+        return None
+    peaks = np.asarray(metrics["joint_speed_peak_rad_s"])
+    limits = np.asarray(metrics["joint_speed_limit_rad_s"])
+    j = int(np.argmax(peaks / limits))
+    within = "within" if share <= 1.0 else "OVER"
+    return (
+        f"  joint speeds {within} the real iiwa's limits: peak {100 * share:.0f} % of its limit "
+        f"({metrics['joint_speed_peak_joint']} {peaks[j]:.2f} of {limits[j]:.2f} rad/s at "
+        f"t = {metrics['joint_speed_peak_time_s']:.2f} s); per joint "
+        + " ".join(f"{p:.2f}" for p in peaks)
+        + " rad/s"
+    )
+
+
+def joint_speed_warning(metrics: dict) -> str | None:
+    """A warning (None if not needed) when the simulated arm moved a joint faster than a
+    real iiwa can: the motion is not one a real arm can follow."""
+    share = metrics.get("joint_speed_peak_share", math.nan)
+    if not share > 1.0:
+        return None
+    peaks = np.asarray(metrics["joint_speed_peak_rad_s"])
+    limits = np.asarray(metrics["joint_speed_limit_rad_s"])
+    j = int(np.argmax(peaks / limits))
+    return (
+        f"{metrics['joint_speed_peak_joint']} moved at {peaks[j]:.2f} rad/s at t = "
+        f"{metrics['joint_speed_peak_time_s']:.2f} s, {100 * share:.0f} % of the real "
+        f"iiwa's limit of {limits[j]:.2f} rad/s: a real iiwa cannot follow this motion"
+    )
 
 
 def summary_lines(name: str, result: WritingResult) -> list[str]:
@@ -336,6 +374,9 @@ def summary_lines(name: str, result: WritingResult) -> list[str]:
             f"DMP held {m['dwell_s']:.2f} s for the pen to land and lift (force in band "
             f"{100 * m['force_in_band_share_with_dwell']:.1f} % counting that time)"
         )
+    speeds = joint_speed_line(m)
+    if speeds:
+        lines.append(speeds)
     return lines
 
 
@@ -506,6 +547,9 @@ def page_summary_lines(name: str, result, noun: str = "character", labels=None) 
         f"{m['simulated_s']:.2f} s simulated at {m['control_rate_hz']:g} Hz, "
         f"{m['real_time_factor']:.1f}x real time",
     ]
+    speeds = joint_speed_line(m)
+    if speeds:
+        lines.append(speeds)
     for r in result.characters:
         c, cm = r.character, r.metrics
         label = (labels or {}).get(c.index)
@@ -520,5 +564,6 @@ def page_summary_lines(name: str, result, noun: str = "character", labels=None) 
             f"{cm['placement_error_mm']:.2f} mm; force {cm['force_mean_n']:.2f} ± "
             f"{cm['force_std_n']:.2f} N; tracking {cm['tracking_error_mean_mm']:.3f} mm mean, "
             f"{cm['tracking_error_max_mm']:.3f} mm max"
+            + (f"; written {cm['slowdown']:.2f}x slower" if cm.get("slowdown", 1.0) > 1.0 else "")
         )
     return lines

@@ -34,6 +34,7 @@ trajectory and the video are continuous:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Collection
@@ -47,6 +48,7 @@ from .controller import WritingController
 from .pagefile import Page, PageCharacter, read_page
 from .scene import WritingScene
 from .strokes import ink_on_path_share, ink_trace, min_jerk_along, stroke_report
+from .tempo import Slowing, joint_speed_metrics
 from .writing import (
     IK_TOLERANCE_M,
     PEN_DOWN_ROTATION,
@@ -62,6 +64,7 @@ from .writing import (
     checked_dmp,
     plan_path,
     sheet_bounds_m,
+    slow_for_joint_limits,
     writing_metrics,
 )
 
@@ -96,12 +99,16 @@ class CharacterPlan:
     config : DMPConfig
     plan : PlannedPath
         The exact path at the control rate, mapped to the paper.
+    slowing : Slowing or None
+        How much ``params`` was slowed for the iiwa's joint speed limits
+        (:func:`slow_page_plan`; None: not looked at yet).
     """
 
     character: PageCharacter
     params: DMPParams
     config: DMPConfig
     plan: PlannedPath
+    slowing: Slowing | None = None
 
     @property
     def label(self) -> str:
@@ -428,6 +435,25 @@ def check_page_reach(scene: WritingScene, plan: PagePlan, controller_config) -> 
     return q_start
 
 
+def slow_page_plan(scene: WritingScene, plan: PagePlan) -> PagePlan:
+    """``plan`` with each character's DMP slowed, where it needs it, so that the joint
+    speeds planned along it stay within ``plan.options.joint_speed_share`` of the iiwa's
+    limits (:func:`img2dmp.robot.writing.slow_for_joint_limits`; only the characters that
+    need it are slowed, each by its own factor, in :attr:`CharacterPlan.slowing`)."""
+    out = []
+    for cp in plan.characters:
+        try:
+            params, path, slowing = slow_for_joint_limits(
+                scene, cp.params, cp.config, cp.plan, plan.mapping, plan.options
+            )
+        except ValueError as e:  # slowed beyond the longest writing
+            raise ValueError(f"{plan.page.path}: {cp.label}: {e}") from None
+        out.append(dataclasses.replace(cp, params=params, plan=path, slowing=slowing))
+    slowed = dataclasses.replace(plan, characters=tuple(out))
+    plan.options.check_video(_duration_bound_s(slowed, plan.options))
+    return slowed
+
+
 def write_page_plan(
     plan: PagePlan,
     *,
@@ -437,8 +463,9 @@ def write_page_plan(
     """Write a planned page (:func:`plan_page`) in one simulation session.
 
     The arm's reach along every character and travel is checked first
-    (:func:`check_page_reach`); then the arm starts at rest above the first character's
-    first point and :class:`PageRun` writes them all. ``progress(n_steps)`` is called
+    (:func:`check_page_reach`), and the characters that need it are slowed for the
+    iiwa's joint speed limits (:func:`slow_page_plan`); then the arm starts at rest above
+    the first character's first point and :class:`PageRun` writes them all. ``progress(n_steps)`` is called
     after each batch of simulated steps, ``on_character(character_plan)`` as each
     character starts. ``RuntimeError`` if the pen does not settle or land.
     """
@@ -449,6 +476,7 @@ def write_page_plan(
     scene = WritingScene(scene_cfg, time_step_s=options.dt_s)
     try:
         q_start = check_page_reach(scene, plan, ctl_cfg)
+        plan = slow_page_plan(scene, plan)
         scene.reset_joints(q_start)
         lift_z_m = scene_cfg.paper_top_z + ctl_cfg.lift_height_m
         controller = WritingController(scene, ctl_cfg, PEN_DOWN_ROTATION, q_start, lift_z_m)
@@ -673,6 +701,8 @@ class PageRun(WritingRun):
             step_character[a:b] = cp.character.index
             m = character_metrics(cp.plan, log_steps(log, a, b), f_set)
             m["approach_s"] = float(approach_s)
+            if cp.slowing is not None:
+                m.update(cp.slowing.to_dict())
             done[cp.character.index] = CharacterRun(cp.character, True, (a, b), cp.plan, m)
         runs = [done.get(c.index, CharacterRun(c, False)) for c in self.page_plan.page.characters]
         return runs, step_character
@@ -700,7 +730,8 @@ def character_metrics(plan: PlannedPath, log: WritingLog, force_set_n: float) ->
     -------
     dict with
         :func:`writing_metrics` (tracking error, force, contact over the pen-down time
-        with the DMP running) and :func:`stroke_report` (per stroke); ``length_mm`` -
+        with the DMP running), :func:`stroke_report` (per stroke) and
+        :func:`img2dmp.robot.tempo.joint_speed_metrics` (its steps); ``length_mm`` -
         the commanded pen-down length; ``ink_share`` - the share of it with ink within
         ``INK_TOLERANCE_M`` (the strokes' ink shares weighted by length);
         ``ink_on_path_share`` - the share of the ink (by length) within that distance
@@ -711,6 +742,7 @@ def character_metrics(plan: PlannedPath, log: WritingLog, force_set_n: float) ->
     """
     m = writing_metrics(log, force_set_n)
     m.update(stroke_report(plan, log, force_set_n))
+    m.update(joint_speed_metrics(log))
     lengths = np.array([s["length_mm"] for s in m["strokes"]])
     shares = np.array([s["ink_share"] for s in m["strokes"]])
     length_mm = float(lengths.sum())
@@ -758,9 +790,12 @@ def page_metrics(log: WritingLog, runs: list[CharacterRun], force_set_n: float) 
         ``ink_length_mm`` summed; ``placement_error_max_mm``;
         ``travel_contact_s`` - time the pen touched the paper while travelling between
         characters (0: no ink between them); ``characters``, ``characters_written``,
-        ``characters_skipped``.
+        ``characters_skipped``; :func:`img2dmp.robot.tempo.joint_speed_metrics` over the
+        whole log (travels included); ``characters_slowed`` and ``slowdown_max`` (1: none
+        slowed for the iiwa's joint speed limits).
     """
     m = writing_metrics(log, force_set_n)
+    m.update(joint_speed_metrics(log))
     written = [r.metrics for r in runs if r.written]
     strokes = [
         {"character": r.character.index, **s}
@@ -791,6 +826,8 @@ def page_metrics(log: WritingLog, runs: list[CharacterRun], force_set_n: float) 
             "characters": len(runs),
             "characters_written": len(written),
             "characters_skipped": len(runs) - len(written),
+            "characters_slowed": sum(c.get("slowdown", 1.0) > 1.0 for c in written),
+            "slowdown_max": max((c.get("slowdown", 1.0) for c in written), default=1.0),
         }
     )
     return m
@@ -812,6 +849,7 @@ __all__ = [
     "page_mapping",
     "page_metrics",
     "plan_page",
+    "slow_page_plan",
     "read_page",
     "travel_targets",
     "widest_width_mm",

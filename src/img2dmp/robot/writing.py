@@ -43,6 +43,14 @@ from .animation import PaperInset
 from .controller import ControllerConfig, WritingController
 from .scene import HOME_JOINTS_RAD, SceneConfig, WritingScene
 from .strokes import StrokeGate, stroke_report
+from .tempo import (
+    JOINT_SPEED_SHARE,
+    Slowing,
+    joint_speed_metrics,
+    planned_joint_velocities,
+    slowed_dmp,
+    slowing_for,
+)
 
 # The pen points straight down; the flange's x axis points back towards the robot.
 PEN_DOWN_ROTATION = np.diag([-1.0, 1.0, -1.0])
@@ -241,6 +249,11 @@ class WritingOptions:
         ``approach_clearance_m`` above the paper (instead of ``lift_height_m``), timed so
         that it is there when the stroke starts: the touch-down then only has the slow
         final approach left.
+    joint_speed_share : float or None
+        Before anything moves, slow the DMP (a longer ``tau``: the same path) until the
+        joint speeds planned along it stay within this share of the real iiwa's limits
+        (:mod:`img2dmp.robot.tempo`); ``None``: write it at its own tempo, whatever the
+        joints need (the simulated arm follows; a real iiwa may not).
     """
 
     writing_height_mm: float = 40.0
@@ -254,8 +267,12 @@ class WritingOptions:
     render_size_px: tuple[int, int] | None = (640, 480)
     stroke_dwell: bool = True
     hover: bool = True
+    joint_speed_share: float | None = JOINT_SPEED_SHARE
 
     def __post_init__(self) -> None:
+        share = self.joint_speed_share
+        if share is not None and not (_is_finite(share) and 0.0 < share <= 1.0):
+            raise ValueError(f"joint_speed_share must be in (0, 1] or None, got {share!r}")
         for name in ("stroke_dwell", "hover"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
@@ -416,6 +433,10 @@ class WritingResult:
         Final camera picture ``uint8 [h, 2 w, 3]`` (arm | paper) if requested.
     start_joints_rad : ndarray [7] or None
         Joint positions at rest before the first step (the start posture).
+    slowing : Slowing or None
+        How much the DMP was slowed for the iiwa's joint speed limits
+        (:mod:`img2dmp.robot.tempo`; factor 1: not); None for a page, whose characters
+        each have theirs.
     """
 
     log: WritingLog
@@ -427,6 +448,7 @@ class WritingResult:
     frames: list = field(default_factory=list)
     render: np.ndarray | None = None
     start_joints_rad: np.ndarray | None = None
+    slowing: Slowing | None = None
 
     def extra_log_columns(self) -> dict[str, np.ndarray]:
         """Columns the CSV log has after the log's fields, by name (``[S]`` each): none
@@ -578,6 +600,26 @@ def _unreachable(plan: PlannedPath, i: int, residual_m: float):
     )
 
 
+def slow_for_joint_limits(
+    scene: WritingScene, params: DMPParams, config: DMPConfig, plan: PlannedPath,
+    mapping: PaperMapping, options: WritingOptions,
+) -> tuple[DMPParams, PlannedPath, Slowing]:  # fmt: skip
+    """The DMP to write and its plan, slowed (if need be) so that the joint speeds
+    planned along it stay within ``options.joint_speed_share`` of the iiwa's limits
+    (:mod:`img2dmp.robot.tempo`), and the :class:`Slowing` that says by how much.
+
+    Slowing multiplies ``tau``: the path is the same curve (checked already), sampled at
+    the control rate over the longer time. ``ValueError`` (from :func:`plan_path`) if the
+    slowed DMP takes more than ``MAX_WRITING_STEPS``.
+    """
+    _, qd = planned_joint_velocities(scene, plan, np.array(HOME_JOINTS_RAD), PEN_DOWN_ROTATION)
+    slowing = slowing_for(qd, float(params.tau), options.joint_speed_share)
+    if not slowing.slowed:
+        return params, plan, slowing
+    params = slowed_dmp(params, slowing.factor)
+    return params, plan_path(params, config, mapping, options.dt_s), slowing
+
+
 def writing_metrics(log: WritingLog, force_set_n: float, tolerance: float = 0.2) -> dict:
     """Tracking and force statistics over the commanded pen-down time of the write phase
     with the DMP running (steps on which its clock was held, ``log.dwell``, excluded).
@@ -643,6 +685,7 @@ def write_dmp(
     frame_size_px: tuple[int, int] = (320, 240),
     render_size_px: tuple[int, int] | None = (640, 480),
     stroke_dwell: bool = True,
+    joint_speed_share: float | None = JOINT_SPEED_SHARE,
     progress=None,
 ) -> WritingResult:
     """Write one DMP with the simulated KUKA iiwa; return the log and metrics.
@@ -677,6 +720,10 @@ def write_dmp(
     stroke_dwell : bool
         Hold the DMP clock while the pen lands and lifts between strokes (see
         :class:`WritingOptions`).
+    joint_speed_share : float or None
+        Slow the DMP until its planned joint speeds stay within this share of the real
+        iiwa's limits (default 0.6; ``result.slowing`` says by how much); None: at its
+        own tempo (see :class:`WritingOptions`).
     progress : callable or None
         Called as ``progress(n_steps)`` after each batch of simulated steps.
 
@@ -699,6 +746,7 @@ def write_dmp(
         frame_size_px=frame_size_px,
         render_size_px=render_size_px,
         stroke_dwell=stroke_dwell,
+        joint_speed_share=joint_speed_share,
     )
     return write_with_options(params, config, image_size, options, progress=progress)
 
@@ -722,13 +770,17 @@ def write_with_options(
     scene = WritingScene(scene_cfg, time_step_s=dt_s)
     try:
         q_start = check_path(scene, plan, ctl_cfg)
+        params, plan, slowing = slow_for_joint_limits(scene, params, config, plan, mapping,
+                                                      options)  # fmt: skip
+        options.check_video(float(params.tau))
         scene.reset_joints(q_start)
         lift_z_m = scene_cfg.paper_top_z + ctl_cfg.lift_height_m
         controller = WritingController(scene, ctl_cfg, PEN_DOWN_ROTATION, q_start, lift_z_m)
         # One exact step per control period (stable for any tau); it agrees with the
         # checked plan to ~1e-6 px.
         dmp = DMPIntegrator(params, config)
-        run = WritingRun(scene, plan, controller, options, dmp, mapping, progress=progress)
+        run = WritingRun(scene, plan, controller, options, dmp, mapping, progress=progress,
+                         slowing=slowing)  # fmt: skip
         return run.execute()
     finally:
         scene.close()
@@ -755,6 +807,8 @@ class WritingRun:
         The mapping the plan was made with.
     progress : callable or None
         Called as ``progress(n_steps)`` every ``PROGRESS_EVERY_STEPS`` steps and at the end.
+    slowing : Slowing or None
+        How much the plan's DMP was slowed (:func:`slow_for_joint_limits`), for the result.
     """
 
     def __init__(
@@ -767,8 +821,10 @@ class WritingRun:
         mapping: PaperMapping,
         *,
         progress: Callable[[int], object] | None = None,
+        slowing: Slowing | None = None,
     ):
         self.scene, self.plan, self.controller = scene, plan, controller
+        self.slowing = slowing
         self.options, self.dmp, self.mapping = options, dmp, mapping
         self.progress = progress
         self.dt_s = scene.time_step_s
@@ -968,6 +1024,9 @@ class WritingRun:
         metrics = writing_metrics(log, ctl_cfg.force_set_n)
         metrics.update(self.run_figures(wall_s, float(self.approach_s)))
         metrics.update(stroke_report(self.plan, log, ctl_cfg.force_set_n))
+        metrics.update(joint_speed_metrics(log))
+        if self.slowing is not None:
+            metrics.update(self.slowing.to_dict())
         self.flush_ink()
         return WritingResult(
             log=log,
@@ -979,6 +1038,7 @@ class WritingRun:
             frames=self.frames,
             render=self.final_render(),
             start_joints_rad=self.start_joints_rad,
+            slowing=self.slowing,
         )
 
     def final_render(self) -> np.ndarray | None:
