@@ -121,8 +121,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--export-joints",
         metavar="FILE",
         help="also write the joint trajectory (time, 7 joint positions and velocities) as "
-        "FILE.csv and FILE.json for a real iiwa to replay; refused if it exceeds the "
-        "iiwa's joint position or velocity limits",
+        "FILE.csv and FILE.json for a real iiwa to replay; if it exceeds the iiwa's joint "
+        "position or velocity limits, nothing of that input is written",
+    )
+    parser.add_argument(
+        "--no-slowing",
+        action="store_true",
+        help="write each DMP at its own tempo even where a real iiwa's joints could not "
+        "follow it (default: a DMP whose planned joint speeds exceed 60 %% of the iiwa's "
+        "limits is written that much slower, the same path, with a note)",
     )
     parser.add_argument(
         "--frame-interval-s", type=float, default=0.1, help="simulated time between frames"
@@ -471,25 +478,68 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
                     scene_config=scene_cfg,
                     controller_config=ctl_cfg,
                     frame_interval_s=args.frame_interval_s if args.video else None,
+                    joint_speed_share=_joint_speed_share(args),
                     progress=bar.update,
                 )
             except RuntimeError as e:  # the simulated arm failed (e.g. never settled)
                 print(f"img2dmp write: {name}: simulation failed: {e}", file=sys.stderr)
                 return 1
             bar.total = bar.n
+        if result.slowing is not None and result.slowing.slowed:
+            _note(f"{name}: written {result.slowing.words()}; {SLOWING_WHY}")
+        print("\n".join(summary_lines(name, result)))
+        for warning in writing_warnings(result):
+            print(f"img2dmp write: warning: {name}: {warning}", file=sys.stderr)
+        n_inputs = len(args.images) or 1
+        trajectory = _joint_trajectory(args, result, name, n_inputs)  # before any file
         os.makedirs(args.out_dir, exist_ok=True)  # once written: a refusal leaves no folder
         base = os.path.join(args.out_dir, name)
         plot_writing(result, base + "_paper.png", image=image, title=f"{name}: KUKA iiwa writes")
-        written = [base + "_paper.png"] + _save_run(args, result, name, len(args.images) or 1)
-        print("\n".join(summary_lines(name, result)))
+        written = [base + "_paper.png"] + _save_run(args, result, name, n_inputs, trajectory)
         print("  wrote " + ", ".join(written))
-        for warning in writing_warnings(result):
-            print(f"img2dmp write: warning: {name}: {warning}", file=sys.stderr)
     return 0
 
 
-def _save_run(args, result, name: str, n_inputs: int) -> list[str]:
-    """The render, the log, the video and the joint trajectory of a run; the files."""
+#: Why a note says a DMP was slowed, and how not to.
+SLOWING_WHY = ("slowed so that a real iiwa's joints can follow (planned within 60 % of "
+               "their speed limits; --no-slowing: the DMP's own tempo)")  # fmt: skip
+
+
+def _note(text: str) -> None:
+    print(f"img2dmp write: note: {text}", file=sys.stderr)
+
+
+def _joint_speed_share(args):
+    """The share of the iiwa's joint speed limits the planned motion is kept within
+    (:data:`img2dmp.robot.tempo.JOINT_SPEED_SHARE`), or None with ``--no-slowing``."""
+    from img2dmp.robot.tempo import JOINT_SPEED_SHARE
+
+    return None if args.no_slowing else JOINT_SPEED_SHARE
+
+
+def _joint_trajectory(args, result, name: str, n_inputs: int):
+    """With ``--export-joints``, the run's joint trajectory, checked against the iiwa's
+    limits before any file of this input is written (``ValueError`` saying that nothing
+    of it was); None without."""
+    if not args.export_joints:
+        return None
+    from img2dmp.robot.joints import JointTrajectory, export_paths
+
+    trajectory = JointTrajectory.from_result(result)
+    violation = trajectory.limit_violation()
+    if violation is not None:
+        json_path = export_paths(_joints_base(args, name, n_inputs))[1]
+        hint = "" if not args.no_slowing else "; without --no-slowing the DMP is slowed to fit"
+        raise ValueError(
+            f"{json_path}: joint trajectory: {violation}; nothing of {name} written (no "
+            f"joint trajectory, figure, log or video){hint}"
+        )
+    return trajectory
+
+
+def _save_run(args, result, name: str, n_inputs: int, trajectory=None) -> list[str]:
+    """The render, the log, the video and the joint trajectory (checked already:
+    :func:`_joint_trajectory`) of a run; the files."""
     from img2dmp.robot import save_log_csv, save_render, save_videos
 
     base = os.path.join(args.out_dir, name)
@@ -498,10 +548,9 @@ def _save_run(args, result, name: str, n_inputs: int) -> list[str]:
     written = [base + "_render.png", base + "_log.csv"]
     if args.video:
         written += save_videos(result, base, args.frame_interval_s)
-    if args.export_joints:
-        from img2dmp.robot.joints import JointTrajectory, save_joint_trajectory
+    if trajectory is not None:
+        from img2dmp.robot.joints import save_joint_trajectory
 
-        trajectory = JointTrajectory.from_result(result)
         written += save_joint_trajectory(trajectory, _joints_base(args, name, n_inputs))
     return written
 
@@ -569,6 +618,7 @@ def _writing_options(args, scene_cfg, ctl_cfg):
         scene_config=scene_cfg,
         controller_config=ctl_cfg,
         frame_interval_s=args.frame_interval_s if args.video else None,
+        joint_speed_share=_joint_speed_share(args),
     )
 
 
@@ -689,6 +739,7 @@ def _write_plan(args, name: str, plan, photo, what: str, table: str, noun="chara
     summary."""
     from img2dmp._progress import bar as progress_bar
     from img2dmp.robot import page_summary_lines, plot_page, save_characters_csv, write_page_plan
+    from img2dmp.robot.outputs import joint_speed_warning
 
     n, started, labels = len(plan.characters), [], plan.entry_labels()
     with progress_bar(
@@ -711,12 +762,39 @@ def _write_plan(args, name: str, plan, photo, what: str, table: str, noun="chara
             print(f"img2dmp write: {name}: simulation failed{where}: {e}", file=sys.stderr)
             return 1
         bar.total = bar.n
+    _note_slowed_entries(name, result, noun)
+    print("\n".join(page_summary_lines(name, result, noun, plan.entry_labels())))
+    warning = joint_speed_warning(result.metrics)
+    if warning:
+        print(f"img2dmp write: warning: {name}: {warning}", file=sys.stderr)
+    trajectory = _joint_trajectory(args, result, name, 1)  # before any file
     os.makedirs(args.out_dir, exist_ok=True)  # once written: a refusal leaves no folder
     base = os.path.join(args.out_dir, name)
     plot_page(result, base + "_paper.png", image=photo, title=f"{name}: KUKA iiwa writes {what}",
               noun=noun)  # fmt: skip
     save_characters_csv(result, base + table, plan.entry_owners())
-    written = [base + "_paper.png", base + table] + _save_run(args, result, name, 1)
-    print("\n".join(page_summary_lines(name, result, noun, plan.entry_labels())))
+    written = [base + "_paper.png", base + table] + _save_run(args, result, name, 1, trajectory)
     print("  wrote " + ", ".join(written))
     return 0
+
+
+#: A note names at most this many slowed characters of a page (the most slowed first).
+NOTE_SLOWED_AT_MOST = 3
+
+
+def _note_slowed_entries(name: str, result, noun: str) -> None:
+    """One note naming the characters (or strokes) of a page that were written slower
+    for the iiwa's joint speed limits, the most slowed first, and how much."""
+    slowed = [r for r in result.characters
+              if r.written and r.metrics.get("slowdown", 1.0) > 1.0]  # fmt: skip
+    if not slowed:
+        return
+    slowed.sort(key=lambda r: -r.metrics["slowdown"])
+    plans = {cp.character.index: cp for cp in result.page_plan.characters}
+    named = [f"{noun} {r.character.index} {plans[r.character.index].slowing.words()}"
+             for r in slowed[:NOTE_SLOWED_AT_MOST]]  # fmt: skip
+    more = len(slowed) - len(named)
+    named += [f"{more} more"] if more else []
+    n = result.metrics["characters_written"]
+    _note(f"{name}: {len(slowed)} of {n} {noun}s written slower: {'; '.join(named)}; "
+          f"{SLOWING_WHY}")  # fmt: skip
