@@ -20,7 +20,9 @@ The DMP file format (:mod:`.dmpfile`) works without pybullet. See ``docs/ROBOT.m
 - :func:`stroke_report` - ink and force per pen-down stroke; :class:`StrokeGate` holds
   the DMP clock while the pen lands and lifts (:mod:`.strokes`)
 - :class:`JointTrajectory`, :func:`save_joint_trajectory`, :func:`load_joint_trajectory`,
-  :func:`replay_joint_trajectory` - the joint trajectory for a real iiwa (:mod:`.joints`)
+  :func:`replay_joint_trajectory` - the joint trajectory for a real iiwa (:mod:`.joints`);
+  a DMP too fast for its joint speed limits is slowed before anything moves, and every
+  run measures its joint speeds (:mod:`.tempo`)
 - :func:`write_page` - every character of a page document in one run (:mod:`.page`:
   :func:`plan_page`, :func:`write_page_plan`, :class:`PageRun`, :class:`PageResult`);
   :func:`read_page`, :func:`check_page_document`, :class:`Page` - the page document
