@@ -467,7 +467,8 @@ def write_page_plan(
     iiwa's joint speed limits (:func:`slow_page_plan`); then the arm starts at rest above
     the first character's first point and :class:`PageRun` writes them all.
     ``progress(n_steps)`` is called after each batch of simulated steps,
-    ``on_character(character_plan)`` as each character starts. ``RuntimeError`` if the pen does not settle or land.
+    ``on_character(character_plan)`` as each character starts. ``RuntimeError`` if the
+    pen does not settle or land.
     """
     if not isinstance(plan, PagePlan):
         raise ValueError(f"plan must be a PagePlan (plan_page), got {type(plan).__name__}")
