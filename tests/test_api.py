@@ -283,6 +283,58 @@ def test_dmp_parameters_keep_their_constants_through_every_conversion():
         DMPParams(fitted.w, fitted.tau, fitted.g, fitted.y0, config={"scaling": "none"})
 
 
+def test_constants_are_compared_by_the_movement_they_make_and_files_keep_them(tmp_path):
+    from dataclasses import replace
+
+    config = DMPConfig(n_kernels=6, scaling="none")
+    t = np.linspace(0.0, 1.0, 60)
+    p = fit_dmp(t, np.stack([4 * np.sin(3 * t), 2 * t], -1), config).params
+    spelled = replace(config, beta_z=config.alpha_z / 4)  # the same damping, written out
+    tt = torch.as_tensor(t)
+    np.testing.assert_array_equal(rollout(p.to_torch(), tt, spelled).numpy(),
+                                  rollout(p.to_torch(), tt).numpy())  # fmt: skip
+    with pytest.raises(ValueError, match=r"beta 11.0 \(carried 12.0\)"):
+        rollout(p.to_torch(), tt, replace(config, beta_z=11.0))
+    # equality: values and the movement's constants
+    copy = DMPParams(p.w.copy(), p.tau.copy(), p.g.copy(), p.y0.copy(), config=spelled)
+    assert p == copy and p != copy.with_config(None) and p != p.to_torch()
+    assert p != p.with_config(replace(config, scaling="goal-start"))
+    moved = copy.w.copy()
+    moved[0, 0] += 1e-9
+    assert p != DMPParams(moved, p.tau, p.g, p.y0, config=config)
+    # a DMP file stores the carried constants, and refuses others
+    img2dmp.save_dmp_json(tmp_path / "a.json", p, None, (28, 28), label=np.int64(3))
+    back, stored, _ = load_dmp_json(tmp_path / "a.json")
+    assert stored == config and back.config == config
+    assert json.loads((tmp_path / "a.json").read_text())["label"] == 3
+    with pytest.raises(ValueError, match="b.json: config differs .* scaling 'goal-start'"):
+        img2dmp.save_dmp_json(tmp_path / "b.json", p, DMPConfig(n_kernels=6), (28, 28))
+    assert not (tmp_path / "b.json").exists()
+    with pytest.raises(
+        TypeError, match="c.json: config must be a DMPConfig, got NoneType .*carry none"
+    ):
+        img2dmp.save_dmp_json(tmp_path / "c.json", p.with_config(None), None, (28, 28))
+    # affine_dmp(params, matrix) with the carried constants
+    shifted = affine_dmp(p, [[1, 0, 5], [0, 1, 0]])
+    assert shifted.config == config
+    np.testing.assert_allclose(shifted.g, p.g + [5, 0])
+    with pytest.raises(ValueError, match="affine_dmp needs a matrix"):
+        affine_dmp(p)
+
+
+def test_time_stamps_at_fault_are_named_with_their_index():
+    y = np.random.default_rng(0).normal(size=(3, 8, 2))
+    t = np.linspace(0.0, 1.0, 8)
+    assert fit_dmp(t[None], y).params.batch_shape == (3,)  # [1, T]: shared stamps
+    repeated = np.r_[t[:4], t[3], t[5:]]
+    with pytest.raises(ValueError, match=r"t\[4\] = 0.428\d* repeats t\[3\] = 0.428"):
+        fit_dmp(repeated, y)
+    with pytest.raises(ValueError, match=r"t\[2\] is nan"):
+        fit_dmp(np.r_[t[:2], np.nan, t[3:]], y)
+    with pytest.raises(ValueError, match=r"t\[1, 0\] is -1.0"):
+        rollout(fit_dmp(t, y[:2]).params.to_torch(), torch.tensor([[0.0, 1.0], [-1.0, 0.5]]))
+
+
 @pytest.mark.parametrize("scaling", ["goal-start", "none"])
 @pytest.mark.parametrize("d", [2, 3])
 def test_an_affinely_mapped_dmp_rolls_out_to_the_mapped_path(scaling, d):

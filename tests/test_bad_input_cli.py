@@ -702,6 +702,32 @@ def test_a_decompression_bomb_is_refused_by_name(
     assert "decompression bomb" in line
 
 
+def test_an_image_pil_only_warns_about_is_checked_without_its_warning(tmp_path, monkeypatch):
+    import warnings
+
+    from PIL import Image
+
+    from img2dmp.commands._args import check_images
+
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 100)  # 12 x 12: warned of, not refused
+    path = tmp_path / "big.png"
+    Image.new("L", (12, 12), 255).save(path)
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        check_images([path])
+    assert not [w for w in seen if issubclass(w.category, Image.DecompressionBombWarning)]
+
+
+def test_an_image_of_one_row_is_named_with_its_size(tmp_path):
+    from PIL import Image
+
+    from img2dmp.data.images import prepare_image_framed
+
+    Image.new("L", (5, 1), 0).save(tmp_path / "tiny.png")
+    with pytest.raises(ValueError, match=r"tiny.png is 5 x 1 pixels \(width x height\)"):
+        prepare_image_framed(tmp_path / "tiny.png")
+
+
 def test_a_decompression_bomb_anywhere_is_still_one_line(monkeypatch, capsys):
     from PIL import Image
 

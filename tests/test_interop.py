@@ -108,6 +108,18 @@ def test_the_bridges_take_the_constants_a_dmp_carries_and_refuse_others(digits):
         np.testing.assert_allclose(imported.to_vector(), own.to_vector(), rtol=1e-13, atol=1e-9)
         with pytest.raises(ValueError, match="config differs from the constants these DMP"):
             export(own, other)
+        remembered = back(out.dmp).params  # no config: the one the export was made with
+        assert remembered.config == cfg and remembered == imported
+
+
+def test_an_import_of_other_dimensions_names_them(digits):
+    cfg, p = digits
+    out = interop.to_movement_primitives(p[:2], cfg, check=False)
+    with pytest.raises(ValueError, match=r"dmps\[0\] has 2 dimensions, the config 3"):
+        interop.from_movement_primitives(out.dmp, DMPConfig(n_dims=3))
+    prim = interop.to_mp_pytorch(p[:2], cfg, check=False).dmp
+    with pytest.raises(ValueError, match="prim has 2 dimensions, the config 3"):
+        interop.from_mp_pytorch(prim, DMPConfig(n_dims=3))
 
 
 def test_movement_primitives_export_keeps_the_phase_when_its_duration_changes(digits):

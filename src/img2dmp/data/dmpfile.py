@@ -74,7 +74,7 @@ from ..dmp import DMPConfig, DMPParams
 from ..dmp._numpy_rollout import rollout_numpy
 from ..dmp.affine import affine_dmp
 from ..dmp.config import MAX_KERNELS
-from ..dmp.params import show_value, strict_numbers
+from ..dmp.params import config_of, show_value, strict_numbers
 from .images import ImageFrame
 
 FORMAT = "img2dmp-dmp"
@@ -712,13 +712,20 @@ def write_dmp_document(path, doc: dict) -> None:
 
 
 def dmp_document(
-    params: DMPParams, config: DMPConfig, image_size, path="DMP document", **extra
+    params: DMPParams, config: DMPConfig | None, image_size, path="DMP document", **extra
 ) -> dict:
-    """The version-2 document of one DMP (``extra``: optional fields and notes)."""
-    for name, value, kind in (("params", params, DMPParams), ("config", config, DMPConfig)):
-        if not isinstance(value, kind):
-            raise TypeError(f"{path}: {name} must be a {kind.__name__}, got "
-                            f"{type(value).__name__}")  # fmt: skip
+    """The version-2 document of one DMP (``extra``: optional fields and notes; NumPy
+    numbers and arrays among them are stored as JSON numbers and lists). ``config``
+    None: the constants ``params`` carries; a different one is refused."""
+    if not isinstance(params, DMPParams):
+        raise TypeError(f"{path}: params must be a DMPParams, got {type(params).__name__}")
+    if params.config is None and not isinstance(config, DMPConfig):
+        raise TypeError(f"{path}: config must be a DMPConfig, got {type(config).__name__} "
+                        "(these parameters carry none)")  # fmt: skip
+    try:
+        config = config_of(params, config)
+    except (TypeError, ValueError) as e:
+        raise type(e)(f"{path}: {e}") from None
     p = params.to_numpy()
     if p.batch_shape != ():
         raise ValueError(f"{path}: params must hold one DMP, got batch shape {p.batch_shape}")
@@ -738,12 +745,26 @@ def dmp_document(
     for k, v in extra.items():
         if k in doc:
             raise ValueError(f"{path}: extra key {k!r} would overwrite a format field")
-        doc[k] = v
+        doc[k] = _plain(v)
     return doc
 
 
-def save_dmp_json(path, params: DMPParams, config: DMPConfig, image_size, **extra) -> None:
+def _plain(v):
+    """``v`` with NumPy numbers and arrays (in lists and dicts too) as Python ones."""
+    if isinstance(v, (np.generic, np.ndarray)):
+        return v.tolist()
+    if isinstance(v, dict):
+        return {k: _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    return v
+
+
+def save_dmp_json(path, params: DMPParams, config: DMPConfig | None, image_size, **extra) -> None:
     """Write one DMP in the format of :func:`load_dmp_json` (version 2), atomically.
+
+    ``config`` None stores the constants ``params`` carries (a prediction's, a fit's);
+    one that differs from them is refused (``ValueError``), as the rollouts refuse it.
 
     ``extra`` keys (JSON-serialisable) are stored alongside: the optional fields of the
     format (e.g. ``frame="image"``), checked as the reader checks them, or notes (e.g.

@@ -380,7 +380,9 @@ def _pil_levels(im, label: str, max_pixels: int = MAX_WORK_PIXELS) -> tuple[np.n
             raise ValueError(f"{label} holds NaN or infinite grey levels")
         levels /= np.float32(full_scale(float(levels.max()) if levels.size else 0.0))
     if min(levels.shape[:2]) < 2:
-        raise ValueError(f"{label} has unusable size {levels.shape[:2]}")
+        h, w = levels.shape[:2]
+        raise ValueError(f"{label} is {w} x {h} pixels (width x height): an image needs at "
+                         "least 2 x 2")  # fmt: skip
     return levels, scale * factor
 
 

@@ -10,6 +10,7 @@ No I/O and no plotting here. The public surface:
 - :func:`affine_dmp` - the DMP of an affinely mapped movement, exactly
 - :func:`bend_dmp` - a new goal or start, tempo, scale, rotation (which are exact: its module)
 - :func:`rollout` - fast batched differentiable y(t) (cost 10)
+- :func:`rollout_numpy` - the same rollout in NumPy alone (no torch, no gradient)
 - :func:`rollout_sensitivity`, :func:`sensitivity_rollout` - the paper's gradient, eqs. (11)-(27)
 - :class:`DMPIntegrator`, :func:`integrate` - step-by-step reference integrator
 """
@@ -35,12 +36,14 @@ _NAMES = {
     "integrate": ".integrate",
     "DMPParams": ".params",
     "rollout": ".rollout",
+    "rollout_numpy": "._numpy_rollout",
     "unit_responses": ".rollout",
     "rollout_sensitivity": ".sensitivity",
     "sensitivity_rollout": ".sensitivity",
 }
 
 if TYPE_CHECKING:  # the real imports, for type checkers and IDEs
+    from ._numpy_rollout import rollout_numpy
     from .affine import affine_dmp
     from .basis import basis_functions, forcing_term, kernel_centres, kernel_widths, phase
     from .bend import bend_dmp
@@ -68,6 +71,7 @@ __all__ = [
     "kernel_widths",
     "phase",
     "rollout",
+    "rollout_numpy",
     "rollout_sensitivity",
     "sensitivity_rollout",
     "unit_responses",

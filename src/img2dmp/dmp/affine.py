@@ -58,7 +58,7 @@ def _full_map(matrix, d: int, batch: tuple) -> tuple[np.ndarray, np.ndarray]:
     return full, shift
 
 
-def affine_dmp(params: DMPParams, config: DMPConfig | None, matrix) -> DMPParams:
+def affine_dmp(params: DMPParams, config: DMPConfig | None = None, matrix=None) -> DMPParams:
     """The DMP whose movement is ``matrix`` applied to ``params``'s movement, exactly.
 
     Parameters
@@ -67,7 +67,8 @@ def affine_dmp(params: DMPParams, config: DMPConfig | None, matrix) -> DMPParams
         Batch shape ``[*batch]``, ``d >= 2`` (x, y first), NumPy or torch.
     config : DMPConfig or None
         Its constants (the result carries them); None: the ones ``params`` carries (a
-        different one is refused), else the paper's.
+        different one is refused), else the paper's. ``affine_dmp(params, matrix)``
+        takes the carried ones.
     matrix : array [2, 3] or [*batch, 2, 3]
         ``[x', y'] = A @ [x, y] + b`` (the convention of :mod:`img2dmp.data.affine`): one
         map for every DMP, or one per DMP (any batch shape that broadcasts to ``[*batch]``).
@@ -87,6 +88,10 @@ def affine_dmp(params: DMPParams, config: DMPConfig | None, matrix) -> DMPParams
     """
     if not isinstance(params, DMPParams):
         raise ValueError(f"params must be a DMPParams, got {type(params).__name__}")
+    if matrix is None and config is not None and not isinstance(config, DMPConfig):
+        config, matrix = None, config  # affine_dmp(params, matrix)
+    if matrix is None:
+        raise ValueError("affine_dmp needs a matrix: the 2 x 3 map [x', y'] = A [x, y] + b")
     config, p = config_of(params, config), params.to_numpy()
     p = DMPParams(*(np.asarray(a, dtype=np.float64) for a in (p.w, p.tau, p.g, p.y0)),
                   config=config)  # fmt: skip

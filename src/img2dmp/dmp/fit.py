@@ -61,7 +61,7 @@ def fit_dmp(
 
     Parameters
     ----------
-    t : array [*batch, T] or [T]
+    t : array [*batch, T] or [T] (also [1, T]: shared)
         Time stamps in seconds, strictly increasing; need not be evenly spaced and need
         not start at 0 (the movement is taken to start at ``t[..., 0]``).
     y : array [*batch, T, d]
@@ -182,6 +182,8 @@ def _check_inputs(t, y, config: DMPConfig, ridge, chunk_size) -> tuple:
     if t.shape[-1] != y.shape[-2]:
         raise ValueError(f"t has {t.shape[-1]} time stamps but y has {y.shape[-2]} points")
     batch = tuple(y.shape[:-2])
+    if t.ndim > 1 and all(n == 1 for n in t.shape[:-1]):
+        t = t.reshape(-1)  # [1, T] or [1, 1, T]: one set of stamps for every demonstration
     if t.ndim > 1 and tuple(t.shape[:-1]) != batch:
         raise ValueError(f"t has batch shape {tuple(t.shape[:-1])}, y has {batch}")
     return t, y, ridge

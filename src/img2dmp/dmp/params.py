@@ -33,7 +33,7 @@ from __future__ import annotations
 import json
 import math
 import sys
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -175,6 +175,15 @@ def _coerce_fields(p) -> None:
         setattr(p, k, arr)
 
 
+def _same_values(a, b) -> bool:
+    """Two fields of one kind (arrays or tensors, on one device) of equal shape and values."""
+    if _is_torch(a) != _is_torch(b) or tuple(a.shape) != tuple(b.shape):
+        return False
+    if _is_torch(a):
+        return a.device == b.device and bool((a.detach() == b.detach()).all())
+    return bool(np.array_equal(a, b))
+
+
 def _at(idx: tuple, a) -> str:
     """``", got -1.0 at index [3]"``: the value at ``idx`` and, in a batch, where."""
     v = a[idx] if idx else a
@@ -264,6 +273,19 @@ class DMPParams:
                 f"DMPParams.config must be a DMPConfig or None, got {type(self.config).__name__}"
             )
         self.validate()
+
+    def __eq__(self, other) -> bool:
+        """Equal values, shapes and array kinds, and constants that make the same
+        movement (both None, or :func:`same_movement`): the same numbers under other
+        constants are another movement. For "equal to rounding" compare
+        ``to_vector()`` with ``np.allclose``."""
+        if not isinstance(other, DMPParams):
+            return NotImplemented
+        if not same_movement(self.config, other.config):
+            return False
+        return all(_same_values(getattr(self, k), getattr(other, k)) for k in _FIELDS)
+
+    __hash__ = None  # mutable arrays
 
     def with_config(self, config: DMPConfig | None) -> DMPParams:
         """The same arrays (not copied) labelled with other constants (None: unlabelled).
@@ -444,6 +466,22 @@ class DMPParams:
         return cls(**arrs, config=config)
 
 
+_MEANING = ("n_kernels", "n_dims", "alpha_z", "beta", "alpha_x", "width_factor", "scaling")
+
+
+def _meaning(config: DMPConfig) -> tuple:
+    """What the constants make of a DMP's numbers (``beta_z`` None and ``alpha_z / 4``
+    are one damping)."""
+    return tuple(getattr(config, name) for name in _MEANING)
+
+
+def same_movement(a: DMPConfig | None, b: DMPConfig | None) -> bool:
+    """Whether two configs (or two None) make the same movement of the same numbers."""
+    if a is None or b is None:
+        return a is b
+    return a is b or _meaning(a) == _meaning(b)
+
+
 def config_of(params, config, default: DMPConfig | None = None) -> DMPConfig:
     """The constants to read ``params`` under: ``config``, or the ones ``params`` carries
     when ``config`` is None, or ``default`` (the paper's when None).
@@ -458,11 +496,11 @@ def config_of(params, config, default: DMPConfig | None = None) -> DMPConfig:
             return own
         return as_config(config, default)
     config = as_config(config)
-    if own is not None and config != own:
+    if own is not None and not same_movement(config, own):
         differ = ", ".join(
-            f"{f.name} {getattr(config, f.name)!r} (carried {getattr(own, f.name)!r})"
-            for f in fields(DMPConfig)
-            if f.compare and getattr(config, f.name) != getattr(own, f.name)
+            f"{name} {getattr(config, name)!r} (carried {getattr(own, name)!r})"
+            for name, a, b in zip(_MEANING, _meaning(config), _meaning(own), strict=True)
+            if a != b
         )
         raise ValueError(
             f"config differs from the constants these DMP parameters carry: {differ}; "

@@ -47,7 +47,7 @@ import torch
 from . import _kernels
 from ._table import _cubic_pieces
 from .config import DEFAULT_CONFIG, DMPConfig
-from .params import DMPParams, all_finite, as_host_array, config_of
+from .params import DMPParams, all_finite, as_host_array, config_of, first_index
 
 # The table is solved, kept on disk and flushed in ._table, which imports no torch: the
 # NumPy rollout (._numpy_rollout) interpolates the very same pieces.
@@ -130,11 +130,22 @@ def check_time_stamps(t, name: str = "t", *, non_negative: bool = False) -> None
         if faults == 0 or (faults == 4 and not non_negative):
             return
     if not all_finite(x):
-        raise ValueError(f"{name} contains NaN or inf")
+        idx = first_index(~np.isfinite(x))
+        raise ValueError(f"{name} contains NaN or inf: {name}{list(idx)} is {float(x[idx])}")
     if x.shape[-1] > 1 and not bool((x[..., 1:] > x[..., :-1]).all()):
-        raise ValueError(f"{name} must be strictly increasing along its last axis")
+        idx = first_index(~(x[..., 1:] > x[..., :-1]))
+        at = (*idx[:-1], idx[-1] + 1)
+        what = "repeats" if x[at] == x[idx] else "is before"
+        raise ValueError(
+            f"{name} must be strictly increasing along its last axis: {name}{list(at)} = "
+            f"{float(x[at])!r} {what} {name}{list(idx)} = {float(x[idx])!r}"
+        )
     if non_negative and bool((x[..., 0] < 0).any()):
-        raise ValueError(f"{name} must be >= 0 (seconds since the start of the movement)")
+        idx = (*first_index(x[..., 0] < 0), 0)
+        raise ValueError(
+            f"{name} must be >= 0 (seconds since the start of the movement): "
+            f"{name}{list(idx)} is {float(x[idx])!r}"
+        )
 
 
 def rollout(

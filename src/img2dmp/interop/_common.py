@@ -10,6 +10,8 @@ import torch
 
 from ..config import check_positive
 from ..dmp import DMPConfig, DMPParams, rollout
+from ..dmp.config import as_config
+from ..dmp.params import same_movement
 
 #: Time steps per movement (per ``tau``) of a peer's rollout unless the caller says.
 #: Measured on the ten synthetic digits in the 28-px frame (docs/INTEROP.md): the largest
@@ -77,6 +79,38 @@ class PeerImport:
     exact: np.ndarray
     times: np.ndarray | None = None
     error_px: np.ndarray | None = None
+
+
+CONFIG_ATTRIBUTE = "img2dmp_config"  # an export's constants, on the peer's object
+
+
+def remember(peer_object, config: DMPConfig) -> None:
+    """Keep the constants an export was made with on the peer's object, so that its
+    import gives back parameters of the same constants when given no ``config``."""
+    setattr(peer_object, CONFIG_ATTRIBUTE, config)
+
+
+def import_config(peer_objects: list, config) -> DMPConfig:
+    """``config``; without one, the constants the objects were exported with (all the
+    same), else the paper's."""
+    if config is not None:
+        return as_config(config)
+    kept = [getattr(o, CONFIG_ATTRIBUTE, None) for o in peer_objects]
+    first = kept[0]
+    if isinstance(first, DMPConfig) and all(
+        isinstance(k, DMPConfig) and same_movement(k, first) for k in kept
+    ):
+        return first
+    return DMPConfig()
+
+
+def check_dims(what: str, n_dims: int, config: DMPConfig) -> None:
+    """A peer object of ``n_dims`` dimensions against ``config``: one line naming both."""
+    if int(n_dims) != config.n_dims:
+        raise ValueError(
+            f"{what} has {int(n_dims)} dimensions, the config {config.n_dims}; give "
+            f"config=DMPConfig(n_dims={int(n_dims)}, ...) with the DMP's other constants"
+        )
 
 
 def require(module: str, package: str):

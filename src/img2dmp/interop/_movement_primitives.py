@@ -25,16 +25,18 @@ import numpy as np
 
 from ..config import check_positive
 from ..dmp import DMPConfig, DMPParams, fit_dmp
-from ..dmp.config import as_config
 from ..dmp.params import config_of
 from ._common import (
     DEFAULT_STEPS,
     PeerExport,
     PeerImport,
     as_numpy_params,
+    check_dims,
     check_dt,
     forcing_amplitudes,
+    import_config,
     max_distance,
+    remember,
     require,
     weights_from_amplitudes,
 )
@@ -146,6 +148,7 @@ def to_movement_primitives(
         )
         dmp.forcing_term.weights_[:, :] = amp[i].T
         dmp.configure(start_y=flat.y0[i].copy(), goal_y=flat.g[i].copy())
+        remember(dmp, config)
         dmps.append(dmp)
         if check:
             t, y = dmp.open_loop()
@@ -209,7 +212,6 @@ def from_movement_primitives(
     PeerImport
     """
     peer = _peer()
-    config = as_config(config)
     one = isinstance(dmps, peer)
     items = [dmps] if one else list(dmps) if isinstance(dmps, Sequence) else None
     if not items or not all(isinstance(d, peer) for d in items):
@@ -217,6 +219,9 @@ def from_movement_primitives(
             "expected a movement_primitives.dmp.DMP or a non-empty sequence of them, "
             f"got {type(dmps).__name__}"
         )
+    config = import_config(items, config)
+    for k, dmp in enumerate(items):
+        check_dims("dmps" if one else f"dmps[{k}]", dmp.n_dims, config)
     parts, exact, times, errors = [], [], [], []
     for k, dmp in enumerate(items):
         p, ok = _read(dmp, config)

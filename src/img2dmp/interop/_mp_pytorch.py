@@ -26,15 +26,17 @@ import numpy as np
 import torch
 
 from ..dmp import DMPConfig, DMPParams, fit_dmp, kernel_centres, kernel_widths, rollout
-from ..dmp.config import as_config
 from ..dmp.params import config_of
 from ._common import (
     PeerExport,
     PeerImport,
     as_numpy_params,
+    check_dims,
     check_steps,
     forcing_amplitudes,
+    import_config,
     max_distance,
+    remember,
     require,
     weights_from_amplitudes,
 )
@@ -136,6 +138,7 @@ def to_mp_pytorch(
     if 0 in batch:  # MP_PyTorch holds a batch in one primitive: an empty one is none
         raise ValueError(f"params holds no DMP (batch shape {list(batch)}); give at least one")
     prim = _build(kind, config, steps, dtype)
+    remember(prim, config)
     s = np.linspace(0.0, 1.0, steps + 1)
     times = p.tau[..., None] * s  # [*batch, T]
     tt = lambda a: torch.as_tensor(a, dtype=dtype)  # noqa: E731
@@ -221,9 +224,10 @@ def from_mp_pytorch(prim, config: DMPConfig | None = None, *, check: bool = True
         Batch shape: the object's ``add_dim``.
     """
     mp, _, _ = _mp_pytorch()
-    config = as_config(config)
     if not isinstance(prim, (mp.DMP, mp.ProDMP)):
         raise ValueError(f"expected an mp_pytorch DMP or ProDMP, got {type(prim).__name__}")
+    config = import_config([prim], config)
+    check_dims("prim", prim.num_dof, config)
     if prim.params is None or prim.init_pos is None:
         raise ValueError(
             "the MP_PyTorch object holds no parameters or initial conditions yet: call "
