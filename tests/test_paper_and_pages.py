@@ -287,3 +287,99 @@ def test_one_image_counts_its_characters_as_digits_or_as_a_stroke_models_letters
     ink, _ = _page([[("0", 40), ("7", 110), ("1", 180), ("1", 196), ("0", 250), ("7", 320)]])
     assert count_characters(ink > 0.5) == 6
     assert count_characters(ink > 0.5, letters=True) == 5
+
+
+def _sheet_on_desk(desk_grey, *, angle_deg=0.0, margin=(40, 48), sides="all", grain=0.0, seed=0):
+    """The two lines of :func:`_page` on a white sheet (lit a little unevenly) lying on a
+    desk of ``desk_grey`` (with ``grain``: noise of that many levels), ``margin`` (rows,
+    columns) of desk beyond it (``sides="left"``: on the left only), the sheet turned by
+    ``angle_deg``, slightly blurred as a phone sees it; the image and the true boxes'
+    centres."""
+    from PIL import Image, ImageFilter
+
+    lines = [[("1", 40), ("7", 110), ("0", 190), ("5", 270), ("7", 350)],
+             [("0", 60), ("5", 150), ("7", 240), ("1", 330)]]  # fmt: skip
+    ink, boxes = _page(lines)
+    h, w = ink.shape
+    light = np.linspace(1.0, 0.72, w, dtype=np.float32)[None, :, None]  # to the desk's level
+    sheet = _on_paper(ink, np.full((h, w, 3), 0.93, np.float32) * light)
+    photo = Image.fromarray((sheet * 255).astype(np.uint8)).convert("RGBA")
+    photo = photo.rotate(angle_deg, resample=Image.Resampling.BICUBIC, expand=True)
+    my, mx = margin
+    out_h, out_w = photo.height + 2 * my, photo.width + (mx if sides == "left" else 2 * mx)
+    desk = np.full((out_h, out_w, 3), desk_grey, np.float32)
+    desk += np.random.default_rng(seed).normal(0.0, grain, (out_h, out_w, 1))
+    im = Image.fromarray(np.clip(desk, 0, 255).astype(np.uint8))
+    x0, y0 = mx, my
+    if sides == "left":
+        im = im.crop((0, my, out_w, my + photo.height))
+        y0 = 0
+    im.paste(photo, (x0, y0), photo)
+    im = im.filter(ImageFilter.GaussianBlur(0.8))
+    a = np.deg2rad(angle_deg)
+    centres = []
+    for b in boxes:  # the centres moved as the sheet was turned and put down
+        dx, dy = (b[0] + b[2]) / 2 - w / 2, (b[1] + b[3]) / 2 - h / 2
+        centres.append((x0 + photo.width / 2 + np.cos(a) * dx + np.sin(a) * dy,
+                        y0 + photo.height / 2 - np.sin(a) * dx + np.cos(a) * dy))  # fmt: skip
+    return np.asarray(im, np.float32) / 255.0, centres
+
+
+def _found_at(img, centres):
+    """The ink of ``img`` and whether its characters are exactly one box per true centre."""
+    found = paper_ink(img)
+    assert found is not None, "no ink found"
+    boxes = [c.box for c in find_characters(found.mask, core=found.core).characters]
+    inside = [[b[0] <= x < b[2] and b[1] <= y < b[3] for b in boxes] for x, y in centres]
+    one_each = all(sum(row) == 1 for row in inside)
+    return found, boxes, one_each and len(boxes) == len(centres)
+
+
+@pytest.mark.parametrize("desk_grey", [40, 120, 160, 255])
+def test_a_sheet_on_a_desk_darker_or_lighter_than_it_keeps_only_its_characters(desk_grey):
+    """The desk around the sheet (dark, mid-grey as light as the paper's shade, or lighter
+    than the paper) and the sheet's edges are no ink: the nine characters, nothing more
+    (120 and 40 read no ink at all before the sheet was looked for)."""
+    img, centres = _sheet_on_desk(desk_grey)
+    found, boxes, ok = _found_at(img, centres)
+    assert ok, (len(boxes), boxes)
+    assert found.removed["desk_px"] > 0.15 * img.shape[0] * img.shape[1]
+    assert 2.5 < found.pen_width_px < 4.5  # the pen's (3 px), not the edge's band
+
+
+@pytest.mark.parametrize(("desk_grey", "grain"), [(120, 4.0), (150, 3.0)])
+def test_a_turned_sheet_on_a_grainy_desk_keeps_only_its_characters(desk_grey, grain):
+    img, centres = _sheet_on_desk(desk_grey, angle_deg=5.0, grain=grain, seed=1)
+    found, boxes, ok = _found_at(img, centres)
+    assert ok, (len(boxes), boxes)
+    assert found.removed["desk_px"] > 0
+
+
+def test_a_turned_sheet_with_its_corners_on_the_border_and_lighter_corners_beyond():
+    """As a photo turned with its frame expanded: the corners beyond the sheet are lighter
+    than its shade, and its edges run across the frame."""
+    img, centres = _sheet_on_desk(245, angle_deg=-5.0, margin=(0, 0))
+    found, boxes, ok = _found_at(img, centres)
+    assert ok, (len(boxes), boxes)
+
+
+def test_a_sheet_edge_inside_the_frame_on_one_side_only():
+    img, centres = _sheet_on_desk(130, sides="left", grain=3.0)
+    found, boxes, ok = _found_at(img, centres)
+    assert ok, (len(boxes), boxes)
+    assert found.removed["desk_px"] > 0
+
+
+def test_no_desk_is_found_on_a_sheet_alone_nor_in_its_shadow():
+    """A sheet that fills the photo, with a hard shadow across it (a step as sharp as an
+    edge, but with writing on its far side), has no desk: all nine characters stay."""
+    from scipy.ndimage import gaussian_filter
+
+    from img2dmp.data.sheet import find_sheet
+
+    img, centres = _sheet_on_desk(128, margin=(0, 0))
+    assert find_sheet(np.ascontiguousarray(np.moveaxis(img, 2, 0))) is None
+    rows, cols = np.mgrid[: img.shape[0], : img.shape[1]]
+    shade = gaussian_filter(np.where(cols + 0.8 * rows > 330, 0.55, 1.0), 2.0)
+    found, boxes, ok = _found_at((img * shade[..., None]).astype(np.float32), centres)
+    assert found.removed["desk_px"] == 0

@@ -6,6 +6,10 @@ sheet's edge with the table beyond it. :func:`paper_ink` keeps the pen's strokes
 drops the rest, in named steps (each kept for a picture with ``keep_steps``;
 :func:`img2dmp.data.plotting.paper_steps_figure` draws them):
 
+0. **desk**: a sheet lying on a desk (darker or lighter than the paper) is found by its
+   edges (:func:`img2dmp.data.sheet.find_sheet`) and the desk painted over with the
+   paper's colour; nothing off the sheet is ink, and long lines beside it (the edge's
+   own shadow or band) are dropped with the marks along the image's border (step 7);
 1. **polarity**: dark ink on light paper, or light on dark (then inverted): which way
    the grey levels' tail reaches from their local median (ink is the minority), else
    from the border as :mod:`img2dmp.data.images` has always read it;
@@ -53,6 +57,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from .sheet import find_sheet
 
 #: Below this shorter side, one background level for the whole image (the border's).
 LOCAL_BACKGROUND_MIN_SIDE = 64
@@ -166,6 +172,18 @@ MIN_DOTS = 8
 EDGE_SHARE = 0.15
 #: ... within this share of the shorter side from the border.
 EDGE_BAND = 0.015
+#: A mark beside the image's border or the desk (within ``EDGE_LINE_NEAR`` of the
+#: shorter side) at least this share of the shorter side long is the sheet's edge when it
+#: lies mostly (``EDGE_LINE_INSIDE``) in that band, or is straight: this many times as
+#: long as thick (the spread of its pixels across and along it); no character is.
+EDGE_LINE_SHARE = 0.25
+EDGE_LINE_NEAR = 0.03
+EDGE_LINE_INSIDE = 0.8
+EDGE_LINE_THIN = 12.0
+#: ... and one lying in that band (``EDGE_LINE_INSIDE``) from this share, when it is this
+#: many times as long as thick (a piece of the edge's line that the margin cut).
+EDGE_PIECE_SHARE = 0.08
+EDGE_PIECE_THIN = 4.0
 
 
 @dataclass
@@ -184,7 +202,8 @@ class PaperInk:
         The polarity read from the border.
     removed : dict
         Counts of what was dropped: ``rule_px``, ``off_sheet_px``, ``faint_components``,
-        ``specks``, ``thick_components``.
+        ``specks``, ``thick_components``, ``desk_px`` (the pixels of a desk around the
+        sheet, :func:`img2dmp.data.sheet.find_sheet`; 0 when none was found).
     steps : dict of name -> array
         With ``keep_steps``: ``input`` (RGB or grey), ``background``, ``darkness``,
         ``sheet``, ``rules``, ``ink`` (see the module docstring); else empty.
@@ -880,12 +899,14 @@ def pen_width(area: np.ndarray, boundary: np.ndarray, keep: np.ndarray) -> float
     return float(thick[order][np.searchsorted(cum, cum[-1] / 2.0)])
 
 
-def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool, rough_pen: float = 0.0, ruled=None):
+def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool, rough_pen: float = 0.0, ruled=None,
+                  band=None):  # fmt: skip
     """The components of ``mask`` that are pen strokes (hysteresis; with
     ``shape_filters`` also not the sheet's edge, specks nor blobs), the pen width and
     what was dropped. ``rough_pen``: the pen width guessed before (pixels), for the
     pieces of faint components (``RESCUE_*``); ``ruled``: the rules' pixels removed
-    (their remnants beside them are no pen dots)."""
+    (their remnants beside them are no pen dots); ``band``: the pixels beside the desk
+    (:attr:`img2dmp.data.sheet.Sheet.band`), where long marks are the sheet's edge."""
     labels, area, boundary, strong_px = _components(mask, dark, lv.strong)
     keep = (strong_px >= 2) & (strong_px >= STRONG_SHARE * area)  # a stroke, not a smudge
     keep[0] = False
@@ -906,7 +927,7 @@ def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool, rough_pen: float
         keep[0] = False
         removed["faint_components"] -= int(np.count_nonzero(keep & was_faint))
     if shape_filters:
-        edge = keep & _along_border(labels, len(area) - 1)
+        edge = keep & (_along_border(labels, len(area) - 1) | _edge_lines(labels, band))
         if np.count_nonzero(keep & ~edge):  # the edge first: its band is no pen width
             keep &= ~edge
             removed["edge_components"] = int(edge.sum())
@@ -1061,6 +1082,42 @@ def _along_border(labels: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+def _edge_lines(labels: np.ndarray, band=None) -> np.ndarray:
+    """Per label (index 0 unused): whether the component is a line of the sheet's edge
+    (``EDGE_LINE_*``) beside the image's border or the desk's ``band`` (``bool [H, W]``)."""
+    h, w = labels.shape
+    n = int(labels.max())
+    near = np.zeros((h, w), bool)
+    m = max(2, round(EDGE_LINE_NEAR * min(h, w)))
+    near[:m], near[-m:], near[:, :m], near[:, -m:] = True, True, True, True
+    if band is not None:
+        near |= band
+    out = np.zeros(n + 1, bool)
+    touching = np.unique(labels[near & (labels > 0)])
+    if touching.size == 0:
+        return out
+    rows, cols = np.nonzero(np.isin(labels, touching))
+    lab = labels[rows, cols]
+    count = np.bincount(lab, minlength=n + 1).astype(np.float64)
+    inside = np.bincount(lab, weights=near[rows, cols], minlength=n + 1)
+    c = np.maximum(count, 1)
+    mr, mc = np.bincount(lab, rows, n + 1) / c, np.bincount(lab, cols, n + 1) / c
+    vr = np.bincount(lab, (rows - mr[lab]) ** 2, n + 1) / c
+    vc = np.bincount(lab, (cols - mc[lab]) ** 2, n + 1) / c
+    vrc = np.bincount(lab, (rows - mr[lab]) * (cols - mc[lab]), n + 1) / c
+    half, root = (vr + vc) / 2, np.sqrt(((vr - vc) / 2) ** 2 + vrc**2)
+    length = np.sqrt(12 * (half + root))  # a uniform line's spread along it: L^2 / 12
+    thick = np.sqrt(12 * np.maximum(half - root, 0))
+    thick = np.maximum(thick, 1.0)
+    line = (length >= EDGE_LINE_SHARE * min(h, w)) & (
+        (inside >= EDGE_LINE_INSIDE * count) | (length >= EDGE_LINE_THIN * thick)
+    )
+    piece = (length >= EDGE_PIECE_SHARE * min(h, w)) & (length >= EDGE_PIECE_THIN * thick)
+    piece &= inside >= EDGE_LINE_INSIDE * count
+    out[touching] = (line | piece)[touching]
+    return out
+
+
 def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
     """The handwriting of an image, separated from its paper (module docstring).
 
@@ -1075,6 +1132,9 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
     PaperInk, or None when nothing in the image stands out from the paper.
     """
     a = _planes(levels)
+    desk = find_sheet(a)  # the sheet on a desk: the paper's colour painted over the desk
+    if desk is not None:
+        a = desk.fill
     polarity = dark_on_light(a)
     if not polarity:
         a = 1.0 - a
@@ -1082,6 +1142,8 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
     bg, cell = background(a, pen)
     dark = darkness(a, bg)
     sheet = sheet_mask(bg, cell)
+    if desk is not None:
+        sheet &= desk.mask
     dark = np.where(sheet, dark, 0.0).astype(np.float32)
     local = min(a.shape[1:]) >= LOCAL_BACKGROUND_MIN_SIDE  # not one level for the image
     lv = thresholds(dark, _noise(a, bg) if local else 0.0)
@@ -1095,12 +1157,14 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
         if lv is None:
             return None
         weak = dark >= lv.weak
-    kept, width, removed = _kept_strokes(weak & ~ruled, dark, lv, local, pen, ruled)
+    kept, width, removed = _kept_strokes(weak & ~ruled, dark, lv, local, pen, ruled,
+                                         None if desk is None else desk.band)  # fmt: skip
     if not kept.any():
         return None
     halo = dilate3(kept) & ~ruled
     ink = np.where(halo, np.clip(dark / lv.ink, 0.0, 1.0), 0.0).astype(np.float32)
-    removed.update(rule_px=int(ruled.sum()), off_sheet_px=int((~sheet).sum()))
+    removed.update(rule_px=int(ruled.sum()), off_sheet_px=int((~sheet).sum()),
+                   desk_px=0 if desk is None else desk.desk_px)  # fmt: skip
     steps.update(rules=ruled, candidates=weak, ink=ink)
     return PaperInk(ink, kept, width, polarity, removed, steps if keep_steps else {})
 

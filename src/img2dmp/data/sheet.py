@@ -1,0 +1,308 @@
+"""Finding the sheet of paper in a photo: the desk around it is no ink (NumPy, SciPy, PIL).
+
+The usual photo of a page shows the sheet lying on a desk, with a margin of desk around
+it: darker or lighter than the paper, plain or a little textured. :func:`find_sheet`
+finds the sheet so that :func:`img2dmp.data.paper.paper_ink` reads only what is on it.
+On the photo reduced to about ``SHEET_SIDE`` pixels on its shorter side and smoothed:
+
+1. **edges**: the pixels where the colour changes faster than ``STEP_NOISE`` times the
+   image's usual change (and ``STEP_MIN``), grown by a pixel, gaps of up to about
+   ``2 EDGE_GAP`` pixels closed: the sheet's edge, the strokes, the rules;
+2. **regions**: the connected areas between them; the paper is the one that holds most
+   of the image's middle. When it reaches the border, the desk may have come in through
+   a longer gap (where the paper's shade meets the desk's level): its part of the
+   border's colour (``DESK_TOLERANCE``) connected to the border is a region of its own;
+3. **desk**: the regions that touch the image's border, cover at least ``DESK_MIN_SHARE``
+   of it, are bounded by edges (``DESK_EDGED`` of their outline), differ in colour from
+   what lies just beyond their edge by ``DESK_CONTRAST`` (a shade on the paper or a
+   rule's band does not) and hold no writing (enclosed marks under ``DESK_HOLES`` of
+   their area: a shadow's edge across the page is a region too, with characters in it);
+4. **sheet**: the rest grown away from the desk by ``EDGE_MARGIN`` pixels (the edge's
+   blur), the part that holds the paper, its convex hull (a sheet is a quadrilateral,
+   in perspective too; the notch a gap let in is back), drawn straight at the photo's
+   pixels; at least ``SHEET_MIN_SHARE`` of the image. Off the sheet the photo is
+   painted with the nearest paper's colour, from ``EDGE_GAP + 2`` pixels inside.
+
+The sheet is None when no desk is found (a photo of the sheet alone, a scan), when the
+desk's regions hold the middle of the image, or when the rest is too small.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: The search runs on the photo reduced to about this many pixels on its shorter side.
+SHEET_SIDE = 200
+#: An edge pixel: the colour changes by at least this many times the image's median change
+#: per pixel, ...
+STEP_NOISE = 6.0
+#: ... and at least this much per pixel (levels in [0, 1]).
+STEP_MIN = 0.01
+#: Gaps of up to about twice this many reduced pixels in the edges are closed.
+EDGE_GAP = 4
+#: A desk region covers at least this share of the image,
+DESK_MIN_SHARE = 0.01
+#: ... differs from what lies just beyond its boundary by this much in some channel
+#: (the median colours of the two sides),
+DESK_CONTRAST = 0.025
+#: ... and encloses marks of at most this share of its area (a desk holds no writing).
+DESK_HOLES = 0.01
+#: A desk region's outline lies on edges for at least this share (the rest: gaps),
+DESK_EDGED = 0.6
+#: ... and the desk that came in through a gap in the edge is of the border's colour
+#: within this much (or four times its spread).
+DESK_TOLERANCE = 0.03
+#: The sheet keeps this many reduced pixels clear of the desk (the edge's blur and band).
+EDGE_MARGIN = 3
+#: The band beside the desk: this share of the photo's shorter side.
+BAND_SHARE = 0.03
+#: The sheet covers at least this share of the image.
+SHEET_MIN_SHARE = 0.2
+
+
+@dataclass
+class Sheet:
+    """The sheet found in a photo.
+
+    Attributes
+    ----------
+    mask : bool [H, W]
+        The sheet, its edge's band left out.
+    fill : float32 [C, H, W]
+        The photo with the desk painted over by the nearest paper's colour (what the
+        background estimate and the polarity read: the desk's level is not the paper's).
+    band : bool [H, W]
+        Within ``BAND_SHARE`` of the shorter side of the desk (where the sheet's edge
+        may leave a line: :func:`img2dmp.data.paper.paper_ink` drops long ones).
+    desk_px : int
+        Pixels of the photo off the sheet.
+    """
+
+    mask: np.ndarray
+    fill: np.ndarray
+    band: np.ndarray
+    desk_px: int
+
+
+def _reduce(planes: np.ndarray, factor: int) -> np.ndarray:
+    """``planes [C, H, W]`` area-averaged ``factor`` times per side (PIL's reduce)."""
+    from PIL import Image
+
+    if factor == 1:
+        return planes.astype(np.float32)
+    return np.stack([
+        np.asarray(Image.fromarray(np.ascontiguousarray(p, np.float32), mode="F").reduce(factor))
+        for p in planes
+    ])  # fmt: skip
+
+
+def _upsample(mask: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray:
+    """A reduced ``mask`` at the photo's pixels (nearest; the rows and columns that the
+    reduction left out take the last ones')."""
+    full = np.repeat(np.repeat(mask, factor, axis=0), factor, axis=1)[: shape[0], : shape[1]]
+    return np.pad(full, ((0, shape[0] - full.shape[0]), (0, shape[1] - full.shape[1])), mode="edge")
+
+
+def _edges(small: np.ndarray) -> np.ndarray:
+    """Edge pixels (step 1) of the reduced, smoothed ``small [C, h, w]``: ``bool [h, w]``."""
+    from scipy.ndimage import binary_closing, binary_dilation
+
+    change = np.zeros(small.shape[1:], np.float32)
+    for p in small:
+        gy, gx = np.gradient(p)
+        np.maximum(change, np.maximum(np.abs(gx), np.abs(gy)), out=change)
+    level = max(STEP_MIN, STEP_NOISE * float(np.median(change)))
+    edges = binary_dilation(change > level, np.ones((3, 3), bool))
+    # gaps in the sheet's edge closed (where the paper's shade meets the desk's level)
+    g = EDGE_GAP
+    padded = np.pad(edges, g, mode="edge")
+    return binary_closing(padded, np.ones((3, 3), bool), iterations=g)[g:-g, g:-g]
+
+
+def _hull(mask: np.ndarray) -> np.ndarray | None:
+    """The corners ``[k, 2]`` (x, y; pixel edges at whole numbers) of the convex hull of
+    ``mask``'s pixels (whole pixels), or None for too few."""
+    from scipy.ndimage import binary_erosion
+    from scipy.spatial import ConvexHull, QhullError
+
+    rows, cols = np.nonzero(mask & ~binary_erosion(mask))  # the outline is enough
+    pts = np.concatenate([np.stack([cols + dx, rows + dy], 1) for dx in (0, 1) for dy in (0, 1)])
+    try:
+        return pts[ConvexHull(pts).vertices].astype(np.float64)
+    except (QhullError, ValueError):
+        return None
+
+
+def _polygon(corners: np.ndarray, scale: int, shape: tuple[int, int]) -> np.ndarray:
+    """The pixels (``bool`` of ``shape``) whose centres lie inside the polygon
+    ``corners`` scaled by ``scale`` (straight at the photo's own pixels)."""
+    from PIL import Image, ImageDraw
+
+    im = Image.new("1", (shape[1], shape[0]), 0)
+    ImageDraw.Draw(im).polygon([tuple(p) for p in corners * scale - 0.5], fill=1)
+    return np.asarray(im, bool)
+
+
+def _middle_counts(labels: np.ndarray, n: int) -> np.ndarray:
+    """Per label (0: none): its pixels in the middle third of the image both ways."""
+    h, w = labels.shape
+    counts = np.bincount(labels[h // 3 : h - h // 3, w // 3 : w - w // 3].ravel(), minlength=n + 1)
+    counts[0] = 0
+    return counts
+
+
+def _ring(labels: np.ndarray) -> np.ndarray:
+    return np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])
+
+
+def _leak(small: np.ndarray, region: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """The part of the paper's ``region`` that is the desk come in through a gap in the
+    sheet's edge (where the paper's shade meets the desk's level): the pixels of the
+    colour of the region's part on the image's border (``ring``, ``bool``: where it
+    touches it) within ``DESK_TOLERANCE`` (or four times that part's spread, at most
+    half the way to the paper's colour in the middle), connected to the border."""
+    from scipy.ndimage import label
+
+    h, w = region.shape
+    middle = np.zeros_like(region)
+    middle[h // 3 : h - h // 3, w // 3 : w - w // 3] = True
+    edge, inner = small[:, ring & region], small[:, middle & region]
+    if edge.shape[1] < 8 or inner.shape[1] < 8:
+        return np.zeros_like(region)
+    desk, paper = np.median(edge, axis=1), np.median(inner, axis=1)
+    contrast = float(np.max(np.abs(desk - paper)))
+    if contrast < 2 * DESK_CONTRAST:
+        return np.zeros_like(region)  # the sheet reaches the border there
+    spread = float(np.max(1.4826 * np.median(np.abs(edge - desk[:, None]), axis=1)))
+    tol = min(max(DESK_TOLERANCE, 4 * spread), 0.5 * contrast)
+    like = region & (np.max(np.abs(small - desk[:, None, None]), axis=0) <= tol)
+    parts, _ = label(like)
+    touching = np.unique(parts[ring & like])
+    return np.isin(parts, touching[touching > 0])
+
+
+def _is_desk(small, labels, lab: int, edges: np.ndarray, area: int) -> bool:
+    """Whether region ``lab`` of ``labels`` passes step 3's tests (module docstring)."""
+    from scipy.ndimage import binary_dilation, binary_fill_holes, find_objects, label
+
+    h, w = labels.shape
+    pad = 2 * EDGE_GAP + 8
+    sl = tuple(
+        slice(max(0, s.start - pad), s.stop + pad)
+        for s in find_objects((labels == lab).astype(np.int8))[0]
+    )
+    region = labels[sl] == lab
+    grid = np.ones((3, 3), bool)
+    outline = binary_dilation(region, grid) & ~region
+    if np.count_nonzero(edges[sl] & outline) < DESK_EDGED * np.count_nonzero(outline):
+        return False  # bounded by a shade's level, not by an edge
+    # what lies just beyond the edge's band (the edges grown and closed are wide)
+    near = binary_dilation(region, grid, iterations=EDGE_GAP + 2)
+    beyond = binary_dilation(near, grid, iterations=4) & ~near & ~edges[sl]
+    if not beyond.any():
+        return False
+    inside = np.median(small[(slice(None), *sl)][:, region], axis=1)
+    outside = np.median(small[(slice(None), *sl)][:, beyond], axis=1)
+    if np.max(np.abs(inside - outside)) < DESK_CONTRAST:
+        return False  # a shade on the paper, a band between rules
+    holes, k = label(binary_fill_holes(region) & ~region)
+    sizes = np.bincount(holes.ravel(), minlength=k + 1)[1:]
+    # the marks it encloses, not the sheet that a desk all around encloses
+    return sizes[sizes < DESK_MIN_SHARE * h * w].sum() <= DESK_HOLES * area
+
+
+def _desk(small: np.ndarray, edges: np.ndarray) -> np.ndarray | None:
+    """The desk regions of step 3 (``bool [h, w]``), or None."""
+    from scipy.ndimage import label
+
+    labels, n = label(~edges)
+    counts = _middle_counts(labels, n)
+    if counts.max() == 0:
+        return None
+    paper = int(np.argmax(counts))
+    border = np.zeros(labels.shape, bool)
+    border[[0, -1], :] = border[:, [0, -1]] = True
+    if np.any(_ring(labels) == paper):  # the desk may have come in through a gap
+        leak = _leak(small, labels == paper, border)
+        if leak.any():
+            labels[leak] = n + 1
+            n += 1
+            counts = _middle_counts(labels, n)
+            paper = int(np.argmax(counts))
+    ring = np.unique(_ring(labels))
+    area = np.bincount(labels.ravel(), minlength=n + 1)
+    h, w = labels.shape
+    desk = np.zeros((h, w), bool)
+    for lab in ring[ring > 0]:
+        if lab == paper or area[lab] < DESK_MIN_SHARE * h * w:
+            continue
+        if counts[lab] > 0.5 * counts[paper]:
+            continue  # the middle of the image is the sheet's
+        if _is_desk(small, labels, lab, edges, area[lab]):
+            desk |= labels == lab
+    return desk if desk.any() else None
+
+
+def find_sheet(planes: np.ndarray) -> Sheet | None:
+    """The sheet of paper in a photo (module docstring), or None when no desk shows.
+
+    Parameters
+    ----------
+    planes : float32 [C, H, W]
+        The photo's channels (1 or 3), levels in [0, 1], either polarity.
+    """
+    from scipy.ndimage import (
+        binary_dilation,
+        binary_erosion,
+        distance_transform_edt,
+        gaussian_filter,
+        label,
+    )
+
+    height, width = planes.shape[1:]
+    if min(height, width) < 2 * SHEET_SIDE // 3:
+        return None  # a character's crop, not a photo of a sheet
+    factor = max(1, min(height, width) // SHEET_SIDE)
+    small = _reduce(planes, factor)
+    small = np.stack([gaussian_filter(p, 1.0, mode="nearest") for p in small])
+    edges = _edges(small)
+    found = _desk(small, edges)
+    if found is None:
+        return None
+    desk = found
+    grown = binary_dilation(desk, np.ones((3, 3), bool), iterations=EDGE_MARGIN)
+    parts, _ = label(~grown)
+    h, w = desk.shape
+    middle = parts[h // 3 : h - h // 3, w // 3 : w - w // 3]
+    counts = np.bincount(middle.ravel(), minlength=parts.max() + 1)
+    counts[0] = 0
+    if counts.max() == 0:
+        return None
+    corners = _hull(parts == int(np.argmax(counts)))  # the notch of a leak, back
+    if corners is None:
+        return None
+    sheet = _polygon(corners, 1, (h, w))
+    if np.count_nonzero(sheet) < SHEET_MIN_SHARE * h * w:
+        return None
+    # the desk painted over with the nearest paper's colour: the paper's level, not the
+    # desk's, for the cells of the background estimate beside the edge
+    inner = binary_erosion(sheet, np.ones((3, 3), bool), iterations=EDGE_GAP + 2)
+    inner = inner if inner.any() else sheet  # paper clear of the edge's band and blur
+    near = distance_transform_edt(~inner, return_distances=False, return_indices=True)
+    paper = small[:, near[0], near[1]]
+    full = _polygon(corners, factor, (height, width))
+    reach = max(1, round(BAND_SHARE * min(height, width) / factor))
+    band = _upsample(binary_dilation(~sheet, np.ones((3, 3), bool), iterations=reach), factor,
+                     (height, width))  # fmt: skip
+    fill = planes.astype(np.float32, copy=True)
+    off = ~full
+    rows, cols = np.nonzero(off)
+    rr = np.minimum(rows // factor, h - 1)
+    cc = np.minimum(cols // factor, w - 1)
+    fill[:, rows, cols] = paper[:, rr, cc]
+    return Sheet(full, fill, band, int(off.sum()))
+
+
+__all__ = ["Sheet", "find_sheet"]
