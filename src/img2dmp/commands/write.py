@@ -117,6 +117,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="also write the video: an animated GIF, and an MP4 where imageio-ffmpeg is installed",
     )
+    _add_joint_arguments(parser)
+    parser.add_argument(
+        "--frame-interval-s", type=float, default=0.1, help="simulated time between frames"
+    )
+    _args.add_refine(parser)
+    _args.add_count_views(parser)
+    _args.add_backend(parser)
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _add_joint_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--export-joints``, ``--no-slowing``: the motion for a real iiwa."""
     parser.add_argument(
         "--export-joints",
         metavar="FILE",
@@ -131,13 +143,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "follow it (default: a DMP whose planned joint speeds exceed 60 %% of the iiwa's "
         "limits is written that much slower, the same path, with a note)",
     )
-    parser.add_argument(
-        "--frame-interval-s", type=float, default=0.1, help="simulated time between frames"
-    )
-    _args.add_refine(parser)
-    _args.add_count_views(parser)
-    _args.add_backend(parser)
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
 def _add_page_arguments(parser: argparse.ArgumentParser) -> None:
