@@ -14,6 +14,7 @@ import csv
 import json
 import math
 import re
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -549,8 +550,16 @@ def test_write_page_command_names_a_bad_document(page_document, tmp_path, capsys
 
 
 class _FakePagePrediction:
+    """``to_document()``, and the page's flags and flagged characters as
+    ``PagePrediction`` has them (``flagged[i].character.index``, ``.flags``)."""
+
     def __init__(self, document):
         self.document = document
+        self.flags = list(document.get("flags", []))
+        self.flagged = [
+            SimpleNamespace(character=SimpleNamespace(index=c["index"]), flags=list(c["flags"]))
+            for c in document["characters"] if c["flags"]
+        ]  # fmt: skip
 
     def to_document(self):
         return self.document
@@ -595,6 +604,7 @@ def test_write_page_command_reads_a_photo_with_the_model(
     doc = copy.deepcopy(page_document)  # the "o" alone keeps the simulation short
     doc.update(image=str(photo), lines=[{"index": 0, "characters": [0]}])
     doc["characters"] = doc["characters"][:1]
+    doc["characters"][0]["flags"] = ["off_ink"]  # said before writing, as predict says it
     loaded = []
 
     def load(path, *args, **kwargs):
@@ -610,6 +620,9 @@ def test_write_page_command_reads_a_photo_with_the_model(
     assert loaded == ["RUN"]
     [(given, refine)] = _FakePredictor.calls
     assert given == str(photo) and refine.steps == 3
-    assert "1 of 1 characters written on 20.0 x" in capsys.readouterr().out
+    printed = capsys.readouterr()
+    assert "1 of 1 characters written on 20.0 x" in printed.out
+    said = f"warning: {photo}: 1 character flagged (by index): #0 (off_ink) (written; --skip-fl"
+    assert said in printed.err
     for name in ("note_paper.png", "note_render.png", "note_log.csv", "note_characters.csv"):
         assert (out / name).is_file()

@@ -380,6 +380,21 @@ def _document_hint(path) -> str:
     return f"; it is {what.format(path=path)}" if what else ""
 
 
+def warn_page(command: str, path, page, hint: str = "") -> None:
+    """One warning line for a page read with flags (``PagePrediction``): the page's own
+    and its flagged characters by index, ``hint`` after them."""
+    flagged = page.flagged
+    if not (page.flags or flagged):
+        return
+    which = ", ".join(f"#{c.character.index} ({'/'.join(c.flags)})" for c in flagged[:8])
+    more = f" and {len(flagged) - 8} more" if len(flagged) > 8 else ""
+    noun = "character" if len(flagged) == 1 else "characters"
+    listed = [f"{len(flagged)} {noun} flagged (by index): {which}{more}"] if flagged else []
+    what = "; ".join(page.flags + listed)
+    print(f"img2dmp {command}: warning: {path}: {what}{hint if flagged else ''}",
+          file=sys.stderr)  # fmt: skip
+
+
 def warn_flags(command: str, path, pred) -> None:
     """One line on stderr for a prediction with flags (:attr:`Prediction.flags`: off the
     ink, ink unexplained, several characters, unfamiliar), with its fit and familiarity

@@ -50,7 +50,6 @@ NAME_explain.png: each step that separates the ink from the paper.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from . import _args
@@ -167,13 +166,7 @@ def _run_pages(args, predictor) -> int:
         print(texts[0] if len(texts) == 1 else "[\n" + ",\n".join(texts) + "\n]")
     for path, page in pages:
         flagged = page.flagged
-        if page.flags or flagged:
-            which = ", ".join(f"#{c.character.index} ({'/'.join(c.flags)})" for c in flagged[:8])
-            more = f" and {len(flagged) - 8} more" if len(flagged) > 8 else ""
-            noun = "character" if len(flagged) == 1 else "characters"
-            listed = [f"{len(flagged)} {noun} flagged (by index): {which}{more}"] if flagged else []
-            what = "; ".join(page.flags + listed)
-            print(f"img2dmp predict: warning: {path}: {what}", file=sys.stderr)
+        _args.warn_page("predict", path, page)
         if not args.out:
             continue
         files = page.save(args.out, Path(path).stem)

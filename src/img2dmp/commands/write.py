@@ -573,7 +573,11 @@ def _page_input(args):
         return _name(source), page, _page_photo(page, os.path.dirname(source))
     predictor = _predictor(args)
     with _args.reading_image(source):
-        document = predictor.predict_page(source).to_document()
+        read = predictor.predict_page(source)
+    skipping = args.skip_flagged or args.skip_flags is not None
+    _args.warn_page("write", source, read,
+                    "" if skipping else " (written; --skip-flagged leaves them out)")  # fmt: skip
+    document = read.to_document()
     try:  # checked as the file `img2dmp predict --page` would write would be read
         document = json.loads(json.dumps(document))
     except (TypeError, ValueError) as e:
