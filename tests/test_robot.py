@@ -492,7 +492,10 @@ def test_write_command_with_dmp_file(tmp_path, capsys):
     out = tmp_path / "out"
     # Refused before anything runs, and no output folder left behind.
     for bad, said in ((["--force-n", "1e308"], "force_set_n is 1e+308 N, more than 30 N"),
-                      (["--center-m", "3", "0"], "the arm cannot reach the DMP path")):  # fmt: skip
+                      (["--center-m", "3", "0"], "the arm cannot reach the DMP path"),
+                      (["--center-m", "1.3", "0"], "move the writing area closer to the arm's"),
+                      (["--center-m", "0.05", "0"], "move the writing area farther from the a"),
+                      ):  # fmt: skip
         assert main(["write", "--dmp", str(dmp), "--out-dir", str(out), *bad]) == 2
         assert said in capsys.readouterr().err and not out.exists()
     code = main(["write", "--dmp", str(dmp), "--out-dir", str(out), "--no-progress"])

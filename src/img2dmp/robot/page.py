@@ -62,6 +62,7 @@ from .writing import (
     WritingRun,
     check_path,
     checked_dmp,
+    move_towards,
     plan_path,
     sheet_bounds_m,
     slow_for_joint_limits,
@@ -429,8 +430,8 @@ def check_page_reach(scene: WritingScene, plan: PagePlan, controller_config) -> 
                     f"{plan.page.path}: the arm cannot reach the travel from {prev} to {nxt} "
                     f"{heights[k - 1] * 1e3:g} mm above the paper: at world "
                     f"({xy[0]:.3f}, {xy[1]:.3f}) m the pen tip misses by "
-                    f"{residual * 1e3:.1f} mm with the pen vertical; move the writing area "
-                    "closer or lower the travel height"
+                    f"{residual * 1e3:.1f} mm with the pen vertical; "
+                    f"{move_towards(xy)} or lower the travel height"
                 )
     return q_start
 

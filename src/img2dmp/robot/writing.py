@@ -596,7 +596,19 @@ def _unreachable(plan: PlannedPath, i: int, residual_m: float):
     raise ValueError(
         f"the arm cannot reach the DMP path: at t = {plan.time_s[i]:.3f} s the point "
         f"({plan.xy_px[i, 0]:.1f}, {plan.xy_px[i, 1]:.1f}) px maps to world ({x}, {y}) m, "
-        f"{why}; move the writing area closer"
+        f"{why}; {move_towards(plan.xy_m[i])}"
+    )
+
+
+def move_towards(xy_m) -> str:
+    """Which way to move a writing area whose point ``xy_m`` the arm cannot reach:
+    towards the base from beyond the default centre's distance, away from it inside."""
+    r = float(np.hypot(*np.asarray(xy_m, dtype=float)[:2]))
+    usual = float(np.hypot(*SceneConfig().paper_center_m))
+    way = "closer to" if not r < usual else "farther from"  # NaN (far off): closer
+    return (
+        f"move the writing area {way} the arm's base (it is {r:.2f} m away there; "
+        f"the default centre is {usual:.2f} m)"
     )
 
 
