@@ -445,13 +445,16 @@ def darkness(planes: np.ndarray, bg: np.ndarray) -> np.ndarray:
     return np.clip(lightest, 0.0, 1.0, out=lightest)
 
 
-def _noise(planes: np.ndarray, bg: np.ndarray) -> float:
+def _noise(planes: np.ndarray, bg: np.ndarray, where=None) -> float:
     """Robust standard deviation of the paper's relative brightness (luma, MAD), from a
-    strided sample of about 200,000 pixels."""
+    strided sample of about 200,000 pixels (of ``where``, ``bool [H, W]``, when given:
+    the sheet, not the desk painted smooth)."""
     step = max(1, planes[0].size // 200_000)
     lum = _luma(planes.reshape(len(planes), -1)[:, ::step])
     lb = _luma(np.broadcast_to(bg, planes.shape).reshape(len(planes), -1)[:, ::step])
     s = 1.0 - lum / np.maximum(lb, 1e-3)
+    if where is not None and where.any():
+        s = s[where.ravel()[::step]]
     return float(1.4826 * np.median(np.abs(s - np.median(s))))
 
 
@@ -1146,14 +1149,15 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
         sheet &= desk.mask
     dark = np.where(sheet, dark, 0.0).astype(np.float32)
     local = min(a.shape[1:]) >= LOCAL_BACKGROUND_MIN_SIDE  # not one level for the image
-    lv = thresholds(dark, _noise(a, bg) if local else 0.0)
+    on_sheet = None if desk is None else desk.mask  # not the desk painted smooth
+    lv = thresholds(dark, _noise(a, bg, on_sheet) if local else 0.0)
     steps = {"input": np.asarray(levels), "background": bg, "darkness": dark, "sheet": sheet}
     if lv is None:
         return None
     weak = dark >= lv.weak
     ruled, _ = rules(weak, sheet, dark, pen)
     if ruled.any():  # the pen's own level, which many rules would pull down
-        lv = thresholds(dark, _noise(a, bg) if local else 0.0, exclude=ruled)
+        lv = thresholds(dark, _noise(a, bg, on_sheet) if local else 0.0, exclude=ruled)
         if lv is None:
             return None
         weak = dark >= lv.weak

@@ -12,11 +12,13 @@ On the photo reduced to about ``SHEET_SIDE`` pixels on its shorter side and smoo
    of the image's middle. When it reaches the border, the desk may have come in through
    a longer gap (where the paper's shade meets the desk's level): its part of the
    border's colour (``DESK_TOLERANCE``) connected to the border is a region of its own;
-3. **desk**: the regions that touch the image's border, cover at least ``DESK_MIN_SHARE``
-   of it, are bounded by edges (``DESK_EDGED`` of their outline), differ in colour from
-   what lies just beyond their edge by ``DESK_CONTRAST`` (a shade on the paper or a
-   rule's band does not) and hold no writing (enclosed marks under ``DESK_HOLES`` of
-   their area: a shadow's edge across the page is a region too, with characters in it);
+3. **desk**: the regions that lie along ``DESK_BORDER`` of the image's border, cover at
+   least ``DESK_MIN_SHARE`` of it, are bounded by edges (``DESK_EDGED`` of their
+   outline), differ in colour from what lies just beyond their edge and from the paper
+   by ``DESK_CONTRAST`` (a shade on the paper, a rule's band or the paper beyond a
+   margin line do not), have no lines between them (``DESK_LINED``: a shade on ruled
+   paper) and hold no writing (enclosed marks under ``DESK_HOLES`` of their area: a
+   shadow's edge across the page is a region too, with characters in it);
 4. **sheet**: the rest grown away from the desk by ``EDGE_MARGIN`` pixels (the edge's
    blur), the part that holds the paper, its convex hull (a sheet is a quadrilateral,
    in perspective too; the notch a gap let in is back), drawn straight at the photo's
@@ -24,7 +26,9 @@ On the photo reduced to about ``SHEET_SIDE`` pixels on its shorter side and smoo
    painted with the nearest paper's colour, from ``EDGE_GAP + 2`` pixels inside.
 
 The sheet is None when no desk is found (a photo of the sheet alone, a scan), when the
-desk's regions hold the middle of the image, or when the rest is too small.
+desk's regions hold the middle of the image, when the rest is too small, or when the desk
+is darker than ``DESK_DARK`` of the paper (a dark table: :func:`img2dmp.data.paper.sheet_mask`
+takes it, as before).
 """
 
 from __future__ import annotations
@@ -33,6 +37,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+#: A desk darker than this share of the paper's brightness is left to
+#: :func:`img2dmp.data.paper.sheet_mask` (a dark table beside the sheet, as the generated
+#: pages' are: painted over, the pen's level there was read lower and grid remnants
+#: stayed, validation seed 92 lost 5 of 18 characters; TABLE_LEVEL's share).
+DESK_DARK = 0.45
+#: ITU-R 601-2 luma weights.
+_LUMA = (0.299, 0.587, 0.114)
 #: The search runs on the photo reduced to about this many pixels on its shorter side.
 SHEET_SIDE = 200
 #: An edge pixel: the colour changes by at least this many times the image's median change
@@ -49,6 +60,11 @@ DESK_MIN_SHARE = 0.01
 DESK_CONTRAST = 0.025
 #: ... and encloses marks of at most this share of its area (a desk holds no writing).
 DESK_HOLES = 0.01
+#: A desk region lies along at least this share of the image's border.
+DESK_BORDER = 0.08
+#: A group of desk regions with more edge pixels between them than this share of their
+#: area is a shade on lined paper.
+DESK_LINED = 0.02
 #: A desk region's outline lies on edges for at least this share (the rest: gaps),
 DESK_EDGED = 0.6
 #: ... and the desk that came in through a gap in the edge is of the border's colour
@@ -183,7 +199,28 @@ def _leak(small: np.ndarray, region: np.ndarray, ring: np.ndarray) -> np.ndarray
     return np.isin(parts, touching[touching > 0])
 
 
-def _is_desk(small, labels, lab: int, edges: np.ndarray, area: int) -> bool:
+def _lined(desk: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """The desk regions of ``desk`` with lines between them (``bool``, the same shape):
+    each group of regions closed over ``EDGE_GAP + 2`` pixels, its edges that are not
+    on its outline more than ``DESK_LINED`` of its area (the rules, grid or writing that
+    run on through a shade on the paper; a desk is plain)."""
+    from scipy.ndimage import binary_closing, binary_dilation, label
+
+    g = EDGE_GAP + 2
+    grid = np.ones((3, 3), bool)
+    closed = binary_closing(np.pad(desk, g, mode="edge"), grid, iterations=g)[g:-g, g:-g]
+    closed |= desk
+    groups, n = label(closed)
+    outline = binary_dilation(~closed, grid, iterations=g)  # the edge along the sheet
+    inner = edges & closed & ~desk & ~outline
+    lines = np.bincount(groups[inner], minlength=n + 1)
+    area = np.bincount(groups[desk], minlength=n + 1)
+    bad = lines > DESK_LINED * np.maximum(area, 1)
+    bad[0] = False
+    return desk & bad[groups]
+
+
+def _is_desk(small, labels, lab: int, edges: np.ndarray, area: int, paper) -> bool:
     """Whether region ``lab`` of ``labels`` passes step 3's tests (module docstring)."""
     from scipy.ndimage import binary_dilation, binary_fill_holes, find_objects, label
 
@@ -207,6 +244,8 @@ def _is_desk(small, labels, lab: int, edges: np.ndarray, area: int) -> bool:
     outside = np.median(small[(slice(None), *sl)][:, beyond], axis=1)
     if np.max(np.abs(inside - outside)) < DESK_CONTRAST:
         return False  # a shade on the paper, a band between rules
+    if np.max(np.abs(inside - paper)) < DESK_CONTRAST:
+        return False  # the paper's colour: the sheet beyond a margin line
     holes, k = label(binary_fill_holes(region) & ~region)
     sizes = np.bincount(holes.ravel(), minlength=k + 1)[1:]
     # the marks it encloses, not the sheet that a desk all around encloses
@@ -235,14 +274,25 @@ def _desk(small: np.ndarray, edges: np.ndarray) -> np.ndarray | None:
     area = np.bincount(labels.ravel(), minlength=n + 1)
     h, w = labels.shape
     desk = np.zeros((h, w), bool)
+    colour = np.median(small[:, labels == paper], axis=1)
+    edge_ring = _ring(labels)
     for lab in ring[ring > 0]:
         if lab == paper or area[lab] < DESK_MIN_SHARE * h * w:
             continue
         if counts[lab] > 0.5 * counts[paper]:
             continue  # the middle of the image is the sheet's
-        if _is_desk(small, labels, lab, edges, area[lab]):
+        if np.count_nonzero(edge_ring == lab) < DESK_BORDER * edge_ring.size:
+            continue  # a band of the paper, between rules, that reaches the border
+        if _is_desk(small, labels, lab, edges, area[lab], colour):
             desk |= labels == lab
-    return desk if desk.any() else None
+    desk &= ~_lined(desk, edges)
+    if not desk.any():
+        return None
+    luma = np.asarray(_LUMA[: len(small)] if len(small) == 3 else (1.0,), np.float32)
+    level = float(luma @ np.median(small[:, desk], axis=1)) / max(float(luma @ colour), 1e-3)
+    if level < DESK_DARK:
+        return None  # a dark table: paper.sheet_mask's, as it always was
+    return desk
 
 
 def find_sheet(planes: np.ndarray) -> Sheet | None:
