@@ -11,7 +11,9 @@ edge and a corner inside the frame. Each image is read by
 :func:`img2dmp.page.segment_page` (``predict --page``'s steps without a network), and its
 boxes are compared with the boxes found on the photo as shipped (the reference), moved as
 the photo was moved: *matched*, a reference character whose moved centre lies in exactly
-one box found; *extra*, a box that holds no reference centre (the desk, the sheet's edge).
+one box found, which holds no other reference centre (two characters merged into one box
+are neither matched); *extra*, a box that holds no reference centre (the desk, the
+sheet's edge).
 
     python experiments/sheet_on_desk.py --photos ../shared/data/photos
 """
@@ -90,11 +92,13 @@ def variants(photo, rng):
 
 
 def score(boxes, centres):
-    """``(matched, extra)``: reference centres in exactly one box; boxes holding none."""
+    """``(matched, extra)``: reference centres in exactly one box that holds no other
+    centre; boxes holding none."""
     inside = np.array([[b[0] <= x < b[2] and b[1] <= y < b[3] for b in boxes] for x, y in centres])
     if inside.size == 0:
         return 0, len(boxes)
-    matched = int(np.count_nonzero(inside.sum(1) == 1))
+    alone = inside[:, inside.sum(0) == 1]  # [references, boxes holding exactly one centre]
+    matched = int(np.count_nonzero((inside.sum(1) == 1) & (alone.sum(1) == 1)))
     extra = int(np.count_nonzero(inside.sum(0) == 0))
     return matched, extra
 
