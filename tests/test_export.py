@@ -220,7 +220,7 @@ def test_without_the_extra_one_line_says_how_to_install_it(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
     assert err[0].startswith("img2dmp export: error: ONNX export needs")
-    assert f"missing: {missing}" in err[0] and "pip install 'img2dmp[export]'" in err[0]
+    assert f"missing: {missing}" in err[0] and "pip install -e '/path/to/img2dmp[export]'" in err[0]
     assert not out.exists()
 
 

@@ -18,10 +18,11 @@ from img2dmp.data.synthetic import SyntheticConfig, generate
 from img2dmp.dmp import DMPConfig, DMPParams, rollout
 
 mpp = pytest.importorskip(
-    "movement_primitives.dmp", reason="movement_primitives absent (pip install 'img2dmp[interop]')"
+    "movement_primitives.dmp",
+    reason="movement_primitives absent (pip install -e '/path/to/img2dmp[interop]')",
 )
 mpt = pytest.importorskip(
-    "mp_pytorch.mp", reason="mp-pytorch absent (pip install 'img2dmp[interop]')"
+    "mp_pytorch.mp", reason="mp-pytorch absent (pip install -e '/path/to/img2dmp[interop]')"
 )
 
 from img2dmp import interop  # noqa: E402
@@ -267,5 +268,5 @@ def test_a_missing_peer_names_the_extra(monkeypatch):
     from img2dmp.interop import _common
 
     monkeypatch.setitem(__import__("sys").modules, "mp_pytorch.mp", None)
-    with pytest.raises(ImportError, match=r"pip install 'img2dmp\[interop\]'"):
+    with pytest.raises(ImportError, match=r"pip install -e '/path/to/img2dmp\[interop\]'"):
         _common.require("mp_pytorch.mp", "mp-pytorch")

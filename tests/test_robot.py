@@ -1,6 +1,6 @@
 """The simulated KUKA writes DMPs: tracking, contact force, pen lifts, checks, files.
 
-Needs pybullet (``pip install img2dmp[robot]``); those tests are skipped without it.
+Needs pybullet (``pip install -e '/path/to/img2dmp[robot]'``); those tests are skipped without it.
 DMPs are fitted to synthetic pen paths in the pixels of a 28 x 28 image.
 """
 
@@ -18,7 +18,7 @@ from img2dmp.dmp import DMPConfig, fit_dmp
 from img2dmp.robot import available, load_dmp_json, save_dmp_json
 
 needs_pybullet = pytest.mark.skipif(
-    not available(), reason="pybullet is not installed (pip install img2dmp[robot])"
+    not available(), reason="pybullet is not installed (pip install -e '/path/to/img2dmp[robot]')"
 )
 
 DURATION_S = 3.0
@@ -539,7 +539,7 @@ def test_missing_pybullet_gives_install_hint(monkeypatch):
 
     monkeypatch.setitem(sys.modules, "pybullet", None)  # makes `import pybullet` fail
     assert not _pybullet.available()
-    with pytest.raises(ImportError, match=r"pip install img2dmp\[robot\]"):
+    with pytest.raises(ImportError, match=r"pip install -e '/path/to/img2dmp\[robot\]'"):
         _pybullet.require()
 
 
@@ -553,7 +553,7 @@ def test_write_command_without_pybullet_says_how_to_install(monkeypatch, tmp_pat
     save_dmp_json(dmp, params, config, IMAGE_SIZE)
     monkeypatch.setitem(sys.modules, "pybullet", None)
     assert main(["write", "--dmp", str(dmp), "--out-dir", str(tmp_path), "--no-progress"]) == 2
-    assert "pip install img2dmp[robot]" in capsys.readouterr().err
+    assert "pip install -e '/path/to/img2dmp[robot]'" in capsys.readouterr().err
 
 
 def test_a_run_that_wrote_almost_nothing_is_warned_about():

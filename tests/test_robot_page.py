@@ -27,7 +27,7 @@ from img2dmp.dmp.affine import affine_dmp
 from img2dmp.robot import available
 
 needs_pybullet = pytest.mark.skipif(
-    not available(), reason="pybullet is not installed (pip install img2dmp[robot])"
+    not available(), reason="pybullet is not installed (pip install -e '/path/to/img2dmp[robot]')"
 )
 
 MODEL_SIZE = (28, 28)

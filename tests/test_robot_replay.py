@@ -4,7 +4,7 @@ same ink, and a video that shows the ink and ends on the finished digit.
 
 The multi-stroke digits are DMPs with d = 3 (x, y, pen) fitted to pen paths in the pixels
 of a 28 x 28 image: a two-stroke "4", a "5" with its top bar, a "7" with a cross bar.
-Needs pybullet (``pip install img2dmp[robot]``); those tests are skipped without it.
+Needs pybullet (``pip install -e '/path/to/img2dmp[robot]'``); those tests are skipped without it.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from img2dmp.robot import available, save_dmp_json
 from img2dmp.robot.strokes import strokes_path
 
 needs_pybullet = pytest.mark.skipif(
-    not available(), reason="pybullet is not installed (pip install img2dmp[robot])"
+    not available(), reason="pybullet is not installed (pip install -e '/path/to/img2dmp[robot]')"
 )
 
 IMAGE_SIZE = (28, 28)

@@ -20,7 +20,7 @@ from img2dmp.dmp._numpy_rollout import rollout_numpy
 from img2dmp.robot import available
 
 needs_pybullet = pytest.mark.skipif(
-    not available(), reason="pybullet is not installed (pip install img2dmp[robot])"
+    not available(), reason="pybullet is not installed (pip install -e '/path/to/img2dmp[robot]')"
 )
 
 IMAGE_SIZE = (28, 28)

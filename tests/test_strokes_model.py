@@ -603,7 +603,7 @@ def test_the_page_document_of_a_characters_strokes_holds_each_stroke_as_its_dmp(
 
 @pytest.mark.skipif(
     not __import__("img2dmp.robot", fromlist=["available"]).available(),
-    reason="pybullet is not installed (pip install img2dmp[robot])",
+    reason="pybullet is not installed (pip install -e '/path/to/img2dmp[robot]')",
 )
 def test_write_has_the_arm_write_each_stroke_and_lift_the_pen_between(
     omni_root, trained, tmp_path, capsys
@@ -781,7 +781,7 @@ def test_a_page_read_by_a_stroke_model_lists_every_stroke_in_the_photos_pixels(
 
 @pytest.mark.skipif(
     not __import__("img2dmp.robot", fromlist=["available"]).available(),
-    reason="pybullet is not installed (pip install img2dmp[robot])",
+    reason="pybullet is not installed (pip install -e '/path/to/img2dmp[robot]')",
 )
 def test_write_page_with_a_stroke_model_writes_every_stroke_and_lifts_the_pen(
     omni_root, trained, tmp_path, capsys

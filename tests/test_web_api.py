@@ -841,7 +841,9 @@ def test_serve_without_the_web_extra_is_one_error_line(monkeypatch, capsys):
     )
     assert cli.main(["serve", "--model", "x"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == ["img2dmp serve: error: install img2dmp[web] (pip install 'img2dmp[web]')"]
+    assert err == [
+        "img2dmp serve: error: install img2dmp[web] (pip install -e '/path/to/img2dmp[web]')"
+    ]
 
 
 def test_serve_options_are_checked_while_read(capsys):

@@ -79,7 +79,8 @@ def _missing() -> str | None:
         return f"{CHROMIUM} is missing (apt-get install chromium)"
     for mod in ("fastapi", "uvicorn"):
         if importlib.util.find_spec(mod) is None:
-            return f"the web extra is not installed ({mod} missing: pip install 'img2dmp[web]')"
+            return (f"the web extra is not installed ({mod} missing: "
+                    "pip install -e '/path/to/img2dmp[web]')")  # fmt: skip
     return None
 
 

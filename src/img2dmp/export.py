@@ -96,7 +96,7 @@ STROKE_OUTPUTS = ("strokes", "presence", "order", "count")
 TOLERANCE = 1e-4
 #: The packages of the ``export`` extra, and how to install them.
 EXPORT_PACKAGES = ("onnx", "onnxruntime", "onnxscript")
-INSTALL_HINT = "pip install 'img2dmp[export]'"
+INSTALL_HINT = "pip install -e '/path/to/img2dmp[export]'"
 #: Images the check runs on by default.
 CHECK_IMAGES = 64
 #: Images per network call in the check.

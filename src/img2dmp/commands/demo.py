@@ -1,5 +1,5 @@
 """Run the whole chain on a small built-in example: generate a synthetic data set, train
-a small network briefly, evaluate it and draw the pictures (a few minutes on 2 cores).
+a small network briefly, evaluate it and draw the pictures (about a minute on 2 cores).
 
 The network and optimiser are the demo's own (the package's configs/demo.yaml);
 --config FILE (TrainConfig sections) and --set section.key=value change them, checked as

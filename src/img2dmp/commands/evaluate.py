@@ -53,7 +53,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         p, "only these digits (default: all in the data)", "only the classes of these names"
     )
     p.add_argument(
-        "--out", metavar="DIR", help="output directory (default: MODEL/evaluation for a run dir)"
+        "--out",
+        metavar="DIR",
+        help="output directory (default: MODEL/evaluation for a run dir, ./evaluation for a "
+        "shipped model or a checkpoint file)",
     )
     _args.add_force(p, "evaluation files in --out")
     p.add_argument(

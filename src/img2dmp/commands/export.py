@@ -14,7 +14,7 @@ the model's size (or on --data's images) and is compared with torch; the largest
 difference, of the DMP parameters in units of their spread over the training set
 (img2dmp.export.normalised_difference), is printed and must stay below 1e-4. OUT.onnx
 and OUT.json, if there, are replaced only with --force. Needs the export extra:
-pip install 'img2dmp[export]'.
+pip install -e '/path/to/img2dmp[export]'.
 
   img2dmp export --model runs/paper --onnx paper.onnx
 """

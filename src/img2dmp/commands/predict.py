@@ -34,7 +34,8 @@ section (docs/TRAINING.md; 0 where it says nothing).
 
 Every prediction carries a fit score ("fit": the share of its path on the ink and of the
 ink its path writes) and "flags" for what looks wrong ("off_ink", "unexplained_ink",
-"several_characters"); a flagged image gets a one-line warning on stderr.
+"several_characters", "unfamiliar": unlike what the model learnt); a flagged image gets
+a one-line warning on stderr.
 
 --page reads every character of a photo or scan of a page (found, put in reading order,
 each predicted where it stands) and writes NAME_page.json (format "img2dmp-page",

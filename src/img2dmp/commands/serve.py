@@ -16,7 +16,7 @@ web page that makes its own name point at 127.0.0.1 (DNS rebinding) cannot use i
 request that changes something (a recording, a robot run) must come from the server's own
 pages (its Origin), else 403.
 
-Needs the optional extra: pip install 'img2dmp[web]' (and img2dmp[robot] for the arm).
+Needs the optional extra: pip install -e '/path/to/img2dmp[web]' (and img2dmp[robot] for the arm).
 
 Without --model the default shipped model (digits-real, img2dmp models) answers, refined
 as its card recommends (--refine 30) unless --refine says otherwise; a run directory is
@@ -121,7 +121,7 @@ def _loopback(host: str) -> bool:
 
 def run(args: argparse.Namespace) -> int:
     if not all(importlib.util.find_spec(m) for m in ("fastapi", "uvicorn", "fastapi_offline")):
-        print("img2dmp serve: error: install img2dmp[web] (pip install 'img2dmp[web]')",
+        print("img2dmp serve: error: install img2dmp[web] (pip install -e '/path/to/img2dmp[web]')",
               file=sys.stderr)  # fmt: skip
         return 2
     _args.one_thread()  # one image at a time: one thread is the fastest (before NumPy)

@@ -38,7 +38,7 @@ is the page document's or the photo's name.
 changes are exact and which change the shape: docs/DMP.md, "Bending a DMP"). Positions are
 pixels of the frame the DMP is written in (that of its ``image_size``; for ``IMAGE
 --model`` the model's input), as the left panel of ``NAME_paper.png`` shows them.
-Needs the optional extra: ``pip install img2dmp[robot]``.
+Needs the optional extra: ``pip install -e '/path/to/img2dmp[robot]'``.
 """
 
 from __future__ import annotations

@@ -120,7 +120,7 @@ def require(module: str, package: str):
     except ImportError as e:
         raise ImportError(
             f"{module} is not installed ({e}); install {package} or img2dmp's extra: "
-            "pip install 'img2dmp[interop]'"
+            "pip install -e '/path/to/img2dmp[interop]'"
         ) from None
 
 

@@ -1,6 +1,6 @@
 """Writing with a robot arm: a simulated KUKA LBR iiwa executes a DMP with a pen.
 
-Needs the optional dependency pybullet (``pip install img2dmp[robot]``); importing a
+Needs the optional dependency pybullet (``pip install -e '/path/to/img2dmp[robot]'``); importing a
 name that needs it without pybullet raises ``ImportError`` saying how to install it.
 The DMP file format (:mod:`.dmpfile`) works without pybullet. See ``docs/ROBOT.md``.
 

@@ -8,7 +8,7 @@ import sys
 
 INSTALL_HINT = (
     "img2dmp.robot needs pybullet, an optional dependency: install it with "
-    "`pip install img2dmp[robot]` (or `pip install pybullet==3.2.7`)"
+    "`pip install -e '/path/to/img2dmp[robot]'` (or `pip install pybullet==3.2.7`)"
 )
 
 

@@ -5,7 +5,7 @@
   processes (:mod:`.jobs`), the Record page's images and recordings (:mod:`.recordings`),
   the static pages in ``web/static/``.
 
-Needs the optional extra ``pip install 'img2dmp[web]'`` (FastAPI, uvicorn); importing
+Needs the optional extra ``pip install -e '/path/to/img2dmp[web]'`` (FastAPI, uvicorn); importing
 this package does not import them, :func:`create_app` does.
 """
 

@@ -659,7 +659,9 @@ def _job_routes(app: FastAPI, state: ServerState) -> None:
         if (body.dmp is None) == (body.strokes_page is None):
             raise WebError(422, "body: give exactly one of dmp and strokes_page")
         if not available():
-            raise WebError(503, "the robot needs pybullet: pip install 'img2dmp[robot]'")
+            raise WebError(
+                503, "the robot needs pybullet: pip install -e '/path/to/img2dmp[robot]'"
+            )
         if body.strokes_page is not None:
             if body.hypothesis != 1:
                 raise WebError(422, "hypothesis: a stroke model's character has one (1), "
@@ -679,7 +681,9 @@ def _job_routes(app: FastAPI, state: ServerState) -> None:
         from ..robot import available
 
         if not available():
-            raise WebError(503, "the robot needs pybullet: pip install 'img2dmp[robot]'")
+            raise WebError(
+                503, "the robot needs pybullet: pip install -e '/path/to/img2dmp[robot]'"
+            )
         answer = submit_page(state.jobs, state.pages, page_id, body.width_mm,
                              body.skip_flagged, body.video)  # fmt: skip
         return _json(answer, 202)
