@@ -200,8 +200,12 @@ def refine_steps(args, model, command: str, reading=None) -> tuple[int, int | No
     card = reading.refine_unfamiliar if given is None else None  # the recommended, when taken
     if reading.refine or card:
         more = f" (--refine-unfamiliar {card}: images it finds unfamiliar)" if card else ""
+        views = getattr(reading, "count_views", None)
+        told = getattr(args, "count_views", None) is not None or not hasattr(args, "count_views")
+        count = f"; the count from {views} view(s): --count-views {views}" if views else ""
+        count = "" if told else count
         print(f"img2dmp {command}: note: model {model} with --refine {reading.refine}{more}, "
-              f"as {reading.by} recommends (--refine 0: the network's output as it is)",
+              f"as {reading.by} recommends (--refine 0: the network's output as it is){count}",
               file=sys.stderr)  # fmt: skip
     return reading.refine, given if given is not None else card
 

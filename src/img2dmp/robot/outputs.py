@@ -359,8 +359,8 @@ def summary_lines(name: str, result: WritingResult) -> list[str]:
         f"{m['force_mean_n']:.3f} ± {m['force_std_n']:.3f} N (set {m['force_set_n']:g} N), "
         f"within ±20 % {100 * m['force_in_band_share']:.1f} % and in contact "
         f"{100 * m['contact_share']:.1f} % of the pen-down time; "
-        f"{m['simulated_s']:.2f} s simulated at {m['control_rate_hz']:g} Hz, "
-        f"{m['real_time_factor']:.1f}x real time"
+        f"{m['simulated_s']:.2f} s simulated at {m['control_rate_hz']:g} Hz in "
+        f"{m['wall_s']:.2f} s, {m['real_time_factor']:.1f}x real time"
     ]
     strokes = m.get("strokes", [])
     parts = [
@@ -544,8 +544,8 @@ def page_summary_lines(name: str, result, noun: str = "character", labels=None) 
         f"{m['tracking_error_max_mm']:.3f} mm max; contact force {m['force_mean_n']:.3f} ± "
         f"{m['force_std_n']:.3f} N (set {m['force_set_n']:g} N), within ±20 % "
         f"{100 * m['force_in_band_share']:.1f} % of the pen-down time; "
-        f"{m['simulated_s']:.2f} s simulated at {m['control_rate_hz']:g} Hz, "
-        f"{m['real_time_factor']:.1f}x real time",
+        f"{m['simulated_s']:.2f} s simulated at {m['control_rate_hz']:g} Hz in "
+        f"{m['wall_s']:.2f} s, {m['real_time_factor']:.1f}x real time",
     ]
     speeds = joint_speed_line(m)
     if speeds:
