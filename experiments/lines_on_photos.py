@@ -22,11 +22,10 @@ import argparse
 import math
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-from sheet_on_desk import score
+from sheet_on_desk import score, shipped_photos
 
 SEED = 0
 BLUE, GREY, RED = (150, 170, 220), (160, 160, 200), (220, 80, 80)
@@ -91,15 +90,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     rng = np.random.default_rng(SEED)
     rows, start = [], time.time()
-    for file in ("page_white_black_ink.png", "page_yellow_blue_ink.png"):
-        path = Path(args.photos) / file
-        if not path.exists():
-            print(f"no {path}: --photos names the folder of the two photos", file=sys.stderr)
-            return 1
-        photo = Image.open(path).convert("RGB")
-        ref = segment_page(photo)
-        centres = [((b[0] + b[2]) / 2, (b[1] + b[3]) / 2)
-                   for b in (ref.box_in_image(c) for c in ref.layout.characters)]  # fmt: skip
+    for file, photo, centres in shipped_photos(args.photos):
         for name, im in variants(np.asarray(photo, np.float64), rng):
             seg = segment_page(Image.fromarray(np.clip(np.round(im), 0, 255).astype(np.uint8)))
             boxes = [seg.box_in_image(c) for c in seg.layout.characters]

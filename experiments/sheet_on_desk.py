@@ -103,9 +103,28 @@ def score(boxes, centres):
     return matched, extra
 
 
-def main(argv=None) -> int:
+def shipped_photos(folder):
+    """``(file, RGB photo, reference centres)`` of the two photos in ``folder``: the
+    centres of the boxes :func:`img2dmp.page.segment_page` finds on each as shipped.
+    ``SystemExit`` naming a missing photo."""
     from PIL import Image
 
+    from img2dmp.page import segment_page
+
+    out = []
+    for file in ("page_white_black_ink.png", "page_yellow_blue_ink.png"):
+        path = Path(folder) / file
+        if not path.exists():
+            sys.exit(f"no {path}: --photos names the folder of the two photos")
+        photo = Image.open(path).convert("RGB")
+        ref = segment_page(photo)
+        centres = [((b[0] + b[2]) / 2, (b[1] + b[3]) / 2)
+                   for b in (ref.box_in_image(c) for c in ref.layout.characters)]  # fmt: skip
+        out.append((file, photo, centres))
+    return out
+
+
+def main(argv=None) -> int:
     from img2dmp.page import segment_page
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -113,15 +132,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     rng = np.random.default_rng(SEED)
     rows, start = [], time.time()
-    for file in ("page_white_black_ink.png", "page_yellow_blue_ink.png"):
-        path = Path(args.photos) / file
-        if not path.exists():
-            print(f"no {path}: --photos names the folder of the two photos", file=sys.stderr)
-            return 1
-        photo = Image.open(path).convert("RGB")
-        ref = segment_page(photo)
-        ref_centres = [((b[0] + b[2]) / 2, (b[1] + b[3]) / 2)
-                       for b in (ref.box_in_image(c) for c in ref.layout.characters)]  # fmt: skip
+    for file, photo, ref_centres in shipped_photos(args.photos):
         for name, im, move in variants(photo, rng):
             seg = segment_page(im)
             boxes = [seg.box_in_image(c) for c in seg.layout.characters]
