@@ -384,3 +384,44 @@ def test_no_desk_is_found_on_a_sheet_alone_nor_in_its_shadow():
     shade = gaussian_filter(np.where(cols + 0.8 * rows > 330, 0.55, 1.0), 2.0)
     found, boxes, ok = _found_at((img * shade[..., None]).astype(np.float32), centres)
     assert found.removed["desk_px"] == 0
+
+
+def test_a_faint_stroke_that_runs_beside_a_printed_rule_and_leaves_it_is_kept():
+    # ruled lines (0.3) much lighter than the pen (0.8), printed under the ink; a thin
+    # stroke (0.45: lighter than half way from the line to the pen) comes down, runs
+    # 17 px along the rule at row 100 in the rows beside the line that a rule is taken
+    # with (two rows of slack) and goes down again: darker than the line there is (none;
+    # a stroke along it for over half of 1/8 of the width would raise that level)
+    dark = np.zeros((200, 300), np.float32)
+    for r in (50, 100, 150):
+        dark[r - 1 : r + 2] = 0.3
+    dark[60:104, 120:123] = 0.8  # down to the rule
+    dark[102:104, 120:137] = 0.45  # beside it, along it
+    dark[102:140, 134:137] = 0.8  # and down again
+    mask = dark >= 0.15
+    removed, _ = rules(mask, np.ones(mask.shape, bool), dark, 3.0)
+    assert removed[99:102, 200:290].all(), "the rule away from the stroke stays a rule"
+    assert not removed[102:104, 123:134].any(), "the stroke beside the rule is kept"
+
+
+def test_the_sheet_s_edge_cut_into_pieces_by_rules_is_not_a_character():
+    from scipy.ndimage import label
+
+    from img2dmp.data.paper import _along_border
+
+    size = (200, 300)
+    marks, ruled = np.zeros(size, bool), np.zeros(size, bool)
+    for c in range(0, 300, 20):  # the edge's dark band, a piece every 20 px, the
+        marks[0:3, c + 4 : c + 20] = True  # rule's pixels between the pieces
+        ruled[0:3, c : c + 4] = True
+    marks[1:40, 150:153] = False
+    marks[0:40, 150:153] = True  # a character reaching the edge joins it
+    marks[120:199, 100:103] = True  # a 1 cut by the bottom border
+    ruled[196:199] = True  # a rule along the bottom border, crossing it
+    marks[196:199] &= ~ruled[196:199]
+    marks[196:199, 100:103] = True
+    labels, n = label(marks, structure=np.ones((3, 3), bool))
+    assert not _along_border(labels, n).any(), "each piece alone is short of the share"
+    edge = _along_border(labels, n, ruled)
+    assert edge[np.unique(labels[0:3, 4:20])].all() and edge[labels[20, 151]]
+    assert not edge[labels[150, 101]], "a character cut by the border is no edge"

@@ -131,6 +131,11 @@ BRIDGE_TALL_PENS = 4.0
 #: the touches then taken through the line's thickness, two rows either way: 936 / 967).
 #: Only on rules as dark as the pen: lighter ones keep a stroke's pixels by darkness.
 BRIDGE_CHAIN = 2.0
+#: A pixel taken with a rule stays ink when it is darker than the lines there (their
+#: median over stretches of ``LINE_LEVEL_SHARE`` of the width along them) by this share
+#: of the pen's ink, joined to a stroke: ink printed lines lie under.
+LINE_INK_SHARE = 0.3
+LINE_LEVEL_SHARE = 0.125
 #: Components thicker than this many pen widths are not pen strokes.
 THICK_FACTOR = 3.5
 #: Components smaller than this many pen widths squared are specks,
@@ -791,7 +796,50 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
         keep |= cross if axis == 0 else cross.T
     if ink_level is not None:
         keep |= _kept_by_darkness(found, per_axis, dark, strokes, keep, ink_level)
+        keep |= _darker_than_lines(found, per_axis, dark, strokes, keep, ink_level)
     return found & ~keep, angles
+
+
+def _line_level(dark: np.ndarray, angle_deg: float) -> np.ndarray:
+    """The darkness ``[H, W]`` that the lines along the rows at ``angle_deg`` give every
+    pixel: per row of the sheared frame (:func:`_shear_rows`), the median of ``dark``
+    over stretches of ``LINE_LEVEL_SHARE`` of the width (a line's level where it is, the
+    paper's beside it; a stroke running along a line for less than half a stretch does
+    not move it, and a line that bends a little stays in its rows within a stretch)."""
+    h, w = dark.shape
+    off = _shear_rows(dark.shape, angle_deg)
+    s = np.zeros((h + int(off.max()), w), np.float32)
+    cols = np.arange(w)
+    s[np.arange(h)[:, None] + off[None, :], cols[None, :]] = dark
+    block = max(16, math.ceil(LINE_LEVEL_SHARE * w))
+    n = math.ceil(w / block)
+    pad = n * block - w
+    padded = np.pad(s, ((0, 0), (0, pad)), mode="reflect" if pad < w else "edge")
+    med = np.median(padded.reshape(s.shape[0], n, block), axis=2)  # [H', n]
+    level = np.repeat(med, block, axis=1)[:, :w]
+    return level[np.arange(h)[:, None] + off[None, :], cols[None, :]]
+
+
+def _darker_than_lines(found, per_axis, dark, strokes, keep, ink_level: float) -> np.ndarray:
+    """The pixels of the lines ``found`` that are ink over a line: darker by
+    ``LINE_INK_SHARE`` of the pen's ``ink_level`` than the lines of both directions
+    (:func:`_line_level`, combined as light passing through both) make them, and joined
+    to ``strokes`` or to the pixels ``keep`` kept so far through such pixels. A stroke
+    that runs along a rule and leaves it (a 7's bar on the line, a 1 along a squared
+    paper's column) is ink printed lines lie under: as dark as ink where it covers the
+    line, and beside the line (the two rows of slack a rule is taken with) as dark as
+    itself."""
+    from scipy.ndimage import binary_propagation
+
+    clear = np.ones(dark.shape, np.float32)  # the light that the lines let through
+    for axis in (0, 1):
+        angles = {angle for a, angle, _, _ in per_axis if a == axis}
+        for angle in angles:
+            lv = _line_level(dark if axis == 0 else dark.T, angle)
+            clear *= 1.0 - np.clip(lv if axis == 0 else lv.T, 0.0, 1.0)
+    darker = found & (dark > 1.0 - clear + LINE_INK_SHARE * ink_level)
+    joined = binary_propagation(darker & dilate3(strokes | keep), mask=darker)
+    return darker & joined
 
 
 def _kept_by_darkness(found, per_axis, dark, strokes, keep, ink_level: float) -> np.ndarray:
@@ -930,7 +978,7 @@ def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool, rough_pen: float
         keep[0] = False
         removed["faint_components"] -= int(np.count_nonzero(keep & was_faint))
     if shape_filters:
-        edge = keep & (_along_border(labels, len(area) - 1) | _edge_lines(labels, band))
+        edge = keep & (_along_border(labels, len(area) - 1, ruled) | _edge_lines(labels, band))
         if np.count_nonzero(keep & ~edge):  # the edge first: its band is no pen width
             keep &= ~edge
             removed["edge_components"] = int(edge.sum())
@@ -1071,17 +1119,31 @@ def on_lattice(centres: np.ndarray) -> np.ndarray:
     return (good >= 2) & (good >= 0.5 * total)
 
 
-def _along_border(labels: np.ndarray, n: int) -> np.ndarray:
+def _along_border(labels: np.ndarray, n: int, ruled=None) -> np.ndarray:
     """Per label (index 0 unused): whether the component touches one of the image's
-    borders along at least ``EDGE_SHARE`` of that side (the sheet's edge, the table)."""
+    borders along at least ``EDGE_SHARE`` of that side (the sheet's edge, the table).
+    With ``ruled`` (the rules' pixels removed, ``bool [H, W]``) the marks joined through
+    the rules' pixels beside the border count as one: the sheet's edge that the rules
+    cut into pieces (the marks' own pixels, not the rules', must touch the border along
+    that share)."""
+    from scipy.ndimage import label
+
     out = np.zeros(n + 1, bool)
     h, w = labels.shape
     m = max(2, round(EDGE_BAND * min(h, w)))  # the edge may stop short of the border
-    bands = ((labels[:m].max(0), w), (labels[-m:].max(0), w))
-    bands += ((labels[:, :m].max(1), h), (labels[:, -m:].max(1), h))
-    for line, side in bands:
-        for lab in np.unique(line[line > 0]):
-            out[lab] |= bool(np.count_nonzero(line == lab) >= EDGE_SHARE * side)
+    near = np.zeros((h, w), bool)
+    near[:m], near[-m:], near[:, :m], near[:, -m:] = True, True, True, True
+    joined = labels
+    if ruled is not None and (ruled & near).any():
+        joined, _ = label((labels > 0) | (ruled & near), structure=np.ones((3, 3), bool))
+    sides = ((np.s_[:m], 0, w), (np.s_[-m:], 0, w), (np.s_[:, :m], 1, h), (np.s_[:, -m:], 1, h))
+    for where, axis, side in sides:
+        marks = np.where(labels[where] > 0, joined[where], 0).max(axis)  # per column (row)
+        count = np.bincount(marks[marks > 0], minlength=int(joined.max()) + 1)
+        edge = np.flatnonzero(count >= EDGE_SHARE * side)
+        if edge.size:
+            band = labels[where]
+            out[np.unique(band[np.isin(joined[where], edge) & (band > 0)])] = True
     return out
 
 
