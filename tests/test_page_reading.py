@@ -274,8 +274,8 @@ def test_a_page_refines_each_character_s_top_hypothesis_only(runs):
 def test_a_stroke_model_flags_a_page_read_as_one_character():
     """A stroke model reads up to 8 strokes, so the letters page (8 letters in 2 lines)
     was one character of 8 strokes, unflagged; lines of writing are several characters.
-    One drawn character is not flagged (on Omniglot's 2,720 drawings the rule flags one in
-    about 900: RESULTS 8.22)."""
+    One drawn character is not flagged (on Omniglot's 2,720 drawings the rule flags 4:
+    RESULTS 8.22)."""
     from pathlib import Path
 
     from img2dmp import load_model

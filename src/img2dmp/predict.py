@@ -167,16 +167,14 @@ def fit_score(image: np.ndarray, path: np.ndarray, stroke_width_px: float | None
 TOUCHING_WIDTH = 1.1
 
 
-def character_lines(mask, letters: bool = True) -> tuple[int, int]:
+def character_lines(mask) -> tuple[int, int]:
     """``(characters, lines)`` in an ink mask, the characters counted as
-    :func:`count_characters` counts them and the lines they stand in: characters whose
-    heights overlap by half the smaller one share a line (a character's pieces side by
-    side do; two rows of writing do not)."""
+    :func:`count_characters` counts a stroke model's (``letters``) and the lines they
+    stand in: characters whose heights overlap by half the smaller one share a line (a
+    character's pieces side by side do; two rows of writing do not)."""
     from .data.pages import find_characters
     from .page import STROKE_PAGE_CUT, STROKE_PAGE_JOIN
 
-    if not letters:
-        return count_characters(mask), 1
     chars = find_characters(mask, cut=STROKE_PAGE_CUT, join_sides=STROKE_PAGE_JOIN).characters
     tallest = max((c.box[3] - c.box[1] for c in chars), default=0)
     spans = [(c.box[1], c.box[3]) for c in chars if c.box[3] - c.box[1] >= 0.5 * tallest]
@@ -976,12 +974,13 @@ class Predictor:
             (strokes,), (counts,) = self.predict_strokes(prepared[None], return_counts=True)
             familiarity = self.familiarity(prepared[None])
             steps = self.refine_steps_for(prepared[None], familiarity=familiarity)
+            found, lines = self._characters_and_lines(mask)
             return StrokePrediction(
                 strokes, self.normaliser, self.strokes, frame, prepared,
                 source=str(image) if isinstance(image, (str, os.PathLike)) else None,
                 refine_steps=int(steps[0]), user_image=image,
                 stroke_width_px=self.stroke_width,
-                n_characters=self._characters_and_lines(mask),
+                n_characters=found, n_lines=lines,
                 n_per_stroke=n_points, count_views=self.count_views,
                 count_probabilities=counts,
                 familiarity=None if familiarity is None else familiarity[0],
@@ -1286,7 +1285,7 @@ class StrokePrediction:
     """
 
     def __init__(self, strokes, normaliser, layout, frame, image, *, source=None,
-                 refine_steps=0, user_image=None, stroke_width_px=None, n_characters=1,
+                 refine_steps=0, user_image=None, stroke_width_px=None, n_characters=1, n_lines=1,
                  n_per_stroke: int = 100, count_views: int = COUNT_VIEWS,
                  count_probabilities=None, familiarity=None, familiar_line=None):  # fmt: skip
         vectors, presence = strokes
@@ -1309,10 +1308,9 @@ class StrokePrediction:
         self.fit = fit_score(image, path, stroke_width_px)
         # A character of c strokes may stand in up to c pieces: more is several
         # characters, and so are lines of writing (two or more, two pieces a line or more:
-        # one Omniglot drawing in 900 is found so, RESULTS 8.22).
-        found, lines = n_characters if isinstance(n_characters, tuple) else (n_characters, 1)
-        several = found > self.n_strokes or (lines >= 2 and found >= 2 * lines)
-        self.flags = fit_flags(self.fit, found if several else 1)
+        # 4 of Omniglot's 2,720 drawings are found so, RESULTS 8.22).
+        several = n_characters > self.n_strokes or (n_lines >= 2 and n_characters >= 2 * n_lines)
+        self.flags = fit_flags(self.fit, n_characters if several else 1)
         _set_familiarity(self, familiarity, familiar_line)
 
     n_hypotheses = 1
