@@ -14,6 +14,7 @@ there (``../shared/data/omniglot``).
 from __future__ import annotations
 
 import shutil
+import unicodedata
 import zipfile
 from pathlib import Path
 
@@ -182,6 +183,119 @@ def test_zips_as_distributed_import_the_same_as_their_folders(tree, imported, tm
     assert np.array_equal(load_dataset(tmp_path / "b.safetensors").images, imported.images)
 
 
+def _rezip(source: Path, target: Path, rename) -> Path:
+    """The zip ``source`` written again with every member's name passed through
+    ``rename``."""
+    with zipfile.ZipFile(source) as zi, zipfile.ZipFile(target, "w") as zo:
+        for info in zi.infolist():
+            zo.writestr(rename(info.filename), zi.read(info))
+    return target
+
+
+def test_zips_repacked_deeper_or_with_macos_names_import_the_same(tree, imported, tmp_path):
+    """A user's own zips: the tree one folder deeper (GitHub's omniglot-master/python/),
+    and a strokes zip re-packed on macOS (accents as combining characters, NFD) beside
+    images named in NFC."""
+    zips = tmp_path / "zips"
+    zips.mkdir()
+    for name in ("images_test", "strokes_test"):
+        zip_tree(tree / name, zips / f"{name}.zip")
+    deep, accents = tmp_path / "deep", tmp_path / "accents"
+    deep.mkdir()
+    accents.mkdir()
+    for name in ("images_test", "strokes_test"):
+        _rezip(zips / f"{name}.zip", deep / f"{name}.zip", lambda n: f"omniglot-master/python/{n}")
+    for name, form in (("images_test", "NFC"), ("strokes_test", "NFD")):
+        spelt = unicodedata.normalize(form, "Bêta")
+        _rezip(
+            zips / f"{name}.zip", accents / f"{name}.zip", lambda n, s=spelt: n.replace("Beta", s)
+        )
+    for source in (deep, accents):
+        out = tmp_path / f"{source.name}.safetensors"
+        assert _import(source, out) == 0, source
+        data = load_dataset(out)
+        for name in ("images", "trajectories", "labels", "split"):
+            assert np.array_equal(getattr(data, name), getattr(imported, name)), (source, name)
+    assert "Bêta/character01" in data.class_names  # NFC, as every class name is stored
+
+
+def test_an_empty_character_folder_is_refused_by_name_once(tree, tmp_path, capsys):
+    root = tmp_path / "o"
+    shutil.copytree(tree, root)
+    for name in ("images_test", "strokes_test"):
+        (root / name / "Alpha" / "character09").mkdir()
+    assert _import(root, tmp_path / "a.safetensors") == 2
+    err = capsys.readouterr().err
+    assert "strokes_test/Alpha/character09: a character folder without drawings" in err
+    assert _import(root, tmp_path / "a.safetensors", "--skip-bad") == 0
+    printed = capsys.readouterr().out
+    assert printed.count("character09") == 1 and "skipped 1 bad sample(s)" in printed
+    # The same in zips (their folder entries), one of them only empty.
+    zips = tmp_path / "zips"
+    zips.mkdir()
+    for name in ("images_test", "strokes_test"):
+        zip_tree(root / name, zips / f"{name}.zip")
+    with zipfile.ZipFile(zips / "strokes_test.zip", "a") as z:
+        z.writestr("strokes_test/Beta/character07/", b"")
+    assert _import(zips, tmp_path / "z.safetensors") == 2
+    err = capsys.readouterr().err
+    assert "strokes_test.zip/strokes_test/Beta/character07/: a character folder without" in err
+
+
+def test_an_omniglot_path_off_its_ink_is_questioned_in_omniglots_frame(tmp_path, capsys):
+    """A stroke file 30 px right of its image's ink (within the border's tolerance): the
+    question names Omniglot's y pointing up, not the y down of other files."""
+    root = tmp_path / "o"
+    write_drawing(root, Path("A/character01/0101_01"), _shape(1, 1))
+    moved = [s + (30.0, 0.0) for s in _shape(1, 1)]
+    (root / "strokes_test/A/character01/0101_01.txt").write_text(_stroke_text(moved))
+    assert _import(root, tmp_path / "a.safetensors") == 2
+    err = capsys.readouterr().err
+    assert "of its pen-down path lies on the ink of" in err
+    assert "y = -row (y up, as Omniglot's stroke files have it)?" in err
+    assert "y = row (y down)" not in err
+
+
+def test_a_split_by_alphabet_with_nothing_held_out_says_which_fraction_would(tmp_path, capsys):
+    root = write_tree(tmp_path / "o", alphabets=("A", "B", "C"), characters=1, drawers=2)
+    assert _import(root, tmp_path / "a.safetensors", "--split-by", "alphabet") == 0
+    out = capsys.readouterr().out
+    assert "validation 0, test 2" in out  # 0.2 of 3 alphabets rounds to 1, 0.1 to none
+    assert "note: no drawing in validation: --split-by alphabet draws --val-fraction 0.1" in out
+    assert "of 3 alphabet(s)" in out and "--val-fraction 0.34 puts one there" in out
+    argv = ["--split-by", "alphabet", "--val-fraction", "0.34"]
+    assert _import(root, tmp_path / "b.safetensors", *argv) == 0
+    out = capsys.readouterr().out
+    assert "validation 2, test 2" in out and "no drawing in" not in out
+
+
+def test_omniglots_images_or_other_zips_as_source_say_what_to_give(tree, tmp_path, capsys):
+    zips = tmp_path / "zips"
+    zips.mkdir()
+    for name in ("images_test", "strokes_test"):
+        zip_tree(tree / name, zips / f"{name}.zip")
+    alone = tmp_path / "alone"
+    alone.mkdir()
+    shutil.copy(zips / "images_test.zip", alone)
+    with zipfile.ZipFile(tmp_path / "omniglot-master.zip", "w") as z:
+        z.write(zips / "images_test.zip", "omniglot-master/python/images_test.zip")
+    cases = [
+        (zips / "images_test.zip", "images_test.zip: Omniglot's images; import its strokes, "),
+        (tree / "images_test", "images_test: Omniglot's images; import its strokes, "),
+        (alone, "holds Omniglot's images_test.zip but no strokes_test (folder or .zip)"),
+        (alone / "images_test.zip", "images_test.zip: Omniglot's images without their strokes"),
+        (tmp_path / "omniglot-master.zip", "a zip file is read only as Omniglot's strokes_NAME"),
+    ]
+    for source, expected in cases:
+        assert _import(source, tmp_path / "x.safetensors") == 2, source
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and expected in err[0], (source, err)
+    (alone / "images_test.zip").rename(alone / "omniglot-master.zip")
+    assert _import(alone, tmp_path / "x.safetensors") == 2
+    err = capsys.readouterr().err
+    assert "zip files (omniglot-master.zip) are read only as Omniglot's images_NAME.zip" in err
+
+
 def test_the_copies_experiment_writes_every_alphabet_again_from_folders_or_zips(
     tree, imported, tmp_path, experiment_script, capsys
 ):
@@ -261,8 +375,12 @@ def test_a_split_by_drawer_without_validation_or_test_drawers_says_so(tree, tmp_
     assert "note: no drawing in validation or test: the split by drawer puts" in out
     assert _import(tree, tmp_path / "all.safetensors") == 0
     assert "no drawing in" not in capsys.readouterr().out
+    # One character per alphabet: a split by character cannot hold any out either.
     assert _import(few, tmp_path / "c.safetensors", "--split-by", "character") == 0
-    assert "no drawing in" not in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "(train 10, validation 0, test 0)" in out
+    assert "note: no drawing in validation or test: --split-by character keeps" in out
+    assert "of an alphabet's 1 character(s) (at most)" in out and "--split-by drawer" in out
 
 
 def test_split_by_character_or_alphabet_keeps_them_whole(tmp_path):
@@ -283,9 +401,10 @@ def test_split_by_character_or_alphabet_keeps_them_whole(tmp_path):
     assert all(len(s) == 1 for s in per.values())
     assert sorted(s.pop() for s in per.values()) == [0, 0, 0, 1, 2]
     assert by_alpha.meta["source"]["split_by"] == "alphabet"
-    # A split by drawer or character means nothing to a folder of class folders.
+    # A split by drawer or character means nothing to a folder of class folders (here
+    # the characters of one alphabet; Omniglot's images_test itself is refused by name).
     with pytest.raises(ValueError, match="split_by 'character' .* is for Omniglot sources"):
-        find_samples(root / "images_test", split_by="character")
+        find_samples(root / "images_test" / "A", split_by="character")
 
 
 def test_stroke_resampling_keeps_the_dots_the_even_grid_refuses(tree, tmp_path, capsys):

@@ -50,6 +50,7 @@ stroke_width_px) come from the defaults, then
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from . import _args
@@ -274,18 +275,8 @@ def _report(out: Path, data) -> None:
         f"{data.image_size}, d={data.trajectories.shape[-1]}, DMP fit error "
         f"{meta['fit']['mean_error_px']:.3f} px mean"
     )
-    empty = [name for name in ("validation", "test") if not counts[name]]
-    if (
-        empty
-        and meta["source"].get("format") == "omniglot"
-        and meta["source"].get("split_by") == "drawer"
-    ):
-        print(
-            f"note: no drawing in {' or '.join(empty)}: the split by drawer puts drawers 1-15 "
-            "in training, 16-17 in validation and 18-20 in test (a file's number after its "
-            "'_'); number your drawers into those, or --split-by character to test on "
-            "whole characters never seen in training"
-        )
+    if note := _empty_split_note(meta):
+        print(note)
     if note := time_unit_note(meta):
         print(note)
     if empty := [name for name, n in by_class.items() if not n]:
@@ -307,6 +298,61 @@ def _report(out: Path, data) -> None:
         print(f"skipped: {line}")
     if meta["source"]["skipped"]:
         print(f"skipped {len(meta['source']['skipped'])} bad sample(s), listed above")
+
+
+def _empty_split_note(meta) -> str | None:
+    """The note on an Omniglot import whose validation or test split came out empty: by
+    drawer, the drawers' numbers; by character or alphabet, fractions of too few of them
+    that round to none."""
+    counts, source = meta["counts_by_split"], meta["source"]
+    empty = [name for name in ("validation", "test") if not counts[name]]
+    if not empty or source.get("format") != "omniglot":
+        return None
+    what = " or ".join(empty)
+    split_by = source.get("split_by")
+    if split_by == "drawer":
+        return (
+            f"note: no drawing in {what}: the split by drawer puts drawers 1-15 "
+            "in training, 16-17 in validation and 18-20 in test (a file's number after its "
+            "'_'); number your drawers into those, or --split-by character to test on "
+            "whole characters never seen in training"
+        )
+    per_alphabet: dict[str, int] = {}  # characters drawn, by alphabet
+    for name, n in meta["counts_by_class"].items():
+        if n:
+            alphabet = name.split("/")[0]
+            per_alphabet[alphabet] = per_alphabet.get(alphabet, 0) + 1
+    if split_by == "alphabet":
+        n = len(per_alphabet)
+        units = f"{n} alphabet(s)"
+    else:
+        n = max(per_alphabet.values())
+        units = f"an alphabet's {n} character(s) (at most)"
+    held = (
+        "; train then holds out some of the training drawings (of "
+        f"{split_by}s it trains on) for validation"
+        if "validation" in empty
+        else ""
+    )
+    if n < 1 + len(empty):  # at least one unit stays in training
+        return (
+            f"note: no drawing in {what}: --split-by {split_by} keeps whole {split_by}s in "
+            f"one split and at least one in training, of {units}"
+            f"{held}; import more, or --split-by "
+            f"{'character' if split_by == 'alphabet' else 'drawer'}"
+        )
+    options = meta.get("import", {})
+    given = ", ".join(f"{_FRACTION_FLAGS[e]} {options.get(_FRACTION_FIELDS[e])}" for e in empty)
+    # The least share of n units that rounds to one (the split's rule: half up).
+    enough = " ".join(f"{_FRACTION_FLAGS[e]} {math.ceil(100 / n) / 100:g}" for e in empty)
+    return (
+        f"note: no drawing in {what}: --split-by {split_by} draws {given} of {units}, "
+        f"which rounds to none{held}; {enough} puts one there"
+    )
+
+
+_FRACTION_FIELDS = {"validation": "val_fraction", "test": "test_fraction"}
+_FRACTION_FLAGS = {"validation": "--val-fraction", "test": "--test-fraction"}
 
 
 def _poor_fit_note(data) -> str:

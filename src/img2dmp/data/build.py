@@ -217,7 +217,7 @@ def frame_pen_path(
         raise ValueError(
             f"{pen.name}: only {share:.0%} of its pen-down path lies on the ink of "
             f"{name} (at least {options.min_on_ink:.0%} needed, --min-on-ink); is it that "
-            "image's path, in its pixels, x = column and y = row (y down)?"
+            f"image's path, in its pixels, {pen.file_frame}?"
         )
     if options.duration_s is not None:
         times = times * (options.duration_s / times[-1])

@@ -42,6 +42,9 @@ class PenPath:
     point_name : callable
         ``point_name(k)`` names point ``k`` in messages as the file does (``line 7`` of a
         CSV file, ``stroke 1 point 4`` of a JSON list of strokes, else ``point 7``).
+    file_frame : str
+        How the file gives positions, as a message asking whether they are right says
+        it (an Omniglot stroke file has y pointing up; :attr:`xy` is read from it).
     """
 
     xy: np.ndarray
@@ -49,6 +52,7 @@ class PenPath:
     stroke: np.ndarray
     name: str
     point_name: Callable[[int], str] = field(default=lambda k: f"point {k}", repr=False)
+    file_frame: str = "x = column and y = row (y down)"
 
     @property
     def n_strokes(self) -> int:

@@ -85,12 +85,33 @@ def _listed(source: Path, images) -> tuple[list[SampleSource], list[Exception]]:
     if recordings:
         return recording_samples(source, recordings, images)
     if source.is_dir():
+        _no_zips_alone(source)
         return folder_samples(source)
     if source.suffix.lower() in (".csv", ".json"):
         return manifest_samples(source)
-    raise ValueError(
-        f"{source}: the source must be a folder of class folders or a .csv or .json manifest"
+    zipped = (
+        "; a zip file is read only as Omniglot's strokes_NAME.zip (images_NAME beside it): "
+        "unzip it and import what it holds"
+        if source.suffix.lower() == ".zip"
+        else ""
     )
+    raise ValueError(
+        f"{source}: the source must be a folder of class folders or a .csv or .json "
+        f"manifest{zipped}"
+    )
+
+
+def _no_zips_alone(folder: Path) -> None:
+    """Refuse a folder of zip files but no class folders: zips are read only as
+    Omniglot's trees (``images_NAME.zip`` with ``strokes_NAME.zip``)."""
+    entries = [p for p in folder.iterdir() if not p.name.startswith(".")]
+    zips = sorted(p.name for p in entries if p.is_file() and p.suffix.lower() == ".zip")
+    if zips and not any(p.is_dir() for p in entries):
+        raise ValueError(
+            f"{folder}: holds no class folders, and zip files ({', '.join(zips[:3])}"
+            f"{' ...' if len(zips) > 3 else ''}) are read only as Omniglot's images_NAME.zip "
+            "with strokes_NAME.zip; unzip them and import what they hold"
+        )
 
 
 def read_sample(src: SampleSource, time_unit: str = "s", spread_repeated: bool = False) -> tuple:

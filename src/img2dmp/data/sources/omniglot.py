@@ -14,9 +14,14 @@ as they unzip (folders) or straight from the zip files as distributed; the class
 drawing is ``alphabet/character`` (``Balinese/character01``). ``img2dmp import DIR``
 reads every pair ``images_NAME`` / ``strokes_NAME`` (folder or ``.zip``; a folder wins
 over a zip of the same name) in ``DIR``; ``img2dmp import strokes_NAME[.zip]`` one pair,
-its images beside it or given with ``--images``. Files and folders whose names start with
+its images beside it or given with ``--images``. In a zip the tree lies under the folder
+named like the zip, at any depth (as re-packed: ``omniglot-master/python/strokes_NAME/``),
+else under one top folder, else at the top. Files and folders whose names start with
 ``.`` and a zip's ``__MACOSX`` folder are ignored; every other file is a drawing or
-refused by name.
+refused by name, and so is a character folder of which neither tree holds a file (an
+empty character). Names are compared in Unicode NFC (a tree re-packed on macOS spells
+``ö`` as ``o`` and an accent). ``images_NAME`` given as the source, or without its
+``strokes_NAME``, is refused saying what to give.
 
 **Splits** (:class:`~img2dmp.data.sources.files.ImportOptions` ``split_by``):
 
@@ -67,6 +72,7 @@ from __future__ import annotations
 
 import io
 import os
+import unicodedata
 import zipfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -111,6 +117,8 @@ ALIGN_BLUR_PX = 1.0
 #: Largest image file read from a zip.
 MAX_IMAGE_BYTES = 64 << 20
 STROKE_SUFFIX = ".txt"
+#: How a stroke file gives positions (:attr:`PenPath.file_frame`).
+FILE_FRAME = "x = column and y = -row (y up, as Omniglot's stroke files have it)"
 
 
 @dataclass(frozen=True)
@@ -285,7 +293,12 @@ def parse_strokes(text: str, name: str = "stroke file") -> PenPath:
         return f"line {lines[k]}"
 
     return PenPath(
-        xy=xy, t_s=np.concatenate(times) * 1e-3, stroke=stroke, name=name, point_name=point_name
+        xy=xy,
+        t_s=np.concatenate(times) * 1e-3,
+        stroke=stroke,
+        name=name,
+        point_name=point_name,
+        file_frame=FILE_FRAME,
     )
 
 
@@ -402,6 +415,7 @@ def omniglot_trees(source: Path, images=None) -> list[tuple[Path, Path]] | None:
             f"({source}/ALPHABET/CHARACTER/NNNN_NN.txt), but it holds no folders; a folder "
             "of class folders, or of recordings (image_<n>.json), may not be named strokes_*"
         )
+    _images_given(source, name)
     if name.startswith("strokes_") and (source.is_dir() or source.suffix.lower() == ".zip"):
         image_name = "images_" + name[len("strokes_") :]
         found = Path(images) if images is not None else _tree_beside(source.parent, image_name)
@@ -417,6 +431,7 @@ def omniglot_trees(source: Path, images=None) -> list[tuple[Path, Path]] | None:
     names = sorted({tree_name(p) for p in source.iterdir() if p.name.startswith("strokes_")})
     names = [n for n in names if _tree_beside(source, n) is not None]
     if not names:
+        _images_alone(source)
         return None
     if images is not None:
         raise ValueError(
@@ -436,6 +451,42 @@ def omniglot_trees(source: Path, images=None) -> list[tuple[Path, Path]] | None:
     return pairs
 
 
+def _images_given(source: Path, name: str) -> None:
+    """Refuse Omniglot's images tree given as SOURCE (a zip ``images_NAME.zip``, or a
+    folder ``images_NAME`` with its strokes beside it), saying what to give instead."""
+    if not name.startswith("images_"):
+        return
+    is_zip = source.is_file() and source.suffix.lower() == ".zip"
+    strokes_name = "strokes_" + name[len("images_") :]
+    strokes = _tree_beside(source.parent, strokes_name)
+    if strokes is None and is_zip:
+        raise FileNotFoundError(
+            f"{source}: Omniglot's images without their strokes: no {strokes_name} (folder "
+            "or .zip) beside it; import strokes_NAME (its images found beside it or given "
+            "with --images), or the folder that holds both"
+        )
+    if strokes is not None and (is_zip or source.is_dir()):
+        raise ValueError(
+            f"{source}: Omniglot's images; import its strokes, {strokes} (the images are "
+            f"found beside it), or the folder {source.parent} that holds both"
+        )
+
+
+def _images_alone(folder: Path) -> None:
+    """Refuse a folder holding Omniglot's ``images_NAME.zip`` without its strokes."""
+    alone = sorted(
+        p.name
+        for p in folder.iterdir()
+        if p.name.startswith("images_") and p.is_file() and p.suffix.lower() == ".zip"
+    )
+    if alone:
+        strokes = "strokes_" + tree_name(Path(alone[0]))[len("images_") :]
+        raise FileNotFoundError(
+            f"{folder}: holds Omniglot's {', '.join(alone)} but no {strokes} (folder or "
+            ".zip): each images_NAME needs its strokes_NAME beside it"
+        )
+
+
 def _flat(folder: Path) -> bool:
     """Whether a folder holds no folders (but ``.``-hidden ones): no Omniglot tree."""
     return not any(p.is_dir() and not p.name.startswith(".") for p in folder.iterdir())
@@ -445,29 +496,67 @@ def _hidden(parts) -> bool:
     return any(p.startswith(".") or p == "__MACOSX" for p in parts)
 
 
+def _key(parts) -> tuple[str, ...]:
+    """A file's ``(alphabet, character, file)`` in Unicode NFC: a tree zipped or unzipped
+    on macOS names ``Ñkö`` with combining accents (NFD), its partner may not."""
+    return tuple(unicodedata.normalize("NFC", p) for p in parts)
+
+
+def _in_zip(parts: tuple[str, ...], tree: str) -> tuple[str, ...]:
+    """A member's path within its tree: after the last folder named like the zip (as
+    distributed, the tree's one top folder; re-packed, it may lie deeper, as in
+    ``omniglot-master/python/strokes_evaluation/...``), else after one top folder of
+    another name, else the whole path."""
+    folders = [i for i, p in enumerate(parts[:-1]) if p == tree]
+    if folders:
+        return parts[folders[-1] + 1 :]
+    return parts[1:] if len(parts) == 4 else parts
+
+
 def _zip_files(path: Path) -> tuple[dict[tuple[str, ...], Entry], list[Exception]]:
-    """The files of a zip tree by ``(alphabet, character, file)``; members elsewhere."""
+    """The files of a zip tree by ``(alphabet, character, file)``; members elsewhere and
+    empty character folders as problems."""
     try:
         zf = zipfile.ZipFile(path)
     except (zipfile.BadZipFile, OSError) as e:
         raise ValueError(f"{path}: not a readable zip file ({e})") from None
-    files, problems = {}, []
+    files, problems, folders = {}, [], {}
+    tree = tree_name(path)
     for info in zf.infolist():
         parts = tuple(p for p in info.filename.split("/") if p)
-        if info.is_dir() or not parts or _hidden(parts):
+        if not parts or _hidden(parts):
             continue
-        # As distributed, the tree lies in one top folder named like the zip.
-        rel = parts[1:] if len(parts) == 4 else parts
         member = ArchiveMember(path, info.filename, zf)
+        if info.is_dir():  # placed as a file in it would be
+            if len(rel := _in_zip((*parts, ""), tree)[:-1]) == 2:
+                folders[_key(rel)] = member
+            continue
+        rel = _in_zip(parts, tree)
         if len(rel) != 3:
             problems.append(ValueError(f"{member}: is not ALPHABET/CHARACTER/FILE in the zip"))
         else:
-            files[rel] = member
+            files[_key(rel)] = member
+    drawn = {k[:2] for k in files}
+    problems += [EmptyCharacter(k, m) for k, m in sorted(folders.items()) if k not in drawn]
     return files, problems
 
 
+class EmptyCharacter(ValueError):
+    """A character folder without files, as a problem of :func:`tree_files`; ``key`` is
+    its ``(alphabet, character)``. :func:`find_omniglot` refuses it when the other tree
+    has no file of that character either (else that tree's files are named)."""
+
+    def __init__(self, key: tuple[str, ...], folder) -> None:
+        super().__init__(
+            f"{folder}: a character folder without drawings (an empty character); remove "
+            "it, or --skip-bad to leave it out"
+        )
+        self.key = key
+
+
 def _folder_files(root: Path) -> tuple[dict[tuple[str, ...], Entry], list[Exception]]:
-    """The files of a folder tree by ``(alphabet, character, file)``; files elsewhere."""
+    """The files of a folder tree by ``(alphabet, character, file)``; files elsewhere and
+    empty character folders as problems."""
     inner = [p for p in root.iterdir() if not p.name.startswith(".")]
     if len(inner) == 1 and inner[0].is_dir() and inner[0].name == root.name:
         root = inner[0]  # unzipped into a folder of its own name
@@ -475,15 +564,16 @@ def _folder_files(root: Path) -> tuple[dict[tuple[str, ...], Entry], list[Except
     for dirpath, dirnames, filenames in os.walk(root):
         dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
         rel = Path(dirpath).relative_to(root).parts
-        for f in sorted(filenames):
-            if f.startswith("."):
-                continue
+        filenames = sorted(f for f in filenames if not f.startswith("."))
+        for f in filenames:
             if len(rel) != 2:
                 problems.append(
                     ValueError(f"{Path(dirpath) / f}: is not {root}/ALPHABET/CHARACTER/FILE")
                 )
             else:
-                files[(*rel, f)] = Path(dirpath) / f
+                files[_key((*rel, f))] = Path(dirpath) / f
+        if len(rel) == 2 and not filenames and not dirnames:
+            problems.append(EmptyCharacter(_key(rel), Path(dirpath)))
         if len(rel) >= 2:
             for d in dirnames:
                 problems.append(ValueError(f"{Path(dirpath) / d}: a folder in a character folder"))
@@ -542,6 +632,19 @@ def _sample(key: tuple[str, str, str], strokes: Entry, image: Entry, split_by: s
     return SampleSource(image=image, trajectory=strokes, class_name=name, format=FORMAT, **kw)
 
 
+def _truly_empty(problems: list[Exception], drawn: set) -> list[Exception]:
+    """``problems`` without the empty characters of which the other tree has files
+    (those files are named instead), each empty character once."""
+    out, seen = [], set()
+    for e in problems:
+        if isinstance(e, EmptyCharacter):
+            if e.key in drawn or e.key in seen:
+                continue
+            seen.add(e.key)
+        out.append(e)
+    return out
+
+
 def find_omniglot(
     trees: list[tuple[Path, Path]], split_by: str | None = None
 ) -> tuple[list[SampleSource], list[Exception]]:
@@ -555,7 +658,7 @@ def find_omniglot(
     for strokes_tree, images_tree in trees:
         stroke_files, found = tree_files(strokes_tree)
         image_files, stray = tree_files(images_tree)
-        found += stray
+        found = _truly_empty(found + stray, {k[:2] for k in (*stroke_files, *image_files)})
         strokes = _by_stem(stroke_files, (STROKE_SUFFIX,), "stroke", found)
         images = _by_stem(image_files, IMAGE_SUFFIXES, "image", found)
         if not strokes and not found:
