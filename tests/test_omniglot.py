@@ -296,6 +296,23 @@ def test_omniglots_images_or_other_zips_as_source_say_what_to_give(tree, tmp_pat
     assert "zip files (omniglot-master.zip) are read only as Omniglot's images_NAME.zip" in err
 
 
+def test_a_half_unzipped_folder_beside_its_zip_is_named_with_the_missing_file(tree, tmp_path):
+    """The folder wins over the zip of its name: a file the folder lacks is named with
+    where it was looked for, and that the zip beside it was not read."""
+    root = tmp_path / "o"
+    root.mkdir()
+    for name in ("images_test", "strokes_test"):
+        zip_tree(tree / name, root / f"{name}.zip")
+    shutil.copytree(tree / "strokes_test" / "Alpha", root / "strokes_test" / "Alpha")
+    with pytest.raises(FileNotFoundError) as e:
+        find_samples(root)
+    assert str(e.value).startswith(f"{root}/images_test.zip/images_test/Beta/character01/")
+    assert str(e.value).endswith(
+        f"no stroke file 0201_01.txt in {root}/strokes_test (the folder is read, not "
+        "strokes_test.zip beside it)"
+    )
+
+
 def test_the_copies_experiment_writes_every_alphabet_again_from_folders_or_zips(
     tree, imported, tmp_path, experiment_script, capsys
 ):

@@ -632,6 +632,15 @@ def _sample(key: tuple[str, str, str], strokes: Entry, image: Entry, split_by: s
     return SampleSource(image=image, trajectory=strokes, class_name=name, format=FORMAT, **kw)
 
 
+def _where(tree: Path) -> str:
+    """Where a drawing's missing partner was looked for, in a message: the tree, and a
+    zip of its name beside a folder read instead (a zip half unzipped)."""
+    twin = tree.with_name(tree.name + ".zip")
+    if tree.is_dir() and twin.is_file():
+        return f"in {tree} (the folder is read, not {twin.name} beside it)"
+    return f"in {tree}"
+
+
 def _truly_empty(problems: list[Exception], drawn: set) -> list[Exception]:
     """``problems`` without the empty characters of which the other tree has files
     (those files are named instead), each empty character once."""
@@ -665,10 +674,14 @@ def find_omniglot(
             raise ValueError(f"{strokes_tree}: holds no stroke file (ALPHABET/CHARACTER/*.txt)")
         for key in sorted(set(strokes) | set(images)):
             if key not in images:
-                found.append(FileNotFoundError(f"{strokes[key]}: no image {key[2]}.png"))
+                where = _where(images_tree)
+                found.append(FileNotFoundError(f"{strokes[key]}: no image {key[2]}.png {where}"))
                 continue
             if key not in strokes:
-                found.append(FileNotFoundError(f"{images[key]}: no stroke file {key[2]}.txt"))
+                where = _where(strokes_tree)
+                found.append(
+                    FileNotFoundError(f"{images[key]}: no stroke file {key[2]}.txt {where}")
+                )
                 continue
             if key[:2] in seen and seen[key[:2]] != strokes_tree:
                 raise ValueError(
