@@ -400,6 +400,24 @@ def test_a_split_by_drawer_without_validation_or_test_drawers_says_so(tree, tmp_
     assert "of an alphabet's 1 character(s) (at most)" in out and "--split-by drawer" in out
 
 
+def test_a_character_without_test_drawers_is_named_in_a_note(tree, tmp_path, capsys):
+    """A character drawn by fewer drawers (here without 18-20): the test figures leave it
+    out, and the import says which."""
+    root = tmp_path / "o"
+    shutil.copytree(tree, root)
+    for drawer in (18, 19, 20):
+        for f in root.glob(f"*/Beta/character02/0202_{drawer}.*"):
+            f.unlink()
+    assert _import(root, tmp_path / "a.safetensors") == 0
+    out = capsys.readouterr().out
+    assert (
+        "note: 1 character(s) without a drawing in test (drawers 18-20): Beta/character02;" in out
+    )
+    assert "without a drawing in validation" not in out
+    assert _import(tree, tmp_path / "b.safetensors") == 0
+    assert "without a drawing" not in capsys.readouterr().out
+
+
 def test_split_by_character_or_alphabet_keeps_them_whole(tmp_path):
     root = write_tree(tmp_path / "o", alphabets=("A", "B", "C", "D", "E"), characters=5, drawers=2)
     samples, _ = find_samples(root, split_by="character")

@@ -275,7 +275,7 @@ def _report(out: Path, data) -> None:
         f"{data.image_size}, d={data.trajectories.shape[-1]}, DMP fit error "
         f"{meta['fit']['mean_error_px']:.3f} px mean"
     )
-    if note := _empty_split_note(meta):
+    if note := _empty_split_note(meta) or _characters_not_split_note(data):
         print(note)
     if note := time_unit_note(meta):
         print(note)
@@ -348,6 +348,34 @@ def _empty_split_note(meta) -> str | None:
     return (
         f"note: no drawing in {what}: --split-by {split_by} draws {given} of {units}, "
         f"which rounds to none{held}; {enough} puts one there"
+    )
+
+
+def _characters_not_split_note(data) -> str | None:
+    """The note on the characters of an Omniglot import split by drawer that have no
+    drawing in validation or in test (a character drawn by fewer drawers, or by others
+    than 16-20), which those splits' figures then leave out."""
+    from ..data.store import SPLITS
+
+    source = data.meta["source"]
+    if source.get("format") != "omniglot" or source.get("split_by") != "drawer":
+        return None
+    names = data.label_names
+    lacking = []
+    for split, drawers in (("validation", "16-17"), ("test", "18-20")):
+        held = set(data.labels[data.split == SPLITS[split]].tolist())
+        missing = [str(names[k]) for k in sorted(set(data.labels.tolist()) - held)]
+        if missing:
+            shown = ", ".join(missing[:3]) + (" ..." if len(missing) > 3 else "")
+            lacking.append(
+                f"{len(missing)} character(s) without a drawing in {split} (drawers "
+                f"{drawers}): {shown}"
+            )
+    if not lacking:
+        return None
+    return (
+        f"note: {'; '.join(lacking)}; those splits' figures leave them out, though they are "
+        "trained on; --split-by character holds out whole characters instead"
     )
 
 
