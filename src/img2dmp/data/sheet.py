@@ -6,20 +6,25 @@ finds the sheet so that :func:`img2dmp.data.paper.paper_ink` reads only what is 
 On the photo reduced to about ``SHEET_SIDE`` pixels on its shorter side and smoothed:
 
 1. **edges**: the pixels where the colour changes faster than ``STEP_NOISE`` times the
-   image's usual change (and ``STEP_MIN``), grown by a pixel, gaps of up to about
-   ``2 EDGE_GAP`` pixels closed: the sheet's edge, the strokes, the rules;
+   image's usual change (and ``STEP_MIN``): the sheet's edge, the strokes, the rules.
+   The long straight ones (the sheet's border) are drawn on through their faint
+   stretches (where the paper's shade nears the desk's level, ``LINE_*``) and on to the
+   corner where two of them meet (``CORNER_GAP``); all grown by a pixel, gaps of up to
+   about ``2 EDGE_GAP`` pixels closed;
 2. **regions**: the connected areas between them; the paper is the one that holds most
    of the image's middle. When it reaches the border, the desk may have come in through
    a longer gap (where the paper's shade meets the desk's level): its part of the
    border's colour (``DESK_TOLERANCE``) connected to the border is a region of its own;
 3. **desk**: the regions that lie along ``DESK_BORDER`` of the image's border, cover at
    least ``DESK_MIN_SHARE`` of it, are bounded by edges (``DESK_EDGED`` of their
-   outline), differ in colour from what lies just beyond their edge and from the paper
-   by ``DESK_CONTRAST`` (a shade on the paper, a rule's band or the paper beyond a
-   margin line do not), have no lines between them (``DESK_LINED``: a shade on ruled
+   outline), differ in colour from a quarter (``DESK_DIFFERS``) of what lies just beyond
+   their edge and of the paper by ``DESK_CONTRAST`` (a shade on the paper, a rule's band
+   or the paper beyond a margin line do not; a sheet shaded from lighter to darker than
+   the desk does), have no lines between them (``DESK_LINED``: a shade on ruled
    paper) and hold no writing (enclosed marks under ``DESK_HOLES`` of their area: a
    shadow's edge across the page is a region too, with characters in it);
-4. **sheet**: the rest grown away from the desk by ``EDGE_MARGIN`` pixels (the edge's
+4. **sheet**: the desk grown over the edges beside it (``EDGE_BAND``: the sheet's edge, a
+   shadow along it), the rest grown away from it by ``EDGE_MARGIN`` pixels (the edge's
    blur), the part that holds the paper, its convex hull (a sheet is a quadrilateral,
    in perspective too; the notch a gap let in is back), drawn straight at the photo's
    pixels; at least ``SHEET_MIN_SHARE`` of the image. Off the sheet the photo is
@@ -53,11 +58,28 @@ STEP_NOISE = 6.0
 STEP_MIN = 0.01
 #: Gaps of up to about twice this many reduced pixels in the edges are closed.
 EDGE_GAP = 4
+#: A straight edge (the sheet's border) is drawn through its faint stretches where pixels
+#: that change by this share of an edge pixel's change lie along it ...
+LINE_WEAK = 0.34
+#: ... for this share of the shorter side (gaps of up to ``LINE_GAP`` of it), ...
+LINE_MIN = 0.2
+LINE_GAP = 0.1
+#: ... covering this share of it, and edge pixels this share, ...
+LINE_COVER = 0.7
+LINE_STRONG = 0.2
+#: ... changing across it within this angle (radians); at most ``LINE_MAX`` lines.
+LINE_ANGLE = 0.35
+LINE_MAX = 12
+#: Two straight edges that would meet within this share of the shorter side beyond their
+#: ends are drawn on to the corner.
+CORNER_GAP = 0.15
 #: A desk region covers at least this share of the image,
 DESK_MIN_SHARE = 0.01
-#: ... differs from what lies just beyond its boundary by this much in some channel
-#: (the median colours of the two sides),
+#: ... differs by this much in some channel (its median colour) from the pixels just
+#: beyond its boundary and from the paper's, ...
 DESK_CONTRAST = 0.025
+#: ... at least this share of them (the paper's shade may near the desk's elsewhere),
+DESK_DIFFERS = 0.25
 #: ... and encloses marks of at most this share of its area (a desk holds no writing).
 DESK_HOLES = 0.01
 #: A desk region lies along at least this share of the image's border.
@@ -70,7 +92,10 @@ DESK_EDGED = 0.6
 #: ... and the desk that came in through a gap in the edge is of the border's colour
 #: within this much (or four times its spread).
 DESK_TOLERANCE = 0.03
-#: The sheet keeps this many reduced pixels clear of the desk (the edge's blur and band).
+#: The edge pixels within this many reduced pixels of the desk, joined to it, are the desk's
+#: (the sheet's edge, a shadow along it, a strip of another desk), ...
+EDGE_BAND = 6
+#: ... and the sheet keeps this many reduced pixels clear of them (the edge's blur).
 EDGE_MARGIN = 3
 #: The band beside the desk: this share of the photo's shorter side.
 BAND_SHARE = 0.03
@@ -121,16 +146,126 @@ def _upsample(mask: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarr
     return np.pad(full, ((0, shape[0] - full.shape[0]), (0, shape[1] - full.shape[1])), mode="edge")
 
 
+def _change(small: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The largest change per pixel over the channels of ``small [C, h, w]`` and the
+    direction it changes in (radians in [0, pi): a line's normal), both ``[h, w]``."""
+    change = np.zeros(small.shape[1:], np.float32)
+    normal = np.zeros(small.shape[1:], np.float32)
+    for p in small:
+        gy, gx = np.gradient(p)
+        c = np.maximum(np.abs(gx), np.abs(gy))
+        more = c > change
+        change[more] = c[more]
+        normal[more] = np.mod(np.arctan2(gy, gx), np.pi)[more]
+    return change, normal
+
+
+def _segments(
+    strong: np.ndarray, weak: np.ndarray, normal: np.ndarray
+) -> list[tuple[np.ndarray, np.ndarray, float, float]]:
+    """The long straight edges of an image, as ``(centre, direction, start, end)`` (the
+    points ``centre + s direction``, x and y, for ``s`` from start to end): lines of a
+    Hough transform of the ``weak`` pixels (each voting only for the lines across its own
+    change's direction, ``normal``), their pixels (within 1.5 px, changing across the line
+    within ``LINE_ANGLE``) cut where more than ``2 EDGE_GAP`` apart; a stretch at least
+    ``LINE_MIN`` of the shorter side long, its positions covered for ``LINE_COVER`` and
+    ``LINE_STRONG`` of them by ``strong`` pixels, is fitted by least squares."""
+    h, w = weak.shape
+    ys, xs = np.nonzero(weak)
+    least = LINE_MIN * min(h, w)
+    if xs.size < least:
+        return []
+    n_theta = 180
+    step = np.pi / n_theta
+    theta = normal[ys, xs]
+    firm = strong[ys, xs]
+    reach = int(np.ceil(np.hypot(h, w)))
+    bins = np.round(theta / step).astype(np.int64)
+    votes = []
+    for d in (-2, -1, 0, 1, 2):  # each pixel votes near its own direction only
+        t = np.mod(bins + d, n_theta)
+        rho = np.round(xs * np.cos(t * step) + ys * np.sin(t * step)).astype(np.int64) + reach
+        votes.append(t * (2 * reach + 1) + rho)
+    votes = np.stack(votes)  # [5, pixels]
+    size = n_theta * (2 * reach + 1)
+    acc = np.bincount(votes.ravel(), minlength=size)
+    out = []
+    for _ in range(LINE_MAX):
+        peak = int(np.argmax(acc))
+        if acc[peak] < least:
+            break
+        t, r = np.unravel_index(peak, (n_theta, 2 * reach + 1))
+        c, s = np.cos(t * step), np.sin(t * step)
+        turn = np.abs(np.mod(theta - t * step + np.pi / 2, np.pi) - np.pi / 2)
+        # the edge's band (a blurred step, a shadow's line, a strip of another desk): its
+        # pixels' votes taken back, its middle fitted
+        on = (np.abs(xs * c + ys * s - (r - reach)) <= EDGE_GAP) & (turn <= LINE_ANGLE)
+        acc -= np.bincount(votes[:, on].ravel(), minlength=size)
+        acc[peak] = 0
+        pts = np.stack([xs[on], ys[on]], 1).astype(np.float64)
+        along = pts @ np.array([-s, c])
+        order = np.argsort(along)
+        pts, along, sure = pts[order], along[order], firm[on][order]
+        cuts = np.flatnonzero(np.diff(along) > LINE_GAP * min(h, w)) + 1
+        for part, pos, hard in zip(np.split(pts, cuts), np.split(along, cuts),
+                                   np.split(sure, cuts), strict=True):  # fmt: skip
+            length = pos[-1] - pos[0] + 1
+            if length < least:
+                continue
+            covered = np.unique(np.round(pos)).size
+            firmly = np.unique(np.round(pos[hard])).size
+            if covered < LINE_COVER * length or firmly < LINE_STRONG * length:
+                continue  # a row of marks, a shade's ripples
+            centre = part.mean(0)
+            _, _, vt = np.linalg.svd(part - centre, full_matrices=False)
+            proj = (part - centre)[hard] @ vt[0]  # from edge pixel to edge pixel, not
+            out.append((centre, vt[0], float(proj.min()), float(proj.max())))  # on into grain
+    return out
+
+
+def _straight(strong: np.ndarray, weak: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """The sheet's straight border drawn through its faint stretches (``bool`` like
+    ``strong``): each long straight edge of :func:`_segments` from its first pixel to
+    its last, and on to where it meets another (a corner) when that is within
+    ``CORNER_GAP`` of the shorter side of both ends."""
+    h, w = strong.shape
+    segs = _segments(strong, weak, normal)
+    ends = [[a, b] for _, _, a, b in segs]
+    reach = CORNER_GAP * min(h, w)
+    for i, (ci, ui, _, _) in enumerate(segs):
+        for j in range(i + 1, len(segs)):
+            cj, uj, _, _ = segs[j]
+            det = ui[0] * -uj[1] + uj[0] * ui[1]
+            if abs(det) < np.sin(np.pi / 6):
+                continue  # nearly parallel: no corner
+            d = cj - ci
+            si = (d[0] * -uj[1] + uj[0] * d[1]) / det  # ci + si ui = cj + sj uj
+            sj = (ui[0] * d[1] - ui[1] * d[0]) / det
+            gi = max(ends[i][0] - si, si - ends[i][1], 0.0)
+            gj = max(ends[j][0] - sj, sj - ends[j][1], 0.0)
+            corner = ci + si * ui
+            inside = -2 <= corner[0] <= w + 1 and -2 <= corner[1] <= h + 1
+            if inside and gi <= reach and gj <= reach:
+                ends[i] = [min(ends[i][0], si), max(ends[i][1], si)]
+                ends[j] = [min(ends[j][0], sj), max(ends[j][1], sj)]
+    out = np.zeros_like(strong)
+    for (c, u, _, _), (a, b) in zip(segs, ends, strict=True):
+        s = np.arange(a, b + 0.5, 0.5)
+        x = np.clip(np.round(c[0] + s * u[0]).astype(int), 0, w - 1)
+        y = np.clip(np.round(c[1] + s * u[1]).astype(int), 0, h - 1)
+        out[y, x] = True
+    return out
+
+
 def _edges(small: np.ndarray) -> np.ndarray:
     """Edge pixels (step 1) of the reduced, smoothed ``small [C, h, w]``: ``bool [h, w]``."""
     from scipy.ndimage import binary_closing, binary_dilation
 
-    change = np.zeros(small.shape[1:], np.float32)
-    for p in small:
-        gy, gx = np.gradient(p)
-        np.maximum(change, np.maximum(np.abs(gx), np.abs(gy)), out=change)
+    change, normal = _change(small)
     level = max(STEP_MIN, STEP_NOISE * float(np.median(change)))
-    edges = binary_dilation(change > level, np.ones((3, 3), bool))
+    strong = change > level
+    strong |= _straight(strong, change > LINE_WEAK * level, normal)
+    edges = binary_dilation(strong, np.ones((3, 3), bool))
     # gaps in the sheet's edge closed (where the paper's shade meets the desk's level)
     g = EDGE_GAP
     padded = np.pad(edges, g, mode="edge")
@@ -220,7 +355,14 @@ def _lined(desk: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return desk & bad[groups]
 
 
-def _is_desk(small, labels, lab: int, edges: np.ndarray, area: int, paper) -> bool:
+def _differs(colour: np.ndarray, pixels: np.ndarray) -> bool:
+    """Whether ``DESK_DIFFERS`` of ``pixels [C, n]`` differ from ``colour [C]`` by
+    ``DESK_CONTRAST`` in some channel."""
+    differ = np.max(np.abs(pixels - colour[:, None]), axis=0)
+    return bool(np.quantile(differ, 1.0 - DESK_DIFFERS) >= DESK_CONTRAST)
+
+
+def _is_desk(small, labels, lab: int, edges: np.ndarray, area: int, paper: np.ndarray) -> bool:
     """Whether region ``lab`` of ``labels`` passes step 3's tests (module docstring)."""
     from scipy.ndimage import binary_dilation, binary_fill_holes, find_objects, label
 
@@ -241,10 +383,9 @@ def _is_desk(small, labels, lab: int, edges: np.ndarray, area: int, paper) -> bo
     if not beyond.any():
         return False
     inside = np.median(small[(slice(None), *sl)][:, region], axis=1)
-    outside = np.median(small[(slice(None), *sl)][:, beyond], axis=1)
-    if np.max(np.abs(inside - outside)) < DESK_CONTRAST:
+    if not _differs(inside, small[(slice(None), *sl)][:, beyond]):
         return False  # a shade on the paper, a band between rules
-    if np.max(np.abs(inside - paper)) < DESK_CONTRAST:
+    if not _differs(inside, paper):
         return False  # the paper's colour: the sheet beyond a margin line
     holes, k = label(binary_fill_holes(region) & ~region)
     sizes = np.bincount(holes.ravel(), minlength=k + 1)[1:]
@@ -274,7 +415,8 @@ def _desk(small: np.ndarray, edges: np.ndarray) -> np.ndarray | None:
     area = np.bincount(labels.ravel(), minlength=n + 1)
     h, w = labels.shape
     desk = np.zeros((h, w), bool)
-    colour = np.median(small[:, labels == paper], axis=1)
+    paper_px = small[:, labels == paper]
+    colour = np.median(paper_px, axis=1)
     edge_ring = _ring(labels)
     for lab in ring[ring > 0]:
         if lab == paper or area[lab] < DESK_MIN_SHARE * h * w:
@@ -283,7 +425,7 @@ def _desk(small: np.ndarray, edges: np.ndarray) -> np.ndarray | None:
             continue  # the middle of the image is the sheet's
         if np.count_nonzero(edge_ring == lab) < DESK_BORDER * edge_ring.size:
             continue  # a band of the paper, between rules, that reaches the border
-        if _is_desk(small, labels, lab, edges, area[lab], colour):
+        if _is_desk(small, labels, lab, edges, area[lab], paper_px):
             desk |= labels == lab
     desk &= ~_lined(desk, edges)
     if not desk.any():
@@ -322,6 +464,8 @@ def find_sheet(planes: np.ndarray) -> Sheet | None:
     if found is None:
         return None
     desk = found
+    # the sheet's edge, a shadow along it, a strip of another desk: the edges beside the desk
+    desk = binary_dilation(desk, np.ones((3, 3), bool), iterations=EDGE_BAND, mask=desk | edges)
     grown = binary_dilation(desk, np.ones((3, 3), bool), iterations=EDGE_MARGIN)
     parts, _ = label(~grown)
     h, w = desk.shape

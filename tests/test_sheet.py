@@ -1,0 +1,66 @@
+"""Finding the sheet in a photo (data/sheet.py) where the desk is nearly the paper's shade,
+on sheets drawn here with known characters."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drawn import on_paper, page
+from img2dmp.data.pages import find_characters
+from img2dmp.data.paper import paper_ink
+from img2dmp.data.sheet import find_sheet
+
+LINES = [[("1", 40), ("7", 110), ("0", 190), ("5", 270), ("7", 350)],
+         [("0", 60), ("5", 150), ("7", 240), ("1", 330)]]  # fmt: skip
+
+
+def _sheet_on_a_desk_of_its_shade(desk_grey, *, angle_deg=3.0, shadow=0.6, seed=0):
+    """Nine characters on a white sheet lit from the top (0.93 there, 0.71 at the bottom:
+    lighter than a desk of ``desk_grey`` above, darker below, the edge between them
+    vanishing where they cross), a slight shadow along its right and bottom edges
+    (``shadow``: the light there, 3 px), turned by ``angle_deg``, on a desk with grain,
+    slightly blurred as a phone sees it; the image and the characters' true centres."""
+    from PIL import Image, ImageFilter
+
+    ink, boxes = page(LINES)
+    h, w = ink.shape
+    light = np.linspace(1.0, 0.76, h, dtype=np.float32)[:, None, None]
+    paper = np.full((h, w, 3), 0.93, np.float32) * light
+    paper[-3:] *= shadow
+    paper[:, -3:] *= shadow
+    sheet = Image.fromarray((on_paper(ink, paper) * 255).astype(np.uint8)).convert("RGBA")
+    sheet = sheet.rotate(angle_deg, resample=Image.Resampling.BICUBIC, expand=True)
+    my, mx = 40, 48
+    out_h, out_w = sheet.height + 2 * my, sheet.width + 2 * mx
+    desk = np.full((out_h, out_w, 3), desk_grey, np.float32)
+    desk += np.random.default_rng(seed).normal(0.0, 3.0, (out_h, out_w, 1))
+    im = Image.fromarray(np.clip(desk, 0, 255).astype(np.uint8))
+    im.paste(sheet, (mx, my), sheet)
+    im = im.filter(ImageFilter.GaussianBlur(0.8))
+    a = np.deg2rad(angle_deg)
+    centres = []
+    for b in boxes:  # moved as the sheet was turned and put down
+        dx, dy = (b[0] + b[2]) / 2 - w / 2, (b[1] + b[3]) / 2 - h / 2
+        centres.append((mx + sheet.width / 2 + np.cos(a) * dx + np.sin(a) * dy,
+                        my + sheet.height / 2 - np.sin(a) * dx + np.cos(a) * dy))  # fmt: skip
+    return np.asarray(im, np.float32) / 255.0, centres
+
+
+@pytest.mark.parametrize(("desk_grey", "angle_deg", "seed"), [(204, 3.0, 0), (195, 0.0, 1)])
+def test_a_white_sheet_on_a_desk_of_nearly_its_shade_is_found_by_its_straight_edges(
+    desk_grey, angle_deg, seed
+):
+    """The sheet's edge fades out where its shade crosses the desk's level (a region of
+    desk and paper alike joined through the gap); its straight border, drawn on through
+    the faint stretch, closes it. The desk is found and the shadow along the sheet's edge
+    is no ink: the nine characters, one box each (the shadow read as ink gave 28 boxes,
+    or 10, before)."""
+    img, centres = _sheet_on_a_desk_of_its_shade(desk_grey, angle_deg=angle_deg, seed=seed)
+    sheet = find_sheet(np.ascontiguousarray(np.moveaxis(img, 2, 0)))
+    assert sheet is not None, "no desk found"
+    assert sheet.desk_px > 0.15 * img.shape[0] * img.shape[1]
+    found = paper_ink(img)
+    boxes = [c.box for c in find_characters(found.mask, core=found.core).characters]
+    inside = [[b[0] <= x < b[2] and b[1] <= y < b[3] for b in boxes] for x, y in centres]
+    assert len(boxes) == len(centres) and all(sum(row) == 1 for row in inside), boxes
