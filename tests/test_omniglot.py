@@ -313,6 +313,25 @@ def test_a_half_unzipped_folder_beside_its_zip_is_named_with_the_missing_file(tr
     )
 
 
+def test_a_split_inside_another_as_omniglot_ships_them_is_refused_saying_what_to_do(
+    tree, tmp_path, capsys
+):
+    """Omniglot's python/ folder holds background and its parts small1 and small2: the
+    same characters in two pairs."""
+    root = tmp_path / "python"
+    root.mkdir()
+    for name in ("images", "strokes"):
+        zip_tree(tree / f"{name}_test", root / f"{name}_background.zip")
+        shutil.copytree(
+            tree / f"{name}_test" / "Alpha", root / f"{name}_background_small1" / "Alpha"
+        )
+    assert _import(root, tmp_path / "a.safetensors") == 2
+    err = capsys.readouterr().err
+    assert "strokes_background_small1: holds the character Alpha/character01 that" in err
+    assert "are parts of background); import one of them (SOURCE strokes_NAME), or a" in err
+    assert _import(root / "strokes_background_small1", tmp_path / "b.safetensors") == 0
+
+
 def test_the_copies_experiment_writes_every_alphabet_again_from_folders_or_zips(
     tree, imported, tmp_path, experiment_script, capsys
 ):

@@ -686,7 +686,9 @@ def find_omniglot(
             if key[:2] in seen and seen[key[:2]] != strokes_tree:
                 raise ValueError(
                     f"{strokes_tree}: holds the character {key[0]}/{key[1]} that "
-                    f"{seen[key[:2]]} holds too; import one of them (SOURCE strokes_NAME)"
+                    f"{seen[key[:2]]} holds too (Omniglot's background_small1 and _small2 "
+                    "are parts of background); import one of them (SOURCE strokes_NAME), "
+                    "or a folder of only the pairs to read"
                 )
             seen[key[:2]] = strokes_tree
             try:
