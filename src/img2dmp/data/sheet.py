@@ -166,10 +166,12 @@ def _segments(
     """The long straight edges of an image, as ``(centre, direction, start, end)`` (the
     points ``centre + s direction``, x and y, for ``s`` from start to end): lines of a
     Hough transform of the ``weak`` pixels (each voting only for the lines across its own
-    change's direction, ``normal``), their pixels (within 1.5 px, changing across the line
-    within ``LINE_ANGLE``) cut where more than ``2 EDGE_GAP`` apart; a stretch at least
-    ``LINE_MIN`` of the shorter side long, its positions covered for ``LINE_COVER`` and
-    ``LINE_STRONG`` of them by ``strong`` pixels, is fitted by least squares."""
+    change's direction, ``normal``), strongest first; a line's band (its pixels within
+    ``EDGE_GAP``, changing across it within ``LINE_ANGLE``) cut where more than
+    ``LINE_GAP`` of the shorter side apart. A stretch at least ``LINE_MIN`` of the side
+    long, its positions covered for ``LINE_COVER`` of its length and for ``LINE_STRONG``
+    by ``strong`` pixels, is fitted by least squares and runs from its first strong pixel
+    to its last."""
     h, w = weak.shape
     ys, xs = np.nonzero(weak)
     least = LINE_MIN * min(h, w)
