@@ -798,6 +798,21 @@ def test_a_class_given_that_no_sample_has_is_kept_and_noted(small_source, tmp_pa
     assert "note:" not in capsys.readouterr().out
 
 
+def test_seconds_read_as_milliseconds_are_noted_not_refused(tmp_path, capsys):
+    for k in range(2):
+        write_sample(tmp_path / "s" / "L", "L", k)
+    out = tmp_path / "s.safetensors"
+    argv = ["import", str(tmp_path / "s"), "--out", str(out), "--no-progress", "--force"]
+    argv += ["--val-fraction", "0", "--test-fraction", "0"]
+    assert cli.main(argv) == 0
+    assert "note:" not in capsys.readouterr().out  # seconds read as seconds
+    assert cli.main([*argv, "--time-unit", "ms"]) == 0
+    printed = capsys.readouterr().out
+    assert "(t read in milliseconds), implausibly short for handwriting (less than 0.1 s" in printed
+    assert "if the files' t are seconds, import again without --time-unit ms" in printed
+    assert load_dataset(out).meta["source"]["median_duration_s"] < 0.1
+
+
 def test_milliseconds_read_as_seconds_are_noted_not_refused(tmp_path, capsys):
     for k in range(2):
         _in_ms(*write_sample(tmp_path / "s" / "L", "L", k), tmp_path / "ms" / "L")

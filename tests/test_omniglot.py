@@ -437,6 +437,24 @@ def test_a_character_without_test_drawers_is_named_in_a_note(tree, tmp_path, cap
     assert "without a drawing" not in capsys.readouterr().out
 
 
+def test_omniglot_stroke_files_in_seconds_are_noted(tmp_path, capsys):
+    """Omniglot's t are milliseconds; files of a user's own tablet written in seconds
+    make drawings of a few milliseconds: imported, with a note."""
+    root = write_tree(tmp_path / "o", alphabets=("A",), characters=1, drawers=3)
+    for f in root.glob("strokes_test/*/*/*.txt"):
+        lines = []
+        for line in f.read_text().splitlines():
+            x, y, t = line.split(",") if "," in line else (line, None, None)
+            lines.append(f"{x},{y},{float(t) / 1000:g}" if t is not None else x)
+        f.write_text("\n".join(lines) + "\n")
+    assert _import(root, tmp_path / "a.safetensors") == 0
+    out = capsys.readouterr().out
+    assert "(t read in milliseconds), implausibly short for handwriting (less than 0.1 s" in out
+    assert "Omniglot's stroke files give t in milliseconds: if these give seconds" in out
+    assert _import(root, tmp_path / "b.safetensors", "--duration", "2") == 0
+    assert "implausibly" not in capsys.readouterr().out
+
+
 def test_split_by_character_or_alphabet_keeps_them_whole(tmp_path):
     root = write_tree(tmp_path / "o", alphabets=("A", "B", "C", "D", "E"), characters=5, drawers=2)
     samples, _ = find_samples(root, split_by="character")

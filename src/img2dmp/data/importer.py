@@ -146,6 +146,7 @@ __all__ = [
     "OMNIGLOT_SPLIT_BY",
     "OUTSIDE_TOLERANCE",
     "PLAUSIBLE_MEDIAN_S",
+    "PLAUSIBLE_MIN_MEDIAN_S",
     "POOR_FIT_PX",
     "RECORDING_NAME",
     "RESAMPLING",
@@ -390,23 +391,43 @@ def _meta(opt, config, good, classes, rows, copy, fit, root: Path | None) -> dic
 #: (``strokes_background_small1``) last 3.5 s in the median, 99 % of them under 35 s; a
 #: character timed in ms and read as seconds lasts a thousand times as long.
 PLAUSIBLE_MEDIAN_S = 60.0
+#: Shortest median duration (s) taken for handwriting timed in milliseconds (Omniglot's
+#: stroke files, ``--time-unit ms``): MNIST's recorded digits last 0.118 s at the least,
+#: and a character timed in seconds and read as ms lasts a thousandth as long.
+PLAUSIBLE_MIN_MEDIAN_S = 0.1
 
 
 def time_unit_note(meta: dict) -> str | None:
-    """A one-line note when an imported data set's paths last implausibly long for
-    handwriting in seconds (their median beyond ``PLAUSIBLE_MEDIAN_S``, t read in seconds,
-    no ``duration_s``), suggesting ``--time-unit ms``; else None."""
+    """A one-line note when an imported data set's paths last implausibly long or short
+    for handwriting (their median beyond ``PLAUSIBLE_MEDIAN_S`` with t read in seconds,
+    or under ``PLAUSIBLE_MIN_MEDIAN_S`` with t read in milliseconds; no ``duration_s``),
+    suggesting the other unit; else None. Omniglot's stroke files are read in ms."""
     median = meta["source"].get("median_duration_s")
     opt = meta["import"]
-    if median is None or median <= PLAUSIBLE_MEDIAN_S or opt.get("time_unit") != "s":
+    if median is None or opt.get("duration_s") is not None:  # rescaled: no matter
         return None
-    if opt.get("duration_s") is not None:  # rescaled: the unit made no difference
-        return None
-    return (
-        f"note: the paths last {median:.4g} s in the median (t read in seconds), implausibly "
-        f"long for handwriting (more than {PLAUSIBLE_MEDIAN_S:g} s; Omniglot's drawings: "
-        "3.5 s); if the files' t are milliseconds, import again with --time-unit ms"
-    )
+    omniglot = meta["source"].get("format") == "omniglot"
+    unit = "ms" if omniglot else opt.get("time_unit")
+    if median > PLAUSIBLE_MEDIAN_S and unit == "s":
+        return (
+            f"note: the paths last {median:.4g} s in the median (t read in seconds), "
+            f"implausibly long for handwriting (more than {PLAUSIBLE_MEDIAN_S:g} s; "
+            "Omniglot's drawings: 3.5 s); if the files' t are milliseconds, import again "
+            "with --time-unit ms"
+        )
+    if median < PLAUSIBLE_MIN_MEDIAN_S and unit == "ms":
+        remedy = (
+            "Omniglot's stroke files give t in milliseconds: if these give seconds, write "
+            "them in ms, or rescale every path with --duration SECONDS"
+            if omniglot
+            else "if the files' t are seconds, import again without --time-unit ms"
+        )
+        return (
+            f"note: the paths last {median:.4g} s in the median (t read in milliseconds), "
+            f"implausibly short for handwriting (less than {PLAUSIBLE_MIN_MEDIAN_S:g} s; "
+            f"Omniglot's drawings: 3.5 s); {remedy}"
+        )
+    return None
 
 
 #: A DMP fit whose mean error exceeds this (px) is reported as poor (``fit.poor``).
