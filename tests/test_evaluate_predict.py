@@ -432,3 +432,26 @@ def test_a_crisp_bar_filling_its_box_is_prepared_not_eroded_away():
         out = prepare_image(img.astype(np.float32) / 255.0, (28, 28), stroke_width_px=width)
         cols = np.flatnonzero((out > 0.5).any(axis=0))
         assert 1 <= cols.size <= 4 and (out > 0.5).sum(axis=0).max() >= 18, width
+
+
+def test_data_framed_unlike_the_models_training_images_is_noted(model_and_data, tmp_path, capsys):
+    run, data_path = model_and_data
+    res = evaluate(run, data_path, split="test")
+    assert res["framing"]["same"]  # its own test split: framed as it learnt
+    data = load_dataset(data_path)
+    side = data.images.shape[-1]
+    small = side // 2  # the same images at half their size, in the middle of the frame
+    at = (side - small) // 2
+    images = np.zeros_like(data.images)
+    for i, a in enumerate(data.images):
+        shrunk = Image.fromarray(a.astype(np.float32)).resize((small, small), Image.BILINEAR)
+        images[i, at : at + small, at : at + small] = np.asarray(shrunk)
+    data.images = images
+    framed = tmp_path / "framed.safetensors"
+    save_dataset(framed, data)
+    res = evaluate(run, framed, split="test")
+    assert not res["framing"]["same"]
+    assert res["framing"]["data_ink_margin"] > res["framing"]["model_ink_margin"] + 0.1
+    assert cli.main(["evaluate", str(run), str(framed), "--out", str(tmp_path / "e")]) == 0
+    note = [ln for ln in capsys.readouterr().out.splitlines() if "framed unlike" in ln]
+    assert len(note) == 1 and str(framed) in note[0] and "--margin" in note[0]

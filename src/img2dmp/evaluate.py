@@ -560,7 +560,27 @@ def _described(predictor, model_path, dataset_path, data, split, digits, classes
         cost=predictor.meta.get("train_config", {}).get("cost", {}).get("name"),
         fit_error_px=error_statistics(data.fit_error_px),
         trained_on_split=trained_on_split(predictor.meta, sha, data.split),
+        framing=framing(predictor, data.images),
     )
+
+
+#: A data set's ink margin this far (share of the side) from the one its model trained
+#: on is framed otherwise: its figures say how the model reads images framed unlike
+#: what it learnt, not how it reads this data (:func:`framing`).
+MARGIN_TOLERANCE = 0.05
+
+
+def framing(predictor, images) -> dict:
+    """How prepared images ``[M, H, W]`` are framed beside the model's training images:
+    ``data_ink_margin`` (:func:`~img2dmp.data.images.ink_margin` of up to 500 of them),
+    ``model_ink_margin`` (the predictor's), and ``same`` (within
+    :data:`MARGIN_TOLERANCE`)."""
+    from .data.images import ink_margin
+
+    data_margin, model_margin = ink_margin(images[:500]), float(predictor.margin)
+    same = abs(data_margin - model_margin) <= MARGIN_TOLERANCE
+    return {"data_ink_margin": round(data_margin, 4),
+            "model_ink_margin": round(model_margin, 4), "same": bool(same)}  # fmt: skip
 
 
 def _measured(predictor, data, batch_size: int, progress: bool = False):

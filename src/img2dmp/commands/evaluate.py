@@ -130,5 +130,17 @@ def run(args: argparse.Namespace) -> int:
     if res.get("trained_on_split"):
         seen = f"{data} [{args.split}]"
         print(f"note: the model trained on some of these samples ({seen}): not a test")
+    if not res["framing"]["same"]:
+        print(framing_note(res["framing"], data))
     print(f"written: {Path(out) / 'evaluation.json'}, evaluation.txt, examples.png")
     return 0
+
+
+def framing_note(framing: dict, data: str) -> str:
+    """One line saying that a data set's images are framed unlike the model's."""
+    ours, theirs = framing["data_ink_margin"], framing["model_ink_margin"]
+    return (
+        f"note: {data} frames its images with {ours:.3f} of the side around the ink, the "
+        f"model learnt {theirs:.3f} (as img2dmp predict frames images): these figures are "
+        f"for images framed unlike its own (img2dmp import --margin {theirs:.3f})"
+    )
