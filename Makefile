@@ -26,6 +26,10 @@ OMNI_THREADS ?= 1
 # OMNI_SET="strokes.slots=12 optim.max_samples=0" for a script of more than 8 strokes a
 # character, trained the full 120 epochs whatever its size (docs/TRAINING.md).
 OMNI_SET ?=
+# ... imported with these options of img2dmp import besides --n-times 300, e.g.
+# OMNI_IMPORT="--skip-bad" for a tree with drawings that cannot be read (each named), or
+# OMNI_IMPORT="--split-by character" to test on characters never seen (docs/DATASET.md).
+OMNI_IMPORT ?=
 # make test: the suite in this many worker processes (pytest-xdist; 0 = in pytest's own
 # process, as before).
 # On a 2-core AMD EPYC without AVX-512, 2 took 376 s against 635 s for one (RESULTS 5.9).
@@ -40,10 +44,26 @@ HAS_TEST = $(BIN)/python -c "import sys; from img2dmp.data.store import load_dat
   has no test drawings (drawers 18-20) to evaluate on: see the import note above')"
 # A run trained before img2dmp train wrote its familiarity gets one here.
 RUN_FAMILIAR = $(BIN)/python -c "import sys; from img2dmp.familiar import write_run_familiar as w; w(*sys.argv[1:])"
+# A recipe's folder remembers what made it (its recipe.txt): asked for again with another
+# source or other settings, the recipe stops, naming both, rather than keep the old files
+# and say "Nothing to be done". $(call SAME_RECIPE,FOLDER,WHAT,VARIABLE)
+define SAME_RECIPE
+@mkdir -p $(1) && if [ -f $(1)/recipe.txt ] && [ "$$(cat $(1)/recipe.txt)" != '$(2)' ]; then \
+  echo "error: $(1) was made by $$(cat $(1)/recipe.txt), not by $(2): give another folder \
+($(3)=...), or remove $(1) to make it anew"; exit 1; fi; printf '%s\n' '$(2)' > $(1)/recipe.txt
+endef
+# ... and rewrites a file only when its text changes (a step's settings that do not
+# remake what came before it, such as the reading settings of an evaluation).
+define SETTINGS
+@mkdir -p $(dir $(1)) && printf '%s\n' '$(2)' | cmp -s - $(1) || printf '%s\n' '$(2)' > $(1)
+endef
+REAL_RECIPE = DATA=$(DATA)
+OMNI_RECIPE = OMNIGLOT=$(OMNIGLOT) OMNI_IMPORT=$(OMNI_IMPORT) OMNI_SET=$(OMNI_SET) OMNI_THREADS=$(OMNI_THREADS)
 # The torch build the set-up installs (the CPU build).
 TORCH  ?= 2.13.0
 
-.PHONY: setup browser demo test lint bench clean model-real ship-real model-omniglot ship-omniglot
+.PHONY: setup browser demo test lint bench clean model-real ship-real model-omniglot ship-omniglot \
+  real-recipe omni-recipe FORCE
 
 setup: $(STAMP)
 
@@ -85,15 +105,21 @@ browser:
 # Each step is skipped when its result exists; an interrupted training resumes.
 model-real: $(REAL)/evaluation/evaluation.json
 
-$(REAL)/data.safetensors: | setup
-	$(BIN)/img2dmp prepare --data $(DATA) --augment 10 --paper 0.5 --scaling none --duration 1 --out $@
+real-recipe:
+	$(call SAME_RECIPE,$(REAL),$(REAL_RECIPE),REAL)
 
-$(REAL)/run/checkpoints/best.safetensors: $(REAL)/data.safetensors src/img2dmp/configs/real.yaml | setup
+$(REAL)/data.safetensors: | setup real-recipe
+	$(BIN)/img2dmp prepare --data '$(DATA)' --augment 10 --paper 0.5 --scaling none --duration 1 --out $@
+
+$(REAL)/run/checkpoints/best.safetensors: $(REAL)/data.safetensors src/img2dmp/configs/real.yaml | setup real-recipe
 	if [ -f $(REAL)/run/checkpoints/last.safetensors ]; then \
 	  $(BIN)/img2dmp train --run-dir $(REAL)/run --resume; else \
 	  $(BIN)/img2dmp train --config real --data $< --run-dir $(REAL)/run; fi
 
-$(REAL)/evaluation/evaluation.json: $(REAL)/run/checkpoints/best.safetensors
+$(REAL)/evaluation/settings.txt: FORCE
+	$(call SETTINGS,$@,REAL_UNFAMILIAR=$(REAL_UNFAMILIAR))
+
+$(REAL)/evaluation/evaluation.json: $(REAL)/run/checkpoints/best.safetensors $(REAL)/evaluation/settings.txt
 	test -f $(REAL)/run/familiar.safetensors || $(RUN_FAMILIAR) $(REAL)/run $(REAL)/data.safetensors
 	$(BIN)/img2dmp evaluate --model $(REAL)/run --data $(REAL)/data.safetensors --split test \
 	  --refine 30 --refine-unfamiliar $(REAL_UNFAMILIAR) --out $(REAL)/evaluation --force
@@ -104,17 +130,23 @@ $(REAL)/evaluation/evaluation.json: $(REAL)/run/checkpoints/best.safetensors
 # recommended; about 17 minutes on 2 cores.
 model-omniglot: $(OMNI)/evaluation/evaluation.json
 
-$(OMNI)/data.safetensors: | setup
-	$(BIN)/img2dmp import $(OMNIGLOT) --n-times 300 --out $@ --force --no-progress
+omni-recipe:
+	$(call SAME_RECIPE,$(OMNI),$(OMNI_RECIPE),OMNI)
 
-$(OMNI)/run/checkpoints/best.safetensors: $(OMNI)/data.safetensors src/img2dmp/configs/omniglot.yaml | setup
+$(OMNI)/data.safetensors: | setup omni-recipe
+	$(BIN)/img2dmp import '$(OMNIGLOT)' --n-times 300 $(OMNI_IMPORT) --out $@ --force --no-progress
+
+$(OMNI)/run/checkpoints/best.safetensors: $(OMNI)/data.safetensors src/img2dmp/configs/omniglot.yaml | setup omni-recipe
 	$(HAS_TEST) $<
 	if [ -f $(OMNI)/run/checkpoints/last.safetensors ]; then \
 	  $(BIN)/img2dmp train --run-dir $(OMNI)/run --resume; else \
 	  $(BIN)/img2dmp train --config omniglot --data $< --run-dir $(OMNI)/run \
 	    --set threads=$(OMNI_THREADS) $(foreach s,$(OMNI_SET),--set $(s)); fi
 
-$(OMNI)/evaluation/evaluation.json: $(OMNI)/run/checkpoints/best.safetensors
+$(OMNI)/evaluation/settings.txt: FORCE
+	$(call SETTINGS,$@,OMNI_VIEWS=$(OMNI_VIEWS) OMNI_UNFAMILIAR=$(OMNI_UNFAMILIAR))
+
+$(OMNI)/evaluation/evaluation.json: $(OMNI)/run/checkpoints/best.safetensors $(OMNI)/evaluation/settings.txt
 	test -f $(OMNI)/run/familiar.safetensors || $(RUN_FAMILIAR) $(OMNI)/run $(OMNI)/data.safetensors
 	$(BIN)/img2dmp evaluate --model $(OMNI)/run --data $(OMNI)/data.safetensors --split test \
 	  --refine 60 --refine-unfamiliar $(OMNI_UNFAMILIAR) --count-views $(OMNI_VIEWS) \
@@ -142,6 +174,8 @@ lint: setup
 
 bench: setup
 	$(BIN)/python benchmarks/bench_rollout.py
+
+FORCE:
 
 clean:
 	rm -rf $(VENV) out runs
