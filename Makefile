@@ -48,17 +48,19 @@ RUN_FAMILIAR = $(BIN)/python -c "import sys; from img2dmp.familiar import write_
 # source or other settings, the recipe stops, naming both, rather than keep the old files
 # and say "Nothing to be done". $(call SAME_RECIPE,FOLDER,WHAT,VARIABLE)
 define SAME_RECIPE
-@mkdir -p $(1) && if [ -f $(1)/recipe.txt ] && [ "$$(cat $(1)/recipe.txt)" != '$(2)' ]; then \
-  echo "error: $(1) was made by $$(cat $(1)/recipe.txt), not by $(2): give another folder \
-($(3)=...), or remove $(1) to make it anew"; exit 1; fi; printf '%s\n' '$(2)' > $(1)/recipe.txt
+@mkdir -p $(1) && made="$(2)" && if [ -f $(1)/recipe.txt ] && [ "$$(cat $(1)/recipe.txt)" != "$$made" ]; \
+  then echo "error: $(1) was made by $$(cat $(1)/recipe.txt), not by $$made: give another \
+folder ($(3)=...), or remove $(1) to make it anew"; exit 1; fi; printf '%s\n' "$$made" > $(1)/recipe.txt
 endef
+# A path as the recipe records it: absolute, so ../shared/data and its full path agree.
+ABS = $$(realpath -m '$(1)')
 # ... and rewrites a file only when its text changes (a step's settings that do not
 # remake what came before it, such as the reading settings of an evaluation).
 define SETTINGS
 @mkdir -p $(dir $(1)) && printf '%s\n' '$(2)' | cmp -s - $(1) || printf '%s\n' '$(2)' > $(1)
 endef
-REAL_RECIPE = DATA=$(DATA)
-OMNI_RECIPE = OMNIGLOT=$(OMNIGLOT) OMNI_IMPORT=$(OMNI_IMPORT) OMNI_SET=$(OMNI_SET) OMNI_THREADS=$(OMNI_THREADS)
+REAL_RECIPE = DATA=$(call ABS,$(DATA))
+OMNI_RECIPE = OMNIGLOT=$(call ABS,$(OMNIGLOT)) OMNI_IMPORT=$(OMNI_IMPORT) OMNI_SET=$(OMNI_SET) OMNI_THREADS=$(OMNI_THREADS)
 # The torch build the set-up installs (the CPU build).
 TORCH  ?= 2.13.0
 
