@@ -57,6 +57,65 @@ def test_slowing_keeps_the_fastest_joint_within_its_share_of_the_limit():
     assert slowing_for(qd, 0.25, None).factor == 1.0
 
 
+def test_slowing_keeps_the_planned_accelerations_within_their_share():
+    """Slowing by k divides accelerations by k^2: a joint at 4 times its acceleration
+    limit needs k = 2 for all of it, 4 for a quarter of it."""
+    from img2dmp.robot.joints import IIWA_ACCELERATION_LIMITS_RAD_S2 as acc_limits
+    from img2dmp.robot.tempo import slowing_for
+
+    qd = np.zeros((50, 7))
+    qdd = np.zeros((50, 7))
+    qdd[30, 1] = -4.0 * acc_limits[1]
+    s = slowing_for(qd, 0.5, 0.6, qdd, 1.0)
+    assert s.slowed and s.by_acceleration and s.factor == pytest.approx(2.0)
+    assert "lbr_iiwa_joint_2 would accelerate at 40 rad/s^2, 400 %" in s.words()
+    assert s.to_dict()["slowdown_by"] == "acceleration"
+    assert slowing_for(qd, 0.5, 0.6, qdd, 0.25).factor == pytest.approx(4.0)
+    # the larger of the two factors wins: joint 4 at twice its speed limit needs 3.33
+    qd[20, 3] = 2.0 * np.radians(75)
+    both = slowing_for(qd, 0.5, 0.6, qdd, 1.0)
+    assert both.factor == pytest.approx(2.0 / 0.6, abs=1e-3) and not both.by_acceleration
+    # acceleration share None: measured only
+    assert slowing_for(qd * 0, 0.5, 0.6, qdd, None).factor == 1.0
+
+
+def test_planned_accelerations_are_the_velocities_finite_differences():
+    """A joint moving with constant acceleration a from rest: every planned acceleration
+    after the first step is a (finite differences are exact for a parabola)."""
+    from img2dmp.robot.tempo import planned_joint_accelerations
+
+    t = np.arange(40) / 240.0
+    q = 0.5 * 3.0 * t[:, None] ** 2 * np.arange(1, 8)  # [T, 7], a = 3, 6, ..., 21 rad/s^2
+    qd = np.zeros_like(q)
+    qd[1:] = np.diff(q, axis=0) / np.diff(t)[:, None]
+    qdd = planned_joint_accelerations(qd, t)
+    assert np.allclose(qdd[2:], 3.0 * np.arange(1, 8), rtol=1e-9)
+    assert np.allclose(qdd[1], 1.5 * np.arange(1, 8)) and not qdd[0].any()
+
+
+def test_joint_acceleration_metrics_name_the_joint_the_time_and_the_phase():
+    from img2dmp.robot.tempo import joint_acceleration_metrics
+
+    @dataclasses.dataclass
+    class Log:
+        time_s: np.ndarray
+        joint_qd_rad_s: np.ndarray
+        phase: np.ndarray
+
+    t = np.arange(1, 6) * 0.01
+    qd = np.zeros((5, 7))
+    qd[:, 5] = [0.0, 0.0, 0.05, 0.05, 0.05]  # joint 6: 5 rad/s^2 over the third step
+    qd[4, 2] = 0.2  # joint 3: 20 rad/s^2 over the fifth step
+    m = joint_acceleration_metrics(Log(t, qd, np.array([0, 1, 1, 2, 2])))
+    assert m["joint_acceleration_peak_joint"] == "lbr_iiwa_joint_3"
+    assert m["joint_acceleration_peak_share"] == pytest.approx(2.0)
+    assert m["joint_acceleration_peak_time_s"] == pytest.approx(0.05)
+    assert m["joint_acceleration_peak_phase"] == "lift"
+    assert m["joint_acceleration_peak_rad_s2"][5] == pytest.approx(5.0)
+    empty = joint_acceleration_metrics(Log(t, np.full((5, 7), np.nan), np.zeros(5, int)))
+    assert np.isnan(empty["joint_acceleration_peak_share"])
+
+
 def test_a_slowed_dmp_draws_the_same_path_in_more_time():
     from img2dmp.robot.tempo import slowed_dmp
 
@@ -96,6 +155,8 @@ def test_joint_speed_share_is_checked():
     for bad in (0.0, -0.5, 1.5, float("nan"), True):
         with pytest.raises(ValueError, match="joint_speed_share must be in"):
             WritingOptions(joint_speed_share=bad)
+        with pytest.raises(ValueError, match="joint_acceleration_share must be in"):
+            WritingOptions(joint_acceleration_share=bad)
     assert WritingOptions(joint_speed_share=None).joint_speed_share is None
 
 
@@ -110,7 +171,8 @@ def fast_runs():
     from img2dmp.robot import write_dmp
 
     params, config = stroke_dmp(FAST_S)
-    own = write_dmp(params, config, IMAGE_SIZE, render_size_px=None, joint_speed_share=None)
+    own = write_dmp(params, config, IMAGE_SIZE, render_size_px=None, joint_speed_share=None,
+                    joint_acceleration_share=None)  # fmt: skip
     slowed = write_dmp(params, config, IMAGE_SIZE, render_size_px=None)
     return params, own, slowed
 
@@ -137,13 +199,38 @@ def test_a_dmp_too_fast_for_the_iiwa_is_slowed_until_its_joints_can_follow(fast_
 
 
 @needs_pybullet
+def test_the_slowed_plan_keeps_its_joint_accelerations_within_the_limit(fast_runs):
+    """Planned again, independently, along the slowed plan: every joint within its
+    acceleration limit; at the DMP's own tempo they were far over it."""
+    from img2dmp.robot import WritingScene
+    from img2dmp.robot.joints import IIWA_ACCELERATION_LIMITS_RAD_S2 as acc_limits
+    from img2dmp.robot.scene import HOME_JOINTS_RAD, SceneConfig
+    from img2dmp.robot.tempo import planned_joint_accelerations, planned_joint_velocities
+    from img2dmp.robot.writing import PEN_DOWN_ROTATION
+
+    _, own, slowed = fast_runs
+    with WritingScene(SceneConfig(), time_step_s=1 / 240) as scene:
+        peaks = {}
+        for name, run in (("own", own), ("slowed", slowed)):
+            _, qd = planned_joint_velocities(scene, run.plan, np.array(HOME_JOINTS_RAD),
+                                             PEN_DOWN_ROTATION)  # fmt: skip
+            peaks[name] = np.abs(planned_joint_accelerations(qd, run.plan.time_s)).max(axis=0)
+    assert np.max(peaks["own"] / acc_limits) > 2.0
+    assert np.all(peaks["slowed"] <= acc_limits), peaks["slowed"]
+    assert slowed.slowing.written_shares()[1] == pytest.approx(np.max(peaks["slowed"] / acc_limits))
+    assert slowed.metrics["planned_joint_acceleration_share"] <= 1.0
+    assert own.metrics["planned_joint_acceleration_share"] > 2.0
+
+
+@needs_pybullet
 def test_a_dmp_within_the_limits_is_written_exactly_as_before():
     from img2dmp.robot import write_dmp
 
     params, config = stroke_dmp(0.6)
     kw = {"render_size_px": None}
     slowed = write_dmp(params, config, IMAGE_SIZE, **kw)
-    own = write_dmp(params, config, IMAGE_SIZE, joint_speed_share=None, **kw)
+    own = write_dmp(params, config, IMAGE_SIZE, joint_speed_share=None,
+                    joint_acceleration_share=None, **kw)  # fmt: skip
     assert slowed.slowing.factor == 1.0 and not slowed.slowing.slowed
     for name in ("time_s", "cmd_m", "tip_m", "joint_q_rad", "joint_qd_rad_s"):
         assert np.array_equal(slowed.log[name], own.log[name]), name
@@ -196,6 +283,7 @@ def test_write_command_slows_a_fast_dmp_and_says_so(tmp_path, capsys):
     notes = [line for line in captured.err.splitlines() if "slower" in line]
     assert len(notes) == 1 and "fast: written" in notes[0] and "lbr_iiwa_joint_4" in notes[0]
     assert "joint speeds within the real iiwa's limits" in captured.out
+    assert "joint accelerations planned along the DMPs within the planning limit" in captured.out
     assert "warning" not in captured.err
     traj = load_joint_trajectory(out / "joints.json")
     assert traj.limit_violation() is None
@@ -225,3 +313,25 @@ def test_export_joints_of_a_motion_over_the_limits_writes_nothing(tmp_path, caps
     assert "nothing of fast written" in err[-1] and "without --no-slowing" in err[-1]
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["fast.json"]
     json.loads((tmp_path / "fast.json").read_text())  # the input untouched
+
+
+def test_acceleration_share_is_checked_on_the_command_line(tmp_path, capsys):
+    """A share outside (0, 1], or with --no-slowing, is a one-line error before anything
+    is simulated."""
+    from img2dmp.cli import main
+    from img2dmp.robot import save_dmp_json
+
+    params, config = stroke_dmp(0.6)
+    save_dmp_json(tmp_path / "s.json", params, config, IMAGE_SIZE, frame="image")
+    base = ["write", "--dmp", str(tmp_path / "s.json"), "--out-dir", str(tmp_path / "o"),
+            "--no-progress"]  # fmt: skip
+    for extra, says in (
+        (["--acceleration-share", "0"], "--acceleration-share must be in (0, 1], got 0"),
+        (["--acceleration-share", "1.5"], "--acceleration-share must be in (0, 1], got 1.5"),
+        (["--acceleration-share", "nan"], "--acceleration-share must be in (0, 1], got nan"),
+        (["--acceleration-share", "0.5", "--no-slowing"], "not with --no-slowing"),
+    ):
+        assert main(base + extra) == 2, extra
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and says in err[0], err
+    assert not (tmp_path / "o").exists()

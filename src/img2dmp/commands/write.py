@@ -44,6 +44,7 @@ Needs the optional extra: ``pip install -e '/path/to/img2dmp[robot]'``.
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 
@@ -128,7 +129,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_joint_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--export-joints``, ``--no-slowing``: the motion for a real iiwa."""
+    """``--export-joints``, ``--no-slowing``, ``--acceleration-share``: the motion for a
+    real iiwa."""
     parser.add_argument(
         "--export-joints",
         metavar="FILE",
@@ -141,7 +143,18 @@ def _add_joint_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="write each DMP at its own tempo even where a real iiwa's joints could not "
         "follow it (default: a DMP whose planned joint speeds exceed 60 %% of the iiwa's "
-        "limits is written that much slower, the same path, with a note)",
+        "limits, or whose planned joint accelerations exceed --acceleration-share of the "
+        "10 rad/s^2 planning limit, is written that much slower, the same path, with a "
+        "note)",
+    )
+    parser.add_argument(
+        "--acceleration-share",
+        type=float,
+        default=None,
+        metavar="SHARE",
+        help="keep the joint accelerations planned along each DMP within this share, in "
+        "(0, 1], of 10 rad/s^2 per joint (a planning limit of the iiwa 14 in wide use; "
+        "KUKA publishes none; default 1); not with --no-slowing",
     )
 
 
@@ -324,6 +337,9 @@ def check_files(args) -> None:
     one name per input), before anything is loaded or simulated."""
     _default_model(args)
     _check_export_joints(args.export_joints)
+    if args.no_slowing and getattr(args, "acceleration_share", None) is not None:
+        raise ValueError("--acceleration-share is for the slowing; not with --no-slowing")
+    _joint_acceleration_share(args)
     if args.page:
         _check_page_files(args)
         return
@@ -484,6 +500,7 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
                     controller_config=ctl_cfg,
                     frame_interval_s=args.frame_interval_s if args.video else None,
                     joint_speed_share=_joint_speed_share(args),
+                    joint_acceleration_share=_joint_acceleration_share(args),
                     progress=bar.update,
                 )
             except RuntimeError as e:  # the simulated arm failed (e.g. never settled)
@@ -507,7 +524,8 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
 
 #: Why a note says a DMP was slowed, and how not to.
 SLOWING_WHY = ("slowed so that a real iiwa's joints can follow (planned within 60 % of "
-               "their speed limits; --no-slowing: the DMP's own tempo)")  # fmt: skip
+               "their speed limits, their accelerations within --acceleration-share, default "
+               "1, of 10 rad/s^2; --no-slowing: the DMP's own tempo)")  # fmt: skip
 
 
 def _note(text: str) -> None:
@@ -520,6 +538,21 @@ def _joint_speed_share(args):
     from img2dmp.robot.tempo import JOINT_SPEED_SHARE
 
     return None if args.no_slowing else JOINT_SPEED_SHARE
+
+
+def _joint_acceleration_share(args):
+    """``--acceleration-share`` (default :data:`img2dmp.robot.tempo.JOINT_ACCELERATION_SHARE`),
+    or None with ``--no-slowing``; ``ValueError`` for a share not in (0, 1]."""
+    from img2dmp.robot.tempo import JOINT_ACCELERATION_SHARE
+
+    share = getattr(args, "acceleration_share", None)
+    if args.no_slowing:
+        return None
+    if share is None:
+        return JOINT_ACCELERATION_SHARE
+    if not (math.isfinite(share) and 0.0 < share <= 1.0):
+        raise ValueError(f"--acceleration-share must be in (0, 1], got {share:g}")
+    return share
 
 
 def _joint_trajectory(args, result, name: str, n_inputs: int):
@@ -628,6 +661,7 @@ def _writing_options(args, scene_cfg, ctl_cfg):
         controller_config=ctl_cfg,
         frame_interval_s=args.frame_interval_s if args.video else None,
         joint_speed_share=_joint_speed_share(args),
+        joint_acceleration_share=_joint_acceleration_share(args),
     )
 
 
@@ -747,9 +781,16 @@ def _write_plan(args, name: str, plan, photo, what: str, table: str, noun="chara
     table of its characters (or strokes) ``<name><table>``, the run's files and its
     summary."""
     from img2dmp._progress import bar as progress_bar
-    from img2dmp.robot import page_summary_lines, plot_page, save_characters_csv, write_page_plan
+    from img2dmp.robot import (
+        page_summary_lines,
+        plot_page,
+        ready_page_plan,
+        save_characters_csv,
+        write_page_plan,
+    )
     from img2dmp.robot.outputs import joint_speed_warning
 
+    plan = ready_page_plan(plan)  # slowed where need be: the bar's total counts it
     n, started, labels = len(plan.characters), [], plan.entry_labels()
     with progress_bar(
         total=plan.estimated_steps(),

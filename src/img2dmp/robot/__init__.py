@@ -21,10 +21,11 @@ The DMP file format (:mod:`.dmpfile`) works without pybullet. See ``docs/ROBOT.m
   the DMP clock while the pen lands and lifts (:mod:`.strokes`)
 - :class:`JointTrajectory`, :func:`save_joint_trajectory`, :func:`load_joint_trajectory`,
   :func:`replay_joint_trajectory` - the joint trajectory for a real iiwa (:mod:`.joints`);
-  a DMP too fast for its joint speed limits is slowed before anything moves, and every
-  run measures its joint speeds (:mod:`.tempo`)
+  a DMP too fast for its joint speed or acceleration limits is slowed before anything
+  moves, and every run measures its joint speeds and accelerations (:mod:`.tempo`)
 - :func:`write_page` - every character of a page document in one run (:mod:`.page`:
-  :func:`plan_page`, :func:`write_page_plan`, :class:`PageRun`, :class:`PageResult`);
+  :func:`plan_page`, :func:`ready_page_plan`, :func:`write_page_plan`, :class:`PageRun`,
+  :class:`PageResult`);
   :func:`read_page`, :func:`check_page_document`, :class:`Page` - the page document
   (:mod:`.pagefile`); :func:`plot_page`, :func:`save_characters_csv`,
   :func:`page_summary_lines` - its outputs
@@ -68,6 +69,7 @@ _LAZY = {
     "write_page": ".page",
     "plan_page": ".page",
     "write_page_plan": ".page",
+    "ready_page_plan": ".page",
     "page_mapping": ".page",
     "PagePlan": ".page",
     "PageRun": ".page",

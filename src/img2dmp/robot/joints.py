@@ -44,6 +44,12 @@ IIWA_JOINT_NAMES = tuple(f"lbr_iiwa_joint_{j}" for j in range(1, 8))
 IIWA_POSITION_LIMITS_RAD = np.radians([170.0, 120.0, 170.0, 120.0, 170.0, 120.0, 175.0])
 # Axis speeds of the LBR iiwa 14 R820 (85, 85, 100, 75, 130, 135, 135 degrees per second).
 IIWA_VELOCITY_LIMITS_RAD_S = np.radians([85.0, 85.0, 100.0, 75.0, 130.0, 135.0, 135.0])
+# Joint accelerations: KUKA publishes none for the LBR iiwa 14 R820 (its data sheet gives
+# ranges, speeds and torques only). 10 rad/s^2 at every joint is what the lbr-stack's
+# MoveIt configuration of the iiwa 14 plans with (github.com/lbr-stack/lbr_fri_ros2_stack,
+# lbr_moveit_config/iiwa14_moveit_config/config/joint_limits.yaml, max_acceleration: 10.0,
+# before its default scaling of 0.1): a planning limit in wide use, not a KUKA value.
+IIWA_ACCELERATION_LIMITS_RAD_S2 = np.full(7, 10.0)
 ROBOT = "KUKA LBR iiwa 14 R820 (pybullet_data kuka_iiwa/model.urdf) with a pen on the flange"
 SUFFIXES = (".csv", ".json")
 

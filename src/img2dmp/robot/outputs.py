@@ -332,6 +332,38 @@ def joint_speed_line(metrics: dict) -> str | None:
     )
 
 
+def joint_acceleration_line(metrics: dict, noun: str = "character") -> str | None:
+    """The peak joint acceleration planned along the DMPs (at the tempo written) against
+    the planning limit, and the simulated arm's own peak over the run, in words (None
+    for a run without a plan's accelerations); on a page, naming the ``noun`` whose."""
+    share = metrics.get("planned_joint_acceleration_share", math.nan)
+    if not math.isfinite(share):
+        return None
+    limits = np.asarray(metrics["joint_acceleration_limit_rad_s2"])
+    joint = metrics["planned_joint_acceleration_joint"]
+    j = int(joint.rsplit("_", 1)[1]) - 1
+    within = "within" if share <= 1.0 else "OVER"
+    where = metrics.get("planned_joint_acceleration_character")
+    where = "" if where is None else f", {noun} {where}"
+    line = (
+        f"  joint accelerations planned along the DMPs {within} the planning limit: peak "
+        f"{100 * share:.0f} % of it ({joint} {share * limits[j]:.2f} of {limits[j]:g} rad/s^2"
+        f"{where})"
+    )
+    run = metrics.get("joint_acceleration_peak_share", math.nan)
+    if math.isfinite(run):
+        peaks = np.asarray(metrics["joint_acceleration_peak_rad_s2"])
+        k = int(np.argmax(peaks / limits))
+        line += (
+            f"; the simulated arm's peak {peaks[k]:.1f} rad/s^2 "
+            f"({metrics['joint_acceleration_peak_joint']} at t = "
+            f"{metrics['joint_acceleration_peak_time_s']:.2f} s, "
+            f"{metrics['joint_acceleration_peak_phase']}), from what the plan leaves out: "
+            "starts from rest, landings, lifts, stops at a path's end"
+        )
+    return line
+
+
 def joint_speed_warning(metrics: dict) -> str | None:
     """A warning (None if not needed) when the simulated arm moved a joint faster than a
     real iiwa can: the motion is not one a real arm can follow."""
@@ -377,6 +409,9 @@ def summary_lines(name: str, result: WritingResult) -> list[str]:
     speeds = joint_speed_line(m)
     if speeds:
         lines.append(speeds)
+    accelerations = joint_acceleration_line(m)
+    if accelerations:
+        lines.append(accelerations)
     return lines
 
 
@@ -550,6 +585,9 @@ def page_summary_lines(name: str, result, noun: str = "character", labels=None) 
     speeds = joint_speed_line(m)
     if speeds:
         lines.append(speeds)
+    accelerations = joint_acceleration_line(m, noun)
+    if accelerations:
+        lines.append(accelerations)
     for r in result.characters:
         c, cm = r.character, r.metrics
         label = (labels or {}).get(c.index)

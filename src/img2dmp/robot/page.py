@@ -48,7 +48,7 @@ from .controller import WritingController
 from .pagefile import Page, PageCharacter, read_page
 from .scene import WritingScene
 from .strokes import ink_on_path_share, ink_trace, min_jerk_along, stroke_report
-from .tempo import Slowing, joint_speed_metrics
+from .tempo import Slowing, joint_acceleration_metrics, joint_speed_metrics
 from .writing import (
     IK_TOLERANCE_M,
     PEN_DOWN_ROTATION,
@@ -135,6 +135,9 @@ class PagePlan:
     options : WritingOptions
         The settings it was planned at (control rate, scene, controller), which the
         run uses.
+    start_joints_rad : ndarray [7] or None
+        The start posture, once :func:`ready_page_plan` has checked the arm's reach
+        (:func:`write_page_plan` then does not check it again); None: not checked yet.
     """
 
     page: Page
@@ -144,6 +147,7 @@ class PagePlan:
     width_mm: float
     travel_height_m: float
     options: WritingOptions
+    start_joints_rad: np.ndarray | None = field(default=None, compare=False)
 
     def travels(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """``(from, to)`` world ``(x, y)`` of each travel: from the end of one character's
@@ -440,9 +444,13 @@ def slow_page_plan(scene: WritingScene, plan: PagePlan) -> PagePlan:
     """``plan`` with each character's DMP slowed, where it needs it, so that the joint
     speeds planned along it stay within ``plan.options.joint_speed_share`` of the iiwa's
     limits (:func:`img2dmp.robot.writing.slow_for_joint_limits`; only the characters that
-    need it are slowed, each by its own factor, in :attr:`CharacterPlan.slowing`)."""
+    need it are slowed, each by its own factor, in :attr:`CharacterPlan.slowing`; one
+    that has its slowing already, :func:`ready_page_plan`, is kept as it is)."""
     out = []
     for cp in plan.characters:
+        if cp.slowing is not None:
+            out.append(cp)
+            continue
         try:
             params, path, slowing = slow_for_joint_limits(
                 scene, cp.params, cp.config, cp.plan, plan.mapping, plan.options
@@ -455,6 +463,20 @@ def slow_page_plan(scene: WritingScene, plan: PagePlan) -> PagePlan:
     return slowed
 
 
+def ready_page_plan(plan: PagePlan) -> PagePlan:
+    """``plan`` as :func:`write_page_plan` will write it, without simulating: the arm's
+    reach checked (:func:`check_page_reach`) and the characters that need it slowed
+    (:func:`slow_page_plan`), in a scene of its own; so that its
+    :meth:`PagePlan.estimated_steps` counts the slowing. :func:`write_page_plan` does not
+    slow it again."""
+    if not isinstance(plan, PagePlan):
+        raise ValueError(f"plan must be a PagePlan (plan_page), got {type(plan).__name__}")
+    options = plan.options
+    with WritingScene(options.scene_config, time_step_s=options.dt_s) as scene:
+        q_start = check_page_reach(scene, plan, options.controller_config)
+        return dataclasses.replace(slow_page_plan(scene, plan), start_joints_rad=q_start)
+
+
 def write_page_plan(
     plan: PagePlan,
     *,
@@ -465,7 +487,8 @@ def write_page_plan(
 
     The arm's reach along every character and travel is checked first
     (:func:`check_page_reach`), and the characters that need it are slowed for the
-    iiwa's joint speed limits (:func:`slow_page_plan`); then the arm starts at rest above
+    iiwa's joint speed and acceleration limits (:func:`slow_page_plan`), unless
+    :func:`ready_page_plan` has done both; then the arm starts at rest above
     the first character's first point and :class:`PageRun` writes them all.
     ``progress(n_steps)`` is called after each batch of simulated steps,
     ``on_character(character_plan)`` as each character starts. ``RuntimeError`` if the
@@ -477,7 +500,9 @@ def write_page_plan(
     scene_cfg, ctl_cfg = options.scene_config, options.controller_config
     scene = WritingScene(scene_cfg, time_step_s=options.dt_s)
     try:
-        q_start = check_page_reach(scene, plan, ctl_cfg)
+        q_start = plan.start_joints_rad
+        if q_start is None:
+            q_start = check_page_reach(scene, plan, ctl_cfg)
         plan = slow_page_plan(scene, plan)
         scene.reset_joints(q_start)
         lift_z_m = scene_cfg.paper_top_z + ctl_cfg.lift_height_m
@@ -792,12 +817,18 @@ def page_metrics(log: WritingLog, runs: list[CharacterRun], force_set_n: float) 
         ``ink_length_mm`` summed; ``placement_error_max_mm``;
         ``travel_contact_s`` - time the pen touched the paper while travelling between
         characters (0: no ink between them); ``characters``, ``characters_written``,
-        ``characters_skipped``; :func:`img2dmp.robot.tempo.joint_speed_metrics` over the
-        whole log (travels included); ``characters_slowed`` and ``slowdown_max`` (1: none
-        slowed for the iiwa's joint speed limits).
+        ``characters_skipped``; :func:`img2dmp.robot.tempo.joint_speed_metrics` and
+        :func:`~img2dmp.robot.tempo.joint_acceleration_metrics` over the whole log
+        (travels included); ``characters_slowed`` and ``slowdown_max`` (1: none slowed for
+        the iiwa's joint limits); ``planned_joint_speed_share`` and
+        ``planned_joint_acceleration_share``, the largest of the written characters'
+        (their DMPs at the tempo written), with ``planned_joint_acceleration_joint`` and
+        ``planned_joint_acceleration_character`` (which character's; absent if no
+        character was planned).
     """
     m = writing_metrics(log, force_set_n)
     m.update(joint_speed_metrics(log))
+    m.update(joint_acceleration_metrics(log))
     written = [r.metrics for r in runs if r.written]
     strokes = [
         {"character": r.character.index, **s}
@@ -832,6 +863,19 @@ def page_metrics(log: WritingLog, runs: list[CharacterRun], force_set_n: float) 
             "slowdown_max": max((c.get("slowdown", 1.0) for c in written), default=1.0),
         }
     )
+    planned = [r for r in runs if r.written and "planned_joint_acceleration_share" in r.metrics]
+    if planned:
+        top = max(planned, key=lambda r: r.metrics["planned_joint_acceleration_share"])
+        m.update(
+            {
+                "planned_joint_speed_share": max(
+                    r.metrics["planned_joint_speed_share"] for r in planned
+                ),
+                "planned_joint_acceleration_share": top.metrics["planned_joint_acceleration_share"],
+                "planned_joint_acceleration_joint": top.metrics["planned_joint_acceleration_joint"],
+                "planned_joint_acceleration_character": top.character.index,
+            }
+        )
     return m
 
 
@@ -851,6 +895,7 @@ __all__ = [
     "page_mapping",
     "page_metrics",
     "plan_page",
+    "ready_page_plan",
     "slow_page_plan",
     "read_page",
     "travel_targets",

@@ -1,26 +1,35 @@
-"""Slowing a DMP so that a real iiwa's joints can follow it, and the joint speeds of a run.
+"""Slowing a DMP so that a real iiwa's joints can follow it, and the joint speeds and
+accelerations of a run.
 
 The simulated arm is driven by joint torques (up to 300 N m) and follows a DMP at any
 speed it is asked to; a real LBR iiwa does not: its axes have speed limits
-(:data:`img2dmp.robot.joints.IIWA_VELOCITY_LIMITS_RAD_S`, 75 to 135 deg/s). A DMP that is
-short for its length (e.g. a stroke model's stroke of 36 mm in 0.22 s, peaking at
-0.76 m/s on the paper) asks joint 4 for twice its limit. Before anything moves:
+(:data:`img2dmp.robot.joints.IIWA_VELOCITY_LIMITS_RAD_S`, 75 to 135 deg/s) and cannot
+accelerate without bound (:data:`~img2dmp.robot.joints.IIWA_ACCELERATION_LIMITS_RAD_S2`:
+10 rad/s^2, a widely used planning limit; KUKA publishes none). A DMP that is short for
+its length (e.g. a stroke model's stroke of 36 mm in 0.22 s, peaking at 0.76 m/s on the
+paper) asks joint 4 for twice its speed limit and 24 times that acceleration. Before
+anything moves:
 
-1. **Plan the joints** (:func:`planned_joint_velocities`): the controller's own inverse
-   kinematics (:meth:`WritingScene.solve_ik`, warm-started, with its step towards the
-   home posture in the null space) at every sample of the planned path, the pen on the
-   paper where it is down and at the lift height where it is up; the joint velocities
-   are their finite differences at the control rate, as the controller's ``qd_d``.
+1. **Plan the joints** (:func:`planned_joint_velocities`,
+   :func:`planned_joint_accelerations`): the controller's own inverse kinematics
+   (:meth:`WritingScene.solve_ik`, warm-started, with its step towards the home posture
+   in the null space) at every sample of the planned path, the pen on the paper; the
+   joint velocities and accelerations are their finite differences at the control rate,
+   as the controller's ``qd_d`` and ``qdd_d``, from rest at the first point.
 2. **Slow the DMP** (:func:`slowing_for`, :func:`slowed_dmp`): if a planned joint speed
-   exceeds ``share`` (``JOINT_SPEED_SHARE``, 60 %) of its limit, the DMP's duration is
-   multiplied by the smallest factor that brings every joint within it. Scaling ``tau``
-   is exact: the DMP's path is ``y(t / k)``, the same curve on the paper, every
-   Cartesian and joint velocity divided by ``k``. The share leaves room for what the
-   plan does not see: the tracking transients of the torque controller (measured on the
-   letters page: the simulated arm's peak about 1.25 times the planned one on a jerky
-   stroke) and the pen's landing.
-3. **Measure** (:func:`joint_speed_metrics`): the peak speed of every joint over the
-   whole run, against its limit.
+   exceeds ``share`` (``JOINT_SPEED_SHARE``, 60 %) of its limit, or a planned joint
+   acceleration ``acceleration_share`` (``JOINT_ACCELERATION_SHARE``, 100 %) of its
+   limit, the DMP's duration is multiplied by the smallest factor ``k`` that brings every
+   joint within both. Scaling ``tau`` is exact: the DMP's path is ``y(t / k)``, the same
+   curve on the paper, every Cartesian and joint velocity divided by ``k`` and every
+   acceleration by ``k**2``. The speed share leaves room for what the plan does not see:
+   the tracking transients of the torque controller (measured on the letters page: the
+   simulated arm's peak about 1.25 times the planned one on a jerky stroke) and the
+   pen's landing.
+3. **Measure** (:func:`joint_speed_metrics`, :func:`joint_acceleration_metrics`): the
+   peak speed and acceleration of every joint over the whole run, against its limits.
+   The run's accelerations also hold what no tempo changes: the controller's own
+   landings, lifts, stops at a path's end and its start from rest.
 """
 
 from __future__ import annotations
@@ -32,10 +41,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dmp import DMPParams
-from .joints import IIWA_JOINT_NAMES, IIWA_VELOCITY_LIMITS_RAD_S
+from .joints import IIWA_ACCELERATION_LIMITS_RAD_S2, IIWA_JOINT_NAMES, IIWA_VELOCITY_LIMITS_RAD_S
 
 #: Planned joint speeds are kept within this share of the iiwa's limits.
 JOINT_SPEED_SHARE = 0.6
+#: Planned joint accelerations are kept within this share of their limits (the limit is
+#: already a planner's, not the hardware's: all of it).
+JOINT_ACCELERATION_SHARE = 1.0
+# The null-space steps that settle the start posture (the arm waits at the first point
+# for the approach and the settling, far longer, before the DMP starts).
+_SETTLE_ITERATIONS = 100
 # The controller's IK iterations per control step (WritingController.torques).
 _CONTROLLER_IK_ITERATIONS = 10
 
@@ -47,14 +62,18 @@ def planned_joint_velocities(scene, plan, q_seed_rad, rotation) -> tuple[np.ndar
     The tip on the paper (``scene.config.paper_top_z``) at every sample, with orientation
     ``rotation``: the DMP sets the pen's motion in the plane; its landings and lifts are
     the controller's own, at most ``travel_speed_m_s`` (0.1 m/s) along the pen, and not
-    part of the plan. The first sample is solved from ``q_seed_rad`` (the arm waits
-    there at rest: its velocity is 0), every later one as the controller solves it
-    (:meth:`WritingController.torques`: warm-started from the sample before, with the
-    null-space step towards the home posture); the velocities are the finite
-    differences at the plan's time steps, the controller's ``qd_d``.
+    part of the plan. The first sample is solved from ``q_seed_rad`` and settled in the
+    null space towards the home posture, as the controller's posture is by the time the
+    DMP starts (the arm waits there at rest: its velocity is 0); every later one as the
+    controller solves it (:meth:`WritingController.torques`: warm-started from the sample
+    before, with the null-space step towards the home posture); the velocities are the
+    finite differences at the plan's time steps, the controller's ``qd_d``.
     """
     z_m = scene.config.paper_top_z
-    q, _ = scene.solve_ik([*plan.xy_m[0], z_m], rotation, q_seed_rad, max_iterations=200)
+    first = [*plan.xy_m[0], z_m]
+    q, _ = scene.solve_ik(first, rotation, q_seed_rad, max_iterations=200)
+    # tol 0: every iteration takes its null-space step (a converged solve stops before it)
+    q, _ = scene.solve_ik(first, rotation, q, max_iterations=_SETTLE_ITERATIONS, tol_m=0.0)
     qs = np.empty((len(plan.time_s), 7))  # [T, 7]
     qs[0] = q
     for i in range(1, len(qs)):
@@ -66,24 +85,46 @@ def planned_joint_velocities(scene, plan, q_seed_rad, rotation) -> tuple[np.ndar
     return qs, qd
 
 
+def planned_joint_accelerations(qd_rad_s, time_s) -> np.ndarray:
+    """``[T, 7]`` joint accelerations of planned velocities ``qd_rad_s [T, 7]`` at times
+    ``time_s [T]`` (:func:`planned_joint_velocities`): their finite differences, the
+    controller's ``qdd_d``; the first 0 (the arm at rest before the DMP starts, whose
+    first velocity sample ``qd[0]`` is 0, so ``qdd[1]`` is the start from rest)."""
+    qd = np.asarray(qd_rad_s, dtype=float)
+    qdd = np.zeros_like(qd)  # [T, 7]
+    qdd[1:] = np.diff(qd, axis=0) / np.diff(np.asarray(time_s, dtype=float))[:, None]
+    return qdd
+
+
 @dataclass(frozen=True)
 class Slowing:
-    """How much one DMP is slowed for the iiwa's joint speed limits.
+    """How much one DMP is slowed for the iiwa's joint speed and acceleration limits.
 
     Attributes
     ----------
     factor : float
         The DMP's duration is multiplied by it (1: not slowed).
     joint : int
-        The joint (0-based) that asked for the most, relative to its limit.
+        The joint (0-based) that asked for the most speed, relative to its limit.
     planned_peak_rad_s : float
         That joint's planned peak speed at the DMP's own tempo.
     limit_rad_s : float
         That joint's limit.
     share : float
-        The share of the limits the planned speeds are kept within.
+        The share of the speed limits the planned speeds are kept within.
     tau_s : float
         The DMP's duration before slowing.
+    acceleration_joint : int
+        The joint that asked for the most acceleration, relative to its limit.
+    planned_acceleration_peak_rad_s2 : float
+        Its planned peak acceleration at the DMP's own tempo (NaN: not planned).
+    acceleration_limit_rad_s2 : float
+    acceleration_share : float
+        The share of the acceleration limits the planned accelerations are kept within.
+    written_shares_planned : (float, float) or None
+        The peak speed and acceleration over their limits planned again at the tempo
+        written (:func:`~img2dmp.robot.writing.slow_for_joint_limits`); None: not
+        planned again (not slowed).
     """
 
     factor: float
@@ -92,6 +133,11 @@ class Slowing:
     limit_rad_s: float
     share: float
     tau_s: float
+    acceleration_joint: int = 0
+    planned_acceleration_peak_rad_s2: float = math.nan
+    acceleration_limit_rad_s2: float = float(IIWA_ACCELERATION_LIMITS_RAD_S2[0])
+    acceleration_share: float = 1.0
+    written_shares_planned: tuple[float, float] | None = None
 
     @property
     def slowed(self) -> bool:
@@ -101,39 +147,93 @@ class Slowing:
     def joint_name(self) -> str:
         return IIWA_JOINT_NAMES[self.joint]
 
+    @property
+    def speed_ratio(self) -> float:
+        """The planned peak speed over its limit at the DMP's own tempo."""
+        return self.planned_peak_rad_s / self.limit_rad_s
+
+    @property
+    def acceleration_ratio(self) -> float:
+        """The planned peak acceleration over its limit at the DMP's own tempo."""
+        return self.planned_acceleration_peak_rad_s2 / self.acceleration_limit_rad_s2
+
+    @property
+    def by_acceleration(self) -> bool:
+        """The acceleration, not the speed, set the factor."""
+        return bool(self.acceleration_ratio / self.acceleration_share
+                    > (self.speed_ratio / self.share) ** 2)  # fmt: skip
+
+    def written_shares(self) -> tuple[float, float]:
+        """The planned peak speed and acceleration over their limits at the tempo
+        written: planned again when slowed (``written_shares_planned``), else those at
+        its own tempo."""
+        if self.written_shares_planned is not None:
+            return self.written_shares_planned
+        return self.speed_ratio, self.acceleration_ratio
+
     def words(self) -> str:
         """``"2.97x slower (0.221 s -> 0.656 s): at its own tempo lbr_iiwa_joint_4 would
-        reach 2.33 rad/s, 178 % of the iiwa's limit of 1.31 rad/s"``."""
-        return (
-            f"{self.factor:.2f}x slower ({self.tau_s:.3f} s -> {self.tau_s * self.factor:.3f} "
-            f"s): at its own tempo {self.joint_name} would reach "
-            f"{self.planned_peak_rad_s:.2f} rad/s, "
-            f"{100 * self.planned_peak_rad_s / self.limit_rad_s:.0f} % of the iiwa's limit "
-            f"of {self.limit_rad_s:.2f} rad/s"
+        reach 2.33 rad/s, 178 % of the iiwa's limit of 1.31 rad/s"``, or for a factor
+        the acceleration set, ``"... would accelerate at 240 rad/s^2, 2404 % of the
+        planning limit of 10 rad/s^2"``."""
+        head = (f"{self.factor:.2f}x slower ({self.tau_s:.3f} s -> "
+                f"{self.tau_s * self.factor:.3f} s): at its own tempo ")  # fmt: skip
+        if self.by_acceleration:
+            return head + (
+                f"{IIWA_JOINT_NAMES[self.acceleration_joint]} would accelerate at "
+                f"{self.planned_acceleration_peak_rad_s2:.0f} rad/s^2, "
+                f"{100 * self.acceleration_ratio:.0f} % of the planning limit of "
+                f"{self.acceleration_limit_rad_s2:g} rad/s^2"
+            )
+        return head + (
+            f"{self.joint_name} would reach {self.planned_peak_rad_s:.2f} rad/s, "
+            f"{100 * self.speed_ratio:.0f} % of the iiwa's limit of {self.limit_rad_s:.2f} rad/s"
         )
 
     def to_dict(self) -> dict:
+        speed, acceleration = self.written_shares()
         return {
             "slowdown": self.factor,
             "slowdown_joint": self.joint_name,
+            "slowdown_by": "acceleration" if self.by_acceleration else "speed",
             "planned_joint_speed_peak_rad_s": self.planned_peak_rad_s,
+            "planned_joint_acceleration_peak_rad_s2": self.planned_acceleration_peak_rad_s2,
+            "planned_joint_acceleration_joint": IIWA_JOINT_NAMES[self.acceleration_joint],
+            "planned_joint_speed_share": speed,
+            "planned_joint_acceleration_share": acceleration,
             "tau_s": self.tau_s,
             "written_tau_s": self.tau_s * self.factor,
         }
 
 
-def slowing_for(qd_rad_s: np.ndarray, tau_s: float, share: float | None) -> Slowing:
+def slowing_for(qd_rad_s: np.ndarray, tau_s: float, share: float | None,
+                qdd_rad_s2: np.ndarray | None = None,
+                acceleration_share: float | None = None) -> Slowing:  # fmt: skip
     """The :class:`Slowing` that keeps planned joint velocities ``qd_rad_s [T, 7]`` of a
-    DMP of ``tau_s`` seconds within ``share`` of the iiwa's limits (``share`` None:
-    factor 1, only measured)."""
+    DMP of ``tau_s`` seconds within ``share`` of the iiwa's speed limits and its planned
+    accelerations ``qdd_rad_s2 [T, 7]`` within ``acceleration_share`` of theirs: ``k =
+    max(1, v / share, sqrt(a / acceleration_share))`` for the peak ratios ``v`` and ``a``
+    (a share None: that limit only measured, not slowed for)."""
     peaks = np.abs(np.asarray(qd_rad_s, dtype=float)).max(axis=0)  # [7]
     ratio = peaks / IIWA_VELOCITY_LIMITS_RAD_S
     j = int(np.argmax(ratio))
-    factor = 1.0 if share is None else max(1.0, float(ratio[j]) / share)
+    factors = [1.0]
+    if share is not None:
+        factors.append(float(ratio[j]) / share)
+    ja, acc_peak = 0, math.nan
+    if qdd_rad_s2 is not None:
+        acc = np.abs(np.asarray(qdd_rad_s2, dtype=float)).max(axis=0)  # [7]
+        acc_ratio = acc / IIWA_ACCELERATION_LIMITS_RAD_S2
+        ja, acc_peak = int(np.argmax(acc_ratio)), float(acc[int(np.argmax(acc_ratio))])
+        if acceleration_share is not None:
+            factors.append(math.sqrt(float(acc_ratio[ja]) / acceleration_share))
+    factor = max(factors)
     if factor > 1.0:  # round up a little, so the slowed plan lands inside, not on, the share
         factor = math.ceil(factor * 1000) / 1000
     return Slowing(factor, j, float(peaks[j]), float(IIWA_VELOCITY_LIMITS_RAD_S[j]),
-                   1.0 if share is None else float(share), float(tau_s))  # fmt: skip
+                   1.0 if share is None else float(share), float(tau_s), ja, acc_peak,
+                   float(IIWA_ACCELERATION_LIMITS_RAD_S2[ja]),
+                   1.0 if acceleration_share is None else float(acceleration_share))  # fmt: skip
 
 
 def slowed_dmp(params: DMPParams, factor: float) -> DMPParams:
@@ -171,4 +271,45 @@ def joint_speed_metrics(log) -> dict:
         "joint_speed_peak_share": float(ratio[i, j]),
         "joint_speed_peak_joint": IIWA_JOINT_NAMES[j],
         "joint_speed_peak_time_s": float(log.time_s[i]),
+    }
+
+
+def joint_acceleration_metrics(log) -> dict:
+    """The peak acceleration of every joint over a run's log, against the limits
+    (:data:`~img2dmp.robot.joints.IIWA_ACCELERATION_LIMITS_RAD_S2`): the finite
+    differences of the logged joint velocities, the first from rest.
+
+    Returns
+    -------
+    dict with
+        ``joint_acceleration_peak_rad_s2`` - ``[7]`` peak ``|qdd|`` per joint;
+        ``joint_acceleration_limit_rad_s2`` - ``[7]``; ``joint_acceleration_peak_share``
+        - the largest peak relative to its limit; ``joint_acceleration_peak_joint``,
+        ``joint_acceleration_peak_time_s``, ``joint_acceleration_peak_phase`` - which
+        joint, when and in which phase (``PHASES``); NaN (None) for a log without
+        joint states.
+    """
+    from .writing import PHASES  # the log's phases; writing imports this module
+
+    qd = np.asarray(log.joint_qd_rad_s, dtype=float)  # [S, 7]
+    limits = IIWA_ACCELERATION_LIMITS_RAD_S2
+    if qd.size == 0 or not np.isfinite(qd).all():
+        return {"joint_acceleration_peak_rad_s2": [math.nan] * 7,
+                "joint_acceleration_limit_rad_s2": limits.tolist(),
+                "joint_acceleration_peak_share": math.nan,
+                "joint_acceleration_peak_joint": None,
+                "joint_acceleration_peak_time_s": math.nan,
+                "joint_acceleration_peak_phase": None}  # fmt: skip
+    t = np.asarray(log.time_s, dtype=float)
+    dt = np.diff(np.concatenate([[0.0], t]))  # [S] the first step from rest at t = 0
+    qdd = np.diff(np.vstack([np.zeros(7), qd]), axis=0) / dt[:, None]  # [S, 7]
+    ratio = np.abs(qdd) / limits
+    i, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+    return {
+        "joint_acceleration_peak_rad_s2": np.abs(qdd).max(axis=0).tolist(),
+        "joint_acceleration_limit_rad_s2": limits.tolist(),
+        "joint_acceleration_peak_share": float(ratio[i, j]),
+        "joint_acceleration_peak_joint": IIWA_JOINT_NAMES[j],
+        "joint_acceleration_peak_time_s": float(t[i]),
+        "joint_acceleration_peak_phase": PHASES[int(log.phase[i])],
     }

@@ -26,6 +26,7 @@ running), the ink per stroke by :func:`img2dmp.robot.strokes.stroke_report`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 import time
@@ -44,9 +45,12 @@ from .controller import ControllerConfig, WritingController
 from .scene import HOME_JOINTS_RAD, SceneConfig, WritingScene
 from .strokes import StrokeGate, stroke_report
 from .tempo import (
+    JOINT_ACCELERATION_SHARE,
     JOINT_SPEED_SHARE,
     Slowing,
+    joint_acceleration_metrics,
     joint_speed_metrics,
+    planned_joint_accelerations,
     planned_joint_velocities,
     slowed_dmp,
     slowing_for,
@@ -58,6 +62,8 @@ PEN_DOWN_ROTATION = np.diag([-1.0, 1.0, -1.0])
 PHASES = ("approach", "write", "lift", "travel")
 PEN_THRESHOLD = 0.5
 IK_TOLERANCE_M = 1e-4
+# Rounds of planning a slowed DMP again (slow_for_joint_limits).
+MAX_SLOWING_ROUNDS = 6
 #: Points farther than this from the arm's base are refused without solving the IK (the
 #: iiwa reaches about 0.8 m; a point at 1e308 m overflowed the solver).
 BEYOND_REACH_M = 2.0
@@ -254,6 +260,10 @@ class WritingOptions:
         joint speeds planned along it stay within this share of the real iiwa's limits
         (:mod:`img2dmp.robot.tempo`); ``None``: write it at its own tempo, whatever the
         joints need (the simulated arm follows; a real iiwa may not).
+    joint_acceleration_share : float or None
+        The same for the joint accelerations planned along the DMP, against the 10
+        rad/s^2 planning limit (``IIWA_ACCELERATION_LIMITS_RAD_S2``); default 1 (all of
+        it); ``None``: not slowed for them.
     """
 
     writing_height_mm: float = 40.0
@@ -268,11 +278,13 @@ class WritingOptions:
     stroke_dwell: bool = True
     hover: bool = True
     joint_speed_share: float | None = JOINT_SPEED_SHARE
+    joint_acceleration_share: float | None = JOINT_ACCELERATION_SHARE
 
     def __post_init__(self) -> None:
-        share = self.joint_speed_share
-        if share is not None and not (_is_finite(share) and 0.0 < share <= 1.0):
-            raise ValueError(f"joint_speed_share must be in (0, 1] or None, got {share!r}")
+        for name in ("joint_speed_share", "joint_acceleration_share"):
+            share = getattr(self, name)
+            if share is not None and not (_is_finite(share) and 0.0 < share <= 1.0):
+                raise ValueError(f"{name} must be in (0, 1] or None, got {share!r}")
         for name in ("stroke_dwell", "hover"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"{name} must be True or False, got {getattr(self, name)!r}")
@@ -617,19 +629,41 @@ def slow_for_joint_limits(
     mapping: PaperMapping, options: WritingOptions,
 ) -> tuple[DMPParams, PlannedPath, Slowing]:  # fmt: skip
     """The DMP to write and its plan, slowed (if need be) so that the joint speeds
-    planned along it stay within ``options.joint_speed_share`` of the iiwa's limits
+    planned along it stay within ``options.joint_speed_share`` of the iiwa's limits and
+    its joint accelerations within ``options.joint_acceleration_share`` of theirs
     (:mod:`img2dmp.robot.tempo`), and the :class:`Slowing` that says by how much.
 
     Slowing multiplies ``tau``: the path is the same curve (checked already), sampled at
     the control rate over the longer time. ``ValueError`` (from :func:`plan_path`) if the
     slowed DMP takes more than ``MAX_WRITING_STEPS``.
     """
-    _, qd = planned_joint_velocities(scene, plan, np.array(HOME_JOINTS_RAD), PEN_DOWN_ROTATION)
-    slowing = slowing_for(qd, float(params.tau), options.joint_speed_share)
+    qd, qdd = _planned(scene, plan)
+    slowing = slowing_for(qd, float(params.tau), options.joint_speed_share, qdd,
+                          options.joint_acceleration_share)  # fmt: skip
     if not slowing.slowed:
         return params, plan, slowing
-    params = slowed_dmp(params, slowing.factor)
-    return params, plan_path(params, config, mapping, options.dt_s), slowing
+    # Planned again at the slower tempo: sampled at the control rate, a DMP's fast start
+    # is resolved better there than at its own tempo, and its accelerations need not
+    # fall by the whole k^2; slower again until the plan is within (a few rounds).
+    factor = slowing.factor
+    for round_ in range(1, MAX_SLOWING_ROUNDS + 1):
+        slowed = slowed_dmp(params, factor)
+        plan = plan_path(slowed, config, mapping, options.dt_s)
+        qd, qdd = _planned(scene, plan)
+        again = slowing_for(qd, float(slowed.tau), options.joint_speed_share, qdd,
+                            options.joint_acceleration_share)  # fmt: skip
+        if not again.slowed or round_ == MAX_SLOWING_ROUNDS:
+            break
+        factor = math.ceil(factor * again.factor * 1000) / 1000
+    written = (again.speed_ratio, again.acceleration_ratio)
+    return slowed, plan, dataclasses.replace(slowing, factor=factor,
+                                             written_shares_planned=written)  # fmt: skip
+
+
+def _planned(scene: WritingScene, plan: PlannedPath) -> tuple[np.ndarray, np.ndarray]:
+    """The joint velocities and accelerations planned along ``plan`` (:mod:`.tempo`)."""
+    _, qd = planned_joint_velocities(scene, plan, np.array(HOME_JOINTS_RAD), PEN_DOWN_ROTATION)
+    return qd, planned_joint_accelerations(qd, plan.time_s)
 
 
 def writing_metrics(log: WritingLog, force_set_n: float, tolerance: float = 0.2) -> dict:
@@ -698,6 +732,7 @@ def write_dmp(
     render_size_px: tuple[int, int] | None = (640, 480),
     stroke_dwell: bool = True,
     joint_speed_share: float | None = JOINT_SPEED_SHARE,
+    joint_acceleration_share: float | None = JOINT_ACCELERATION_SHARE,
     progress=None,
 ) -> WritingResult:
     """Write one DMP with the simulated KUKA iiwa; return the log and metrics.
@@ -732,10 +767,9 @@ def write_dmp(
     stroke_dwell : bool
         Hold the DMP clock while the pen lands and lifts between strokes (see
         :class:`WritingOptions`).
-    joint_speed_share : float or None
-        Slow the DMP until its planned joint speeds stay within this share of the real
-        iiwa's limits (default 0.6; ``result.slowing`` says by how much); None: at its
-        own tempo (see :class:`WritingOptions`).
+    joint_speed_share, joint_acceleration_share : float or None
+        Slow the DMP until its planned joint speeds (accelerations) stay within this share
+        of their limits (0.6, 1; None: not for them; :class:`WritingOptions`).
     progress : callable or None
         Called as ``progress(n_steps)`` after each batch of simulated steps.
 
@@ -759,6 +793,7 @@ def write_dmp(
         render_size_px=render_size_px,
         stroke_dwell=stroke_dwell,
         joint_speed_share=joint_speed_share,
+        joint_acceleration_share=joint_acceleration_share,
     )
     return write_with_options(params, config, image_size, options, progress=progress)
 
@@ -1037,6 +1072,7 @@ class WritingRun:
         metrics.update(self.run_figures(wall_s, float(self.approach_s)))
         metrics.update(stroke_report(self.plan, log, ctl_cfg.force_set_n))
         metrics.update(joint_speed_metrics(log))
+        metrics.update(joint_acceleration_metrics(log))
         if self.slowing is not None:
             metrics.update(self.slowing.to_dict())
         self.flush_ink()
