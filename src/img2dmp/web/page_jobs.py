@@ -10,7 +10,9 @@ does:
    (:func:`~img2dmp.robot.page.plan_page`: no simulation), so that a page that does not
    fit the sheet at the width asked for is refused at once with the library's one line
    (naming the widest width that fits);
-2. its process (:func:`run_page_job`) plans it again from ``page.json`` and writes it
+2. its process (:func:`run_page_job`) plans it again from ``page.json``, slows the
+   characters a real iiwa's joints need slower (:func:`expected_steps`, so that the
+   progress counts that time) and writes it
    (:func:`~img2dmp.robot.page.write_page_plan`), reporting the characters it begins, then
    writes :data:`PAGE_FILES` and the measures of the page and of every character.
 
@@ -155,7 +157,7 @@ def _write_page(d: Path, options: dict, report) -> dict:
     filename, name = options["filename"], PurePath(options["filename"]).stem
     travel_m, noun = options.get("travel_height_m", TRAVEL_HEIGHT_M), options.get("noun")
     plan = _plan(doc, filename, options["width_mm"], options["skip_flagged"], travel_m)
-    expected = max(1, plan.estimated_steps())
+    plan, expected = expected_steps(plan)
     interval_s = frame_interval_s(expected / CONTROL_RATE_HZ) if options["video"] else None
     plan = dataclasses.replace(
         plan, options=dataclasses.replace(plan.options, frame_interval_s=interval_s)
@@ -172,7 +174,17 @@ def _write_page(d: Path, options: dict, report) -> dict:
     return {"summary": lines, "page": page_measures(result, speed)}
 
 
-def _run(plan, expected_steps: int, report):
+def expected_steps(plan) -> tuple:
+    """``(plan, steps)``: the plan readied as it will be written, its characters slowed
+    where a real iiwa's joints need it (:func:`~img2dmp.robot.page.ready_page_plan`), and
+    about how many control steps it takes, the slowing counted, for the progress."""
+    from ..robot import ready_page_plan
+
+    plan = ready_page_plan(plan)
+    return plan, max(1, plan.estimated_steps())
+
+
+def _run(plan, expected: int, report):
     """The simulation of a planned page, reporting its progress and the characters begun."""
     from ..robot import write_page_plan
 
@@ -180,7 +192,7 @@ def _run(plan, expected_steps: int, report):
 
     def advance(n: int) -> None:
         steps[0] += n
-        report[SHARE] = SIMULATION_SHARE * min(1.0, steps[0] / expected_steps)
+        report[SHARE] = SIMULATION_SHARE * min(1.0, steps[0] / expected)
 
     def begin(_character) -> None:
         report[BEGUN] += 1
@@ -233,6 +245,7 @@ __all__ = [
     "DEFAULT_WIDTH_MM",
     "MAX_PAGE_FRAMES",
     "PAGE_FILES",
+    "expected_steps",
     "page_measures",
     "plan_page_job",
     "run_page_job",
