@@ -625,6 +625,26 @@ def test_a_file_where_a_directory_belongs(case, data, model, images, tmp_path, c
     assert f.read_text() == "a file"
 
 
+@pytest.mark.parametrize("case", ["predict --out", "evaluate --out", "train --run-dir"])
+def test_a_new_folder_named_like_a_file_is_taken_for_a_file_name(
+    case, data, model, images, tmp_path, capsys
+):
+    named = tmp_path / {"predict --out": "pred.json", "evaluate --out": "e.csv"}.get(
+        case, "model.safetensors"
+    )
+    argv = {
+        "predict --out": ["predict", "--model", str(model), str(images[0]), "--out", str(named)],
+        "evaluate --out": ["evaluate", str(model), str(data), "--out", str(named)],
+        "train --run-dir": _train_argv(data, named),
+    }[case]
+    line = _fails(capsys, argv)
+    assert str(named) in line and f"not a {named.suffix} file" in line
+    assert not named.exists()  # nothing made
+    named.mkdir()  # a folder that is already there is taken whatever its name
+    if case == "predict --out":
+        assert cli.main(argv) == 0 and (named / f"{Path(images[0]).stem}_dmp.json").is_file()
+
+
 def _disk_full(monkeypatch) -> None:
     def no_space(fd):
         raise OSError(errno.ENOSPC, "No space left on device")

@@ -445,10 +445,23 @@ def _first_existing(path: Path) -> Path:
     return Path(".")
 
 
+#: Suffixes of the files img2dmp reads and writes: a folder to be made of such a name
+#: (``predict --out pred.json``) is taken for a file name and refused.
+FILE_SUFFIXES = frozenset(
+    ".json .csv .png .jpg .jpeg .safetensors .txt .onnx .npz .npy .mp4 .gif .yaml .pt".split()
+)
+
+
 def check_output_dir(path, what: str = "output directory") -> None:
-    """``path`` is a directory or can become one: no file at it or above it."""
+    """``path`` is a directory or can become one: no file at it or above it, and not a
+    new folder named like a file."""
     p = Path(path)
     there = _first_existing(p)
+    if there != p and p.suffix.lower() in FILE_SUFFIXES:
+        raise ValueError(
+            f"{what} {p} names a folder to write into, not a {p.suffix} file: give a folder "
+            f"(e.g. {what} {p.with_suffix('')})"
+        )
     if there == p and not p.is_dir():
         raise NotADirectoryError(f"{what} {p} is a file, not a directory")
     if not there.is_dir():

@@ -130,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     if res.get("trained_on_split"):
         seen = f"{data} [{args.split}]"
         print(f"note: the model trained on some of these samples ({seen}): not a test")
-    if not res["framing"]["same"]:
+    if not res.get("framing", {}).get("same", True):
         print(framing_note(res["framing"], data))
     print(f"written: {Path(out) / 'evaluation.json'}, evaluation.txt, examples.png")
     return 0
