@@ -114,6 +114,26 @@ def test_titles_fit_in_the_figure_below_the_legend(digits, m, ncols):
     plt.close(fig)
 
 
+@pytest.mark.parametrize("cell_inches", [1.2, 1.8])
+def test_long_class_names_in_titles_are_wrapped_not_run_into_each_other(digits, cell_inches):
+    data, dmp = digits
+    names = ["Japanese_(hiragana)/character01", "Alphabet_of_the_Magi/character12"]
+    titles = [f"{names[k % 2]}: path {0.5 + k:.2f} px" for k in range(4)]
+    fig = plot_grid(data.images[:4], data.trajectories[:4], dmp[:4], titles=titles, ncols=4,
+                    cell_inches=cell_inches)  # fmt: skip
+    fig.canvas.draw()
+    boxes = [ax.title.get_window_extent() for ax in fig.axes[:4]]
+    for left, right in zip(boxes, boxes[1:], strict=False):
+        assert left.x1 <= right.x0 + 0.5, "two cells' titles overlap"
+    for ax, title in zip(fig.axes[:4], titles, strict=True):
+        shown = ax.title.get_text()
+        assert "\n" in shown and shown.replace("\n", "").replace(" ", "") == title.replace(" ", "")
+    plt.close(fig)
+    assert plotting.wrap_title("3: 0.123 px", 1.2) == "3: 0.123 px"  # short: as it is
+    long = plotting.wrap_title("x" * 70, 1.2)  # a word longer than a line is cut
+    assert long.replace("\n", "") == "x" * 70 and len(long.splitlines()) > 2
+
+
 def test_save_grid_writes_atomically_through_the_one_figure_writer(digits, tmp_path, monkeypatch):
     data, dmp = digits
     written = []

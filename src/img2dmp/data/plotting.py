@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import numbers
 import os
+import re
 from pathlib import Path
 
 import matplotlib
@@ -270,7 +271,7 @@ def plot_grid(
             cell_paths = [(_pen_down_xy(p[k]), style) for p, _, style in sets]
             _draw_cell(ax, images[k], cell_paths, start_marker, arrow_pt)
             if titles is not None:
-                ax.set_title(str(titles[k]), fontsize=_FONT)
+                ax.set_title(wrap_title(str(titles[k]), cell_inches), fontsize=_FONT)
     top = 1.0
     if legend and sets:
         drawn = [(lab, style) for _, lab, style in sets]
@@ -281,6 +282,24 @@ def plot_grid(
     for _ in range(2):
         fig.tight_layout(pad=0.2, rect=(0.0, 0.0, 1.0, top))
     return fig
+
+
+def wrap_title(text: str, cell_inches: float, font_pt: float = _FONT) -> str:
+    """``text`` broken into lines that fit a cell ``cell_inches`` wide at ``font_pt``
+    points, after a space, a ``/`` or a ``_`` where it can (a class name such as
+    ``Japanese_(hiragana)/character01`` stays readable), within a word where it must."""
+    width = max(8, int(cell_inches * 72 / (0.62 * font_pt)))  # characters of a line
+    lines, line = [], ""
+    for token in re.findall(r"[^ /_]+[ /_]*|[ /_]+", text):
+        if line and len(line) + len(token.rstrip()) > width:
+            lines.append(line)
+            line = ""
+        line += token
+        while len(line.rstrip()) > width:  # a word longer than a line
+            lines.append(line[:width])
+            line = line[width:]
+    lines.append(line)
+    return "\n".join(ln.rstrip() for ln in lines if ln.strip())
 
 
 def save_grid(path: str | os.PathLike, *args, dpi: int = 100, **kwargs) -> Path:
