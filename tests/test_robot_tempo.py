@@ -269,6 +269,20 @@ def test_only_the_characters_of_a_page_that_need_it_are_slowed():
 
 
 @needs_pybullet
+def test_a_run_over_the_acceleration_limit_is_warned_of_and_a_slowed_one_not(fast_runs):
+    from img2dmp.robot.outputs import joint_acceleration_warning, writing_warnings
+
+    _, own, slowed = fast_runs
+    warning = joint_acceleration_warning(own.metrics)
+    share = own.metrics["planned_joint_acceleration_share"]
+    assert warning is not None and f"{100 * share:.0f} % of the planning limit" in warning
+    assert own.metrics["planned_joint_acceleration_joint"] in warning
+    assert warning in writing_warnings(own)
+    assert joint_acceleration_warning(slowed.metrics) is None
+    assert not any("accelerate" in w for w in writing_warnings(slowed))
+
+
+@needs_pybullet
 def test_write_command_slows_a_fast_dmp_and_says_so(tmp_path, capsys):
     from img2dmp.cli import main
     from img2dmp.robot import load_joint_trajectory, save_dmp_json
@@ -306,7 +320,8 @@ def test_export_joints_of_a_motion_over_the_limits_writes_nothing(tmp_path, caps
     captured = capsys.readouterr()
     assert "joint speeds OVER the real iiwa's limits" in captured.out
     err = captured.err.strip().splitlines()
-    assert "a real iiwa cannot follow this motion" in err[-2]
+    assert "a real iiwa cannot follow this motion" in err[-3]
+    assert "would accelerate at" in err[-2] and "planning limit" in err[-2]
     assert err[-1].startswith(
         f"img2dmp write: error: {tmp_path / 'joints.json'}: joint trajectory: "
     )

@@ -788,7 +788,7 @@ def _write_plan(args, name: str, plan, photo, what: str, table: str, noun="chara
         save_characters_csv,
         write_page_plan,
     )
-    from img2dmp.robot.outputs import joint_speed_warning
+    from img2dmp.robot.outputs import joint_acceleration_warning, joint_speed_warning
 
     plan = ready_page_plan(plan)  # slowed where need be: the bar's total counts it
     n, started, labels = len(plan.characters), [], plan.entry_labels()
@@ -814,9 +814,10 @@ def _write_plan(args, name: str, plan, photo, what: str, table: str, noun="chara
         bar.total = bar.n
     _note_slowed_entries(name, result, noun)
     print("\n".join(page_summary_lines(name, result, noun, plan.entry_labels())))
-    warning = joint_speed_warning(result.metrics)
-    if warning:
-        print(f"img2dmp write: warning: {name}: {warning}", file=sys.stderr)
+    m = result.metrics
+    for warning in (joint_speed_warning(m), joint_acceleration_warning(m, noun)):
+        if warning:
+            print(f"img2dmp write: warning: {name}: {warning}", file=sys.stderr)
     trajectory = _joint_trajectory(args, result, name, 1)  # before any file
     os.makedirs(args.out_dir, exist_ok=True)  # once written: a refusal leaves no folder
     base = os.path.join(args.out_dir, name)

@@ -310,7 +310,8 @@ def writing_warnings(result: WritingResult) -> list[str]:
                         f"{s['length_mm']:.1f} mm (a DMP faster than the arm follows? a "
                         "longer tau, or --tempo below 1, slows it)")  # fmt: skip
     speed = joint_speed_warning(result.metrics)
-    return warnings + ([speed] if speed else [])
+    acceleration = joint_acceleration_warning(result.metrics)
+    return warnings + [w for w in (speed, acceleration) if w]
 
 
 def joint_speed_line(metrics: dict) -> str | None:
@@ -377,6 +378,25 @@ def joint_speed_warning(metrics: dict) -> str | None:
         f"{metrics['joint_speed_peak_joint']} moved at {peaks[j]:.2f} rad/s at t = "
         f"{metrics['joint_speed_peak_time_s']:.2f} s, {100 * share:.0f} % of the real "
         f"iiwa's limit of {limits[j]:.2f} rad/s: a real iiwa cannot follow this motion"
+    )
+
+
+def joint_acceleration_warning(metrics: dict, noun: str = "character") -> str | None:
+    """A warning (None if not needed) when the joint accelerations planned along a DMP,
+    at the tempo written (``--no-slowing``), pass the planning limit a real iiwa is
+    driven within; on a page, naming the ``noun`` whose."""
+    share = metrics.get("planned_joint_acceleration_share", math.nan)
+    if not share > 1.0:
+        return None
+    limits = np.asarray(metrics["joint_acceleration_limit_rad_s2"])
+    joint = metrics["planned_joint_acceleration_joint"]
+    limit = limits[int(joint.rsplit("_", 1)[1]) - 1]
+    where = metrics.get("planned_joint_acceleration_character")
+    where = "" if where is None else f" ({noun} {where})"
+    return (
+        f"{joint} would accelerate at {share * limit:.1f} rad/s^2 along a DMP{where}, "
+        f"{100 * share:.0f} % of the planning limit of {limit:g} rad/s^2: a real iiwa "
+        "would be driven slower (without --no-slowing it is)"
     )
 
 
