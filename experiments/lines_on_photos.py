@@ -13,12 +13,19 @@ boxes are compared with the boxes found on the photo as shipped (the reference) 
 exactly one box found, which holds no other reference centre; *extra*, a box that holds
 no reference centre (a piece of a line, or of a character split at a rule).
 
+Then each photo as a *legal pad* (:func:`legal_pads`, phases from a generator of their
+own so the variants above stay as they were): the photo multiplied by a legal pad's
+yellow, pale blue rules and a double red margin printed under the ink, saved as a PNG or,
+as a phone saves it, a JPEG (4:2:0 chroma subsampling: the blue channel of yellow paper is
+dim, and its JPEG noise is several times the other channels' against it).
+
     python experiments/lines_on_photos.py --photos ../shared/data/photos
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import math
 import sys
 import time
@@ -29,6 +36,8 @@ from sheet_on_desk import score, shipped_photos
 
 SEED = 0
 BLUE, GREY, RED = (150, 170, 220), (160, 160, 200), (220, 80, 80)
+#: A legal pad's paper and its pale blue rules (RGB on white).
+LEGAL_YELLOW, LEGAL_BLUE = (252, 238, 150), (140, 180, 230)
 
 
 def _coverage(shape, pitch: float, width: float, angle_deg: float, phase: float, axis: int):
@@ -80,6 +89,36 @@ def variants(photo: np.ndarray, rng):
     return out
 
 
+def legal_pads(photo: np.ndarray, rng):
+    """``(name, image)``: ``photo`` (float RGB [H, W, 3]) on a legal pad (module
+    docstring): multiplied by ``LEGAL_YELLOW``, 1-px ``LEGAL_BLUE`` rules and two red
+    margin lines 4 px apart from column 60, all under the ink; as a PNG or a JPEG."""
+    from PIL import Image
+
+    shape = photo.shape[:2]
+    kinds = [  # name, pitch, angle, JPEG quality (0: none)
+        ("legal pad 24", 24, 0.0, 0),
+        ("legal pad 24, JPEG 85", 24, 0.0, 85),
+        ("legal pad 20, turned 1, JPEG 75", 20, 1.0, 75),
+    ]
+    out = []
+    for name, pitch, angle, quality in kinds:
+        im = photo * (np.asarray(LEGAL_YELLOW, np.float64) / 255.0)
+        phase = float(rng.uniform(0, pitch))
+        im = _lines(im, _coverage(shape, pitch, 1.0, angle, phase, 0), LEGAL_BLUE, True)
+        for x in (60.0, 64.0):
+            im = _lines(im, _coverage(shape, 10 * shape[1], 1.0, 0.0, x, 1), RED, True)
+        if quality:
+            buf = io.BytesIO()
+            Image.fromarray(np.clip(np.round(im), 0, 255).astype(np.uint8)).save(
+                buf, "JPEG", quality=quality
+            )
+            buf.seek(0)
+            im = np.asarray(Image.open(buf).convert("RGB"), np.float64)
+        out.append((name, im))
+    return out
+
+
 def main(argv=None) -> int:
     from PIL import Image
 
@@ -88,10 +127,11 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--photos", default="../shared/data/photos")
     args = p.parse_args(argv)
-    rng = np.random.default_rng(SEED)
+    rng, legal_rng = np.random.default_rng(SEED), np.random.default_rng(SEED + 1)
     rows, start = [], time.time()
     for file, photo, centres in shipped_photos(args.photos):
-        for name, im in variants(np.asarray(photo, np.float64), rng):
+        photo = np.asarray(photo, np.float64)
+        for name, im in variants(photo, rng) + legal_pads(photo, legal_rng):
             seg = segment_page(Image.fromarray(np.clip(np.round(im), 0, 255).astype(np.uint8)))
             boxes = [seg.box_in_image(c) for c in seg.layout.characters]
             matched, extra = score(boxes, centres)
@@ -100,8 +140,17 @@ def main(argv=None) -> int:
     print("|---|---|---|---|---|---|")
     for r in rows:
         print("| " + " | ".join(str(v) for v in r) + " |")
+    print()
+    groups = [("lines under the ink", lambda r: r[1].endswith("under")),
+              ("lines drawn over the ink", lambda r: r[1].endswith("over")),
+              ("legal pads", lambda r: r[1].startswith("legal pad"))]  # fmt: skip
+    for group, keep in groups:
+        for photo in ("white", "yellow"):
+            sel = [r for r in rows if r[0] == photo and keep(r)]
+            print(f"{group}, {photo}: matched {sum(r[4] for r in sel)} of "
+                  f"{sum(r[2] for r in sel)}, extra boxes {sum(r[5] for r in sel)}")  # fmt: skip
     lined = [r for r in rows if r[1] != "as shipped"]
-    print(f"\nlined pages: matched {sum(r[4] for r in lined)} of {sum(r[2] for r in lined)}, "
+    print(f"lined pages: matched {sum(r[4] for r in lined)} of {sum(r[2] for r in lined)}, "
           f"extra boxes {sum(r[5] for r in lined)} ({len(rows)} images, "
           f"{time.time() - start:.0f} s)")  # fmt: skip
     return 0
