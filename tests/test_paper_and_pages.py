@@ -13,7 +13,7 @@ from drawn import page as _page
 from drawn import ruled as _ruled
 from drawn import stroke as _stroke
 from img2dmp.data.pages import find_characters
-from img2dmp.data.paper import dominant_angle, paper_ink, rules
+from img2dmp.data.paper import dilate3, dominant_angle, paper_ink, rules
 
 SIZE = (240, 320)
 DIGIT = [_stroke([(100, 40), (150, 40), (115, 150)]), _ellipse(210, 95, 28, 50)]  # a 7, a 0
@@ -425,3 +425,75 @@ def test_the_sheet_s_edge_cut_into_pieces_by_rules_is_not_a_character():
     edge = _along_border(labels, n, ruled)
     assert edge[np.unique(labels[0:3, 4:20])].all() and edge[labels[20, 151]]
     assert not edge[labels[150, 101]], "a character cut by the border is no edge"
+
+
+def _grid_cover(size, spacing: float, width: float = 1.6, columns: bool = True) -> np.ndarray:
+    """The share ``[H, W]`` of every pixel covered by lines every ``spacing`` pixels along
+    the rows (and the columns)."""
+    rows, cols = np.mgrid[: size[0], : size[1]].astype(np.float32)
+    cover = np.zeros(size, np.float32)
+    for coord in (rows, cols) if columns else (rows,):
+        d = spacing / 2 - np.abs((coord % spacing) - spacing / 2)  # to the nearest line
+        cover = np.maximum(cover, np.clip(width / 2 + 0.5 - d, 0.0, 1.0))
+    return cover
+
+
+LARGE = (420, 560)  # cells of paper, not a crop's smooth surface
+LARGE_DIGIT = [_stroke([(180, 120), (300, 120), (220, 330)]), _ellipse(400, 220, 50, 100)]
+
+
+def test_lines_lighter_than_yellow_paper_in_blue_do_not_make_the_sheet_ink():
+    # blue squares on yellow paper, drawn over it: darker than the paper in red and
+    # green, lighter in blue (as a JPEG's chroma smears a blue rule, or an editor draws
+    # it); a quarter of the pixels. The paper's colour taken channel by channel was the
+    # lines' in blue, and the whole sheet read as ink
+    truth = _ink(LARGE, LARGE_DIGIT)
+    cover = _grid_cover(LARGE, 16.0)[..., None]
+    yellow = np.array([0.96, 0.92, 0.55], np.float32)
+    paper = np.ones((*LARGE, 3), np.float32) * yellow * (1 - cover)
+    paper += cover * np.array([0.55, 0.65, 0.85], np.float32)
+    found = paper_ink(_on_paper(truth, paper))
+    assert found is not None, "the sheet was read as ink"
+    assert _kept(found, truth) > 0.97
+    far = _ink(LARGE, LARGE_DIGIT, width=14.0) < 0.01
+    assert (found.ink[far] > 0.2).mean() < 0.002, "paper or lines left as ink"
+
+
+def test_a_legal_pad_s_noisy_blue_channel_is_not_ink():
+    # yellow paper reflects little blue, and a phone's JPEG adds as much noise there as
+    # in the other channels: against the blue channel's own level it was three times
+    # as large, and the paper broke into specks and faint marks
+    truth = _ink(LARGE, LARGE_DIGIT)
+    paper = np.ones((*LARGE, 3), np.float32) * np.array([0.98, 0.92, 0.42], np.float32)
+    rules_ = _grid_cover(LARGE, 24.0, 0.8, columns=False)[..., None]  # pale blue rules
+    paper = paper * (1.0 - rules_ * (1.0 - np.array([0.55, 0.7, 0.9], np.float32)))
+    img = _on_paper(truth, paper, colour=(0.15, 0.2, 0.6))  # blue ink
+    rng = np.random.default_rng(0)
+    img[..., 2] += rng.normal(0.0, 0.02, LARGE).astype(np.float32)
+    found = paper_ink(np.clip(img, 0.0, 1.0))
+    assert _kept(found, truth) > 0.97
+    far = _ink(LARGE, LARGE_DIGIT, width=14.0) < 0.01
+    assert (found.ink[far] > 0.2).mean() < 0.002, "the blue channel's noise left as ink"
+    assert found.removed["faint_components"] < 100
+
+
+def test_a_wavy_rule_s_level_is_read_along_it_and_the_paper_s_beside_it():
+    from img2dmp.data.paper import _line_level
+
+    # rules (0.35, two rows thick) that wave 3 rows either way every 320 px: within a
+    # stretch of 1/8 of the width no straight row holds the line for half of it, so the
+    # rows' medians read the paper on 40 % of the line, whose pixels then stood out as
+    # ink over it (a generated ruled page's extra boxes 86 -> 231); followed along the
+    # line, the level on it is the line's, and beside it the paper's
+    h, w = 240, 640
+    dark = np.zeros((h, w), np.float32)
+    cols = np.arange(w)
+    for r0 in (60, 120, 180):
+        middle = np.round(r0 + 3.0 * np.sin(2 * np.pi * cols / 320.0)).astype(int)
+        for c in cols:
+            dark[middle[c] - 1 : middle[c] + 1, c] = 0.35
+    line = dark > 0
+    level = _line_level(dark, line, 0.0)
+    assert (level[line] > 0.3).mean() > 0.99, "the paper's level read on the line"
+    beside = ~dilate3(dilate3(line))
+    assert (level[beside] < 0.05).all(), "the line's level read on the paper"

@@ -16,22 +16,26 @@ drops the rest, in named steps (each kept for a picture with ``keep_steps``;
 2. **background**: the paper's own colour at every pixel, per channel: for a small
    image (a character's crop, under ``SURFACE_MAX_SIDE``) a quadratic surface fitted to
    the pixels that are not darker than it, times the soft shadows its even cells show;
-   else a high
-   percentile in cells of about 1/24 of the shorter side and at least
-   ``CELL_PEN_WIDTHS`` pen widths (ink covers a minority of every cell), closed over
-   3 x 3 cells (so a cell full of ink takes its neighbours'
-   paper) and interpolated bilinearly: lighting and tint divide out;
+   else the colour of the pixels at a high percentile of brightness in cells of about
+   1/24 of the shorter side and at least ``CELL_PEN_WIDTHS`` pen widths (ink covers a
+   minority of every cell; brightness, not each channel's own percentile, so that lines
+   lighter than the paper in one channel do not raise it there), closed over 3 x 3 cells
+   (so a cell full of ink takes its neighbours' paper) and interpolated bilinearly:
+   lighting and tint divide out;
 3. **darkness**: how much light the ink absorbs relative to that paper, the largest of
-   the channels (blue ink on yellow paper is dark in red and green, black ink in all);
+   the channels (blue ink on yellow paper is dark in red and green, black ink in all),
+   each channel's against the paper's brightest (the blue that yellow paper hardly
+   reflects carries the same noise as the others, not several times it);
 4. **sheet**: cells much darker than the paper and connected to the image's border are
    the table beyond the sheet's edge; nothing there is ink;
 5. **rules**: thin straight lines along the page's two directions (the dominant angle of
    the dark pixels, within +-``MAX_RULE_ANGLE_DEG``) that run most of the sheet's width
    (``RULE_SHARE``; ``PERIODIC_RULE_SHARE`` when at least three run in parallel at an
    even spacing, as ruled and squared paper's do) are removed, except where a stroke
-   crosses them (ink just above and just below a rule pixel keeps it) or, on rules as
-   dark as the pen, runs along them a short way between two places where it touches
-   them;
+   crosses them (ink just above and just below a rule pixel keeps it), on rules as
+   dark as the pen runs along them a short way between two places where it touches
+   them, or is darker than the lines there (their level followed along each line, so
+   that a wavy line is not darker than itself);
 6. **strokes**: hysteresis: a connected set of dark pixels is ink when ``STRONG_SHARE``
    of its pixels are of at least ``strong`` darkness (a share of the page's ink level),
    so faint marks (text from the back, dotted lines, shadows' edges) go unless a stroke
@@ -84,8 +88,14 @@ POLARITY_PLAIN = 0.85
 BACKGROUND_CELLS = 24
 #: ... and at least this many pen widths (:func:`rough_pen_width`) on a side.
 CELL_PEN_WIDTHS = 2.5
-#: The paper's level in a cell: this percentile of its pixels, per channel.
+#: The paper's colour in a cell: the mean colour of its pixels whose brightness (luma)
+#: ranks within ``BACKGROUND_WINDOW`` percentiles of this one. Not each channel's own
+#: percentile: lines lighter than the paper in one channel (blue rules on yellow paper in
+#: blue, or a JPEG's chroma smeared beside them) raised that channel's level until the
+#: whole sheet read as ink (``experiments/lines_on_photos.py``, yellow photo, blue squares
+#: drawn over it: 2 of 66 characters found; ranked by brightness, 55).
 BACKGROUND_PERCENTILE = 80
+BACKGROUND_WINDOW = 10
 #: A cell whose background is darker than this share of the paper's is off the sheet
 #: (when it connects to the image's border).
 TABLE_LEVEL = 0.45
@@ -134,6 +144,12 @@ BRIDGE_CHAIN = 2.0
 #: A pixel taken with a rule stays ink when it is darker than the lines there (their
 #: median over stretches of ``LINE_LEVEL_SHARE`` of the width along them) by this share
 #: of the pen's ink, joined to a stroke: ink printed lines lie under.
+#: Each line is followed along it first (its middle, a median over such a stretch, so
+#: that a stroke along it for less than half a stretch moves neither): a wavy line drifts
+#: across a straight stretch's rows, whose medians then read the paper on the line and
+#: its pixels as darker than it (a ruled page, validation seed 140: 231 extra boxes,
+#: followed 82; before this level was asked, 86). Less than 0.75 of a row is not
+#: followed (a straight line a little turned lies half a row up or down by turns).
 LINE_INK_SHARE = 0.3
 LINE_LEVEL_SHARE = 0.125
 #: Components thicker than this many pen widths are not pen strokes.
@@ -299,12 +315,12 @@ def dark_on_light(planes: np.ndarray) -> bool:
     return border > median or border > 0.5
 
 
-def _cell_percentile(planes: np.ndarray, cell: int, q: float) -> tuple[np.ndarray, int]:
-    """The ``q``-th percentile of every ``cell x cell`` block, per channel: ``[C, gh, gw]``
-    (blocks cut by the border are padded by reflection), and the cells' side in pixels of
-    ``planes`` (``cell``, or a little more after the averaging). Cells of more than 8 x 8
-    pixels are first area-averaged to about 8 x 8: the paper's level is smooth, and a
-    stroke averaged with the paper beside it stays darker than the paper."""
+def _cell_blocks(planes: np.ndarray, cell: int) -> tuple[np.ndarray, int]:
+    """The pixels of every ``cell x cell`` block, ``[C, gh, gw, n]`` (blocks cut by the
+    border padded by reflection), and the cells' side in pixels of ``planes`` (``cell``,
+    or a little more after the averaging). Cells of more than 8 x 8 pixels are first
+    area-averaged to about 8 x 8: the paper's level is smooth, and a stroke averaged with
+    the paper beside it stays darker than the paper."""
     red = max(1, cell // 8)
     a = np.stack([_block_mean(p, red) for p in planes]) if red > 1 else planes
     small = -(-cell // red)
@@ -312,8 +328,31 @@ def _cell_percentile(planes: np.ndarray, cell: int, q: float) -> tuple[np.ndarra
     gh, gw = -(-h // small), -(-w // small)
     a = np.pad(a, ((0, 0), (0, gh * small - h), (0, gw * small - w)), mode="reflect")
     blocks = a.reshape(c, gh, small, gw, small).transpose(0, 1, 3, 2, 4).reshape(c, gh, gw, -1)
+    return blocks, small * red
+
+
+def _cell_percentile(planes: np.ndarray, cell: int, q: float) -> tuple[np.ndarray, int]:
+    """The ``q``-th percentile of every ``cell x cell`` block (:func:`_cell_blocks`), per
+    channel: ``[C, gh, gw]``, and the cells' side."""
+    blocks, side = _cell_blocks(planes, cell)
     k = min(blocks.shape[3] - 1, int(round(q / 100.0 * (blocks.shape[3] - 1))))
-    return np.partition(blocks, k, axis=3)[..., k], small * red
+    return np.partition(blocks, k, axis=3)[..., k], side
+
+
+def _cell_paper(planes: np.ndarray, cell: int) -> tuple[np.ndarray, int]:
+    """The paper's colour in every ``cell x cell`` block (:func:`_cell_blocks`),
+    ``[C, gh, gw]``: the mean, per channel, of the pixels whose brightness ranks within
+    ``BACKGROUND_WINDOW`` percentiles of ``BACKGROUND_PERCENTILE`` (a grey image: its
+    ``BACKGROUND_PERCENTILE``-th percentile); and the cells' side."""
+    if len(planes) == 1:
+        return _cell_percentile(planes, cell, BACKGROUND_PERCENTILE)
+    blocks, side = _cell_blocks(planes, cell)
+    n = blocks.shape[3]
+    lo = int(round((BACKGROUND_PERCENTILE - BACKGROUND_WINDOW) / 100.0 * (n - 1)))
+    hi = max(lo + 1, int(round((BACKGROUND_PERCENTILE + BACKGROUND_WINDOW) / 100.0 * (n - 1))) + 1)
+    order = np.argsort(_luma(blocks), axis=-1)[..., lo:hi]  # [gh, gw, k] by brightness
+    picked = np.take_along_axis(blocks, np.broadcast_to(order, (len(blocks), *order.shape)), -1)
+    return picked.mean(axis=-1), side
 
 
 def _block_mean(a: np.ndarray, factor: int) -> np.ndarray:
@@ -356,7 +395,7 @@ def background(planes: np.ndarray, pen_width_px: float | None = None) -> tuple[n
     # A cell must hold paper beside a stroke: at least a few pen widths (a thick pen in a
     # small crop), and the closing over 3 x 3 cells then covers a cell full of ink.
     cell = max(2, min(planes.shape[1:]) // BACKGROUND_CELLS, math.ceil(CELL_PEN_WIDTHS * width))
-    grid, cell = _cell_percentile(planes, cell, BACKGROUND_PERCENTILE)
+    grid, cell = _cell_paper(planes, cell)
     grid = grey_closing(grid, size=(1, 3, 3))
     grid = gaussian_filter(grid, sigma=(0, 0.7, 0.7), mode="nearest")
     return _upsample(grid, cell, planes.shape[1:]), cell
@@ -441,13 +480,19 @@ def rough_pen_width(planes: np.ndarray) -> float:
 
 def darkness(planes: np.ndarray, bg: np.ndarray) -> np.ndarray:
     """How much light each pixel absorbs relative to its paper, the largest over the
-    channels, in [0, 1] (``float32 [H, W]``)."""
-    lightest = None
+    channels, in [0, 1] (``float32 [H, W]``): ``max_c (b_c - p_c) / max_c' b_c'`` for
+    pixel ``p`` on paper ``b``, each channel's loss against the paper's brightest
+    channel (grey: ``1 - p / b``). A photo's noise is about as large in every channel
+    in absolute terms; against the channel's own level, the blue that yellow paper
+    hardly reflects (0.4 of its red) made it about three times the others', and legal
+    pads saved as JPEGs read as specks and joined characters. Light and tint divide out
+    either way."""
+    top = np.maximum(np.max(bg, axis=0), 1e-3)
+    out = None
     for p, b in zip(planes, bg, strict=True):
-        ratio = np.divide(p, np.maximum(b, 1e-3), dtype=np.float32)
-        lightest = ratio if lightest is None else np.minimum(lightest, ratio, out=lightest)
-    np.subtract(1.0, lightest, out=lightest)
-    return np.clip(lightest, 0.0, 1.0, out=lightest)
+        loss = np.divide(b - p, top, dtype=np.float32)
+        out = loss if out is None else np.maximum(out, loss, out=out)
+    return np.clip(out, 0.0, 1.0, out=out)
 
 
 def _noise(planes: np.ndarray, bg: np.ndarray, where=None) -> float:
@@ -800,24 +845,65 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
     return found & ~keep, angles
 
 
-def _line_level(dark: np.ndarray, angle_deg: float) -> np.ndarray:
-    """The darkness ``[H, W]`` that the lines along the rows at ``angle_deg`` give every
-    pixel: per row of the sheared frame (:func:`_shear_rows`), the median of ``dark``
-    over stretches of ``LINE_LEVEL_SHARE`` of the width (a line's level where it is, the
-    paper's beside it; a stroke running along a line for less than half a stretch does
-    not move it, and a line that bends a little stays in its rows within a stretch)."""
+def _line_level(dark: np.ndarray, rule: np.ndarray, angle_deg: float) -> np.ndarray:
+    """The darkness ``[H, W]`` that the lines ``rule`` along the rows at ``angle_deg``
+    give every pixel: per row of the sheared frame (:func:`_shear_rows`), the median of
+    ``dark`` over stretches of ``LINE_LEVEL_SHARE`` of the width (a line's level where it
+    is, the paper's beside it; a stroke running along a line for less than half a
+    stretch does not move it), each line's band taken straightened along the line first
+    (:func:`_line_middle`: a wavy line stays in its rows)."""
     h, w = dark.shape
     off = _shear_rows(dark.shape, angle_deg)
+    rows = np.arange(h)[:, None] + off[None, :]  # [H, W] in the sheared frame
+    cols = np.broadcast_to(np.arange(w)[None, :], (h, w))
     s = np.zeros((h + int(off.max()), w), np.float32)
-    cols = np.arange(w)
-    s[np.arange(h)[:, None] + off[None, :], cols[None, :]] = dark
+    s[rows, cols] = dark
+    sr = _sheared(rule, off)
     block = max(16, math.ceil(LINE_LEVEL_SHARE * w))
     n = math.ceil(w / block)
     pad = n * block - w
-    padded = np.pad(s, ((0, 0), (0, pad)), mode="reflect" if pad < w else "edge")
-    med = np.median(padded.reshape(s.shape[0], n, block), axis=2)  # [H', n]
-    level = np.repeat(med, block, axis=1)[:, :w]
-    return level[np.arange(h)[:, None] + off[None, :], cols[None, :]]
+
+    def medians(a: np.ndarray) -> np.ndarray:  # [R, W] -> per row and stretch, [R, W]
+        padded = np.pad(a, ((0, 0), (0, pad)), mode="reflect" if pad < w else "edge")
+        med = np.median(padded.reshape(a.shape[0], n, block), axis=2)  # [R, n]
+        return np.repeat(med, block, axis=1)[:, :w]
+
+    level = medians(s)
+    for a, b in _bands(sr.any(axis=1)):
+        shift = _line_middle(s[a:b], sr[a:b], block)
+        if shift is None:
+            continue
+        # the band and its two rows of slack, each column moved by the line's shift
+        src = np.arange(a - 2, b + 2)[:, None] + shift[None, :]  # [R, W]
+        inside = (src >= 0) & (src < s.shape[0])
+        src = np.clip(src, 0, s.shape[0] - 1)
+        band_cols = cols[: src.shape[0]]
+        straight = medians(s[src, band_cols])
+        level[src[inside], band_cols[inside]] = straight[inside]
+    return level[rows, cols]
+
+
+def _line_middle(dark: np.ndarray, rule: np.ndarray, stretch: int) -> np.ndarray | None:
+    """How far (rows, ``int [W]``) the middle of the line ``rule`` (``bool [R, W]``, one
+    band of the sheared frame) lies from its usual row in every column: the mean row of
+    its pixels weighted by ``dark``, interpolated where it has none, and the median of
+    that over ``stretch`` columns (a stroke crossing it, or running along it for less
+    than half of that, does not move it). None for a band with too few columns of line."""
+    from scipy.ndimage import median_filter
+
+    weight = np.where(rule, dark, 0.0)
+    total = weight.sum(axis=0)
+    have = np.flatnonzero(total > 0)
+    if have.size < 8:
+        return None
+    middle = (weight[:, have] * np.arange(len(rule))[:, None]).sum(axis=0) / total[have]
+    middle = np.interp(np.arange(rule.shape[1]), have, middle)
+    middle = median_filter(middle, size=max(9, stretch) | 1, mode="nearest")
+    # whole rows, and none for less than 0.75 of one: a straight line turned a little
+    # lies half a row up or down by turns in the sheared frame, which straight rows read
+    # as well as any, and rounding it row by row mixed its edge with the paper beside it
+    drift = middle - np.median(middle)
+    return np.fix(drift + 0.25 * np.sign(drift)).astype(np.int64)
 
 
 def _darker_than_lines(found, per_axis, dark, strokes, keep, ink_level: float) -> np.ndarray:
@@ -835,7 +921,11 @@ def _darker_than_lines(found, per_axis, dark, strokes, keep, ink_level: float) -
     for axis in (0, 1):
         angles = {angle for a, angle, _, _ in per_axis if a == axis}
         for angle in angles:
-            lv = _line_level(dark if axis == 0 else dark.T, angle)
+            rule = np.zeros(dark.shape if axis == 0 else dark.T.shape, bool)
+            for a, an, r, _ in per_axis:  # the passes at this angle: their lines
+                if a == axis and an == angle:
+                    rule |= r
+            lv = _line_level(dark if axis == 0 else dark.T, rule, angle)
             clear *= 1.0 - np.clip(lv if axis == 0 else lv.T, 0.0, 1.0)
     darker = found & (dark > 1.0 - clear + LINE_INK_SHARE * ink_level)
     joined = binary_propagation(darker & dilate3(strokes | keep), mask=darker)
