@@ -573,14 +573,17 @@ MARGIN_TOLERANCE = 0.05
 def framing(predictor, images) -> dict:
     """How prepared images ``[M, H, W]`` are framed beside the model's training images:
     ``data_ink_margin`` (:func:`~img2dmp.data.images.ink_margin` of up to 500 of them),
-    ``model_ink_margin`` (the predictor's), and ``same`` (within
-    :data:`MARGIN_TOLERANCE`)."""
+    ``model_ink_margin`` (the predictor's; None for one without a ``margin``), and
+    ``same`` (within :data:`MARGIN_TOLERANCE`; True when the model's is unknown)."""
     from .data.images import ink_margin
 
-    data_margin, model_margin = ink_margin(images[:500]), float(predictor.margin)
-    same = abs(data_margin - model_margin) <= MARGIN_TOLERANCE
+    data_margin, model_margin = ink_margin(images[:500]), getattr(predictor, "margin", None)
+    if model_margin is None:  # a stand-in predictor that says nothing of its framing
+        return {"data_ink_margin": round(data_margin, 4), "model_ink_margin": None,
+                "same": True}  # fmt: skip
+    same = abs(data_margin - float(model_margin)) <= MARGIN_TOLERANCE
     return {"data_ink_margin": round(data_margin, 4),
-            "model_ink_margin": round(model_margin, 4), "same": bool(same)}  # fmt: skip
+            "model_ink_margin": round(float(model_margin), 4), "same": bool(same)}  # fmt: skip
 
 
 def _measured(predictor, data, batch_size: int, progress: bool = False):
