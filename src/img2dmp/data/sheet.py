@@ -92,9 +92,11 @@ DESK_EDGED = 0.6
 #: ... and the desk that came in through a gap in the edge is of the border's colour
 #: within this much (or four times its spread).
 DESK_TOLERANCE = 0.03
-#: The edge pixels within this many reduced pixels of the desk, joined to it, are the desk's
-#: (the sheet's edge, a shadow along it, a strip of another desk), ...
+#: The edge pixels within this many reduced pixels of the desk, joined to it and reaching no
+#: farther than ``EDGE_REACH`` from it, are the desk's (the sheet's edge, a shadow along it,
+#: a strip of another desk; not a character touching it), ...
 EDGE_BAND = 6
+EDGE_REACH = 12
 #: ... and the sheet keeps this many reduced pixels clear of them (the edge's blur).
 EDGE_MARGIN = 3
 #: The band beside the desk: this share of the photo's shorter side.
@@ -259,19 +261,20 @@ def _straight(strong: np.ndarray, weak: np.ndarray, normal: np.ndarray) -> np.nd
     return out
 
 
-def _edges(small: np.ndarray) -> np.ndarray:
-    """Edge pixels (step 1) of the reduced, smoothed ``small [C, h, w]``: ``bool [h, w]``."""
+def _edges(small: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Edge pixels (step 1) of the reduced, smoothed ``small [C, h, w]`` and the straight
+    lines drawn among them: ``bool [h, w]`` each."""
     from scipy.ndimage import binary_closing, binary_dilation
 
     change, normal = _change(small)
     level = max(STEP_MIN, STEP_NOISE * float(np.median(change)))
     strong = change > level
-    strong |= _straight(strong, change > LINE_WEAK * level, normal)
-    edges = binary_dilation(strong, np.ones((3, 3), bool))
+    lines = _straight(strong, change > LINE_WEAK * level, normal)
+    edges = binary_dilation(strong | lines, np.ones((3, 3), bool))
     # gaps in the sheet's edge closed (where the paper's shade meets the desk's level)
     g = EDGE_GAP
     padded = np.pad(edges, g, mode="edge")
-    return binary_closing(padded, np.ones((3, 3), bool), iterations=g)[g:-g, g:-g]
+    return binary_closing(padded, np.ones((3, 3), bool), iterations=g)[g:-g, g:-g], lines
 
 
 def _hull(mask: np.ndarray) -> np.ndarray | None:
@@ -357,15 +360,29 @@ def _lined(desk: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return desk & bad[groups]
 
 
-def _differs(colour: np.ndarray, pixels: np.ndarray) -> bool:
-    """Whether ``DESK_DIFFERS`` of ``pixels [C, n]`` differ from ``colour [C]`` by
-    ``DESK_CONTRAST`` in some channel."""
-    differ = np.max(np.abs(pixels - colour[:, None]), axis=0)
-    return bool(np.quantile(differ, 1.0 - DESK_DIFFERS) >= DESK_CONTRAST)
+def _differs(colour: np.ndarray, image: np.ndarray, where: np.ndarray) -> bool:
+    """Whether ``DESK_DIFFERS`` of the pixels ``where`` (``bool [h, w]``) of ``image [C, h,
+    w]`` differ from ``colour [C]`` by ``DESK_CONTRAST`` in some channel, each read as the
+    median of its cell of ``2 EDGE_GAP`` pixels (the paper's grain is no difference)."""
+    ys, xs = np.nonzero(where)
+    if ys.size == 0:
+        return False
+    cell = 2 * EDGE_GAP
+    key = (ys // cell) * (where.shape[1] // cell + 1) + xs // cell
+    order = np.argsort(key, kind="stable")
+    key, px = key[order], image[:, ys[order], xs[order]]
+    starts = np.flatnonzero(np.diff(key, prepend=-1))
+    sizes = np.diff(np.append(starts, key.size))
+    medians = np.stack(
+        [np.median(px[:, a : a + n], axis=1) for a, n in zip(starts, sizes, strict=True)]
+    )
+    differ = np.max(np.abs(medians - colour[None, :]), axis=1)  # [cells]
+    return bool(np.quantile(np.repeat(differ, sizes), 1.0 - DESK_DIFFERS) >= DESK_CONTRAST)
 
 
-def _is_desk(small, labels, lab: int, edges: np.ndarray, area: int, paper: np.ndarray) -> bool:
-    """Whether region ``lab`` of ``labels`` passes step 3's tests (module docstring)."""
+def _is_desk(small, labels, lab: int, edges, lines, area: int, paper: np.ndarray) -> bool:
+    """Whether region ``lab`` of ``labels`` passes step 3's tests (module docstring);
+    ``paper``: the paper's region (``bool``)."""
     from scipy.ndimage import binary_dilation, binary_fill_holes, find_objects, label
 
     h, w = labels.shape
@@ -385,17 +402,24 @@ def _is_desk(small, labels, lab: int, edges: np.ndarray, area: int, paper: np.nd
     if not beyond.any():
         return False
     inside = np.median(small[(slice(None), *sl)][:, region], axis=1)
-    if not _differs(inside, small[(slice(None), *sl)][:, beyond]):
+    if not _differs(inside, small[(slice(None), *sl)], beyond):
         return False  # a shade on the paper, a band between rules
-    if not _differs(inside, paper):
-        return False  # the paper's colour: the sheet beyond a margin line
-    holes, k = label(binary_fill_holes(region) & ~region)
+    if np.max(np.abs(inside - np.median(small[:, paper], axis=1))) < DESK_CONTRAST:
+        # the paper's colour (the sheet beyond a margin line, a band above a rule), unless
+        # a step of twice that bounds it and a quarter of the paper differs from it (a
+        # sheet shaded from lighter to darker than the desk)
+        step = np.max(np.abs(inside - np.median(small[(slice(None), *sl)][:, beyond], axis=1)))
+        if step < 2 * DESK_CONTRAST or not _differs(inside, small, paper):
+            return False
+    # the marks it encloses, with the straight lines along it (writing that touches a
+    # shadow's edge drawn straight), not the sheet that a desk all around encloses
+    solid = region | (binary_dilation(lines[sl], grid, iterations=EDGE_GAP + 1) & edges[sl])
+    holes, k = label(binary_fill_holes(solid) & ~solid)
     sizes = np.bincount(holes.ravel(), minlength=k + 1)[1:]
-    # the marks it encloses, not the sheet that a desk all around encloses
     return sizes[sizes < DESK_MIN_SHARE * h * w].sum() <= DESK_HOLES * area
 
 
-def _desk(small: np.ndarray, edges: np.ndarray) -> np.ndarray | None:
+def _desk(small: np.ndarray, edges: np.ndarray, lines: np.ndarray) -> np.ndarray | None:
     """The desk regions of step 3 (``bool [h, w]``), or None."""
     from scipy.ndimage import label
 
@@ -417,8 +441,7 @@ def _desk(small: np.ndarray, edges: np.ndarray) -> np.ndarray | None:
     area = np.bincount(labels.ravel(), minlength=n + 1)
     h, w = labels.shape
     desk = np.zeros((h, w), bool)
-    paper_px = small[:, labels == paper]
-    colour = np.median(paper_px, axis=1)
+    colour = np.median(small[:, labels == paper], axis=1)
     edge_ring = _ring(labels)
     for lab in ring[ring > 0]:
         if lab == paper or area[lab] < DESK_MIN_SHARE * h * w:
@@ -427,7 +450,7 @@ def _desk(small: np.ndarray, edges: np.ndarray) -> np.ndarray | None:
             continue  # the middle of the image is the sheet's
         if np.count_nonzero(edge_ring == lab) < DESK_BORDER * edge_ring.size:
             continue  # a band of the paper, between rules, that reaches the border
-        if _is_desk(small, labels, lab, edges, area[lab], paper_px):
+        if _is_desk(small, labels, lab, edges, lines, area[lab], labels == paper):
             desk |= labels == lab
     desk &= ~_lined(desk, edges)
     if not desk.any():
@@ -437,6 +460,27 @@ def _desk(small: np.ndarray, edges: np.ndarray) -> np.ndarray | None:
     if level < DESK_DARK:
         return None  # a dark table: paper.sheet_mask's, as it always was
     return desk
+
+
+def _edge_band(desk: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """The edges beside the ``desk`` that go with it (``bool``, the same shape): the sheet's
+    edge, a shadow along it, a strip of another desk. The pixels within ``EDGE_BAND`` of
+    the desk of each group of edge pixels joined to it that reaches no farther than
+    ``EDGE_REACH`` (a character touching a margin line taken for the desk reaches into the
+    sheet)."""
+    from scipy.ndimage import distance_transform_edt, label
+
+    groups, n = label(edges & ~desk, np.ones((3, 3), bool))
+    if n == 0:
+        return np.zeros_like(desk)
+    far = distance_transform_edt(~desk)
+    reach = np.zeros(n + 1)
+    np.maximum.at(reach, groups.ravel(), far.ravel())
+    near = np.full(n + 1, np.inf)
+    np.minimum.at(near, groups.ravel(), far.ravel())
+    keep = (near <= 1.5) & (reach <= EDGE_REACH)
+    keep[0] = False
+    return keep[groups] & (far <= EDGE_BAND)
 
 
 def find_sheet(planes: np.ndarray) -> Sheet | None:
@@ -461,13 +505,11 @@ def find_sheet(planes: np.ndarray) -> Sheet | None:
     factor = max(1, min(height, width) // SHEET_SIDE)
     small = _reduce(planes, factor)
     small = np.stack([gaussian_filter(p, 1.0, mode="nearest") for p in small])
-    edges = _edges(small)
-    found = _desk(small, edges)
+    edges, lines = _edges(small)
+    found = _desk(small, edges, lines)
     if found is None:
         return None
-    desk = found
-    # the sheet's edge, a shadow along it, a strip of another desk: the edges beside the desk
-    desk = binary_dilation(desk, np.ones((3, 3), bool), iterations=EDGE_BAND, mask=desk | edges)
+    desk = found | _edge_band(found, edges)
     grown = binary_dilation(desk, np.ones((3, 3), bool), iterations=EDGE_MARGIN)
     parts, _ = label(~grown)
     h, w = desk.shape
