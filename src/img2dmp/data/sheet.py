@@ -17,16 +17,19 @@ On the photo reduced to about ``SHEET_SIDE`` pixels on its shorter side and smoo
    border's colour (``DESK_TOLERANCE``) connected to the border is a region of its own;
 3. **desk**: the regions that lie along ``DESK_BORDER`` of the image's border, cover at
    least ``DESK_MIN_SHARE`` of it, are bounded by edges (``DESK_EDGED`` of their
-   outline), differ in colour from a quarter (``DESK_DIFFERS``) of what lies just beyond
-   their edge and of the paper by ``DESK_CONTRAST`` (a shade on the paper, a rule's band
-   or the paper beyond a margin line do not; a sheet shaded from lighter to darker than
-   the desk does), have no lines between them (``DESK_LINED``: a shade on ruled
-   paper) and hold no writing (enclosed marks under ``DESK_HOLES`` of their area: a
-   shadow's edge across the page is a region too, with characters in it);
-4. **sheet**: the desk grown over the edges beside it (``EDGE_BAND``: the sheet's edge, a
-   shadow along it), the rest grown away from it by ``EDGE_MARGIN`` pixels (the edge's
-   blur), the part that holds the paper, its convex hull (a sheet is a quadrilateral,
-   in perspective too; the notch a gap let in is back), drawn straight at the photo's
+   outline), differ in colour by ``DESK_CONTRAST`` from a quarter (``DESK_DIFFERS``) of
+   what lies just beyond their edge (read in cells) and from the paper's median colour
+   (or, bounded by a step of twice that, from a quarter of the paper: a sheet shaded
+   from lighter to darker than the desk; a shade on the paper, a rule's band or the
+   paper beyond a margin line do not), have no lines between them (``DESK_LINED``: a
+   shade on ruled paper) and hold no writing (marks enclosed by them and the straight
+   edges along them under ``DESK_HOLES`` of their area: a shadow's edge across the page
+   is a region too, with characters in it or at its edge);
+4. **sheet**: the desk grown over the edges beside it (``EDGE_BAND``, those reaching no
+   farther than ``EDGE_REACH``: the sheet's edge, a shadow along it), the rest grown
+   away from it by ``EDGE_MARGIN`` pixels (the edge's blur), the part that holds the
+   paper, its convex hull (a sheet is a quadrilateral, in perspective too; the notch a
+   gap let in is back), drawn straight at the photo's
    pixels; at least ``SHEET_MIN_SHARE`` of the image. Off the sheet the photo is
    painted with the nearest paper's colour, from ``EDGE_GAP + 2`` pixels inside.
 
