@@ -17,11 +17,11 @@ On the photo reduced to about ``SHEET_SIDE`` pixels on its shorter side and smoo
    border's colour (``DESK_TOLERANCE``) connected to the border is a region of its own;
 3. **desk**: the regions that lie along ``DESK_BORDER`` of the image's border, cover at
    least ``DESK_MIN_SHARE`` of it, are bounded by edges (``DESK_EDGED`` of their
-   outline), differ in colour by ``DESK_CONTRAST`` from a quarter (``DESK_DIFFERS``) of
-   what lies just beyond their edge (read in cells) and from the paper's median colour
-   (or, bounded by a step of twice that, from a quarter of the paper: a sheet shaded
-   from lighter to darker than the desk; a shade on the paper, a rule's band or the
-   paper beyond a margin line do not), have no lines between them (``DESK_LINED``: a
+   outline), differ in colour by ``DESK_CONTRAST`` from what lies just beyond their edge
+   and from the paper's median colour (or, bounded by a step of twice that, from a
+   quarter, ``DESK_DIFFERS``, of the paper read in cells: a sheet shaded from lighter to
+   darker than the desk; a shade on the paper, a rule's band or the paper beyond a
+   margin line do not), have no lines between them (``DESK_LINED``: a
    shade on ruled paper) and hold no writing (marks enclosed by them and the straight
    edges along them under ``DESK_HOLES`` of their area: a shadow's edge across the page
    is a region too, with characters in it or at its edge);
@@ -78,10 +78,11 @@ LINE_MAX = 12
 CORNER_GAP = 0.15
 #: A desk region covers at least this share of the image,
 DESK_MIN_SHARE = 0.01
-#: ... differs by this much in some channel (its median colour) from the pixels just
-#: beyond its boundary and from the paper's, ...
+#: ... differs by this much in some channel (its median colour) from the median of the
+#: pixels just beyond its boundary and from the paper's (or, beside a step of twice this,
+#: from ``DESK_DIFFERS`` of the paper's cells: a sheet shaded from lighter to darker than
+#: it), ...
 DESK_CONTRAST = 0.025
-#: ... at least this share of them (the paper's shade may near the desk's elsewhere),
 DESK_DIFFERS = 0.25
 #: ... and encloses marks of at most this share of its area (a desk holds no writing).
 DESK_HOLES = 0.01
@@ -405,7 +406,8 @@ def _is_desk(small, labels, lab: int, edges, lines, area: int, paper: np.ndarray
     if not beyond.any():
         return False
     inside = np.median(small[(slice(None), *sl)][:, region], axis=1)
-    if not _differs(inside, small[(slice(None), *sl)], beyond):
+    outside = np.median(small[(slice(None), *sl)][:, beyond], axis=1)
+    if np.max(np.abs(inside - outside)) < DESK_CONTRAST:
         return False  # a shade on the paper, a band between rules
     if np.max(np.abs(inside - np.median(small[:, paper], axis=1))) < DESK_CONTRAST:
         # the paper's colour (the sheet beyond a margin line, a band above a rule), unless
