@@ -130,6 +130,26 @@ def build_page_document() -> dict:
     }
 
 
+def page_with_a_fast_l():
+    """``(plan, options, params)``: the three-character page planned, its "l" (1 s) made
+    15 times as fast (``params``), the others as they are."""
+    import dataclasses
+
+    from img2dmp.robot import WritingOptions, check_page_document, plan_page
+    from img2dmp.robot.tempo import slowed_dmp
+    from img2dmp.robot.writing import plan_path
+
+    page = check_page_document(build_page_document(), "page.json")
+    options = WritingOptions(render_size_px=None)
+    plan = plan_page(page, options, width_mm=WIDTH_MM)
+    fast = plan.characters[1]
+    params = slowed_dmp(fast.params, 1 / 15)
+    path = plan_path(params, fast.config, plan.mapping, options.dt_s)
+    fast = dataclasses.replace(fast, params=params, plan=path)
+    plan = dataclasses.replace(plan, characters=(plan.characters[0], fast, plan.characters[2]))
+    return plan, options, params
+
+
 @pytest.fixture(scope="module")
 def page_document() -> dict:
     return build_page_document()

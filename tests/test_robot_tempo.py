@@ -239,20 +239,12 @@ def test_a_dmp_within_the_limits_is_written_exactly_as_before():
 
 @needs_pybullet
 def test_only_the_characters_of_a_page_that_need_it_are_slowed():
-    from img2dmp.robot import WritingOptions, WritingScene, check_page_document, plan_page
+    from img2dmp.robot import WritingScene
     from img2dmp.robot.page import slow_page_plan
-    from img2dmp.robot.tempo import JOINT_SPEED_SHARE, slowed_dmp
-    from img2dmp.robot.writing import plan_path
-    from test_robot_page import WIDTH_MM, build_page_document
+    from img2dmp.robot.tempo import JOINT_SPEED_SHARE
+    from test_robot_page import page_with_a_fast_l
 
-    page = check_page_document(build_page_document(), "page.json")
-    options = WritingOptions(render_size_px=None)
-    plan = plan_page(page, options, width_mm=WIDTH_MM)
-    fast = plan.characters[1]  # the "l", 1 s: made 15 times as fast
-    params = slowed_dmp(fast.params, 1 / 15)
-    path = plan_path(params, fast.config, plan.mapping, options.dt_s)
-    fast = dataclasses.replace(fast, params=params, plan=path)
-    plan = dataclasses.replace(plan, characters=(plan.characters[0], fast, plan.characters[2]))
+    plan, options, params = page_with_a_fast_l()
     with WritingScene(options.scene_config, time_step_s=options.dt_s) as scene:
         slowed = slow_page_plan(scene, plan)
     factors = [cp.slowing.factor for cp in slowed.characters]

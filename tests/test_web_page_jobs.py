@@ -10,8 +10,6 @@ simulation runs, only the planning.
 
 from __future__ import annotations
 
-import dataclasses
-
 import pytest
 
 from img2dmp.robot import available
@@ -25,22 +23,12 @@ needs_pybullet = pytest.mark.skipif(
 
 @needs_pybullet
 def test_a_page_jobs_expected_steps_count_the_slowing():
-    from img2dmp.robot import WritingOptions, WritingScene, check_page_document, plan_page
+    from img2dmp.robot import WritingScene
     from img2dmp.robot.page import slow_page_plan
-    from img2dmp.robot.tempo import slowed_dmp
-    from img2dmp.robot.writing import plan_path
     from img2dmp.web.page_jobs import expected_steps
-    from test_robot_page import WIDTH_MM, build_page_document
+    from test_robot_page import page_with_a_fast_l
 
-    page = check_page_document(build_page_document(), "page.json")
-    options = WritingOptions(render_size_px=None)
-    plan = plan_page(page, options, width_mm=WIDTH_MM)
-    fast = plan.characters[1]  # the "l", 1 s: made 15 times as fast
-    params = slowed_dmp(fast.params, 1 / 15)
-    fast = dataclasses.replace(
-        fast, params=params, plan=plan_path(params, fast.config, plan.mapping, options.dt_s)
-    )
-    plan = dataclasses.replace(plan, characters=(plan.characters[0], fast, plan.characters[2]))
+    plan, options, params = page_with_a_fast_l()
 
     ready, steps = expected_steps(plan)
     factors = [cp.slowing.factor for cp in ready.characters]
