@@ -261,6 +261,23 @@ def test_only_the_characters_of_a_page_that_need_it_are_slowed():
 
 
 @needs_pybullet
+def test_the_tempo_written_is_told_before_the_first_step(fast_runs):
+    """``on_tempo`` gets the slowed tau before the run, so a progress estimate from the
+    DMP's own tau (the command's bar, the web's write job) can be set right."""
+    from img2dmp.robot import write_dmp
+
+    params, _, slowed = fast_runs
+    told, steps = [], []
+    config = stroke_dmp(FAST_S)[1]
+    result = write_dmp(params, config, IMAGE_SIZE, render_size_px=None, on_tempo=told.append,
+                       progress=lambda n: steps.append((len(told), n)))  # fmt: skip
+    assert told == [pytest.approx(float(params.tau) * slowed.slowing.factor)]
+    assert told[0] > 1.5 * float(params.tau)  # the slowed tau, not the DMP's own
+    assert steps and all(k == 1 for k, _ in steps)  # told before any step was reported
+    assert result.slowing.factor == slowed.slowing.factor
+
+
+@needs_pybullet
 def test_a_run_over_the_acceleration_limit_is_warned_of_and_a_slowed_one_not(fast_runs):
     from img2dmp.robot.outputs import joint_acceleration_warning, writing_warnings
 

@@ -489,6 +489,10 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
         with progress_bar(
             total=est_steps, unit="step", desc=f"writing {name}", enabled=not args.no_progress
         ) as bar:
+
+            def on_tempo(tau_s: float, bar=bar) -> None:  # slowed: a longer run
+                bar.total = int((tau_s + 2.0) * args.rate_hz)
+
             try:
                 result = write_dmp(
                     params,
@@ -502,6 +506,7 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
                     joint_speed_share=_joint_speed_share(args),
                     joint_acceleration_share=_joint_acceleration_share(args),
                     progress=bar.update,
+                    on_tempo=on_tempo,
                 )
             except RuntimeError as e:  # the simulated arm failed (e.g. never settled)
                 print(f"img2dmp write: {name}: simulation failed: {e}", file=sys.stderr)

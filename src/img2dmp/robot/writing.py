@@ -734,6 +734,7 @@ def write_dmp(
     joint_speed_share: float | None = JOINT_SPEED_SHARE,
     joint_acceleration_share: float | None = JOINT_ACCELERATION_SHARE,
     progress=None,
+    on_tempo=None,
 ) -> WritingResult:
     """Write one DMP with the simulated KUKA iiwa; return the log and metrics.
 
@@ -772,6 +773,10 @@ def write_dmp(
         of their limits (0.6, 1; None: not for them; :class:`WritingOptions`).
     progress : callable or None
         Called as ``progress(n_steps)`` after each batch of simulated steps.
+    on_tempo : callable or None
+        Called once as ``on_tempo(tau_s)`` with the DMP's ``tau`` as it will be written
+        (slowed for the joints or not) before the first simulated step: a progress
+        estimate made from the DMP's own ``tau`` can be set right.
 
     Raises
     ------
@@ -795,7 +800,9 @@ def write_dmp(
         joint_speed_share=joint_speed_share,
         joint_acceleration_share=joint_acceleration_share,
     )
-    return write_with_options(params, config, image_size, options, progress=progress)
+    return write_with_options(
+        params, config, image_size, options, progress=progress, on_tempo=on_tempo
+    )
 
 
 def write_with_options(
@@ -805,6 +812,7 @@ def write_with_options(
     options: WritingOptions,
     *,
     progress: Callable[[int], object] | None = None,
+    on_tempo: Callable[[float], object] | None = None,
 ) -> WritingResult:
     """:func:`write_dmp` with its settings in one :class:`WritingOptions`."""
     if not isinstance(options, WritingOptions):
@@ -820,6 +828,8 @@ def write_with_options(
         params, plan, slowing = slow_for_joint_limits(scene, params, config, plan, mapping,
                                                       options)  # fmt: skip
         options.check_video(float(params.tau))
+        if on_tempo is not None:
+            on_tempo(float(params.tau))
         scene.reset_joints(q_start)
         lift_z_m = scene_cfg.paper_top_z + ctl_cfg.lift_height_m
         controller = WritingController(scene, ctl_cfg, PEN_DOWN_ROTATION, q_start, lift_z_m)

@@ -117,6 +117,9 @@ def _write(d: Path, hypothesis: int, interval_s: float | None, report) -> list[s
         steps["done"] += n
         report[SHARE] = SIMULATION_SHARE * min(1.0, steps["done"] / steps["expected"])
 
+    def on_tempo(tau_s: float) -> None:  # slowed for the joints: a longer run
+        steps["expected"] = max(1.0, (tau_s + RUN_EXTRA_S) * CONTROL_RATE_HZ)
+
     result = write_dmp(
         params,
         config,
@@ -125,6 +128,7 @@ def _write(d: Path, hypothesis: int, interval_s: float | None, report) -> list[s
         frame_interval_s=interval_s,
         render_size_px=None,
         progress=advance,
+        on_tempo=on_tempo,
     )
     report[SHARE] = SIMULATION_SHARE
     name = f"hypothesis {hypothesis}"
