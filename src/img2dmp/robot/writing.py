@@ -771,20 +771,14 @@ def write_dmp(
     joint_speed_share, joint_acceleration_share : float or None
         Slow the DMP until its planned joint speeds (accelerations) stay within this share
         of their limits (0.6, 1; None: not for them; :class:`WritingOptions`).
-    progress : callable or None
-        Called as ``progress(n_steps)`` after each batch of simulated steps.
-    on_tempo : callable or None
-        Called once as ``on_tempo(tau_s)`` with the DMP's ``tau`` as it will be written
-        (slowed for the joints or not) before the first simulated step: a progress
-        estimate made from the DMP's own ``tau`` can be set right.
+    progress, on_tempo : callable or None
+        ``progress(n_steps)`` after each batch of simulated steps; ``on_tempo(tau_s)``
+        once before the first, with the ``tau`` the DMP will be written at (slowed or
+        not: a progress estimate from its own ``tau`` can be set right).
 
-    Raises
-    ------
-    ValueError
-        Bad arguments, or a path that leaves the paper or the arm's reach (raised before
-        the simulation starts).
-    RuntimeError
-        The pen did not settle at the set force within ``approach_timeout_s``.
+    ``ValueError`` for bad arguments or a path that leaves the paper or the arm's reach
+    (before the simulation starts); ``RuntimeError`` when the pen did not settle at the
+    set force within ``approach_timeout_s``.
     """
     options = WritingOptions(
         writing_height_mm=writing_height_mm,
