@@ -766,8 +766,7 @@ def write_dmp(
         Size of each half of a video frame and of the final render (arm | paper);
         ``render_size_px=None``: no final render.
     stroke_dwell : bool
-        Hold the DMP clock while the pen lands and lifts between strokes (see
-        :class:`WritingOptions`).
+        Hold the DMP clock while the pen lands and lifts (:class:`WritingOptions`).
     joint_speed_share, joint_acceleration_share : float or None
         Slow the DMP until its planned joint speeds (accelerations) stay within this share
         of their limits (0.6, 1; None: not for them; :class:`WritingOptions`).
