@@ -333,22 +333,32 @@ def joint_speed_line(metrics: dict) -> str | None:
     )
 
 
+def _planned_acceleration_peak(metrics: dict) -> tuple:
+    """``(share, joint, limit, where)`` of the peak acceleration planned along a run's
+    DMPs: its share of the planning limit (NaN without a plan's accelerations), the
+    joint's name and limit (rad/s^2), and on a page the entry whose (else None)."""
+    share = metrics.get("planned_joint_acceleration_share", math.nan)
+    if not math.isfinite(share):
+        return share, None, math.nan, None
+    joint = metrics["planned_joint_acceleration_joint"]
+    limits = metrics["joint_acceleration_limit_rad_s2"]
+    limit = float(limits[int(joint.rsplit("_", 1)[1]) - 1])
+    return share, joint, limit, metrics.get("planned_joint_acceleration_character")
+
+
 def joint_acceleration_line(metrics: dict, noun: str = "character") -> str | None:
     """The peak joint acceleration planned along the DMPs (at the tempo written) against
     the planning limit, and the simulated arm's own peak over the run, in words (None
     for a run without a plan's accelerations); on a page, naming the ``noun`` whose."""
-    share = metrics.get("planned_joint_acceleration_share", math.nan)
+    share, joint, limit, where = _planned_acceleration_peak(metrics)
     if not math.isfinite(share):
         return None
     limits = np.asarray(metrics["joint_acceleration_limit_rad_s2"])
-    joint = metrics["planned_joint_acceleration_joint"]
-    j = int(joint.rsplit("_", 1)[1]) - 1
     within = "within" if share <= 1.0 else "OVER"
-    where = metrics.get("planned_joint_acceleration_character")
     where = "" if where is None else f", {noun} {where}"
     line = (
         f"  joint accelerations planned along the DMPs {within} the planning limit: peak "
-        f"{100 * share:.0f} % of it ({joint} {share * limits[j]:.2f} of {limits[j]:g} rad/s^2"
+        f"{100 * share:.0f} % of it ({joint} {share * limit:.2f} of {limit:g} rad/s^2"
         f"{where})"
     )
     run = metrics.get("joint_acceleration_peak_share", math.nan)
@@ -385,13 +395,9 @@ def joint_acceleration_warning(metrics: dict, noun: str = "character") -> str | 
     """A warning (None if not needed) when the joint accelerations planned along a DMP,
     at the tempo written (``--no-slowing``), pass the planning limit a real iiwa is
     driven within; on a page, naming the ``noun`` whose."""
-    share = metrics.get("planned_joint_acceleration_share", math.nan)
+    share, joint, limit, where = _planned_acceleration_peak(metrics)
     if not share > 1.0:
         return None
-    limits = np.asarray(metrics["joint_acceleration_limit_rad_s2"])
-    joint = metrics["planned_joint_acceleration_joint"]
-    limit = limits[int(joint.rsplit("_", 1)[1]) - 1]
-    where = metrics.get("planned_joint_acceleration_character")
     where = "" if where is None else f" ({noun} {where})"
     return (
         f"{joint} would accelerate at {share * limit:.1f} rad/s^2 along a DMP{where}, "
