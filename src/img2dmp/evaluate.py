@@ -577,13 +577,13 @@ def framing(predictor, images) -> dict:
     ``same`` (within :data:`MARGIN_TOLERANCE`; True when the model's is unknown)."""
     from .data.images import ink_margin
 
-    data_margin, model_margin = ink_margin(images[:500]), getattr(predictor, "margin", None)
-    if model_margin is None:  # a stand-in predictor that says nothing of its framing
-        return {"data_ink_margin": round(data_margin, 4), "model_ink_margin": None,
-                "same": True}  # fmt: skip
-    same = abs(data_margin - float(model_margin)) <= MARGIN_TOLERANCE
-    return {"data_ink_margin": round(data_margin, 4),
-            "model_ink_margin": round(float(model_margin), 4), "same": bool(same)}  # fmt: skip
+    data_margin = ink_margin(images[:500])
+    model_margin = getattr(predictor, "margin", None)  # None: a stand-in predictor's
+    if model_margin is not None:
+        model_margin = round(float(model_margin), 4)
+    same = model_margin is None or abs(data_margin - model_margin) <= MARGIN_TOLERANCE
+    return {"data_ink_margin": round(data_margin, 4), "model_ink_margin": model_margin,
+            "same": bool(same)}  # fmt: skip
 
 
 def _measured(predictor, data, batch_size: int, progress: bool = False):

@@ -111,14 +111,16 @@ def _write(d: Path, hypothesis: int, interval_s: float | None, report) -> list[s
 
     params, config, size = load_dmp_json(d / "dmp.json", hypothesis=hypothesis)
     image = _paper_image(d / PAPER_IMAGE)
-    steps = {"done": 0, "expected": max(1.0, (float(params.tau) + RUN_EXTRA_S) * CONTROL_RATE_HZ)}
+    steps = {"done": 0}
 
     def advance(n: int) -> None:
         steps["done"] += n
         report[SHARE] = SIMULATION_SHARE * min(1.0, steps["done"] / steps["expected"])
 
-    def on_tempo(tau_s: float) -> None:  # slowed for the joints: a longer run
+    def on_tempo(tau_s: float) -> None:  # told again once slowed for the joints
         steps["expected"] = max(1.0, (tau_s + RUN_EXTRA_S) * CONTROL_RATE_HZ)
+
+    on_tempo(float(params.tau))
 
     result = write_dmp(
         params,
