@@ -195,6 +195,7 @@ def test_import_stores_the_class_names_and_the_paths_on_the_ink(letters, importe
         "path": str(letters),
         "samples": 24,
         "skipped": [],
+        "skipped_entries": 0,
         "median_duration_s": pytest.approx(np.median(data.times[:, -1]), rel=1e-5),
     }
 
@@ -746,6 +747,12 @@ def test_skip_bad_leaves_bad_samples_out_and_lists_them(small_source, tmp_path, 
     assert "L/000.csv: line 4: field 'x' is nan" in skipped[1]
     data = load_dataset(out)
     assert data.meta["source"]["skipped"] == [s.removeprefix("skipped: ") for s in skipped]
+    # The image-less path makes no sample (found with the files); the NaN one failed to read.
+    assert data.meta["source"]["skipped_entries"] == 1
+    assert (
+        "skipped 1 bad sample(s) and 1 file(s) or folder(s) of the source that make no "
+        "sample, listed above"
+    ) in printed
     assert sorted(data.meta["rows"]["trajectory"]) == ["L/001.csv", "T/001.csv"]
     # An existing output is refused without --force, before anything is read.
     assert cli.main(argv) == 2

@@ -229,7 +229,7 @@ def test_an_empty_character_folder_is_refused_by_name_once(tree, tmp_path, capsy
     assert "strokes_test/Alpha/character09: a character folder without drawings" in err
     assert _import(root, tmp_path / "a.safetensors", "--skip-bad") == 0
     printed = capsys.readouterr().out
-    assert printed.count("character09") == 1 and "skipped 1 bad sample(s)" in printed
+    assert printed.count("character09") == 1 and "skipped 1 file(s) or folder(s)" in printed
     # The same in zips (their folder entries), one of them only empty.
     zips = tmp_path / "zips"
     zips.mkdir()

@@ -297,7 +297,18 @@ def _report(out: Path, data) -> None:
     for line in meta["source"]["skipped"]:
         print(f"skipped: {line}")
     if meta["source"]["skipped"]:
-        print(f"skipped {len(meta['source']['skipped'])} bad sample(s), listed above")
+        print(_skipped_summary(meta["source"]))
+
+
+def _skipped_summary(source: dict) -> str:
+    """The line after ``--skip-bad``'s list: how many samples failed to read and how many
+    of the source's entries (stray files, empty folders) made none."""
+    entries = source.get("skipped_entries", 0)
+    samples = len(source["skipped"]) - entries
+    parts = [f"{samples} bad sample(s)"] if samples else []
+    if entries:
+        parts.append(f"{entries} file(s) or folder(s) of the source that make no sample")
+    return f"skipped {' and '.join(parts)}, listed above"
 
 
 def _empty_split_note(meta) -> str | None:

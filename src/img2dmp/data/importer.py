@@ -309,6 +309,7 @@ def import_samples(
     """
     opt = options or ImportOptions()
     skipped = list(skipped or [])
+    n_unread = len(skipped)  # the source's entries that make no sample, found before reading
     good, n_dims = _read_all(samples, opt, progress, skip_bad, skipped)
     config = opt.dmp_config(n_dims)
     class_names, labels = _class_labels([g.source.class_name for g in good], opt.classes)
@@ -327,7 +328,7 @@ def import_samples(
 
     def source_meta(rows, copy, fit):
         meta = _meta(opt, config, good, (class_names, labels[rows]), rows, copy, fit, root)
-        meta["source"] = _source_record(opt, good, source, skipped, root)
+        meta["source"] = _source_record(opt, good, source, root, skipped, n_unread)
         return meta
 
     return build_dataset(
@@ -336,14 +337,19 @@ def import_samples(
     )  # fmt: skip
 
 
-def _source_record(opt: ImportOptions, good: list[_Imported], source, skipped, root) -> dict:
+def _source_record(
+    opt: ImportOptions, good: list[_Imported], source, root, skipped: list[str], n_entries: int
+) -> dict:
     """The data set's ``meta["source"]``: where the samples came from, and Omniglot's
-    split and the drawings moved onto their ink."""
+    split and the drawings moved onto their ink. ``skipped``: the errors left out, the
+    first ``n_entries`` of them the source's entries that make no sample (a stray file, an
+    empty folder, an image without its path), the rest samples that failed to read."""
     record = {
         "kind": "import",
         "path": None if source is None else str(source),
         "samples": len(good),
         "skipped": skipped,
+        "skipped_entries": n_entries,
         "median_duration_s": float(np.median([g.pen.t_s[-1] - g.pen.t_s[0] for g in good])),
     }
     if any(g.source.format == "omniglot" for g in good):
