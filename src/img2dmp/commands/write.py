@@ -154,7 +154,8 @@ def _add_joint_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="SHARE",
         help="keep the joint accelerations planned along each DMP within this share, in "
         "(0, 1], of 10 rad/s^2 per joint (a planning limit of the iiwa 14 in wide use; "
-        "KUKA publishes none; default 1); not with --no-slowing",
+        "KUKA publishes none; default 0.6, room for the arm's own transients); not with "
+        "--no-slowing",
     )
 
 
@@ -530,7 +531,7 @@ def _run_dmps(args, scene_cfg, ctl_cfg) -> int:
 #: Why a note says a DMP was slowed, and how not to.
 SLOWING_WHY = ("slowed so that a real iiwa's joints can follow (planned within 60 % of "
                "their speed limits, their accelerations within --acceleration-share, default "
-               "1, of 10 rad/s^2; --no-slowing: the DMP's own tempo)")  # fmt: skip
+               "0.6, of 10 rad/s^2; --no-slowing: the DMP's own tempo)")  # fmt: skip
 
 
 def _note(text: str) -> None:

@@ -14,7 +14,10 @@ Per control step (one physics step of ``dt``):
    ``travel_speed_m_s`` down to ``approach_clearance_m`` above the paper (its height
    is known), then at ``approach_speed_m_s`` until it touches, so the admittance law
    only ever acts in contact. When the pen is up, ``z_c`` moves at ``travel_speed_m_s``
-   to ``lift_height_m`` above the paper.
+   to ``lift_height_m`` above the paper. Every move of ``z_c`` outside the contact
+   speeds up and slows down at ``axis_acceleration_m_s2`` (a trapezoidal speed
+   profile, :func:`axis_speed_towards`): a pen that started or stopped at 0.1 m/s
+   within one control step asked the arm's joints for 65-110 rad/s^2.
 
    The loop is a first-order one with time constant ``d_a / k`` for a contact
    stiffness ``k`` (pen, paper and arm in series); sampled at ``dt`` it needs
@@ -47,6 +50,35 @@ from ..config import check_positive_fields
 #: (2026-12-07): 20, 25, 30, 35 N held within 0.1 N; at 40 N and above the pen bounces
 #: off the paper and never settles.
 MAX_FORCE_SET_N = 30.0
+#: How fast the pen-axis speed may change outside the contact (m/s^2). The joints move
+#: about 2 rad/s per m/s of pen-axis speed here (joint 2 at 0.196 rad/s for 0.1 m/s), so
+#: 2 m/s^2 asks them for about 4 rad/s^2, well within the 10 rad/s^2 planning limit.
+AXIS_ACCELERATION_M_S2 = 1.5
+
+
+def axis_speed_towards(distance_m: float, speed_m_s: float, max_speed_m_s: float,
+                       acceleration_m_s2: float, dt_s: float,
+                       arrival_speed_m_s: float = 0.0) -> float:  # fmt: skip
+    """The pen-axis speed for the next control step of a move ``distance_m`` (signed)
+    away from its target, from ``speed_m_s`` now: a trapezoidal profile, at most
+    ``max_speed_m_s``, changed by at most ``acceleration_m_s2 * dt_s`` per step, and slow
+    enough to stop (or arrive at ``arrival_speed_m_s``) at the target with that
+    deceleration: ``v <= sqrt(v_arrive^2 + 2 a |d|)``, as control steps (each moves
+    ``v dt`` after its speed is set): ``a dt (sqrt(2 |d| / (a dt^2) + (v_arrive / (a
+    dt))^2 + 1/4) - 1/2)``, which stops on the target instead of past it. The last step
+    lands on the target."""
+    dv = acceleration_m_s2 * dt_s
+    reach = dv * (math.sqrt(2.0 * abs(distance_m) / (dv * dt_s) + (arrival_speed_m_s / dv) ** 2
+                            + 0.25) - 0.5)  # fmt: skip
+    wanted = math.copysign(min(max_speed_m_s, reach, abs(distance_m) / dt_s), distance_m)
+    return min(max(wanted, speed_m_s - dv), speed_m_s + dv)
+
+
+def axis_move_s(config: ControllerConfig, distance_m: float) -> float:
+    """Seconds a pen-axis move of ``distance_m`` from rest to rest takes
+    (:func:`axis_speed_towards` at ``travel_speed_m_s`` and ``axis_acceleration_m_s2``)."""
+    v, a, d = config.travel_speed_m_s, config.axis_acceleration_m_s2, abs(distance_m)
+    return d / v + v / a if d >= v * v / a else 2.0 * math.sqrt(d / a)
 
 
 @dataclass(frozen=True)
@@ -77,6 +109,10 @@ class ControllerConfig:
         Damping ratio of the joint-space error dynamics.
     lift_height_m : float
         Height of the tip above the paper when the pen is up.
+    axis_acceleration_m_s2 : float
+        The largest change of the pen-axis speed per second outside the contact (starts
+        and stops of the lowering and the lifting; the admittance law in contact has its
+        own speed cap).
     """
 
     force_set_n: float = 5.0
@@ -89,6 +125,7 @@ class ControllerConfig:
     joint_bandwidth_hz: float = 12.0
     damping_ratio: float = 1.0
     lift_height_m: float = 0.006
+    axis_acceleration_m_s2: float = AXIS_ACCELERATION_M_S2
 
     def __post_init__(self) -> None:
         check_positive_fields(
@@ -104,6 +141,7 @@ class ControllerConfig:
                 "joint_bandwidth_hz",
                 "damping_ratio",
                 "lift_height_m",
+                "axis_acceleration_m_s2",
             ),
         )
         if self.force_set_n > MAX_FORCE_SET_N:
@@ -147,6 +185,7 @@ class WritingController:
         self.qd_d = np.zeros(7)
         self.qdd_d = np.zeros(7)
         self.z_c = float(z_start_m)
+        self.z_speed_m_s = 0.0  # of z_c
         self.force_filtered_n = 0.0
         self._alpha = 1.0 - math.exp(-2.0 * math.pi * config.force_filter_hz * self.dt)
         self.last_ik_residual_m = 0.0
@@ -167,21 +206,24 @@ class WritingController:
         cfg = self.config
         self.force_filtered_n += self._alpha * (force_n - self.force_filtered_n)
         above = surface_z_m + cfg.approach_clearance_m
-        if pen_down and force_n <= 0.0:
-            if self.z_c > above:
-                self.z_c = max(above, self.z_c - cfg.travel_speed_m_s * self.dt)
-            else:
-                self.z_c -= cfg.approach_speed_m_s * self.dt
-        elif pen_down:
+        if pen_down and force_n > 0.0:
             speed = -(cfg.force_set_n - self.force_filtered_n) / cfg.admittance_damping_n_s_per_m
             limit = cfg.max_axis_speed_m_s
-            self.z_c += float(np.clip(speed, -limit, limit)) * self.dt
+            self.z_speed_m_s = float(np.clip(speed, -limit, limit))
         else:
-            height = cfg.lift_height_m if up_height_m is None else up_height_m
-            height = cfg.approach_clearance_m if hover else height
-            step = surface_z_m + height - self.z_c
-            limit = cfg.travel_speed_m_s * self.dt
-            self.z_c += float(np.clip(step, -limit, limit))
+            if pen_down and self.z_c > above:  # lowered fast, arriving at the slow approach
+                target, speed, arrive = above, cfg.travel_speed_m_s, cfg.approach_speed_m_s
+            elif pen_down:  # the last of the clearance slowly, until it touches
+                target, speed, arrive = -math.inf, cfg.approach_speed_m_s, cfg.approach_speed_m_s
+            else:
+                height = cfg.lift_height_m if up_height_m is None else up_height_m
+                height = cfg.approach_clearance_m if hover else height
+                target, speed, arrive = surface_z_m + height, cfg.travel_speed_m_s, 0.0
+            distance = max(target - self.z_c, -1.0)  # -inf: keep going down
+            self.z_speed_m_s = axis_speed_towards(
+                distance, self.z_speed_m_s, speed, cfg.axis_acceleration_m_s2, self.dt, arrive
+            )
+        self.z_c += self.z_speed_m_s * self.dt
         return self.z_c
 
     def torques(self, xy_m, q, qd) -> np.ndarray:

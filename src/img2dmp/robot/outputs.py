@@ -366,11 +366,10 @@ def joint_acceleration_line(metrics: dict, noun: str = "character") -> str | Non
         peaks = np.asarray(metrics["joint_acceleration_peak_rad_s2"])
         k = int(np.argmax(peaks / limits))
         line += (
-            f"; the simulated arm's peak {peaks[k]:.1f} rad/s^2 "
-            f"({metrics['joint_acceleration_peak_joint']} at t = "
+            f"; the simulated arm's peak over the run {peaks[k]:.1f} rad/s^2, "
+            f"{100 * run:.0f} % of it ({metrics['joint_acceleration_peak_joint']} at t = "
             f"{metrics['joint_acceleration_peak_time_s']:.2f} s, "
-            f"{metrics['joint_acceleration_peak_phase']}), from what the plan leaves out: "
-            "starts from rest, landings, lifts, stops at a path's end"
+            f"{metrics['joint_acceleration_peak_phase']})"
         )
     return line
 

@@ -44,7 +44,7 @@ import numpy as np
 
 from ..dmp import DMPConfig, DMPIntegrator, DMPParams
 from .animation import PaperInset
-from .controller import WritingController
+from .controller import WritingController, axis_move_s
 from .pagefile import Page, PageCharacter, read_page
 from .scene import WritingScene
 from .strokes import ink_on_path_share, ink_trace, min_jerk_along, stroke_report
@@ -256,7 +256,7 @@ def travel_targets(from_xy_m, to_xy_m, dt_s: float) -> np.ndarray:
 
 def _rise_steps(travel_height_m: float, cfg, dt_s: float) -> int:
     """Steps for the pen to go between the lift height and the travel height."""
-    return math.ceil((travel_height_m - cfg.lift_height_m) / cfg.travel_speed_m_s / dt_s)
+    return math.ceil(axis_move_s(cfg, travel_height_m - cfg.lift_height_m) / dt_s)
 
 
 def _settle_steps(dt_s: float) -> int:
@@ -368,7 +368,7 @@ def _duration_bound_s(plan: PagePlan, options: WritingOptions) -> float:
     """The longest the page can take, as the duration of one DMP for
     :meth:`WritingOptions.check_video` (which adds one approach and one lift)."""
     cfg = options.controller_config
-    per_extra = options.approach_timeout_s + cfg.lift_height_m / cfg.travel_speed_m_s + 0.2
+    per_extra = options.approach_timeout_s + axis_move_s(cfg, cfg.lift_height_m) + 0.4
     taus = sum(float(cp.params.tau) for cp in plan.characters)
     travels_s = plan.travel_steps() * options.dt_s
     return taus + (len(plan.characters) - 1) * per_extra + travels_s

@@ -16,13 +16,14 @@ stroke unwritten. The gate holds the DMP clock instead:
 
 The held steps are logged with ``dwell = True``; the DMP's time does not advance on them.
 
-**Ink per stroke** (:func:`stroke_report`). A stroke is a run of pen-down samples of the
-planned path (the exact rollout at the control rate). Its *ink share* is the share of
-its commanded length (in the paper's plane) that has ink within ``INK_TOLERANCE_M``, the
-ink being the tip's path while it touched the paper during that stroke (its dwell at the
-start included; the approach counts for a first stroke at ``t = 0``). Its force share is
-the share of its pen-down steps with the DMP running whose contact force lies within
-``±tolerance`` of the set point.
+**The DMP's clock comes to rest** (:class:`DMPClock`) wherever it is held, and at the end
+of the path: it slows down over ``CLOCK_RAMP_S`` (a constant deceleration of the clock's
+rate, ``rate <= sqrt(2 (t_stop - t) / CLOCK_RAMP_S)``) so that it reaches the held sample
+exactly and at rest; at the start and after a hold it speeds up over as long. The pen
+follows the same path on the paper; only its timing near a stop changes. A DMP's last
+planned sample still moves the pen (its joints at 0.04-0.47 rad/s on the samples of
+``examples/samples``): a clock stopped within one control step asked the arm's joints
+for up to 132 rad/s^2.
 """
 
 from __future__ import annotations
@@ -42,6 +43,87 @@ LAND_BAND = 0.1
 LAND_SETTLE_S = 0.03
 # A lift-off is over once the tip has been off the paper for this many control steps.
 LIFT_CLEAR_STEPS = 2
+#: The DMP's clock slows to rest over this long before each hold and the path's end, and
+#: speeds up over as long after a hold (:class:`DMPClock`): a joint moving at 0.47 rad/s
+#: at the stop (the fastest end of a DMP on the samples) decelerates at about 5 rad/s^2.
+CLOCK_RAMP_S = 0.1
+
+
+def clock_stops(pen_down, gated: bool) -> np.ndarray:
+    """The plan's sample indices ``[n]`` (increasing, > 0) where the DMP's clock comes
+    to rest: the last sample, and with the stroke gate (``gated``) each touch-down's first
+    pen-down sample and each lift-off's last one (:class:`StrokeGate` holds there)."""
+    down = np.asarray(pen_down, dtype=bool)  # [T]
+    stops = {len(down) - 1}
+    if gated:
+        stops.update((np.flatnonzero(down[1:] & ~down[:-1]) + 1).tolist())  # touch-downs
+        stops.update(np.flatnonzero(down[:-1] & ~down[1:]).tolist())  # lift-offs
+    return np.array(sorted(k for k in stops if k > 0), dtype=int)
+
+
+class DMPClock:
+    """The DMP's time during a writing run: one control period per step at full rate,
+    slowed to rest at each of ``stops`` (sample indices of the plan, :func:`clock_stops`)
+    and sped up again after it (module docstring).
+
+    The rate ``r`` (DMP seconds per second) rises from 0 to 1 over ``ramp_s`` after the
+    start and after each stop (smoothstep: ``3 u^2 - 2 u^3``, ``u`` the share of
+    ``ramp_s`` gone; a DMP starts at rest but with its full acceleration at once) and
+    stays within ``sqrt(2 (t_stop - t) / ramp_s)`` (a constant deceleration of the
+    clock; as control steps: :func:`~img2dmp.robot.controller.axis_speed_towards`'s
+    rule), so it falls to 0 exactly at the stop (the last step lands on it).
+
+    Parameters
+    ----------
+    dt_s : float
+        The plan's sample spacing = the control period.
+    stops : ndarray [n] int
+    ramp_s : float
+    """
+
+    def __init__(self, dt_s: float, stops, ramp_s: float = CLOCK_RAMP_S):
+        self.dt_s, self.ramp_s = float(dt_s), float(ramp_s)
+        self.stops = [int(k) for k in stops]
+        self.t = 0.0
+        self.rate = 0.0
+        self._moving_s = 0.0  # since the start or the last stop
+        self._next = 0
+
+    @property
+    def done(self) -> bool:
+        """The last stop (the path's end) is reached."""
+        return self._next >= len(self.stops)
+
+    def advance(self) -> tuple[float, int | None]:
+        """The DMP time to step this control period, and the stop reached by it (its
+        sample index; None while between stops)."""
+        stop = self.stops[self._next]
+        remaining = stop * self.dt_s - self.t
+        self._moving_s += self.dt_s
+        u = min(1.0, self._moving_s / self.ramp_s)
+        # smoothstep up: no step of the clock's acceleration where it reaches full rate;
+        # down: the rate from which steps falling by dv = dt / ramp cover what remains
+        dv = self.dt_s / self.ramp_s
+        brake = dv * (math.sqrt(2.0 * max(remaining, 0.0) / (dv * self.dt_s) + 0.25) - 0.5)
+        self.rate = min(u * u * (3.0 - 2.0 * u), brake)
+        step = self.rate * self.dt_s
+        if step < remaining - 1e-9 * self.dt_s:  # else it lands on the stop (rounding)
+            self.t += step
+            return step, None
+        self.t, self.rate, self._moving_s = stop * self.dt_s, 0.0, 0.0
+        self._next += 1
+        return max(remaining, 0.0), stop
+
+    def sample(self, pen_down) -> tuple[int, bool]:
+        """The plan's sample at or before the clock's time, and the pen's state there: a
+        sample's own, between two samples down only if both are (a pen switch happens at a
+        sample, where the clock holds)."""
+        j = self.t / self.dt_s
+        k = int(round(j))
+        if abs(j - k) > 1e-6:
+            k = int(math.floor(j))
+            return k, bool(pen_down[k] and pen_down[min(k + 1, len(pen_down) - 1)])
+        return k, bool(pen_down[k])
 
 
 def min_jerk_along(points, n: int) -> np.ndarray:

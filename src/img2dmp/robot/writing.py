@@ -41,9 +41,9 @@ from ..dmp import DMPConfig, DMPIntegrator, DMPParams
 from ..dmp._numpy_rollout import rollout_numpy
 from ..dmp.params import config_of
 from .animation import PaperInset
-from .controller import ControllerConfig, WritingController
+from .controller import ControllerConfig, WritingController, axis_move_s
 from .scene import HOME_JOINTS_RAD, SceneConfig, WritingScene
-from .strokes import StrokeGate, stroke_report
+from .strokes import CLOCK_RAMP_S, DMPClock, StrokeGate, clock_stops, stroke_report
 from .tempo import (
     JOINT_ACCELERATION_SHARE,
     JOINT_SPEED_SHARE,
@@ -52,6 +52,7 @@ from .tempo import (
     joint_speed_metrics,
     planned_joint_accelerations,
     planned_joint_velocities,
+    settled_posture,
     slowed_dmp,
     slowing_for,
 )
@@ -262,8 +263,9 @@ class WritingOptions:
         joints need (the simulated arm follows; a real iiwa may not).
     joint_acceleration_share : float or None
         The same for the joint accelerations planned along the DMP, against the 10
-        rad/s^2 planning limit (``IIWA_ACCELERATION_LIMITS_RAD_S2``); default 1 (all of
-        it); ``None``: not slowed for them.
+        rad/s^2 planning limit (``IIWA_ACCELERATION_LIMITS_RAD_S2``); default 0.6 (room
+        for the simulated arm's own transients, as for the speed); ``None``: not slowed
+        for them.
     """
 
     writing_height_mm: float = 40.0
@@ -320,7 +322,8 @@ class WritingOptions:
         than ``MAX_VIDEO_BYTES``."""
         if self.frame_interval_s is None:
             return
-        lift_s = self.controller_config.lift_height_m / self.controller_config.travel_speed_m_s
+        cfg = self.controller_config
+        lift_s = axis_move_s(cfg, cfg.lift_height_m) + 2 * CLOCK_RAMP_S  # and the clock's stop
         n = math.ceil((self.approach_timeout_s + tau_s + lift_s + 0.2) / self.frame_interval_s)
         w, h = self.frame_size_px
         size = n * 2 * w * h * 3
@@ -573,9 +576,9 @@ def check_path(scene: WritingScene, plan: PlannedPath, controller_config: Contro
     far = np.hypot(plan.xy_m[:, 0], plan.xy_m[:, 1]) > BEYOND_REACH_M  # no IK out there
     if far.any():
         _unreachable(plan, int(np.argmax(far)), math.nan)
-    q, residual = scene.solve_ik(
-        [*plan.xy_m[0], lift], PEN_DOWN_ROTATION, np.array(HOME_JOINTS_RAD), max_iterations=200
-    )
+    # settled in the null space: the controller's first steps do not swing the arm there
+    q, residual = settled_posture(scene, [*plan.xy_m[0], lift], PEN_DOWN_ROTATION,
+                                  np.array(HOME_JOINTS_RAD))  # fmt: skip
     if not residual <= IK_TOLERANCE_M:  # NaN too (a point far off)
         _unreachable(plan, 0, residual)
     q_start = q
@@ -769,7 +772,7 @@ def write_dmp(
         Hold the DMP clock while the pen lands and lifts (:class:`WritingOptions`).
     joint_speed_share, joint_acceleration_share : float or None
         Slow the DMP until its planned joint speeds (accelerations) stay within this share
-        of their limits (0.6, 1; None: not for them; :class:`WritingOptions`).
+        of their limits (0.6 both; None: not for them; :class:`WritingOptions`).
     progress, on_tempo : callable or None
         ``progress(n_steps)`` after each batch of simulated steps; ``on_tempo(tau_s)``
         once before the first, with the ``tau`` the DMP will be written at (slowed or
@@ -919,19 +922,23 @@ class WritingRun:
     def write(self) -> None:
         """Run the DMP online at the control rate, one step per control period; with
         ``options.stroke_dwell`` its clock holds while the pen lands at the start of a
-        stroke and leaves the paper at its end (:class:`StrokeGate`)."""
-        n_dims = self.dmp.config.n_dims
-        gate = StrokeGate(self, self.plan.pen_down) if self.options.stroke_dwell else None
+        stroke and leaves the paper at its end (:class:`StrokeGate`). The clock comes to
+        rest at each hold and at the path's end (:class:`DMPClock`), so the pen stops
+        there instead of within one step; the pen's state is the plan's."""
+        down = self.plan.pen_down  # [T]
+        gate = StrokeGate(self, down) if self.options.stroke_dwell else None
         hover = self._hover_steps()  # [T] bool
-        for k in range(1, len(self.plan.time_s)):
-            y = self.dmp.step(self.dt_s)  # [d]
-            pen_down = bool(_pen_channel(y, n_dims))
+        clock = DMPClock(self.dt_s, clock_stops(down, gate is not None))
+        while not clock.done:
+            step_s, stop = clock.advance()
+            y = self.dmp.step(step_s)  # [d]
+            k, pen_down = clock.sample(down)
             xy_m = self.mapping.to_table(y[:2])
             if gate is not None:
                 gate.before_step(xy_m, pen_down, self.dmp.t)
             self.control_step("write", xy_m, pen_down, self.dmp.t, hover=bool(hover[k]))
-            if gate is not None:
-                gate.after_step(k, xy_m, pen_down, self.dmp.t)
+            if gate is not None and stop is not None:
+                gate.after_step(stop, xy_m, pen_down, self.dmp.t)
 
     def _hover_steps(self) -> np.ndarray:
         """``[T]`` bool: the pen-up samples of the plan after which the pen goes down within
@@ -942,7 +949,7 @@ class WritingRun:
         if not self.options.hover:
             return hover
         cfg = self.options.controller_config
-        lead_s = (cfg.lift_height_m - cfg.approach_clearance_m) / cfg.travel_speed_m_s
+        lead_s = axis_move_s(cfg, cfg.lift_height_m - cfg.approach_clearance_m)
         lead = int(math.ceil((max(lead_s, 0.0) + HOVER_MARGIN_S) / self.dt_s))
         touch_downs = np.flatnonzero(down[1:] & ~down[:-1]) + 1
         for k in touch_downs:
@@ -954,7 +961,7 @@ class WritingRun:
         nothing is written after it, so the video keeps a frame of the finished writing."""
         cfg = self.options.controller_config
         end_xy_m = self.mapping.to_table(self.dmp.y[:2])
-        lift_s = cfg.lift_height_m / cfg.travel_speed_m_s + 0.2
+        lift_s = axis_move_s(cfg, cfg.lift_height_m) + 0.2
         for _ in range(int(round(lift_s / self.dt_s))):
             self.control_step("lift", end_xy_m, False, self.dmp.t)
         if last and self.options.frame_interval_s is not None:

@@ -1,0 +1,123 @@
+"""The simulated arm's own joint accelerations: ramped pen-axis moves, a DMP clock that
+comes to rest, a settled start posture.
+
+The pen-axis profile and the clock need no pybullet; one short
+simulated run (a line whose DMP ends moving) checks the whole run against the 10 rad/s^2
+planning limit: without the clock's stop (55.6 rad/s^2), the settled start posture
+(21.1 rad/s^2 at t = 0) or the pen-axis ramp it is far over (measured, helper-26).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from img2dmp.dmp import DMPConfig, fit_dmp
+from img2dmp.robot import ControllerConfig, available
+from img2dmp.robot.controller import axis_move_s, axis_speed_towards
+from img2dmp.robot.strokes import CLOCK_RAMP_S, DMPClock, clock_stops
+
+needs_pybullet = pytest.mark.skipif(
+    not available(), reason="pybullet is not installed (pip install -e '/path/to/img2dmp[robot]')"
+)
+DT_S = 1.0 / 240.0
+
+
+def _axis_move(distance_m: float, cfg: ControllerConfig, speed_m_s: float = 0.0,
+               arrival_m_s: float = 0.0, steps: int = 400) -> np.ndarray:  # fmt: skip
+    """``[steps]`` positions of a pen-axis move from 0 towards ``distance_m``."""
+    z, v, out = 0.0, speed_m_s, []
+    for _ in range(steps):
+        v = axis_speed_towards(distance_m - z, v, cfg.travel_speed_m_s,
+                               cfg.axis_acceleration_m_s2, DT_S, arrival_m_s)  # fmt: skip
+        z += v * DT_S
+        out.append(z)
+    return np.array(out)
+
+
+def test_pen_axis_moves_speed_up_and_slow_down_within_the_axis_acceleration():
+    cfg = ControllerConfig()
+    for distance_m in (0.006, -0.0055, 0.014, 0.0004):
+        z = _axis_move(distance_m, cfg)
+        v = np.diff(np.concatenate([[0.0], z])) / DT_S  # [steps] from rest
+        dv = np.abs(np.diff(np.concatenate([[0.0], v])))
+        assert dv.max() <= cfg.axis_acceleration_m_s2 * DT_S * (1 + 1e-9)
+        assert np.abs(v).max() <= cfg.travel_speed_m_s * (1 + 1e-9)
+        # at the target, at rest, and not past it by more than a micrometre
+        assert z[-1] == pytest.approx(distance_m, abs=1e-12) and abs(v[-1]) < 1e-12
+        assert np.max(np.sign(distance_m) * (z - distance_m)) < 1e-5
+        # as long as the trapezoid takes, to the control step
+        arrived = int(np.argmax(np.abs(z - distance_m) < 1e-9)) + 1
+        assert abs(arrived * DT_S - axis_move_s(cfg, distance_m)) <= 3 * DT_S
+
+
+def test_a_fast_descent_arrives_at_the_slow_approach_speed():
+    cfg = ControllerConfig()
+    z = _axis_move(-0.0055, cfg, speed_m_s=0.0, arrival_m_s=cfg.approach_speed_m_s)
+    v = np.diff(z) / DT_S
+    at = int(np.argmax(z <= -0.0055 + 1e-12))
+    # slowed to about the approach speed as it gets there, not stopped from 0.1 m/s at once
+    assert abs(v[at - 2]) < 2 * cfg.approach_speed_m_s + cfg.axis_acceleration_m_s2 * DT_S
+    assert np.abs(np.diff(v)).max() <= cfg.axis_acceleration_m_s2 * DT_S * (1 + 1e-9)
+
+
+def test_the_dmp_clock_comes_to_rest_exactly_at_its_stops_and_ramps():
+    down = np.ones(300, dtype=bool)
+    down[100:160] = False  # a lift-off after sample 99, a touch-down at 160
+    stops = clock_stops(down, gated=True)
+    assert stops.tolist() == [99, 160, 299]
+    assert clock_stops(down, gated=False).tolist() == [299]
+    clock = DMPClock(DT_S, stops)
+    times, rates, reached = [], [], []
+    while not clock.done:
+        step_s, stop = clock.advance()
+        assert step_s > 0.0
+        times.append(clock.t)
+        rates.append(step_s / DT_S)  # the DMP seconds of this control step, per second
+        if stop is not None:
+            rates.append(0.0)  # held
+            reached.append(stop)
+            assert clock.t == stop * DT_S and clock.rate == 0.0  # exactly there, at rest
+    assert reached == stops.tolist()
+    rates = np.array(rates)
+    assert rates.max() == 1.0  # full tempo between stops far apart
+    # the clock's own acceleration stays bounded (smoothstep up: 1.5 / ramp at most,
+    # braking: 1 / ramp, to rest too)
+    assert np.abs(np.diff(np.concatenate([[0.0], rates]))).max() / DT_S <= 1.5 / CLOCK_RAMP_S
+    # the pen's state at a time between samples: down only inside a stroke
+    assert clock.sample(down) == (299, True)
+    clock.t = 99.5 * DT_S
+    assert clock.sample(down) == (99, False)
+    clock.t = 159.5 * DT_S
+    assert clock.sample(down) == (159, False)
+    # a stop takes about CLOCK_RAMP_S / 2 longer than the full tempo would
+    assert len(times) * DT_S - 299 * DT_S == pytest.approx(3 * CLOCK_RAMP_S, abs=0.05)
+
+
+def _moving_end_line():
+    """A line from rest whose DMP ends moving (about 70 mm/s at 40 mm per 28 px)."""
+    u = np.linspace(0.0, 1.0, 200)
+    y = np.stack([8 + 12 * u**2, 10 + 6 * u**2], axis=-1)
+    config = DMPConfig(n_kernels=25, n_dims=2, scaling="none")
+    fit = fit_dmp(np.linspace(0.0, 0.5, 200), y, config)
+    return fit.params, config
+
+
+@needs_pybullet
+def test_a_whole_run_stays_within_the_acceleration_planning_limit():
+    from img2dmp.robot import write_dmp
+
+    params, config = _moving_end_line()
+    result = write_dmp(params, config, (28, 28), render_size_px=None)
+    m = result.metrics
+    assert m["joint_acceleration_peak_share"] <= 1.0, (
+        m["joint_acceleration_peak_rad_s2"], m["joint_acceleration_peak_time_s"],
+        m["joint_acceleration_peak_phase"])  # fmt: skip
+    # written as well as ever, to the path's end point
+    assert m["stroke_ink_share_min"] >= 0.98 and m["tracking_error_mean_mm"] < 0.5
+    log = result.log
+    running = log.in_phase("write") & ~log.dwell
+    assert log.dmp_time_s[running][-1] == pytest.approx(result.plan.time_s[-1], abs=1e-9)
+    # the clock slowed to the end: its last steps are short ones
+    steps = np.diff(log.dmp_time_s[running])
+    assert steps[-1] < 0.2 * DT_S and steps[len(steps) // 2] == pytest.approx(DT_S)
