@@ -1,7 +1,8 @@
 """The simulated arm's own joint accelerations: ramped pen-axis moves, a DMP clock that
-comes to rest, a settled start posture.
+comes to rest, a settled start posture, and the acceleration check of the exported joint
+trajectory.
 
-The pen-axis profile and the clock need no pybullet; one short
+The pen-axis profile, the clock and the trajectory's check need no pybullet; one short
 simulated run (a line whose DMP ends moving) checks the whole run against the 10 rad/s^2
 planning limit: without the clock's stop (55.6 rad/s^2), the settled start posture
 (21.1 rad/s^2 at t = 0) or the pen-axis ramp it is far over (measured, helper-26).
@@ -9,12 +10,16 @@ planning limit: without the clock's stop (55.6 rad/s^2), the settled start postu
 
 from __future__ import annotations
 
+import argparse
+import math
+
 import numpy as np
 import pytest
 
 from img2dmp.dmp import DMPConfig, fit_dmp
 from img2dmp.robot import ControllerConfig, available
 from img2dmp.robot.controller import axis_move_s, axis_speed_towards
+from img2dmp.robot.joints import IIWA_ACCELERATION_LIMITS_RAD_S2, JointTrajectory
 from img2dmp.robot.strokes import CLOCK_RAMP_S, DMPClock, clock_stops
 
 needs_pybullet = pytest.mark.skipif(
@@ -94,6 +99,53 @@ def test_the_dmp_clock_comes_to_rest_exactly_at_its_stops_and_ramps():
     assert len(times) * DT_S - 299 * DT_S == pytest.approx(3 * CLOCK_RAMP_S, abs=0.05)
 
 
+def _trajectory(qdd_peak: float) -> JointTrajectory:
+    """A rest-to-rest move of joint 3 in 0.25 s whose acceleration peaks at ``qdd_peak``
+    (at t = 0.0625 s)."""
+    t = np.arange(61) * DT_S
+    qd = np.zeros((61, 7))
+    qd[:, 2] = qdd_peak * 0.25 / (2 * math.pi) * (1 - np.cos(2 * math.pi * t / 0.25))
+    q = np.cumsum(qd, axis=0) * DT_S
+    return JointTrajectory(t, q, qd)
+
+
+def test_an_exported_trajectory_over_the_acceleration_limit_is_named():
+    over = _trajectory(12.0)
+    peak = over.acceleration_peak()
+    assert peak["joint"] == "lbr_iiwa_joint_3"
+    assert peak["acceleration_rad_s2"] == pytest.approx(12.0, rel=5e-3)
+    assert peak["time_s"] == pytest.approx(0.0625, abs=DT_S)
+    assert peak["share"] == pytest.approx(12.0 / IIWA_ACCELERATION_LIMITS_RAD_S2[2], rel=5e-3)
+    words = over.acceleration_violation()
+    value = f"{peak['acceleration_rad_s2']:.2f} rad/s^2 at t = {peak['time_s']:.4f} s"
+    assert words.startswith(f"lbr_iiwa_joint_3 acceleration {value}")
+    assert "planning limit of ±10 rad/s^2 (120 % of it)" in words and "\n" not in words
+    assert over.limit_violation() is None  # positions and speeds are within: still written
+    assert _trajectory(8.0).acceleration_violation() is None
+    import json
+
+    doc = json.loads(over.to_json())
+    assert doc["limits"]["acceleration_rad_s2"] == IIWA_ACCELERATION_LIMITS_RAD_S2.tolist()
+    assert doc["acceleration_peak"] == peak
+
+
+def test_the_write_command_warns_of_an_over_limit_export_and_writes_it(capsys, tmp_path):
+    from img2dmp.commands import write as write_cmd
+
+    args = argparse.Namespace(export_joints=str(tmp_path / "j"), no_slowing=False, out_dir=".")
+    result = argparse.Namespace()
+    trajectory = _trajectory(12.0)
+    result_from = JointTrajectory.from_result
+    try:
+        JointTrajectory.from_result = classmethod(lambda cls, r: trajectory)
+        assert write_cmd._joint_trajectory(args, result, "line", 1) is trajectory
+    finally:
+        JointTrajectory.from_result = result_from
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith("img2dmp write: warning: ")
+    assert f"j.json: joint trajectory: {trajectory.acceleration_violation()}; written" in err
+
+
 def _moving_end_line():
     """A line from rest whose DMP ends moving (about 70 mm/s at 40 mm per 28 px)."""
     u = np.linspace(0.0, 1.0, 200)
@@ -121,3 +173,5 @@ def test_a_whole_run_stays_within_the_acceleration_planning_limit():
     # the clock slowed to the end: its last steps are short ones
     steps = np.diff(log.dmp_time_s[running])
     assert steps[-1] < 0.2 * DT_S and steps[len(steps) // 2] == pytest.approx(DT_S)
+    # the start posture is settled: the trajectory exported is within its limits
+    assert JointTrajectory.from_result(result).acceleration_violation() is None

@@ -136,7 +136,8 @@ def _add_joint_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="also write the joint trajectory (time, 7 joint positions and velocities) as "
         "FILE.csv and FILE.json for a real iiwa to replay; if it exceeds the iiwa's joint "
-        "position or velocity limits, nothing of that input is written",
+        "position or velocity limits, nothing of that input is written (accelerations over "
+        "the 10 rad/s^2 planning limit: a warning)",
     )
     parser.add_argument(
         "--no-slowing",
@@ -564,7 +565,8 @@ def _joint_acceleration_share(args):
 def _joint_trajectory(args, result, name: str, n_inputs: int):
     """With ``--export-joints``, the run's joint trajectory, checked against the iiwa's
     limits before any file of this input is written (``ValueError`` saying that nothing
-    of it was); None without."""
+    of it was), its accelerations against the planning limit (a warning line); None
+    without."""
     if not args.export_joints:
         return None
     from img2dmp.robot.joints import JointTrajectory, export_paths
@@ -578,6 +580,11 @@ def _joint_trajectory(args, result, name: str, n_inputs: int):
             f"{json_path}: joint trajectory: {violation}; nothing of {name} written (no "
             f"joint trajectory, figure, log or video){hint}"
         )
+    over = trajectory.acceleration_violation()
+    if over is not None:  # a planning limit, not the hardware's: said, not refused
+        json_path = export_paths(_joints_base(args, name, n_inputs))[1]
+        print(f"img2dmp write: warning: {json_path}: joint trajectory: {over}; written all "
+              "the same (a planning limit, not KUKA's)", file=sys.stderr)  # fmt: skip
     return trajectory
 
 

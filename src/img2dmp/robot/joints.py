@@ -6,7 +6,9 @@ seven joint positions and velocities the simulated arm went through (measured af
 each control step), the joint names. :func:`save_joint_trajectory` writes it as CSV and
 JSON after checking it against the iiwa's limits (``IIWA_POSITION_LIMITS_RAD`` from the
 robot model, ``IIWA_VELOCITY_LIMITS_RAD_S`` from KUKA's data sheet of the LBR iiwa 14
-R820, whose masses the model has; the model's own 10 rad/s is a placeholder).
+R820, whose masses the model has; the model's own 10 rad/s is a placeholder); its
+accelerations are measured against ``IIWA_ACCELERATION_LIMITS_RAD_S2`` (a planning
+limit: :meth:`JointTrajectory.acceleration_violation` is for a warning).
 :func:`replay_joint_trajectory` plays it back in a fresh simulation by joint position
 control, as a real controller would, and returns where the pen touched the paper.
 
@@ -14,7 +16,10 @@ JSON (``"format": "img2dmp-joint-trajectory"``, version 1)::
 
     {"format", "version", "robot", "joint_names": [7], "control_rate_hz",
      "units": {"time": "s", "position": "rad", "velocity": "rad/s"},
-     "limits": {"position_rad": [[lo, hi]] * 7, "velocity_rad_s": [7]},
+     "limits": {"position_rad": [[lo, hi]] * 7, "velocity_rad_s": [7],
+                "acceleration_rad_s2": [7]},
+     "acceleration_peak": {"joint", "acceleration_rad_s2", "time_s", "limit_rad_s2",
+                           "share"}  -- from the velocities (a note: not read back),
      "scene": SceneConfig fields (where the paper is),
      "time_s": [N], "position_rad": [N][7], "velocity_rad_s": [N][7]}
 
@@ -114,6 +119,46 @@ class JointTrajectory:
                 )
         return None
 
+    def acceleration_rad_s2(self) -> np.ndarray:
+        """``[N, 7]`` joint accelerations a position-controlled iiwa replaying this
+        trajectory is asked for: the finite differences of the velocities over the time
+        stamps, the first 0 (the start posture at rest)."""
+        qdd = np.zeros_like(self.velocity_rad_s)  # [N, 7]
+        if self.n_samples > 1:
+            qdd[1:] = np.diff(self.velocity_rad_s, axis=0) / np.diff(self.time_s)[:, None]
+        return qdd
+
+    def acceleration_peak(self) -> dict:
+        """The largest joint acceleration against its limit
+        (``IIWA_ACCELERATION_LIMITS_RAD_S2``): ``{"joint", "acceleration_rad_s2" (signed),
+        "time_s", "limit_rad_s2", "share"}`` (the JSON file's ``acceleration_peak``)."""
+        qdd = self.acceleration_rad_s2()
+        ratio = np.abs(qdd) / IIWA_ACCELERATION_LIMITS_RAD_S2  # [N, 7]
+        i, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+        return {
+            "joint": self.joint_names[j],
+            "acceleration_rad_s2": float(qdd[i, j]),
+            "time_s": float(self.time_s[i]),
+            "limit_rad_s2": float(IIWA_ACCELERATION_LIMITS_RAD_S2[j]),
+            "share": float(ratio[i, j]),
+        }
+
+    def acceleration_violation(self) -> str | None:
+        """The largest joint acceleration over its limit in words (the joint, the value,
+        the time and the limit), or None if every sample is within. A warning, not a
+        refusal: the limit is a planner's (KUKA publishes none), and what the simulated arm
+        adds to the plan while it writes (its tracking of a DMP's own accelerations, the
+        pen's friction on the paper at a stroke's sharp turns) stays within a few tens of
+        per cent of it (docs/ROBOT.md)."""
+        peak = self.acceleration_peak()
+        if peak["share"] <= 1.0:
+            return None
+        return (
+            f"{peak['joint']} acceleration {peak['acceleration_rad_s2']:.2f} rad/s^2 at "
+            f"t = {peak['time_s']:.4f} s exceeds the planning limit of "
+            f"±{peak['limit_rad_s2']:g} rad/s^2 ({100 * peak['share']:.0f} % of it)"
+        )
+
     def check_limits(self, where: str = "joint trajectory") -> None:
         """``ValueError`` naming ``where``, the joint, the time, the value and the limit at
         the first sample outside the iiwa's position or velocity limits
@@ -133,7 +178,9 @@ class JointTrajectory:
             "limits": {
                 "position_rad": [[-v, v] for v in IIWA_POSITION_LIMITS_RAD.tolist()],
                 "velocity_rad_s": IIWA_VELOCITY_LIMITS_RAD_S.tolist(),
+                "acceleration_rad_s2": IIWA_ACCELERATION_LIMITS_RAD_S2.tolist(),
             },
+            "acceleration_peak": self.acceleration_peak(),
             "scene": self.scene,
             "time_s": np.round(self.time_s, 9).tolist(),
             "position_rad": np.round(self.position_rad, 10).tolist(),
