@@ -4,8 +4,9 @@ trajectory.
 
 The pen-axis profile, the clock and the trajectory's check need no pybullet; one short
 simulated run (a line whose DMP ends moving) checks the whole run against the 10 rad/s^2
-planning limit: without the clock's stop (55.6 rad/s^2), the settled start posture
-(21.1 rad/s^2 at t = 0) or the pen-axis ramp it is far over (measured, helper-26).
+planning limit, which it keeps at 6.7 rad/s^2: without the clock's stop it was 55.4
+rad/s^2, without the settled start posture 21.1 (at t = 0), without the pen-axis ramp
+82.4 (each measured by removing that one).
 """
 
 from __future__ import annotations
