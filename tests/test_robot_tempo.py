@@ -71,6 +71,12 @@ def test_slowing_keeps_the_planned_accelerations_within_their_share():
     assert "lbr_iiwa_joint_2 would accelerate at 40 rad/s^2, 400 %" in s.words()
     assert s.to_dict()["slowdown_by"] == "acceleration"
     assert slowing_for(qd, 0.5, 0.6, qdd, 0.25).factor == pytest.approx(4.0)
+    # Just over its share, a slowing of 1.01x names a share that is over it, not "60 %".
+    qdd[30, 1] = -0.605 * acc_limits[1]
+    s = slowing_for(qd, 0.5, 0.6, qdd, 0.6)
+    assert np.sqrt(0.605 / 0.6) <= s.factor < 1.01  # rounded up to the next 0.001
+    assert "would accelerate at 6.05 rad/s^2, 60.5 % of the planning limit" in s.words()
+    qdd[30, 1] = -4.0 * acc_limits[1]
     # the larger of the two factors wins: joint 4 at twice its speed limit needs 3.33
     qd[20, 3] = 2.0 * np.radians(75)
     both = slowing_for(qd, 0.5, 0.6, qdd, 1.0)

@@ -101,6 +101,12 @@ def settled_posture(scene, position_m, rotation, q_seed_rad) -> tuple[np.ndarray
     return scene.solve_ik(position_m, rotation, q, max_iterations=_SETTLE_ITERATIONS, tol_m=0.0)
 
 
+def _figure(value: float) -> str:
+    """A peak or a share in words: three figures below 100 (``60.5``: a DMP slowed 1.01x
+    for a share of 60 % is not said to be at ``60``), whole numbers above (``2404``)."""
+    return f"{value:.3g}" if abs(value) < 100 else f"{value:.0f}"
+
+
 def planned_joint_accelerations(qd_rad_s, time_s) -> np.ndarray:
     """``[T, 7]`` joint accelerations of planned velocities ``qd_rad_s [T, 7]`` at times
     ``time_s [T]`` (:func:`planned_joint_velocities`): their finite differences, the
@@ -197,13 +203,14 @@ class Slowing:
         if self.by_acceleration:
             return head + (
                 f"{IIWA_JOINT_NAMES[self.acceleration_joint]} would accelerate at "
-                f"{self.planned_acceleration_peak_rad_s2:.0f} rad/s^2, "
-                f"{100 * self.acceleration_ratio:.0f} % of the planning limit of "
+                f"{_figure(self.planned_acceleration_peak_rad_s2)} rad/s^2, "
+                f"{_figure(100 * self.acceleration_ratio)} % of the planning limit of "
                 f"{self.acceleration_limit_rad_s2:g} rad/s^2"
             )
         return head + (
             f"{self.joint_name} would reach {self.planned_peak_rad_s:.2f} rad/s, "
-            f"{100 * self.speed_ratio:.0f} % of the iiwa's limit of {self.limit_rad_s:.2f} rad/s"
+            f"{_figure(100 * self.speed_ratio)} % of the iiwa's limit of "
+            f"{self.limit_rad_s:.2f} rad/s"
         )
 
     def to_dict(self) -> dict:
