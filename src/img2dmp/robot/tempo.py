@@ -54,6 +54,9 @@ JOINT_SPEED_SHARE = 0.6
 #: at a stroke's sharp turn); at 0.6 its peak over a whole run stays within the limit on
 #: the samples of ``examples/samples`` (1.0: 12.5 rad/s^2 on the letters page; 0.75: 11.5).
 JOINT_ACCELERATION_SHARE = 0.6
+#: Planned accelerations are read over this window at least (the default control
+#: period): see :func:`planned_joint_accelerations`.
+ACCELERATION_WINDOW_S = 1.0 / 240.0
 # The null-space steps that settle the start posture (the arm waits at the first point
 # for the approach and the settling, far longer, before the DMP starts).
 _SETTLE_ITERATIONS = 100
@@ -109,13 +112,31 @@ def _figure(value: float) -> str:
 
 def planned_joint_accelerations(qd_rad_s, time_s) -> np.ndarray:
     """``[T, 7]`` joint accelerations of planned velocities ``qd_rad_s [T, 7]`` at times
-    ``time_s [T]`` (:func:`planned_joint_velocities`): their finite differences, the
-    controller's ``qdd_d``; the first 0 (the arm at rest before the DMP starts, whose
-    first velocity sample ``qd[0]`` is 0, so ``qdd[1]`` is the start from rest)."""
+    ``time_s [T]`` (evenly spaced; :func:`planned_joint_velocities`): at the default
+    control rate their finite differences, the controller's ``qdd_d``; the first 0 (the
+    arm at rest before the DMP starts, whose first velocity sample ``qd[0]`` is 0, so
+    ``qdd[1]`` is the start from rest).
+
+    At a faster control rate they are read over ``ACCELERATION_WINDOW_S``: the second
+    difference of the positions ``s`` samples apart (``s`` samples to the window, the arm
+    at rest before the first; ``s = 1`` is the above), so that what is planned does not
+    depend on the rate. The warm-started IK's null-space steps move the joints by about a
+    micro-radian here and there, which differences 1 ms apart read as several rad/s^2 (a
+    3 s digit at 1 kHz: 6.6 rad/s^2 planned, 1.3 at 240 Hz) and which no slowing
+    removes."""
     qd = np.asarray(qd_rad_s, dtype=float)
     qdd = np.zeros_like(qd)  # [T, 7]
-    qdd[1:] = np.diff(qd, axis=0) / np.diff(np.asarray(time_s, dtype=float))[:, None]
-    return qdd
+    if len(qd) < 2:
+        return qdd
+    dt = np.diff(np.asarray(time_s, dtype=float))  # [T-1]
+    h = float(np.median(dt))
+    s = max(1, int(round(ACCELERATION_WINDOW_S / h)))
+    if s == 1:
+        qdd[1:] = np.diff(qd, axis=0) / dt[:, None]
+        return qdd
+    moved = np.cumsum(qd[1:] * dt[:, None], axis=0)  # [T-1, 7]: q[k] - q[0], k >= 1
+    p = np.concatenate([np.zeros((2 * s + 1, qd.shape[1])), moved])  # [T + 2s, 7]
+    return (p[2 * s :] - 2.0 * p[s:-s] + p[: -2 * s]) / (s * h) ** 2
 
 
 @dataclass(frozen=True)
