@@ -497,3 +497,32 @@ def test_a_wavy_rule_s_level_is_read_along_it_and_the_paper_s_beside_it():
     assert (level[line] > 0.3).mean() > 0.99, "the paper's level read on the line"
     beside = ~dilate3(dilate3(line))
     assert (level[beside] < 0.05).all(), "the line's level read on the paper"
+
+
+def test_a_blue_stroke_along_a_red_margin_as_dark_as_the_pen_is_kept():
+    # a legal pad: yellow paper, pale blue rules and a red double margin printed under
+    # the ink, the margin (0.65) nearly as dark as the blue pen (0.7) in its darkest
+    # channel; a 7 whose bar ends between the margin's two lines, its downstroke running
+    # down between them and leaving over the left one (experiments/lines_on_photos.py's
+    # legal pads: their 0 and 7 beside the margin). Over the line the stroke is no darker
+    # than it by 0.3 of the pen in the darkest channel, and the 7 was cut in two there;
+    # in red, which the margin lets through and the blue ink does not, it is ink
+    from scipy.ndimage import label
+
+    seven = [_stroke([(60, 120), (103, 120), (103, 140), (70, 330)]), _ellipse(300, 220, 50, 100)]
+    truth = _ink(LARGE, seven)
+    paper = np.ones((*LARGE, 3), np.float32) * np.array([0.99, 0.93, 0.59], np.float32)
+    rules_ = _grid_cover(LARGE, 24.0, 0.8, columns=False)[..., None]  # pale blue rules
+    paper = paper * (1.0 - rules_ * (1.0 - np.array([0.55, 0.7, 0.9], np.float32)))
+    cols = np.arange(LARGE[1], dtype=np.float32)
+    for x in (100.0, 106.0):  # the margin's two lines
+        cover = np.clip(1.0 - np.abs(cols - x), 0.0, 1.0)[None, :, None]
+        paper = paper * (1.0 - cover * (1.0 - np.array([0.86, 0.31, 0.31], np.float32)))
+    found = paper_ink(_on_paper(truth, paper, colour=(0.3, 0.35, 0.75)))  # blue ink
+    assert found.removed["rule_px"] > 1000, "the margin and the rules are lines"
+    seven_px = _ink(LARGE, seven[:1]) > 0.5
+    assert (found.ink[seven_px] > 0.2).mean() > 0.9, "the 7 over the margin cut with it"
+    labels, _ = label(found.mask, structure=np.ones((3, 3), bool))
+    assert len(np.unique(labels[seven_px & found.mask])) == 1, "the 7 in pieces"
+    far = _ink(LARGE, seven, width=14.0) < 0.01
+    assert (found.ink[far] > 0.2).mean() < 0.002, "the margin left as ink"

@@ -35,7 +35,8 @@ drops the rest, in named steps (each kept for a picture with ``keep_steps``;
    crosses them (ink just above and just below a rule pixel keeps it), on rules as
    dark as the pen runs along them a short way between two places where it touches
    them, or is darker than the lines there (their level followed along each line, so
-   that a wavy line is not darker than itself);
+   that a wavy line is not darker than itself), in its darkest channel or in one alone
+   (a colour the lines let through: a blue pen over a red margin as dark as it);
 6. **strokes**: hysteresis: a connected set of dark pixels is ink when ``STRONG_SHARE``
    of its pixels are of at least ``strong`` darkness (a share of the page's ink level),
    so faint marks (text from the back, dotted lines, shadows' edges) go unless a stroke
@@ -150,6 +151,9 @@ BRIDGE_CHAIN = 2.0
 #: its pixels as darker than it (a ruled page, validation seed 140: 231 extra boxes,
 #: followed 82; before this level was asked, 86). Less than 0.75 of a row is not
 #: followed (a straight line a little turned lies half a row up or down by turns).
+#: Asked in each channel alone as well (``experiments/lines_on_photos.py``'s yellow legal
+#: pads: a blue pen's 7 along the red margin, as dark as the pen in the darkest channel,
+#: was cut there; in red it is ink: 62 -> 64 of 66 on each pad).
 LINE_INK_SHARE = 0.3
 LINE_LEVEL_SHARE = 0.125
 #: Components thicker than this many pen widths are not pen strokes.
@@ -487,11 +491,17 @@ def darkness(planes: np.ndarray, bg: np.ndarray) -> np.ndarray:
     hardly reflects (0.4 of its red) made it about three times the others', and legal
     pads saved as JPEGs read as specks and joined characters. Light and tint divide out
     either way."""
+    return np.max(channel_darkness(planes, bg), axis=0)
+
+
+def channel_darkness(planes: np.ndarray, bg: np.ndarray) -> np.ndarray:
+    """Each channel's loss of light against the paper's brightest channel,
+    ``(b_c - p_c) / max_c' b_c'`` in [0, 1] (``float32 [C, H, W]``): :func:`darkness`
+    before its largest is taken."""
     top = np.maximum(np.max(bg, axis=0), 1e-3)
-    out = None
-    for p, b in zip(planes, bg, strict=True):
-        loss = np.divide(b - p, top, dtype=np.float32)
-        out = loss if out is None else np.maximum(out, loss, out=out)
+    out = np.empty(planes.shape, np.float32)
+    for c, (p, b) in enumerate(zip(planes, bg, strict=True)):
+        np.divide(b - p, top, out=out[c], dtype=np.float32)
     return np.clip(out, 0.0, 1.0, out=out)
 
 
@@ -778,7 +788,8 @@ def _rule_pieces(rest: np.ndarray, rule: np.ndarray, reach: int) -> np.ndarray:
 
 
 def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
-          pen_width_px: float = 0.0) -> tuple[np.ndarray, dict]:  # fmt: skip
+          pen_width_px: float = 0.0, channels: np.ndarray | None = None,
+          ) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Pixels of ``mask`` on ruled or squared paper's lines (both directions), and the
     angles found (``{"rows_deg", "columns_deg"}``).
 
@@ -815,10 +826,12 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
         if reach and r.any():
             per_axis.append((axis, second, r, reach))
             found |= along(r)
+    lines = [np.zeros(mask.shape, bool), np.zeros(mask.shape, bool)]  # each direction's
     for axis, _, r, reach in per_axis:
         grown = _rule_pieces((mask if axis == 0 else mask.T) & ~(found if axis == 0 else found.T),
                              r, reach)  # fmt: skip
         found |= grown if axis == 0 else grown.T
+        lines[axis] |= (r | grown) if axis == 0 else (r | grown).T
     strokes = mask & ~found
     keep = np.zeros(mask.shape, bool)
     ink_level = None
@@ -841,46 +854,57 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
         keep |= cross if axis == 0 else cross.T
     if ink_level is not None:
         keep |= _kept_by_darkness(found, per_axis, dark, strokes, keep, ink_level)
-        keep |= _darker_than_lines(found, per_axis, dark, strokes, keep, ink_level)
+        keep |= _darker_than_lines(found, per_axis, dark, strokes, keep, ink_level, channels,
+                                   lines)  # fmt: skip
     return found & ~keep, angles
 
 
-def _line_level(dark: np.ndarray, rule: np.ndarray, angle_deg: float) -> np.ndarray:
+def _line_level(dark: np.ndarray, rule: np.ndarray, angle_deg: float,
+                where: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
     """The darkness ``[H, W]`` that the lines ``rule`` along the rows at ``angle_deg``
     give every pixel: per row of the sheared frame (:func:`_shear_rows`), the median of
     ``dark`` over stretches of ``LINE_LEVEL_SHARE`` of the width (a line's level where it
     is, the paper's beside it; a stroke running along a line for less than half a
     stretch does not move it), each line's band taken straightened along the line first
-    (:func:`_line_middle`: a wavy line stays in its rows)."""
-    h, w = dark.shape
-    off = _shear_rows(dark.shape, angle_deg)
-    rows = np.arange(h)[:, None] + off[None, :]  # [H, W] in the sheared frame
+    (:func:`_line_middle`: a wavy line stays in its rows). ``dark`` may be a stack
+    ``[K, H, W]`` (each channel's darkness; the result ``[K, H, W]``): the line is then
+    followed by the first's. Given ``where`` (``bool [H, W]``), only the rows of the
+    sheared frame that hold its pixels are read (0 elsewhere)."""
+    stack = dark if dark.ndim == 3 else dark[None]
+    k, h, w = stack.shape
+    off = _shear_rows((h, w), angle_deg)
     cols = np.broadcast_to(np.arange(w)[None, :], (h, w))
-    s = np.zeros((h + int(off.max()), w), np.float32)
-    s[rows, cols] = dark
+    # every pixel's place in the sheared frame, flat (one index for all the channels)
+    flat = ((np.arange(h)[:, None] + off[None, :]) * w + cols).ravel()
+    s = np.zeros((k, (h + int(off.max())) * w), np.float32)
+    s[:, flat] = stack.reshape(k, -1)
+    s = s.reshape(k, -1, w)
     sr = _sheared(rule, off)
     block = max(16, math.ceil(LINE_LEVEL_SHARE * w))
     n = math.ceil(w / block)
     pad = n * block - w
 
-    def medians(a: np.ndarray) -> np.ndarray:  # [R, W] -> per row and stretch, [R, W]
-        padded = np.pad(a, ((0, 0), (0, pad)), mode="reflect" if pad < w else "edge")
-        med = np.median(padded.reshape(a.shape[0], n, block), axis=2)  # [R, n]
-        return np.repeat(med, block, axis=1)[:, :w]
+    def medians(a: np.ndarray) -> np.ndarray:  # [K, R, W] -> per row and stretch
+        padded = np.pad(a, ((0, 0), (0, 0), (0, pad)), mode="reflect" if pad < w else "edge")
+        med = np.median(padded.reshape(k, a.shape[1], n, block), axis=3)  # [K, R, n]
+        return np.repeat(med, block, axis=2)[..., :w]
 
-    level = medians(s)
+    level = np.zeros(s.shape, np.float32)
+    read = np.flatnonzero(_sheared(where, off).any(axis=1)) if where is not None else slice(None)
+    level[:, read] = medians(s[:, read])
     for a, b in _bands(sr.any(axis=1)):
-        shift = _line_middle(s[a:b], sr[a:b], block)
+        shift = _line_middle(s[0, a:b], sr[a:b], block)
         if shift is None:
             continue
         # the band and its two rows of slack, each column moved by the line's shift
         src = np.arange(a - 2, b + 2)[:, None] + shift[None, :]  # [R, W]
-        inside = (src >= 0) & (src < s.shape[0])
-        src = np.clip(src, 0, s.shape[0] - 1)
+        inside = (src >= 0) & (src < s.shape[1])
+        src = np.clip(src, 0, s.shape[1] - 1)
         band_cols = cols[: src.shape[0]]
-        straight = medians(s[src, band_cols])
-        level[src[inside], band_cols[inside]] = straight[inside]
-    return level[rows, cols]
+        straight = medians(s[:, src, band_cols])
+        level[:, src[inside], band_cols[inside]] = straight[:, inside]
+    out = level.reshape(k, -1)[:, flat].reshape(k, h, w)
+    return out if dark.ndim == 3 else out[0]
 
 
 def _line_middle(dark: np.ndarray, rule: np.ndarray, stretch: int) -> np.ndarray | None:
@@ -906,7 +930,8 @@ def _line_middle(dark: np.ndarray, rule: np.ndarray, stretch: int) -> np.ndarray
     return np.fix(drift + 0.25 * np.sign(drift)).astype(np.int64)
 
 
-def _darker_than_lines(found, per_axis, dark, strokes, keep, ink_level: float) -> np.ndarray:
+def _darker_than_lines(found, per_axis, dark, strokes, keep, ink_level: float,
+                       channels=None, lines=None) -> np.ndarray:  # fmt: skip
     """The pixels of the lines ``found`` that are ink over a line: darker by
     ``LINE_INK_SHARE`` of the pen's ``ink_level`` than the lines of both directions
     (:func:`_line_level`, combined as light passing through both) make them, and joined
@@ -917,7 +942,12 @@ def _darker_than_lines(found, per_axis, dark, strokes, keep, ink_level: float) -
     itself."""
     from scipy.ndimage import binary_propagation
 
-    clear = np.ones(dark.shape, np.float32)  # the light that the lines let through
+    # each channel alone: in a colour the lines let through (red through a red margin)
+    # a stroke over them stands out though in its darkest channel it is no darker than
+    # the lines by that much (a blue pen as dark as the margin). The darkest channel's
+    # own test adds nothing: its level is at least that of the channel it takes there
+    stack = dark[None] if channels is None or len(channels) < 2 else channels  # [K, H, W]
+    clear = np.ones(stack.shape, np.float32)  # the light that the lines let through
     for axis in (0, 1):
         angles = {angle for a, angle, _, _ in per_axis if a == axis}
         for angle in angles:
@@ -925,9 +955,11 @@ def _darker_than_lines(found, per_axis, dark, strokes, keep, ink_level: float) -
             for a, an, r, _ in per_axis:  # the passes at this angle: their lines
                 if a == axis and an == angle:
                     rule |= r
-            lv = _line_level(dark if axis == 0 else dark.T, rule, angle)
-            clear *= 1.0 - np.clip(lv if axis == 0 else lv.T, 0.0, 1.0)
-    darker = found & (dark > 1.0 - clear + LINE_INK_SHARE * ink_level)
+            tr = (lambda x: x) if axis == 0 else (lambda x: np.swapaxes(x, -1, -2))
+            where = found if lines is None else lines[axis]  # no level where none lie
+            lv = tr(_line_level(tr(stack), rule, angle, where=tr(where)))
+            clear *= 1.0 - np.clip(lv, 0.0, 1.0)
+    darker = found & (stack > 1.0 - clear + LINE_INK_SHARE * ink_level).any(axis=0)
     joined = binary_propagation(darker & dilate3(strokes | keep), mask=darker)
     return darker & joined
 
@@ -1295,7 +1327,8 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
         a = 1.0 - a
     pen = rough_pen_width(a)
     bg, cell = background(a, pen)
-    dark = darkness(a, bg)
+    channels = channel_darkness(a, bg)
+    dark = np.max(channels, axis=0)
     sheet = sheet_mask(bg, cell)
     if desk is not None:
         sheet &= desk.mask
@@ -1307,7 +1340,7 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
     if lv is None:
         return None
     weak = dark >= lv.weak
-    ruled, _ = rules(weak, sheet, dark, pen)
+    ruled, _ = rules(weak, sheet, dark, pen, np.where(sheet, channels, 0.0))
     if ruled.any():  # the pen's own level, which many rules would pull down
         lv = thresholds(dark, _noise(a, bg, on_sheet) if local else 0.0, exclude=ruled)
         if lv is None:
