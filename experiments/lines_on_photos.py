@@ -19,7 +19,11 @@ yellow, pale blue rules and a double red margin printed under the ink, saved as 
 as a phone saves it, a JPEG (4:2:0 chroma subsampling: the blue channel of yellow paper is
 dim, and its JPEG noise is several times the other channels' against it).
 
-    python experiments/lines_on_photos.py --photos ../shared/data/photos
+    python experiments/lines_on_photos.py --photos ../shared/data/photos [--save DIR]
+
+``--save DIR`` also writes every image read as a PNG, named after its photo and paper
+(``DIR/yellow_legal_pad_24.png``; a JPEG variant as it was decoded): to time
+``img2dmp predict IMAGE --page`` on one, or to look at it with ``--explain``.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ import io
 import math
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -126,13 +131,20 @@ def main(argv=None) -> int:
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--photos", default="../shared/data/photos")
+    p.add_argument("--save", metavar="DIR", help="also write every image read, as PNG")
     args = p.parse_args(argv)
+    if args.save:
+        Path(args.save).mkdir(parents=True, exist_ok=True)
     rng, legal_rng = np.random.default_rng(SEED), np.random.default_rng(SEED + 1)
     rows, start = [], time.time()
     for file, photo, centres in shipped_photos(args.photos):
         photo = np.asarray(photo, np.float64)
         for name, im in variants(photo, rng) + legal_pads(photo, legal_rng):
-            seg = segment_page(Image.fromarray(np.clip(np.round(im), 0, 255).astype(np.uint8)))
+            image = Image.fromarray(np.clip(np.round(im), 0, 255).astype(np.uint8))
+            if args.save:
+                stem = "_".join([file.split("_")[1], *name.replace(",", "").split()])
+                image.save(Path(args.save) / f"{stem}.png")
+            seg = segment_page(image)
             boxes = [seg.box_in_image(c) for c in seg.layout.characters]
             matched, extra = score(boxes, centres)
             rows.append((file.split("_")[1], name, len(centres), len(boxes), matched, extra))
