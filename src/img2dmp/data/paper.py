@@ -860,7 +860,8 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
 
 
 def _line_level(dark: np.ndarray, rule: np.ndarray, angle_deg: float,
-                where: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+                where: np.ndarray | None = None, at: np.ndarray | None = None,
+                ) -> np.ndarray:  # fmt: skip
     """The darkness ``[H, W]`` that the lines ``rule`` along the rows at ``angle_deg``
     give every pixel: per row of the sheared frame (:func:`_shear_rows`), the median of
     ``dark`` over stretches of ``LINE_LEVEL_SHARE`` of the width (a line's level where it
@@ -869,7 +870,8 @@ def _line_level(dark: np.ndarray, rule: np.ndarray, angle_deg: float,
     (:func:`_line_middle`: a wavy line stays in its rows). ``dark`` may be a stack
     ``[K, H, W]`` (each channel's darkness; the result ``[K, H, W]``): the line is then
     followed by the first's. Given ``where`` (``bool [H, W]``), only the rows of the
-    sheared frame that hold its pixels are read (0 elsewhere)."""
+    sheared frame that hold its pixels are read (0 elsewhere); given ``at`` (flat pixel
+    indices ``[n]``), the level of those pixels only, ``[n]`` (``[K, n]``)."""
     stack = dark if dark.ndim == 3 else dark[None]
     k, h, w = stack.shape
     off = _shear_rows((h, w), angle_deg)
@@ -890,20 +892,37 @@ def _line_level(dark: np.ndarray, rule: np.ndarray, angle_deg: float,
         return np.repeat(med, block, axis=2)[..., :w]
 
     level = np.zeros(s.shape, np.float32)
-    read = np.flatnonzero(_sheared(where, off).any(axis=1)) if where is not None else slice(None)
+    bands = [(a, b, _line_middle(s[0, a:b], sr[a:b], block)) for a, b in _bands(sr.any(axis=1))]
+    read = np.zeros(s.shape[1], bool)  # the rows read as they lie
+    if where is None:
+        read[:] = True
+    else:
+        read[np.flatnonzero(_sheared(where, off).any(axis=1))] = True
+        for a, b, shift in bands:  # a straight band (no shift) reads its rows as they lie
+            if shift is not None and not shift.any():
+                read[max(0, a - 2) : b + 2] = True
     level[:, read] = medians(s[:, read])
-    for a, b in _bands(sr.any(axis=1)):
-        shift = _line_middle(s[0, a:b], sr[a:b], block)
+    moved = np.zeros(s.shape[1], bool)  # rows a moved band wrote into
+    for a, b, shift in bands:
         if shift is None:
+            continue
+        if not shift.any():  # its rows as read above, unless a moved band wrote there
+            lo, hi = max(0, a - 2), b + 2
+            if moved[lo:hi].any():
+                level[:, lo:hi] = medians(s[:, lo:hi])
             continue
         # the band and its two rows of slack, each column moved by the line's shift
         src = np.arange(a - 2, b + 2)[:, None] + shift[None, :]  # [R, W]
         inside = (src >= 0) & (src < s.shape[1])
         src = np.clip(src, 0, s.shape[1] - 1)
-        band_cols = cols[: src.shape[0]]
-        straight = medians(s[:, src, band_cols])
-        level[:, src[inside], band_cols[inside]] = straight[:, inside]
-    out = level.reshape(k, -1)[:, flat].reshape(k, h, w)
+        places = src * w + cols[: src.shape[0]]  # flat, in the sheared frame
+        straight = medians(s.reshape(k, -1)[:, places])
+        level.reshape(k, -1)[:, places[inside]] = straight[:, inside]
+        moved[src[inside]] = True
+    if at is not None:
+        out = level.reshape(k, -1)[:, flat[at]]
+    else:
+        out = level.reshape(k, -1)[:, flat].reshape(k, h, w)
     return out if dark.ndim == 3 else out[0]
 
 
@@ -947,7 +966,9 @@ def _darker_than_lines(found, per_axis, dark, strokes, keep, ink_level: float,
     # the lines by that much (a blue pen as dark as the margin). The darkest channel's
     # own test adds nothing: its level is at least that of the channel it takes there
     stack = dark[None] if channels is None or len(channels) < 2 else channels  # [K, H, W]
-    clear = np.ones(stack.shape, np.float32)  # the light that the lines let through
+    on = np.flatnonzero(found)  # the lines' pixels, flat: only they are asked
+    h, w = found.shape
+    clear = np.ones((len(stack), on.size), np.float32)  # the light the lines let through
     for axis in (0, 1):
         angles = {angle for a, angle, _, _ in per_axis if a == axis}
         for angle in angles:
@@ -957,9 +978,12 @@ def _darker_than_lines(found, per_axis, dark, strokes, keep, ink_level: float,
                     rule |= r
             tr = (lambda x: x) if axis == 0 else (lambda x: np.swapaxes(x, -1, -2))
             where = found if lines is None else lines[axis]  # no level where none lie
-            lv = tr(_line_level(tr(stack), rule, angle, where=tr(where)))
+            at = on if axis == 0 else (on % w) * h + on // w  # [n] in its frame
+            lv = _line_level(tr(stack), rule, angle, where=tr(where), at=at)
             clear *= 1.0 - np.clip(lv, 0.0, 1.0)
-    darker = found & (stack > 1.0 - clear + LINE_INK_SHARE * ink_level).any(axis=0)
+    darker = np.zeros(found.shape, bool)
+    ink = stack.reshape(len(stack), -1)[:, on] > 1.0 - clear + LINE_INK_SHARE * ink_level
+    darker.ravel()[on] = ink.any(axis=0)
     joined = binary_propagation(darker & dilate3(strokes | keep), mask=darker)
     return darker & joined
 
