@@ -147,6 +147,9 @@ def robot_urdf_path(pen_length_m: float, tip_radius_m: float, directory: str) ->
     return path
 
 
+_EYE6, _EYE7 = np.eye(6), np.eye(7)
+
+
 def _half_column_cross_sum(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``1/2 sum_i a_i x b_i`` over the columns of two 3 x 3 matrices (the IK's orientation
     error): ``0.5 * np.cross(a, b, axis=0).sum(axis=1)``, the same numbers, written out
@@ -387,7 +390,7 @@ class WritingScene:
         lin, ang = p.calculateJacobian(
             rid, self.tip_link, [0.0, 0.0, 0.0], q, [0.0] * 7, [0.0] * 7, physicsClientId=c
         )
-        return np.vstack([np.array(lin), np.array(ang)])
+        return np.array(lin + ang)  # [6, 7]: the linear rows, then the angular
 
     def solve_ik(
         self,
@@ -421,18 +424,18 @@ class WritingScene:
         q = np.asarray(seed_rad, dtype=float).copy()
         home = np.asarray(HOME_JOINTS_RAD)
         residual = math.inf
-        damp, eye7 = damping**2 * np.eye(6), np.eye(7)
+        damp = damping**2 * _EYE6
         for _ in range(max_iterations):
             pos, rot = self.tip_pose_at(q)
             e_pos = target - pos
             e_rot = _half_column_cross_sum(rot, rot_d)
-            residual = float(np.linalg.norm(e_pos))
-            if residual < tol_m and float(np.linalg.norm(e_rot)) < 1e-5:
+            residual = math.sqrt(e_pos @ e_pos)  # np.linalg.norm's own sum, without its checks
+            if residual < tol_m and math.sqrt(e_rot @ e_rot) < 1e-5:
                 break
             jac = self.tip_jacobian(q)
             jjt = jac @ jac.T + damp
             dq = jac.T @ np.linalg.solve(jjt, np.concatenate([e_pos, e_rot]))
-            null = eye7 - jac.T @ np.linalg.solve(jjt, jac)
+            null = _EYE7 - jac.T @ np.linalg.solve(jjt, jac)
             q = np.clip(q + dq + posture_gain * null @ (home - q), self.lower_rad, self.upper_rad)
         else:
             pos, _ = self.tip_pose_at(q)
