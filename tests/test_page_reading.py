@@ -214,6 +214,26 @@ def test_a_24_megapixel_photo_is_read_at_most_2_megapixels(tmp_path, run):
         assert _close(c.box_image, true, tol=5 * sy)
 
 
+def test_a_large_page_reads_the_same_as_an_array_a_pil_image_and_a_file(tmp_path):
+    """Reduced to at most 2 MP, an 8-bit page gives the same levels (and characters)
+    from an array as from its PNG file, which the command reads: before, an array was
+    reduced in float and a file in 8 bits, and a generated ruled page (validation seed
+    140) read from memory and from its PNG found different characters."""
+    from img2dmp.page import segment_page
+
+    ink, _ = page(LINES, size=(300, 520))
+    rng = np.random.default_rng(0)
+    big = np.asarray(Image.fromarray((255 * (1 - 0.9 * ink)).astype(np.uint8)).resize((2080, 1200)))
+    big = np.clip(big[..., None] + rng.normal(0, 6, (1200, 2080, 3)), 0, 255).astype(np.uint8)
+    Image.fromarray(big).save(tmp_path / "big.png")
+    read = [segment_page(x) for x in (big, Image.fromarray(big), tmp_path / "big.png")]
+    assert read[0].reduction == 2.0  # 2.5 MP: reduced 2 x 2
+    for other in read[1:]:
+        assert np.array_equal(other.levels, read[0].levels)
+        boxes = [[r.box_in_image(c) for c in r.layout.characters] for r in (other, read[0])]
+        assert boxes[0] == boxes[1] and len(boxes[0]) == len(LINES[0]) + len(LINES[1])
+
+
 def test_a_sheet_of_2000_specks_is_read_as_no_writing_in_bounded_time(tmp_path, run):
     import time
 

@@ -503,6 +503,9 @@ def _levels_framed(source, name: str | None, max_pixels: int = MAX_WORK_PIXELS):
     levels, full = _array_levels(source, label)
     size = (int(levels.shape[0]), int(levels.shape[1]))
     factor = math.ceil(math.sqrt(size[0] * size[1] / max_pixels))
+    a = np.asarray(source)
+    if factor > 1 and a.dtype == np.uint8:  # reduced as its file is read: in 8 bits
+        return _levels_framed(Image.fromarray(np.ascontiguousarray(a)), label, max_pixels)
     levels = _reduce_levels(levels, factor) if factor > 1 else levels
     return (levels / np.float32(full)).astype(np.float32), float(factor), size, label
 
