@@ -749,14 +749,17 @@ def dmp_document(
     return doc
 
 
+_PLAIN = (float, int, str, bool, type(None))
+
+
 def _plain(v):
     """``v`` with NumPy numbers and arrays (in lists and dicts too) as Python ones."""
     if isinstance(v, (np.generic, np.ndarray)):
         return v.tolist()
     if isinstance(v, dict):
         return {k: _plain(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
+    if isinstance(v, (list, tuple)):  # a page's paths: many plain numbers, taken as they are
+        return [x if type(x) in _PLAIN else _plain(x) for x in v]
     return v
 
 
