@@ -159,11 +159,16 @@ def test_a_folder_of_omniglot_trees_imports_with_classes_drawers_and_every_strok
     assert data.meta["fit"]["mean_error_px"] < 0.5
 
 
-def test_zips_as_distributed_import_the_same_as_their_folders(tree, imported, tmp_path):
-    zips = tmp_path / "zips"
+def _zipped(tree: Path, zips: Path) -> Path:
+    """``zips`` made, holding ``tree``'s two folders as the zips Omniglot distributes."""
     zips.mkdir()
     for name in ("images_test", "strokes_test"):
         zip_tree(tree / name, zips / f"{name}.zip")
+    return zips
+
+
+def test_zips_as_distributed_import_the_same_as_their_folders(tree, imported, tmp_path):
+    zips = _zipped(tree, tmp_path / "zips")
     out = tmp_path / "z.safetensors"
     assert _import(zips, out) == 0
     data = load_dataset(out)
@@ -196,10 +201,7 @@ def test_zips_repacked_deeper_or_with_macos_names_import_the_same(tree, imported
     """A user's own zips: the tree one folder deeper (GitHub's omniglot-master/python/),
     and a strokes zip re-packed on macOS (accents as combining characters, NFD) beside
     images named in NFC."""
-    zips = tmp_path / "zips"
-    zips.mkdir()
-    for name in ("images_test", "strokes_test"):
-        zip_tree(tree / name, zips / f"{name}.zip")
+    zips = _zipped(tree, tmp_path / "zips")
     deep, accents = tmp_path / "deep", tmp_path / "accents"
     deep.mkdir()
     accents.mkdir()
@@ -231,10 +233,7 @@ def test_an_empty_character_folder_is_refused_by_name_once(tree, tmp_path, capsy
     printed = capsys.readouterr().out
     assert printed.count("character09") == 1 and "skipped 1 file(s) or folder(s)" in printed
     # The same in zips (their folder entries), one of them only empty.
-    zips = tmp_path / "zips"
-    zips.mkdir()
-    for name in ("images_test", "strokes_test"):
-        zip_tree(root / name, zips / f"{name}.zip")
+    zips = _zipped(root, tmp_path / "zips")
     with zipfile.ZipFile(zips / "strokes_test.zip", "a") as z:
         z.writestr("strokes_test/Beta/character07/", b"")
     assert _import(zips, tmp_path / "z.safetensors") == 2
@@ -270,10 +269,7 @@ def test_a_split_by_alphabet_with_nothing_held_out_says_which_fraction_would(tmp
 
 
 def test_omniglots_images_or_other_zips_as_source_say_what_to_give(tree, tmp_path, capsys):
-    zips = tmp_path / "zips"
-    zips.mkdir()
-    for name in ("images_test", "strokes_test"):
-        zip_tree(tree / name, zips / f"{name}.zip")
+    zips = _zipped(tree, tmp_path / "zips")
     alone = tmp_path / "alone"
     alone.mkdir()
     shutil.copy(zips / "images_test.zip", alone)
@@ -338,10 +334,7 @@ def test_the_copies_experiment_writes_every_alphabet_again_from_folders_or_zips(
     """``experiments/omniglot_copies.py`` (a larger source for timing a recipe): each
     alphabet three times under new names, the same drawings, from folders or zips."""
     mod = experiment_script("omniglot_copies")
-    zips = tmp_path / "zips"
-    zips.mkdir()
-    for name in ("images_test", "strokes_test"):
-        zip_tree(tree / name, zips / f"{name}.zip")
+    zips = _zipped(tree, tmp_path / "zips")
     for source in (tree, zips):
         out = tmp_path / f"x3_{source.name}"
         assert mod.main(["--omniglot", str(source), "--copies", "3", "--out", str(out)]) == 0
