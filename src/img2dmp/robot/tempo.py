@@ -307,15 +307,22 @@ def joint_speed_metrics(log) -> dict:
         return {"joint_speed_peak_rad_s": nan, "joint_speed_limit_rad_s": limits.tolist(),
                 "joint_speed_peak_share": math.nan, "joint_speed_peak_joint": None,
                 "joint_speed_peak_time_s": math.nan}  # fmt: skip
-    ratio = np.abs(qd) / limits  # [S, 7]
-    i, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+    peaks, share, i, j = _peak(qd, limits)
     return {
-        "joint_speed_peak_rad_s": np.abs(qd).max(axis=0).tolist(),
+        "joint_speed_peak_rad_s": peaks,
         "joint_speed_limit_rad_s": limits.tolist(),
-        "joint_speed_peak_share": float(ratio[i, j]),
+        "joint_speed_peak_share": share,
         "joint_speed_peak_joint": IIWA_JOINT_NAMES[j],
         "joint_speed_peak_time_s": float(log.time_s[i]),
     }
+
+
+def _peak(values: np.ndarray, limits: np.ndarray) -> tuple[list, float, int, int]:
+    """Of ``values [S, 7]`` against per-joint ``limits [7]``: each joint's peak ``|v|``,
+    the largest ``|v| / limit``, and the sample and joint where it is."""
+    ratio = np.abs(values) / limits  # [S, 7]
+    i, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+    return np.abs(values).max(axis=0).tolist(), float(ratio[i, j]), int(i), int(j)
 
 
 def joint_acceleration_metrics(log) -> dict:
@@ -347,12 +354,11 @@ def joint_acceleration_metrics(log) -> dict:
     t = np.asarray(log.time_s, dtype=float)
     dt = np.diff(np.concatenate([[0.0], t]))  # [S] the first step from rest at t = 0
     qdd = np.diff(np.vstack([np.zeros(7), qd]), axis=0) / dt[:, None]  # [S, 7]
-    ratio = np.abs(qdd) / limits
-    i, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+    peaks, share, i, j = _peak(qdd, limits)
     return {
-        "joint_acceleration_peak_rad_s2": np.abs(qdd).max(axis=0).tolist(),
+        "joint_acceleration_peak_rad_s2": peaks,
         "joint_acceleration_limit_rad_s2": limits.tolist(),
-        "joint_acceleration_peak_share": float(ratio[i, j]),
+        "joint_acceleration_peak_share": share,
         "joint_acceleration_peak_joint": IIWA_JOINT_NAMES[j],
         "joint_acceleration_peak_time_s": float(t[i]),
         "joint_acceleration_peak_phase": PHASES[int(log.phase[i])],
