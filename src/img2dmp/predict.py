@@ -6,7 +6,8 @@
   (``load_model("runs/paper")``).
 - :class:`Predictor` - a loaded model: :meth:`Predictor.load` (run directory or
   checkpoint), :meth:`~Predictor.predict` (one image: path, PIL image or array of any
-  size and polarity, to a :class:`Prediction`), :meth:`~Predictor.predict_images`
+  size and polarity, to a :class:`Prediction`), :meth:`~Predictor.predict_batch` (many
+  images, read together, to one :class:`Prediction` each), :meth:`~Predictor.predict_images`
   (prepared ``[B, H, W]`` images to :class:`~img2dmp.dmp.DMPParams`),
   :meth:`~Predictor.predict_paths` (image files), :meth:`~Predictor.trajectories`
   (rollout at given or evenly spaced time stamps).
@@ -943,10 +944,12 @@ class Predictor:
         Parameters
         ----------
         image : path, PIL image or array
-            A PNG/JPEG file, a ``PIL.Image.Image`` or a NumPy array (grey ``[H, W]``, RGB
-            ``[H, W, 3]``, RGBA ``[H, W, 4]``; values in [0, 1], or [0, 255] when any is
-            above 1), any size, dark ink on light paper or light on dark; brought to the
-            model's input as the training images were made (:meth:`prepare`).
+            A PNG/JPEG file, a ``PIL.Image.Image``, a NumPy array (grey ``[H, W]`` or
+            ``[H, W, 1]``, RGB ``[H, W, 3]``, RGBA ``[H, W, 4]``; values in [0, 1], or
+            [0, 255] when any is above 1) or a torch tensor (the same, or channels first
+            ``[C, H, W]``), any size, dark ink on light paper or light on dark; brought to
+            the model's input as the training images were made (:meth:`prepare`).
+            Several images: :meth:`predict_batch`.
         n_points : int
             Samples of each trajectory, evenly spaced over its own ``[0, tau]``.
         match_stroke_width : bool
@@ -965,47 +968,112 @@ class Predictor:
             A stroke model's: its strokes, each a DMP, and the character's path.
         """
         n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
+        found = self._found(image, match_stroke_width, name, clean)
+        return self._predictions([image], [found], n_points)[0]
+
+    def predict_batch(
+        self,
+        images,
+        *,
+        n_points: int = 100,
+        match_stroke_width: bool = True,
+        clean: bool = True,
+        chunk: int = 256,
+    ) -> list:
+        """:meth:`predict` for many images at once: one :class:`Prediction` (a stroke
+        model's :class:`StrokePrediction`) per image, in order.
+
+        The images are prepared one by one, then read ``chunk`` at a time: one network
+        pass and one refinement over the whole part instead of one per image. The
+        numbers are those of
+        :meth:`predict` to float32 rounding, as every batch's (a few 1e-6 of the
+        weights), not bit for bit.
+
+        Parameters
+        ----------
+        images : sequence or array
+            A list (or any iterable) of what :meth:`predict` takes (paths, PIL images,
+            arrays, tensors), or one array or tensor whose first axis runs over images
+            (``[B, H, W]`` grey, ``[B, H, W, 3 | 4]``).
+        n_points, match_stroke_width, clean
+            As for :meth:`predict`.
+        chunk : int
+            Images read at once (bounds the memory of a long batch).
+
+        Raises
+        ------
+        ValueError
+            Naming the image at fault (its file, or ``images[i]``); nothing is returned
+            then.
+        """
+        n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
+        chunk = check_count("chunk", chunk, 1, MAX_BATCH_SIZE)
+        items = _batch_items(images)
+        out: list = []
+        for lo in range(0, len(items), chunk):
+            part = items[lo : lo + chunk]
+            found = [
+                self._found(im, match_stroke_width, _batch_name(lo + i, im), clean)
+                for i, im in enumerate(part)
+            ]
+            out.extend(self._predictions(part, found, n_points))
+        return out
+
+    def _found(self, image, match_stroke_width: bool, name: str | None, clean: bool):
+        """``(prepared, frame, mask)`` of one image (:func:`prepare_image_found` with the
+        training images' framing and, with ``match_stroke_width``, pen width)."""
         width = self.stroke_width if match_stroke_width else None
-        prepared, frame, mask = prepare_image_found(
+        return prepare_image_found(
             image, self.image_size, margin=self.margin, stroke_width_px=width, name=name,
             clean=clean,
         )  # fmt: skip
+
+    def _predictions(self, images: list, found: list, n_points: int) -> list:
+        """The predictions of ``images`` (as the user gave them), each prepared as
+        ``found`` holds it (:meth:`_found`), read in one batch."""
+        prepared = np.stack([f[0] for f in found])  # [B, H, W]
+        sources = [str(im) if isinstance(im, (str, os.PathLike)) else None for im in images]
         if self.strokes is not None:
-            (strokes,), (counts,) = self.predict_strokes(prepared[None], return_counts=True)
-            familiarity = self.familiarity(prepared[None])
-            steps = self.refine_steps_for(prepared[None], familiarity=familiarity)
-            found, lines = self._characters_and_lines(mask)
-            return StrokePrediction(
-                strokes, self.normaliser, self.strokes, frame, prepared,
-                source=str(image) if isinstance(image, (str, os.PathLike)) else None,
-                refine_steps=int(steps[0]), user_image=image,
+            strokes, counts = self.predict_strokes(prepared, return_counts=True)
+            familiarity = self.familiarity(prepared)
+            steps = self.refine_steps_for(prepared, familiarity=familiarity)
+            out = []
+            for i, (image, (_, frame, mask)) in enumerate(zip(images, found, strict=True)):
+                n_found, lines = self._characters_and_lines(mask)
+                out.append(StrokePrediction(
+                    strokes[i], self.normaliser, self.strokes, frame, prepared[i],
+                    source=sources[i], refine_steps=int(steps[i]), user_image=image,
+                    stroke_width_px=self.stroke_width,
+                    n_characters=n_found, n_lines=lines,
+                    n_per_stroke=n_points, count_views=self.count_views,
+                    count_probabilities=counts[i],
+                    familiarity=None if familiarity is None else familiarity[i],
+                    familiar_line=None if self.familiar is None else self.familiar.line,
+                ))  # fmt: skip
+            return out
+        params, probs = self.predict_hypotheses(prepared)  # [B, K], ranked
+        times, path = self.trajectories(params, n_points=n_points)  # [B, K, T], [B, K, T, d]
+        familiarity = self.familiarity(prepared)
+        steps = self.refine_steps_for(prepared, familiarity=familiarity)
+        return [
+            Prediction(
+                params=params[i],
+                probabilities=probs[i],
+                times=times[i],
+                path_model=path[i],
+                frame=frame,
+                dmp_config=self.dmp_config,
+                image=prepared[i],
+                source=sources[i],
+                refine_steps=int(steps[i]),
+                user_image=image,
                 stroke_width_px=self.stroke_width,
-                n_characters=found, n_lines=lines,
-                n_per_stroke=n_points, count_views=self.count_views,
-                count_probabilities=counts,
-                familiarity=None if familiarity is None else familiarity[0],
+                n_characters=count_characters(mask, letters=self.reads_letters),
+                familiarity=None if familiarity is None else familiarity[i],
                 familiar_line=None if self.familiar is None else self.familiar.line,
-            )  # fmt: skip
-        params, probs = self.predict_hypotheses(prepared[None])  # [1, K], ranked
-        times, path = self.trajectories(params[0], n_points=n_points)  # [K, T], [K, T, d]
-        familiarity = self.familiarity(prepared[None])
-        steps = int(self.refine_steps_for(prepared[None], familiarity=familiarity)[0])
-        return Prediction(
-            params=params[0],
-            probabilities=probs[0],
-            times=times,
-            path_model=path,
-            frame=frame,
-            dmp_config=self.dmp_config,
-            image=prepared,
-            source=str(image) if isinstance(image, (str, os.PathLike)) else None,
-            refine_steps=steps,
-            user_image=image,
-            stroke_width_px=self.stroke_width,
-            n_characters=count_characters(mask, letters=self.reads_letters),
-            familiarity=None if familiarity is None else familiarity[0],
-            familiar_line=None if self.familiar is None else self.familiar.line,
-        )
+            )
+            for i, (image, (_, frame, mask)) in enumerate(zip(images, found, strict=True))
+        ]
 
     def _characters_and_lines(self, mask) -> tuple[int, int]:
         """``(characters, lines)`` of a stroke model's image: the lines are looked for
@@ -1076,6 +1144,37 @@ class Predictor:
         z = torch.from_numpy(self._top_refined(images, batch_size))  # [B, P]
         y = rollout_outputs(z[:, None], t, self.normaliser, self.dmp_config, batch_size)
         return y[:, 0].numpy()
+
+
+def _batch_items(images) -> list:
+    """The images of :meth:`Predictor.predict_batch`'s ``images``, one list entry each."""
+    from PIL import Image
+
+    if isinstance(images, (str, bytes, os.PathLike, Image.Image)):
+        raise ValueError(
+            f"images must be several images (a list, or an array [B, H, W]), got one "
+            f"{type(images).__name__}: predict takes one image"
+        )
+    if isinstance(images, np.ndarray) or is_tensor(images):
+        shape = tuple(images.shape)
+        if len(shape) not in (3, 4) or (len(shape) == 3 and shape[-1] in (3, 4)):
+            raise ValueError(
+                f"an array of images must be [B, H, W] or [B, H, W, C], got shape {shape}"
+                + (" (one RGB image? predict takes one image, or give [image])"
+                   if len(shape) == 3 else "")
+            )  # fmt: skip
+        return list(images)
+    try:
+        return list(images)
+    except TypeError:
+        raise ValueError(
+            f"images must be a list of images or an array [B, H, W], got {type(images).__name__}"
+        ) from None
+
+
+def _batch_name(i: int, image) -> str | None:
+    """How image ``i`` of a batch is named in messages: a file by its path."""
+    return None if isinstance(image, (str, os.PathLike)) else f"images[{i}]"
 
 
 def index_resampled(path: np.ndarray, n: int) -> np.ndarray:

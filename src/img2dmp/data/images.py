@@ -443,9 +443,14 @@ def _array_levels(source, label: str) -> tuple[np.ndarray, float]:
     if a.dtype.kind not in "buif":
         raise ValueError(f"{label} must hold numbers, got dtype {a.dtype}")
     if not (a.ndim == 2 or (a.ndim == 3 and a.shape[2] in (3, 4))) or min(a.shape[:2]) < 2:
+        hint = ""
+        if a.ndim == 3 and a.shape[0] in (1, 3, 4):
+            hint = " (channels first? give [H, W, C]; several images: predict_batch)"
+        elif a.ndim == 4 or (a.ndim == 3 and a.shape[0] < min(a.shape[1:])):
+            hint = " (several images: predict_batch)"
         raise ValueError(
             f"{label} must be a grey-level [H, W], RGB [H, W, 3] or RGBA [H, W, 4] array "
-            f"of at least 2 x 2 pixels, got shape {a.shape}"
+            f"(or [H, W, 1] grey) of at least 2 x 2 pixels, got shape {a.shape}{hint}"
         )
     if a.dtype.kind == "f" and not np.isfinite(a).all():
         raise ValueError(f"{label} contains NaN or inf")
@@ -462,6 +467,14 @@ def _array_levels(source, label: str) -> tuple[np.ndarray, float]:
         return a, full
     alpha = a[..., 3:].astype(np.float32) / np.float32(full)  # composite on white
     return a[..., :3] * alpha + np.float32(full) * (1.0 - alpha), full
+
+
+def _channels_last(a: np.ndarray) -> np.ndarray:
+    """A tensor's values ``[C, H, W]`` (torch's and torchvision's order, C = 1, 3 or 4)
+    as ``[H, W, C]``; any other array as it is (``[H, W, C]`` is kept where both read)."""
+    if a.ndim == 3 and a.shape[0] in (1, 3, 4) and a.shape[2] not in (1, 3, 4):
+        return a.transpose(1, 2, 0)
+    return a
 
 
 def _reduce_levels(levels: np.ndarray, factor: int) -> np.ndarray:
@@ -495,15 +508,18 @@ def _levels_framed(source, name: str | None, max_pixels: int = MAX_WORK_PIXELS):
         raise ValueError(
             f"{name or 'image'} must be one image (a file path, a PIL image or an array), got "
             f"a {type(source).__name__} of {len(source)}; several: prepare_paths, then "
-            "predict_images"
+            "predict_images (their DMPs), or predict_batch (their predictions)"
         )
     if is_tensor(source):  # a torch tensor: its values, whatever its dtype or grad
-        source = source.detach().cpu().float().numpy()
+        source = _channels_last(source.detach().cpu().float().numpy())
+    source = np.asarray(source)
+    if source.ndim == 3 and source.shape[2] == 1:  # [H, W, 1]: grey
+        source = source[..., 0]
     label = name or "image array"
     levels, full = _array_levels(source, label)
     size = (int(levels.shape[0]), int(levels.shape[1]))
     factor = math.ceil(math.sqrt(size[0] * size[1] / max_pixels))
-    a = np.asarray(source)
+    a = source
     if factor > 1 and a.dtype == np.uint8:  # reduced as its file is read: in 8 bits
         return _levels_framed(Image.fromarray(np.ascontiguousarray(a)), label, max_pixels)
     levels = _reduce_levels(levels, factor) if factor > 1 else levels
@@ -642,8 +658,9 @@ def prepare_image(
     source : path, PIL image or array
         PNG/JPEG file (any size, RGB, grey or with transparency), a ``PIL.Image.Image``
         (both turned upright as an EXIF orientation tag says, :func:`upright`), or an
-        array: grey levels ``[H, W]``, RGB ``[H, W, 3]`` or RGBA ``[H, W, 4]``
-        (values in [0, 1], floats up to 1.5 clipped to 1 as a resampling's overshoot;
+        array: grey levels ``[H, W]`` (or ``[H, W, 1]``), RGB ``[H, W, 3]`` or RGBA
+        ``[H, W, 4]``, a torch tensor also channels first ``[C, H, W]`` as torchvision
+        gives it (values in [0, 1], floats up to 1.5 clipped to 1 as a resampling's overshoot;
         when any is above that, in [0, 255] or, above 255, in the range of the fewest
         bits that hold them, as for 16-bit files: :func:`full_scale`; none below 0).
     image_size : (H, W)
