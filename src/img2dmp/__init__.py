@@ -26,7 +26,8 @@ Exported here (each loaded on first use, so that ``import img2dmp`` and
 - :func:`load_dmp_json`, :func:`save_dmp_json`, :func:`read_dmp_file` - the one DMP file
 
 Everything else is imported from its module (``img2dmp.training``, ``img2dmp.robot``,
-``img2dmp.data``, ...); static type checkers see the exact types there.
+``img2dmp.data``, ...). Static type checkers see the exact types of every name, here
+(``__init__.pyi`` names them for them) and there.
 """
 
 from __future__ import annotations

@@ -52,6 +52,7 @@ import numbers
 import os
 from dataclasses import replace
 from pathlib import Path
+from typing import Any, Generic, Literal, TypeVar, overload
 
 import numpy as np
 
@@ -302,7 +303,12 @@ def _check_framing(record: dict, image_size) -> None:
             raise ValueError(f"field {key!r}: {e}") from None
 
 
-class Predictor:
+#: What a :class:`Predictor`'s :meth:`~Predictor.predict` gives, for type checkers: a
+#: :class:`Prediction` (one DMP per image) or a stroke model's :class:`StrokePrediction`.
+PredictionT = TypeVar("PredictionT")
+
+
+class Predictor(Generic[PredictionT]):
     """A trained network with its output normalisation and DMP constants.
 
     Attributes
@@ -355,6 +361,10 @@ class Predictor:
 
     ``Predictor(model, ...)`` with a torch network computes with torch;
     :meth:`Predictor.load` chooses the backend (module docstring, "Backends").
+
+    For type checkers a ``Predictor[Prediction]`` (``load_model()``,
+    ``load_model("digits-real")``) or ``Predictor[StrokePrediction]``
+    (``load_model("omniglot-strokes")``); a run directory's is ``Predictor[Any]``.
     """
 
     def __init__(
@@ -422,7 +432,7 @@ class Predictor:
         name: str = "best",
         device: str = "cpu",
         backend: str = "auto",
-    ) -> Predictor:
+    ) -> Predictor[Any]:
         """Load from a run directory (its ``checkpoints/<name>``), a checkpoint file or
         the name of a shipped model (``"digits-real"``, :mod:`img2dmp.models`; its file's
         SHA-256 checked). No refinement is set (:func:`load_model` applies the
@@ -938,7 +948,7 @@ class Predictor:
         match_stroke_width: bool = True,
         name: str | None = None,
         clean: bool = True,
-    ) -> Prediction:
+    ) -> PredictionT:
         """The DMP(s) that write the digit in one image: the one call from Python.
 
         Parameters
@@ -979,7 +989,7 @@ class Predictor:
         match_stroke_width: bool = True,
         clean: bool = True,
         chunk: int = 256,
-    ) -> list:
+    ) -> list[PredictionT]:
         """:meth:`predict` for many images at once: one :class:`Prediction` (a stroke
         model's :class:`StrokePrediction`) per image, in order.
 
@@ -1242,6 +1252,9 @@ class Prediction:
         when the model carries no familiarity.
     """
 
+    familiarity: float | None
+    familiar_line: float | None
+
     def __init__(
         self,
         params: DMPParams,
@@ -1383,6 +1396,9 @@ class StrokePrediction:
         when the model carries no familiarity.
     """
 
+    familiarity: float | None
+    familiar_line: float | None
+
     def __init__(self, strokes, normaliser, layout, frame, image, *, source=None,
                  refine_steps=0, user_image=None, stroke_width_px=None, n_characters=1, n_lines=1,
                  n_per_stroke: int = 100, count_views: int = COUNT_VIEWS,
@@ -1426,7 +1442,7 @@ class StrokePrediction:
         return float(p[self.n_strokes - 1])
 
     @property
-    def dmp(self):
+    def dmp(self) -> DMPParams:
         raise ValueError(
             f"a stroke model's prediction is {self.n_strokes} DMPs, one per stroke "
             "(StrokePrediction.strokes), not one DMP"
@@ -1577,6 +1593,29 @@ def reading_for(source, checkpoint: str = "best") -> Reading:
     return reading
 
 
+# For type checkers: what predict gives, by the shipped model's name (tests/test_api_batch.py
+# checks these against the models).
+@overload
+def load_model(
+    path: Literal["digits-real"] | None = None,
+    *,
+    refine: int | None = None,
+    checkpoint: str = "best",
+    device: str = "cpu",
+    backend: str = "auto",
+    refine_unfamiliar: int | None = None,
+) -> Predictor[Prediction]: ...
+@overload
+def load_model(
+    path: Literal["omniglot-strokes"],
+    *,
+    refine: int | None = None,
+    checkpoint: str = "best",
+    device: str = "cpu",
+    backend: str = "auto",
+    refine_unfamiliar: int | None = None,
+) -> Predictor[StrokePrediction]: ...
+@overload
 def load_model(
     path: str | os.PathLike | None = None,
     *,
@@ -1585,7 +1624,16 @@ def load_model(
     device: str = "cpu",
     backend: str = "auto",
     refine_unfamiliar: int | None = None,
-) -> Predictor:
+) -> Predictor[Any]: ...
+def load_model(
+    path: str | os.PathLike | None = None,
+    *,
+    refine: int | None = None,
+    checkpoint: str = "best",
+    device: str = "cpu",
+    backend: str = "auto",
+    refine_unfamiliar: int | None = None,
+) -> Predictor[Any]:
     """A trained network, ready to predict: ``load_model().predict(image)``.
 
     Parameters

@@ -14,6 +14,7 @@ stamps, and minimises exactly the error that evaluation and cost (10) measure.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -41,8 +42,8 @@ class FitResult:
     """
 
     params: DMPParams
-    error_px: object
-    max_error_px: object
+    error_px: Any  # NumPy or torch, as the input
+    max_error_px: Any
 
 
 #: Most points of one trajectory fitted (memory grows by about 2 KB a point).

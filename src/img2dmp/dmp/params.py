@@ -34,6 +34,7 @@ import json
 import math
 import sys
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -259,10 +260,11 @@ class DMPParams:
     docstring for what is converted and what is refused).
     """
 
-    w: object
-    tau: object
-    g: object
-    y0: object
+    # Any: NumPy arrays or torch tensors, whose methods a user's type checker must allow
+    w: Any
+    tau: Any
+    g: Any
+    y0: Any
     config: DMPConfig | None = field(default=None, kw_only=True, compare=False)
 
     def __post_init__(self) -> None:
@@ -384,7 +386,7 @@ class DMPParams:
     def n_dims(self) -> int:
         return int(self.w.shape[-1])
 
-    def to_vector(self):
+    def to_vector(self) -> Any:
         """Flat vector ``[*batch, N*d + 1 + 2d]`` in the order given in the module docstring."""
         w_flat = _swap_last(self.w).reshape(*self.batch_shape, -1)
         return _cat([w_flat, self.tau[..., None], self.g, self.y0], self.w)

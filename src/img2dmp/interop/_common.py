@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -49,7 +50,7 @@ class PeerExport:
         ``times`` (units of the DMP, px in the image frame); None when not checked.
     """
 
-    dmp: object
+    dmp: Any  # the peer's own class (its library's types are not img2dmp's to declare)
     batch_shape: tuple
     exact: bool
     times: np.ndarray | None = None
