@@ -233,6 +233,22 @@ def test_fit_uneven_time_stamps_and_batches():
     assert np.linalg.norm(y_fit - y, axis=-1).mean() < 0.05
 
 
+@pytest.mark.parametrize("d", [1, 3])
+def test_fit_without_a_config_takes_the_papers_constants_for_the_paths_dimensions(d):
+    t = np.linspace(0.0, 1.5, 120)
+    ease = (1 - np.cos(np.pi * t / t[-1])) / 2  # from rest to rest, as a DMP moves
+    y = np.stack([5 * k + 10 * (k + 1) * ease * np.cos(k * ease) for k in range(d)], -1)
+    res = fit_dmp(t, y)
+    assert res.params.config == DMPConfig(n_dims=d) and res.params.n_dims == d
+    explicit = fit_dmp(t, y, DMPConfig(n_dims=d))
+    np.testing.assert_array_equal(res.params.to_vector(), explicit.params.to_vector())
+    y_fit = rollout(res.params.to_torch(), torch.tensor(t)).numpy()  # its carried config
+    assert np.abs(y_fit - y).mean() < 0.05
+    # a path given as [d, T] is not read as T-dimensional: the message says the layout
+    with pytest.raises(ValueError, match=r"y has d=120 dimensions, the config expects 2 \(y is"):
+        fit_dmp(t[:2], np.stack([t, t]))
+
+
 def test_flat_vector_order_and_round_trip():
     cfg = DMPConfig()
     assert cfg.n_params == 55
@@ -278,7 +294,7 @@ def test_bad_input_raises_clear_errors():
     with pytest.raises(ValueError, match="time stamps but y has"):
         fit_dmp(t[:5], np.zeros((10, 2)))
     with pytest.raises(ValueError, match="d=3 dimensions"):
-        fit_dmp(t, np.zeros((10, 3)))
+        fit_dmp(t, np.zeros((10, 3)), cfg)  # without a config: DMPConfig(n_dims=3)
     with pytest.raises(ValueError, match="expected N\\*d"):
         DMPParams.from_vector(np.zeros(54), 25, 2)
     with pytest.raises(ValueError, match="dt must be"):

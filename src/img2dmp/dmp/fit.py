@@ -67,8 +67,9 @@ def fit_dmp(
         not start at 0 (the movement is taken to start at ``t[..., 0]``).
     y : array [*batch, T, d]
         Demonstrated positions.
-    config : DMPConfig
-        Constants; its ``n_dims`` must equal d.
+    config : DMPConfig or None
+        Constants; its ``n_dims`` must equal d. None: the paper's constants for d
+        dimensions (``DMPConfig(n_dims=d)``), the fitted parameters carry them.
     ridge : float
         Tikhonov regularisation, relative to the mean eigenvalue of the normal
         equations (scale-free). The small default only guards against singular systems;
@@ -81,7 +82,7 @@ def fit_dmp(
     FitResult
         NumPy in, NumPy out; torch in, torch out (float64 inside).
     """
-    config = as_config(config)
+    config = as_config(config if config is not None else _config_for(y))
     as_numpy = not isinstance(y, torch.Tensor)
     t, y, ridge = _check_inputs(t, y, config, ridge, chunk_size)
     batch = tuple(y.shape[:-2])
@@ -172,7 +173,10 @@ def _check_inputs(t, y, config: DMPConfig, ridge, chunk_size) -> tuple:
             "fit takes; resample it (a DMP of 25 kernels needs a few hundred)"
         )
     if y.shape[-1] != config.n_dims:
-        raise ValueError(f"y has d={y.shape[-1]} dimensions, the config expects {config.n_dims}")
+        raise ValueError(
+            f"y has d={y.shape[-1]} dimensions, the config expects {config.n_dims} (y is "
+            f"[*batch, T, d]: {y.shape[-2]} points of {y.shape[-1]} coordinates here)"
+        )
     if not bool(torch.isfinite(y).all()):
         idx = first_index(~torch.isfinite(y))
         raise ValueError(
@@ -188,6 +192,19 @@ def _check_inputs(t, y, config: DMPConfig, ridge, chunk_size) -> tuple:
     if t.ndim > 1 and tuple(t.shape[:-1]) != batch:
         raise ValueError(f"t has batch shape {tuple(t.shape[:-1])}, y has {batch}")
     return t, y, ridge
+
+
+def _config_for(y) -> DMPConfig:
+    """The paper's constants for the dimensions of demonstrations ``y [..., T, d]``:
+    the default's d = 2 where the shape says nothing usable, or has no more points than
+    dimensions (a path given as ``[d, T]``), which the checks then name."""
+    try:
+        shape = tuple(y.shape) if hasattr(y, "shape") else np.shape(y)
+    except ValueError:  # ragged lists: refused by the checks
+        return DMPConfig()
+    if len(shape) < 2 or not 1 <= int(shape[-1]) < int(shape[-2]):
+        return DMPConfig()
+    return DMPConfig(n_dims=int(shape[-1]))
 
 
 def _of_demo(batch_index: tuple) -> str:
