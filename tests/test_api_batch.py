@@ -127,3 +127,14 @@ def test_other_libraries_array_layouts_read_as_the_same_image(model, grey):
         model.predict(np.stack([grey, grey]))
     with pytest.raises(ValueError, match=r"got shape \(3, \d+, \d+\) \(channels first\? give \[H"):
         model.predict(rgb.transpose(2, 0, 1))
+
+
+def test_reprs_say_what_a_researcher_checks_first(model):
+    text = repr(model)
+    for part in ("digits-real", f"{model.n_hypotheses} hypotheses", "input 28 x 28",
+                 "refine 5", "numpy backend", "N = 25, d = 2", "scaling 'none'"):  # fmt: skip
+        assert part in text, (part, text)
+    strokes = repr(img2dmp.load_model("omniglot-strokes", refine=0))
+    assert "omniglot-strokes: stroke model of 8 slots" in strokes and "refine 0" in strokes
+    frame = img2dmp.ImageFrame(np.array([[0.5, 0.0, -3.0], [0.0, 0.5, 2.0]]), (80, 60), (28, 28))
+    assert repr(frame).endswith("x_m = 0.5 x + 0 y - 3, y_m = 0 x + 0.5 y + 2)"), repr(frame)

@@ -385,6 +385,7 @@ class Predictor(Generic[PredictionT]):
         self._model = model.eval() if model is not None else None
         self.network = network
         self._checkpoint = checkpoint  # the NumPy weights, for the torch network on demand
+        self._source = None if checkpoint is None else checkpoint.path  # for repr
         self.normaliser = normaliser
         self.dmp_config = dmp_config
         self.meta = meta
@@ -492,6 +493,7 @@ class Predictor(Generic[PredictionT]):
             load_weights_into(model, ckpt)
             predictor = cls(place_model(model, device), normaliser, dmp_config, ckpt.meta,
                             shipped=shipped, strokes=strokes)  # fmt: skip
+            predictor._source = ckpt.path
         if shipped is None:  # a run's own, drawn by img2dmp train for these weights
             predictor.familiar = run_familiar(ckpt.path)
             if predictor.familiar is None:
@@ -586,6 +588,22 @@ class Predictor(Generic[PredictionT]):
         """Typical pen width of the training images in pixels (None: not recorded)."""
         w = self.meta.get("stroke_width_px")
         return float(w) if w else None
+
+    def __repr__(self) -> str:
+        name = self.shipped.name if self.shipped is not None else self._source or "a network"
+        k = self.n_hypotheses
+        kind = f"{k} hypothes{'i' if k == 1 else 'e'}s"
+        if self.strokes is not None:
+            kind = f"stroke model of {self.strokes.slots} slots"
+        steps = f"refine {self.refine_steps}"
+        if self.refine_unfamiliar is not None:
+            steps += f" ({self.refine_unfamiliar} unfamiliar)"
+        c = self.dmp_config
+        return (
+            f"Predictor({name}: {kind}, input {self.image_size[0]} x {self.image_size[1]}, "
+            f"{steps}, {self.backend} backend, DMPs N = {c.n_kernels}, d = {c.n_dims}, "
+            f"scaling {c.scaling!r})"
+        )
 
     def __reduce__(self):
         raise TypeError(

@@ -154,12 +154,20 @@ class ImageFrame:
 
     def __repr__(self) -> str:
         a = self.image_to_model
+
+        def row(r) -> str:  # "0.5 x + 0 y - 3": each term's sign once
+            return f"{r[0]:.6g} x {_signed(r[1])} y {_signed(r[2])}"
+
         return (
             f"ImageFrame(image {self.image_size[0]} x {self.image_size[1]} -> model "
-            f"{self.model_size[0]} x {self.model_size[1]}: x_m = {a[0, 0]:.6g} x + "
-            f"{a[0, 1]:.6g} y + {a[0, 2]:.6g}, y_m = {a[1, 0]:.6g} x + {a[1, 1]:.6g} y + "
-            f"{a[1, 2]:.6g})"
+            f"{self.model_size[0]} x {self.model_size[1]} (H x W): x_m = {row(a[0])}, "
+            f"y_m = {row(a[1])})"
         )
+
+
+def _signed(v: float) -> str:
+    """``"+ 3"`` or ``"- 3"``: a term of a sum as one writes it."""
+    return f"- {-v:.6g}" if v < 0 else f"+ {v:.6g}"
 
 
 def ink_margin(images: np.ndarray) -> float:
