@@ -13,7 +13,8 @@ checkpoints/{best,last}.safetensors (+ .json).
       --set optim.lr=3e-4 --set model.activation=tanh
 
 --resume continues the run in --run-dir from its last checkpoint with the configuration
-stored there; only --epochs (train on to this many epochs) and --no-progress may be given
+stored there; only --epochs (train on to this many epochs), --no-progress and --data (the
+run's data set at another place: the same file, checked by its SHA-256) may be given
 with it. A run directory that holds a model is never replaced without --force (the rule of
 every command that writes; --overwrite is its older name). While a run trains, its
 directory is locked (the file DIR/.lock): a second run on the same --run-dir stops at once
@@ -27,6 +28,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
+import time
 from pathlib import Path
 
 from . import _args
@@ -72,7 +75,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--resume",
         action="store_true",
         help="continue the run in --run-dir from its last checkpoint, with its stored "
-        "configuration (only --epochs may extend it)",
+        "configuration (only --epochs may extend it; --data may give its data set's new "
+        "place, the same file)",
     )
     p.add_argument(
         "--force",
@@ -118,14 +122,15 @@ def check_resume(args: argparse.Namespace) -> None:
     given = [
         "--" + name.replace("_", "-")
         for name in CONFIG_OPTIONS
-        if getattr(args, name) is not None and getattr(args, name) != []
+        if name != "data" and getattr(args, name) is not None and getattr(args, name) != []
     ]
     given += [f"--{flag}" for flag in ("force", "overwrite") if getattr(args, flag)]
     if given:
         raise ValueError(
             f"--resume continues the run in {args.run_dir} with the configuration stored in "
             f"its checkpoint, so {', '.join(given)} cannot be used with it (only --epochs can "
-            "extend the run); start a new run with another --run-dir or --force instead"
+            "extend the run, and --data give its data set's new place); start a new run with "
+            "another --run-dir or --force instead"
         )
 
 
@@ -146,6 +151,24 @@ def check_run_outputs(args: argparse.Namespace) -> None:
     _args.check_outputs(outputs, True, inputs + _args.config_inputs(args))
 
 
+def saved_epochs(args: argparse.Namespace, started: float) -> str:
+    """What an interrupted run keeps, and how to go on: the epochs its ``last`` checkpoint
+    holds (written by this run, or the resumed run's own) and the command that resumes."""
+    from ..checkpoint import CHECKPOINT_DIR, read_checkpoint_meta
+
+    last = Path(args.run_dir) / CHECKPOINT_DIR / "last.safetensors"
+    try:
+        meta = read_checkpoint_meta(last)
+        ours = args.resume or last.stat().st_mtime >= started
+        done, total = meta["epoch"] + 1, meta["train_config"]["optim"]["epochs"]
+    except (OSError, ValueError, KeyError, TypeError):
+        ours = False
+    if not ours:
+        return "no epoch of this run finished, so nothing of it is saved"
+    resume = shlex.join(["img2dmp", "train", "--run-dir", str(args.run_dir), "--resume"])
+    return f"{done} of {total} epochs are saved in {last}; '{resume}' continues the run"
+
+
 def run(args: argparse.Namespace) -> int:
     check_resume(args)
     _args.check_device(args.device)
@@ -154,18 +177,30 @@ def run(args: argparse.Namespace) -> int:
 
     _args.check_output_dir(args.run_dir, "--run-dir")
     if args.data is not None:
-        _args.check_inputs([args.data], "data set")
+        try:
+            _args.check_inputs([args.data], "data set")
+        except OSError as e:
+            if not args.resume:
+                raise
+            raise type(e)(f"{e} (--resume --data names where the run's own data set is now; "
+                          "only --epochs can extend the run)") from None  # fmt: skip
     check_run_outputs(args)
     cfg = load_config(args.config, overrides(args))
     force = args.force or args.overwrite
-    res = train(
-        cfg,
-        args.run_dir,
-        resume=args.resume,
-        overwrite=force,
-        epochs=args.epochs,
-        device=args.device,
-    )
+    started = time.time()
+    try:
+        res = train(
+            cfg,
+            args.run_dir,
+            resume=args.resume,
+            overwrite=force,
+            epochs=args.epochs,
+            device=args.device,
+            data=args.data if args.resume else None,
+        )
+    except KeyboardInterrupt as e:  # Ctrl-C or SIGTERM: the one line says what is kept
+        e.args = (saved_epochs(args, started),)
+        raise
     print(
         f"{res.epochs_run} epoch{'s' if res.epochs_run != 1 else ''} in {res.wall_s:.1f} s; "
         f"best validation {ERROR_MEASURES[res.error_measure]} {res.best_val_error_px:.4f} px "

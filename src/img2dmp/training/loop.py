@@ -92,6 +92,7 @@ def train(
     overwrite: bool = False,
     epochs: int | None = None,
     device: str = "cpu",
+    data=None,
 ) -> TrainResult:
     """Train the encoder-decoder network (Sec. V) with cost (9) or (10).
 
@@ -113,6 +114,10 @@ def train(
     device : str
         Where the network's weights live and its forward and backward passes run
         (``"cpu"``, ``"cuda"``); the costs and the DMP rollout stay on the CPU.
+    data : path, optional
+        With ``resume``: where the run's data set is now (moved, or the run resumed from
+        another working directory than the one its relative ``data.path`` was given
+        from). It must be the same file: its SHA-256 is checked against the run's.
 
     Returns
     -------
@@ -131,7 +136,7 @@ def train(
         process_group() as (rank, world),
         on_rank0(lambda: lock_directory(run_dir, "run directory"), rank, world),
     ):
-        run = open_run(config, run_dir, resume, overwrite, epochs, rank, world, device)
+        run = open_run(config, run_dir, resume, overwrite, epochs, rank, world, device, data)
         return fit(run, t_start)
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import torch
 import yaml
 
-from .._files import atomic_write_text
+from .._files import atomic_write_text, file_digest
 from ..checkpoint import (
     CHECKPOINT_DIR,
     Checkpoint,
@@ -62,10 +62,12 @@ def open_run(
     rank: int = 0,
     world: int = 1,
     device: str = "cpu",
+    data=None,
 ) -> Run:
     """Everything :func:`~.loop.fit` needs, from a configuration and a run directory; the
-    network's weights on ``device`` (:func:`img2dmp.nn.device.place_model`)."""
-    cfg, last = _configuration(config, run_dir, resume, overwrite, epochs)
+    network's weights on ``device`` (:func:`img2dmp.nn.device.place_model`). With
+    ``resume``, ``data`` is the run's data set at another place (:func:`~.loop.train`)."""
+    cfg, last = _configuration(config, run_dir, resume, overwrite, epochs, data)
     if cfg.threads:
         torch.set_num_threads(int(cfg.threads))
     init = load_checkpoint(cfg.init_from) if last is None and cfg.init_from else None
@@ -84,6 +86,7 @@ def open_run(
     if last is not None:
         state.restore(last, cfg.optim.epochs)
     cost = make_cost(cfg, data.normaliser, data.dmp_config, weighting)
+    _one_rollout_path(cfg, data.dmp_config)
     net = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
     if rank == 0:
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -92,6 +95,30 @@ def open_run(
             write_metrics_csv(run_dir / "metrics.csv", state.history_dicts())
     augment = Augmenter.from_config(cfg, data)
     return Run(cfg, run_dir, data, weighting, cost, augment, state, net, rank, world)
+
+
+def _one_rollout_path(cfg: TrainConfig, dmp_config) -> None:
+    """Load the rollout's fused kernels before the first step, so that every rollout of
+    the run goes through them.
+
+    :func:`img2dmp.dmp.rollout` (``backend="auto"``) takes the torch operations for small
+    calls until the kernels have run once in the process, and loads them once those
+    calls have taken 0.5 s of wall time: a training switched paths at a step that
+    depended on the machine's speed and load, and a resumed one (a new process) at
+    another, so runs of one configuration differed after that step (to rounding, then
+    growing). Loaded first, every step takes one path: the same weights, bit for bit,
+    run after run and after a resume. Without numba every rollout takes torch's path.
+    """
+    from ..dmp import DMPParams, rollout
+
+    layout = cfg.strokes.layout()
+    config = dmp_config if layout is None else layout.config
+    n, d = config.n_kernels, config.n_dims
+    params = DMPParams(torch.zeros(1, n, d), torch.ones(1), torch.ones(1, d), torch.zeros(1, d))
+    try:
+        rollout(params, torch.linspace(0.0, 1.0, 2), config, backend="fused")
+    except ValueError:  # no numba: the torch operations throughout
+        pass
 
 
 def _load_init(model: torch.nn.Module, init: Checkpoint, cfg: TrainConfig) -> None:
@@ -115,9 +142,12 @@ def _load_init(model: torch.nn.Module, init: Checkpoint, cfg: TrainConfig) -> No
         ) from None
 
 
-def _configuration(config, run_dir, resume, overwrite, epochs):
-    """The run's configuration (a copy; the stored one to resume) and its last checkpoint."""
+def _configuration(config, run_dir, resume, overwrite, epochs, data=None):
+    """The run's configuration (a copy; the stored one to resume, with ``data`` as its
+    data set's place if given) and its last checkpoint."""
     last_path = run_dir / CHECKPOINT_DIR / "last.safetensors"
+    if data is not None and not resume:
+        raise ValueError("data= gives a resumed run's data set at another place: set data.path")
     if not resume:
         held = [p for p in (last_path, last_path.with_name("best.safetensors")) if p.is_file()]
         if held and not overwrite:
@@ -134,6 +164,9 @@ def _configuration(config, run_dir, resume, overwrite, epochs):
     last = load_checkpoint(last_path)
     cfg = TrainConfig.from_dict(_on_this_machine(last.meta["train_config"]))
     cfg.progress = config.progress
+    cfg.data.path = _resumed_data_path(cfg.data.path, data, run_dir)
+    if cfg.data.path is not None:  # before the data are loaded, and said as they are read
+        _check_same_data(cfg.data.path, file_digest(cfg.data.path), last)
     done = last.meta["epoch"] + 1
     if epochs is not None:
         if epochs <= done:
@@ -142,6 +175,38 @@ def _configuration(config, run_dir, resume, overwrite, epochs):
             )
         cfg.optim = _with_epochs(cfg.optim, epochs)
     return cfg, last
+
+
+def _resumed_data_path(stored: str | None, data, run_dir: Path) -> str | None:
+    """The data set a resumed run reads: ``data`` (the same file at another place, its
+    SHA-256 checked against the run's by :func:`_check_fits`) or the stored path, which
+    is relative to the directory the run was started from."""
+    if data is not None:
+        if stored is None:
+            raise ValueError(
+                f"cannot resume {run_dir} with a data set: it trained on the generator "
+                "(data.path null); resume it without --data"
+            )
+        return str(data)
+    if stored is not None and not Path(stored).exists():
+        where = "" if Path(stored).is_absolute() else f" from {Path.cwd()}"
+        raise FileNotFoundError(
+            f"cannot resume: the run's data set {stored} (data.path, as given when the run "
+            f"started) is not found{where}; give its place with --data PATH (data= in "
+            "Python): the same file, checked by its SHA-256"
+        )
+    return stored
+
+
+def _check_same_data(path, sha256: str, last: Checkpoint) -> None:
+    """Refuse to resume ``last`` on a data set of another SHA-256 than its own."""
+    theirs = last.meta["dataset"]["sha256"]
+    if sha256 != theirs:
+        raise ValueError(
+            f"cannot resume: data set {path} is not the one the run trained on: it has "
+            f"changed since the run started, or is another file (SHA-256 {sha256[:12]}... "
+            f"!= {theirs[:12]}...)"
+        )
 
 
 def _on_this_machine(stored: dict) -> dict:
@@ -188,11 +253,8 @@ def _check_fits(cfg: TrainConfig, data: TrainingData, last, init) -> None:
             f"{init.meta['dmp_config']}, the data set {cfg.data.path} has "
             f"{data.dmp_config.to_dict()}"
         )
-    if last is not None and cfg.data.path and last.meta["dataset"]["sha256"] != data.dataset_sha256:
-        raise ValueError(
-            f"cannot resume: data set {cfg.data.path} has changed since the run started "
-            f"(SHA-256 {data.dataset_sha256[:12]}... != {last.meta['dataset']['sha256'][:12]}...)"
-        )
+    if last is not None and cfg.data.path:
+        _check_same_data(cfg.data.path, data.dataset_sha256, last)
     size = cfg.model.image_size
     if size is not None and list(size) != data.image_size:
         raise ValueError(

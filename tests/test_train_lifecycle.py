@@ -1,0 +1,170 @@
+"""A training's life cycle as a user lives it: the same run gives the same weights, it is
+resumed from anywhere, and it is stopped by a signal in one line."""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from img2dmp import cli
+from img2dmp.data.store import save_dataset
+from img2dmp.data.synthetic import generate_dataset
+from img2dmp.train import TrainConfig, train
+
+TINY = {"encoder_layers": [32, 20], "decoder_layers": [35]}
+rollout_module = importlib.import_module("img2dmp.dmp.rollout")
+SRC = str(Path(__file__).resolve().parents[1] / "src")
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("data") / "digits.safetensors"
+    save_dataset(path, generate_dataset(12, seed=0, progress=False))
+    return path
+
+
+def config(data_path, epochs: int = 2) -> TrainConfig:
+    """A tiny run whose batches (4 x 301 time stamps) are small calls of the rollout."""
+    return TrainConfig.from_dict(
+        {
+            "model": dict(TINY),
+            "data": {"path": str(data_path)},
+            "optim": {"epochs": epochs, "batch_size": 4, "lr": 2e-3, "patience": 0},
+            "cost": {"name": "trajectory"},
+            "threads": 1,
+            "progress": False,
+        }
+    )
+
+
+def weights_digest(run: Path, name: str = "last") -> str:
+    return json.loads((run / "checkpoints" / f"{name}.json").read_text())["weights_sha256"]
+
+
+def test_a_run_s_weights_do_not_depend_on_what_its_process_ran_before(data, tmp_path, monkeypatch):
+    """The rollout took torch's operations for small calls until its fused kernels had
+    run once in the process: a run started in a fresh process and the same run started
+    where they had run (or resumed, in a new process) took different paths and ended
+    with different weights. A training now takes one path from its first step."""
+    monkeypatch.setattr(rollout_module, "_fused_loaded", False)  # as a fresh process
+    monkeypatch.setitem(rollout_module._unfused, "seconds", 0.0)
+    train(config(data), tmp_path / "fresh")
+    monkeypatch.setattr(rollout_module, "_fused_loaded", False)
+    try:  # a process that has run the kernels before (when numba is there)
+        rollout_module.rollout(*_one_dmp(), backend="fused")
+    except ValueError:
+        pass
+    train(config(data), tmp_path / "warm")
+    assert weights_digest(tmp_path / "fresh") == weights_digest(tmp_path / "warm")
+
+
+def _one_dmp():
+    import torch
+
+    from img2dmp.dmp import DMPConfig, DMPParams
+
+    c = DMPConfig()
+    n, d = c.n_kernels, c.n_dims
+    p = DMPParams(torch.zeros(1, n, d), torch.ones(1), torch.ones(1, d), torch.zeros(1, d))
+    return p, torch.linspace(0.0, 1.0, 3), c
+
+
+def test_a_run_resumes_from_another_directory_given_its_data_set_s_place(
+    data, tmp_path, monkeypatch
+):
+    """A run started with a relative --data could not be resumed from anywhere else (its
+    data set "does not exist"), nor after the file moved, and --resume refused --data.
+    --data now gives the place of the same file (by SHA-256), and the resumed run's
+    weights are those of the run left uninterrupted."""
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    (tmp_path / "a" / "d.safetensors").write_bytes(data.read_bytes())
+    other = tmp_path / "other.safetensors"
+    save_dataset(other, generate_dataset(12, seed=1, progress=False))
+    run, ref = tmp_path / "run", tmp_path / "ref"
+    tiny = ["--set", "threads=1", "optim.batch_size=4", "optim.patience=0", "optim.schedule=none"]
+    tiny += [f"model.encoder_layers={TINY['encoder_layers']}", "--no-progress"]
+    monkeypatch.chdir(tmp_path / "a")
+    for where, epochs in ((run, "1"), (ref, "2")):
+        argv = ["train", "--data", "d.safetensors", "--run-dir", str(where), "--epochs", epochs]
+        assert cli.main([*argv, *tiny]) == 0
+    monkeypatch.chdir(tmp_path / "b")
+    resume = ["train", "--run-dir", str(run), "--resume", "--epochs", "2", "--no-progress"]
+    assert cli.main(resume) == 2
+    assert cli.main([*resume, "--data", str(other)]) == 2
+    assert cli.main([*resume, "--data", "../a/d.safetensors"]) == 0
+    assert weights_digest(run) == weights_digest(ref)
+    stored = (run / "config.yaml").read_text()
+    assert "../a/d.safetensors" in stored  # the next resume from here needs no --data
+
+
+def test_the_lines_of_a_resume_that_cannot_find_its_data(data, tmp_path, monkeypatch, capsys):
+    run = tmp_path / "run"
+    monkeypatch.chdir(data.parent)
+    argv = ["train", "--data", data.name, "--run-dir", str(run), "--epochs", "1", "--no-progress"]
+    assert cli.main([*argv, "--set", f"model.encoder_layers={TINY['encoder_layers']}"]) == 0
+    monkeypatch.chdir(tmp_path)
+    capsys.readouterr()
+    assert cli.main(["train", "--run-dir", str(run), "--resume", "--epochs", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--data PATH" in err and f"from {tmp_path}" in err, err
+    wrong = tmp_path / "wrong.safetensors"
+    save_dataset(wrong, generate_dataset(12, seed=2, progress=False))
+    assert cli.main(["train", "--run-dir", str(run), "--resume", "--data", str(wrong)]) == 2
+    err = capsys.readouterr().err
+    assert "is not the one the run trained on" in err and err.count("\n") == 1, err
+    # only --data: the configuration is still the stored one's
+    assert cli.main(["train", "--run-dir", str(run), "--resume", "--seed", "3"]) == 2
+    assert "--seed cannot be used" in capsys.readouterr().err
+
+
+def test_sigterm_stops_a_training_in_one_line_that_says_how_to_resume(data, tmp_path):
+    """SIGTERM (kill, a batch scheduler's time limit) ended a training on the spot without
+    a word (exit status -15). It now stops it as Ctrl-C does: one line, exit status 143,
+    no temporary left, the epochs kept and the command that resumes them."""
+    run = tmp_path / "run"
+    argv = [sys.executable, "-m", "img2dmp.cli", "train", "--data", str(data), "--run-dir"]
+    argv += [str(run), "--epochs", "500", "--no-progress", "--set", "threads=1"]
+    argv += [f"model.encoder_layers={TINY['encoder_layers']}"]
+    env = dict(os.environ, PYTHONPATH=SRC)
+    proc = subprocess.Popen(
+        argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    metrics, deadline = run / "metrics.csv", time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if metrics.is_file() and len(metrics.read_text().splitlines()) >= 2:  # an epoch done
+            proc.send_signal(signal.SIGTERM)
+            break
+        time.sleep(0.01)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    last = err.strip().splitlines()[-1]
+    assert "Traceback" not in err
+    saved = json.loads((run / "checkpoints" / "last.json").read_text())["epoch"] + 1
+    assert last == (
+        f"img2dmp train: terminated; {saved} of 500 epochs are saved in "
+        f"{run / 'checkpoints' / 'last.safetensors'}; 'img2dmp train --run-dir {run} --resume' "
+        "continues the run"
+    )
+    assert not [p for p in run.rglob("*") if p.name.endswith(".tmp")]
+    assert cli.main(["train", "--run-dir", str(run), "--resume", "--epochs", str(saved + 1)]) == 0
+
+
+def test_an_interrupt_before_the_first_epoch_says_nothing_is_saved(tmp_path):
+    from argparse import Namespace
+
+    from img2dmp.commands.train import saved_epochs
+
+    args = Namespace(run_dir=str(tmp_path / "run"), resume=False)
+    assert (
+        saved_epochs(args, time.time())
+        == "no epoch of this run finished, so nothing of it is saved"
+    )
