@@ -304,3 +304,95 @@ def test_a_stroke_model_flags_a_page_read_as_one_character():
     model = load_model("omniglot-strokes", refine=0)
     assert "several_characters" in model.predict(samples / "letters_page.png").flags
     assert "several_characters" not in model.predict(samples / "character_f.png").flags
+
+
+TILT_LINES = [[("1", 30), ("7", 95), ("0", 160), ("5", 225)],
+              [("7", 40), ("1", 110), ("0", 175)],
+              [("5", 30), ("0", 100), ("7", 165), ("1", 230)]]  # fmt: skip
+
+
+def _askew(angle_deg, lines=TILT_LINES, size=(340, 300), rules=False):
+    """A page of ``lines`` photographed turned by ``angle_deg`` (counter-clockwise as
+    seen), as ``uint8 [H, W, 3]``: plain paper on a grey desk (150), or (``rules``) ruled
+    paper filling the frame; and the true characters' centres moved as the page was."""
+    ink, boxes = page(lines, size=size)
+    paper = ruled(size, 33.0) if rules else np.ones((*size, 3), np.float32) * 0.96
+    rgb = on_paper(ink, paper, colour=(0.1, 0.15, 0.6))
+    im = Image.fromarray((np.clip(rgb, 0, 1) * 255).astype(np.uint8)).convert("RGBA")
+    turned = im.rotate(angle_deg, resample=Image.Resampling.BICUBIC, expand=not rules,
+                       fillcolor=(245, 244, 237, 255))  # fmt: skip
+    pad = 0 if rules else 30
+    desk = Image.new("RGB", (turned.width + 2 * pad, turned.height + 2 * pad), (150, 150, 150))
+    desk.paste(turned, (pad, pad), turned)
+    a = np.radians(angle_deg)
+    centres = []
+    for x0, y0, x1, y1 in boxes:
+        dx, dy = (x0 + x1) / 2 - size[1] / 2, (y0 + y1) / 2 - size[0] / 2
+        centres.append((desk.width / 2 + np.cos(a) * dx + np.sin(a) * dy,
+                        desk.height / 2 - np.sin(a) * dx + np.cos(a) * dy))  # fmt: skip
+    return np.asarray(desk), centres
+
+
+@pytest.mark.parametrize(("angle", "rules"), [(-14.0, False), (20.0, False), (-12.0, True)])
+def test_a_page_photographed_askew_is_turned_level_and_read_line_by_line(angle, rules):
+    """Taken 12-20 degrees askew, the page's lines were broken (its lines followed
+    within 6 degrees only): it is now turned level (ruled paper's rules removed there),
+    and every character found alone in its line, its box in the photo's pixels around it."""
+    from img2dmp.page import segment_page
+
+    photo, centres = _askew(angle, size=(420, 380), rules=True) if rules else _askew(angle)
+    seg = segment_page(photo)
+    assert abs(seg.turn_deg + angle) < 1.5, seg.turn_deg  # lines rising to the right: < 0
+    assert [len(idx) for idx in seg.layout.lines] == [len(line) for line in TILT_LINES]
+    boxes = [seg.box_in_image(c) for c in seg.layout.characters]
+    for (x, y), (x0, y0, x1, y1) in zip(centres, boxes, strict=True):  # reading order
+        assert x0 < x < x1 and y0 < y < y1, ((x, y), (x0, y0, x1, y1))
+
+
+def test_a_page_nearly_level_or_of_few_characters_is_read_as_it_stands():
+    from img2dmp.page import segment_page
+
+    seg = segment_page(_askew(4.0)[0])
+    assert seg.turn_deg == 0.0 and np.array_equal(seg.turn, np.eye(3))
+    assert [len(idx) for idx in seg.layout.lines] == [len(line) for line in TILT_LINES]
+    few = segment_page(_askew(20.0, lines=[[("1", 60), ("0", 150)]])[0])
+    assert few.turn_deg == 0.0 and len(few.layout.characters) == 2
+
+
+def test_a_page_turned_level_is_predicted_where_its_ink_stands(tmp_path):
+    """The map from the model's input to the photo goes through the turn: each
+    character's path lies on its own ink in the photo, and the document says the angle."""
+    photo, centres = _askew(-14.0)
+    Image.fromarray(photo).save(tmp_path / "askew.png")
+    result = load_model("digits-real").predict_page(tmp_path / "askew.png")  # refined as shipped
+    assert len(result.characters) == len(centres)
+    for c, (x, y) in zip(result.characters, centres, strict=True):
+        xy = c.prediction.path_image[0][:, :2]
+        assert np.hypot(*(xy.mean(axis=0) - (x, y))) < 15.0
+        assert c.prediction.fit["path_on_ink"] > 0.85, c.prediction.fit
+    doc = json.loads(result.to_json())
+    assert abs(doc["turned_deg"] - 14.0) < 1.5 and abs(doc["writing_angle_deg"] - 14.0) < 1.5
+
+
+def test_explain_draws_a_large_photo_s_boxes_around_its_characters(tmp_path, run, monkeypatch):
+    """``--explain`` on a photo read reduced (over 2 MP) drew the boxes in the reduced
+    pixels divided by the reduction once more: a 2 x 2 reduction put them at a quarter
+    of the page. They are the photo's boxes brought to the pixels of the steps."""
+    import img2dmp.data.plotting as plotting
+
+    boxes = _photo(tmp_path / "small.png")
+    Image.open(tmp_path / "small.png").resize((2080, 1200)).save(tmp_path / "p.png")
+    drawn = {}
+
+    def capture(path, found, boxes=None, title=""):
+        drawn["shape"], drawn["boxes"] = found.mask.shape, boxes
+        return Path(path)
+
+    monkeypatch.setattr(plotting, "paper_steps_figure", capture)
+    out = tmp_path / "out"
+    assert main(["predict", "--model", str(run), str(tmp_path / "p.png"), "--page",
+                 "--out", str(out), "--explain"]) == 0  # fmt: skip
+    assert drawn["shape"] == (600, 1040)  # 2.5 MP read 2 x 2 reduced
+    assert len(drawn["boxes"]) == len(boxes)
+    for got, (x0, y0, x1, y1) in zip(drawn["boxes"], boxes, strict=True):  # small: 1/2 of it
+        assert _close(got, (x0 * 2, y0 * 2, x1 * 2, y1 * 2), tol=6.0), (got, (x0, y0, x1, y1))

@@ -129,7 +129,9 @@ def _check_options(args: argparse.Namespace) -> None:
                          "(NAME_page.png)")  # fmt: skip
 
 
-def _explain(args, path, layout_boxes=None) -> Path:
+def _explain(args, path, photo_boxes=None) -> Path:
+    """``NAME_explain.png``: the paper steps of ``path`` as read, with ``photo_boxes``
+    (the characters' boxes in the photo's own pixels) drawn on them."""
     from ..data.images import paper_steps
     from ..data.plotting import paper_steps_figure
     from ..page import PAGE_WORK_PIXELS
@@ -142,8 +144,8 @@ def _explain(args, path, layout_boxes=None) -> Path:
     if found is None:
         raise ValueError(f"{path}: nothing stands out from the paper: no steps to draw")
     boxes = None
-    if layout_boxes is not None:
-        boxes = [[v / reduction for v in box] for box in layout_boxes]
+    if photo_boxes is not None:  # in the pixels of the steps (the photo as read)
+        boxes = [[v / reduction for v in box] for box in photo_boxes]
     return paper_steps_figure(out, found, boxes, title=f"{path}: from the photo to the ink")
 
 
@@ -172,7 +174,7 @@ def _run_pages(args, predictor) -> int:
             continue
         files = page.save(args.out, Path(path).stem)
         if args.explain:
-            files.append(_explain(args, path, [c.character.box for c in page.characters]))
+            files.append(_explain(args, path, [c.box_image for c in page.characters]))
         strokes = [getattr(c.prediction, "n_strokes", None) for c in page.characters]
         n = "" if None in strokes or not strokes else f" ({sum(strokes)} strokes)"
         print(f"{path}: {len(page.characters)} characters{n} in {len(page.lines)} lines, "

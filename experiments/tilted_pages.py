@@ -1,0 +1,118 @@
+"""A page photographed askew: are its characters found, in the right lines, at any tilt?
+
+The two photos of ``--photos`` (``../shared/data/photos``: white paper with 14 digits in
+two lines, yellow paper with 64 in three and two marks at its corner) are turned by each
+angle of ``--angles`` (degrees, counter-clockwise as the eye sees it) about their centre
+and put on a desk as a phone sees a sheet lying askew (:func:`sheet_on_desk._paste`: a
+grey desk with grain, 110, 56 px or more around the sheet; and, for ``--light``, a light
+grey one, 240, lighter than the paper). Each image is read by
+:func:`img2dmp.page.segment_page` (``predict --page``'s steps without a network):
+
+- *matched* / *extra*: as in ``sheet_on_desk.py``, the boxes against those found on the
+  photo as shipped, moved as the photo was turned (a reference centre in exactly one
+  box that holds no other; a box that holds none), in the pixels of the page as read
+  (turned level when it was: there a tilted character's box holds none of its
+  neighbours);
+- *miscounted*: the characters found per line against the digits the photo's
+  ``photos.json`` writes out per line (:func:`page_reading.miscounted`: characters too
+  many or too few, lines aligned in order); a line broken in two, or two lines taken as
+  one, count here;
+- *turned*: the angle :func:`segment_page` turned the page by (0: read as it stands).
+
+``--model NAME`` also reads every image with that model as ``predict --page`` does and
+counts the characters flagged (any flag).
+
+    python experiments/tilted_pages.py --photos ../shared/data/photos [--model digits-real]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from page_reading import miscounted
+from sheet_on_desk import SEED, _desk, _paste, score, shipped_photos
+
+ANGLES = (-25, -20, -15, -10, -8, -6, -3, 0, 3, 6, 8, 10, 15, 20, 25)
+
+
+def true_lines(folder: Path) -> dict[str, list[int]]:
+    """Digits per line of each photo of ``photos.json``."""
+    doc = json.loads((Path(folder) / "photos.json").read_text())
+    return {p["file"]: [len(line.replace(" ", "")) for line in p["lines"]] for p in doc["photos"]}
+
+
+def _as_read(seg, x: float, y: float) -> tuple[float, float]:
+    """A photo point (pixel edges) in the pixels of the page as read (turned level when
+    it was): the boxes there are level, so a tilted character's box holds no neighbour."""
+    turn = getattr(seg, "turn", np.eye(3))
+    u, v, _ = turn @ (x / seg.reduction, y / seg.reduction, 1.0)
+    return u, v
+
+
+def main(argv=None) -> int:
+    from img2dmp.page import segment_page
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--photos", default="../shared/data/photos")
+    p.add_argument("--angles", default=",".join(str(a) for a in ANGLES))
+    p.add_argument("--light", action="store_true", help="also on a light desk (240)")
+    p.add_argument("--model", default=None, help="also read with this model; count flags")
+    args = p.parse_args(argv)
+    angles = [float(a) for a in args.angles.split(",")]
+    model = None
+    if args.model:
+        from img2dmp import load_model
+
+        model = load_model(args.model)
+    truth = true_lines(Path(args.photos))
+    rng = np.random.default_rng(SEED)
+    rows, start = [], time.time()
+    desks = [("grey 110", (110, 110, 110), 3.0)] + ([("light 240", (240,) * 3, 0.0)]
+                                                    if args.light else [])  # fmt: skip
+    for file, photo, ref in shipped_photos(args.photos):
+        w, h = photo.size
+        for desk_name, colour, grain in desks:
+            for angle in angles:
+                frame = photo.rotate(angle, expand=True).size
+                im, move = _paste(photo, _desk((frame[1] + 112, frame[0] + 112), colour, rng,
+                                               grain), angle)  # fmt: skip
+                seg = segment_page(im)
+                boxes = [c.box for c in seg.layout.characters]
+                matched, extra = score(boxes, [_as_read(seg, *move(x, y)) for x, y in ref])
+                lines = [len(idx) for idx in seg.layout.lines]
+                turned = getattr(seg, "turn_deg", 0.0)  # 0 before pages were turned level
+                row = [file.split("_")[1], desk_name, f"{angle:g}", f"{turned:.1f}", len(ref),
+                       len(boxes), matched, extra, miscounted(truth[file], lines)]  # fmt: skip
+                if model is not None:
+                    page = model.predict_page(im)
+                    row.append(len(page.flagged))
+                rows.append(row)
+    head = ["photo", "desk", "angle", "turned", "reference", "boxes", "matched", "extra",
+            "miscounted"] + (["flagged"] if model is not None else [])  # fmt: skip
+    print("| " + " | ".join(head) + " |")
+    print("|" + "---|" * len(head))
+    for r in rows:
+        print("| " + " | ".join(str(v) for v in r) + " |")
+    tilted = [r for r in rows if abs(float(r[2])) > 6]
+    for name, part in (("all", rows), ("tilted more than 6 degrees", tilted)):
+        if not part:
+            continue
+        text = (
+            f"{name}: matched {sum(r[6] for r in part)} of {sum(r[4] for r in part)}, "
+            f"extra {sum(r[7] for r in part)}, miscounted {sum(r[8] for r in part)}"
+        )
+        if model is not None:
+            text += f", flagged {sum(r[9] for r in part)} of {sum(r[5] for r in part)}"
+        print(f"{text} ({len(part)} images)")
+    print(f"({time.time() - start:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
