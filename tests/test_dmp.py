@@ -265,6 +265,22 @@ def test_flat_vector_order_and_round_trip():
     np.testing.assert_array_equal(DMPParams.from_dict(p.to_dict()).to_vector(), v)
 
 
+def test_a_batch_of_dmps_has_a_length_and_iterates_over_its_first_dimension():
+    p = _random_params(np.random.default_rng(3), 3, DMPConfig())  # batch [3]
+    assert len(p) == 3 and bool(p)
+    parts = list(p)
+    assert [q.batch_shape for q in parts] == [()] * 3
+    for i, q in enumerate(parts):
+        np.testing.assert_array_equal(q.to_vector(), p[i].to_vector())
+    assert len(p.to_torch()) == 3 and len(p[None]) == 1
+    one = p[0]
+    assert bool(one)  # a condition on parameters never asks their length
+    with pytest.raises(TypeError, match=r"len\(\) of one DMP \(batch shape \(\)\)"):
+        len(one)
+    with pytest.raises(TypeError, match="not a batch"):
+        list(one)  # was [] (its first index failed): silently nothing
+
+
 def test_bad_input_raises_clear_errors():
     cfg = DMPConfig()
     p = _random_params(np.random.default_rng(9), 1, cfg)[0]

@@ -428,6 +428,20 @@ class DMPParams:
         """Index the batch dimensions: ``params[3]``, ``params[:10]``."""
         return self._like(self.w[idx], self.tau[idx], self.g[idx], self.y0[idx])
 
+    def __len__(self) -> int:
+        """The first batch dimension (``len(pred.params)``: K); ``TypeError`` for one DMP."""
+        shape = self.batch_shape
+        if not shape:
+            raise TypeError("len() of one DMP (batch shape ()): it is not a batch")
+        return int(shape[0])
+
+    def __iter__(self):
+        """The DMPs along the first batch dimension (one DMP is not iterable)."""
+        return (self[i] for i in range(len(self)))
+
+    def __bool__(self) -> bool:
+        return True  # parameters are never "empty" in a condition (not len() == 0)
+
     def _like(self, w, tau, g, y0) -> DMPParams:
         """New fields under these parameters' constants."""
         return DMPParams(w, tau, g, y0, config=self.config)
