@@ -168,3 +168,28 @@ def test_an_interrupt_before_the_first_epoch_says_nothing_is_saved(tmp_path):
         saved_epochs(args, time.time())
         == "no epoch of this run finished, so nothing of it is saved"
     )
+
+
+def test_the_summary_counts_what_this_command_trained_and_numbers_epochs_from_one(
+    data, tmp_path, capsys
+):
+    """The summary said the best epoch counted from 0 ("epoch 5") under progress lines
+    counted from 1 ("epoch 6/6"); a resumed run said "6 epochs" when it trained one or
+    none; and it forgot the run's reading settings (those of the defaults instead)."""
+    run = tmp_path / "run"
+    argv = ["train", "--data", str(data), "--run-dir", str(run), "--epochs", "2"]
+    argv += ["--set", f"model.encoder_layers={TINY['encoder_layers']}", "reading.refine=7"]
+    assert cli.main(argv) == 0
+    out = capsys.readouterr().out
+    rows = (run / "metrics.csv").read_text().splitlines()[1:]
+    best = min(rows, key=lambda r: float(r.split(",")[5]))  # val_error_px
+    assert out.startswith("2 epochs in ") and f"(epoch {int(best.split(',')[0]) + 1})" in out
+    assert "--refine 7" in out
+    resume = ["train", "--run-dir", str(run), "--resume", "--no-progress"]
+    assert cli.main(resume) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("no epoch to train: the run has done its 2 epochs"), out
+    assert "--refine 7" in out
+    assert cli.main([*resume, "--epochs", "4"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("epochs 3-4 of 4 in ") and "--refine 7" in out, out

@@ -169,6 +169,50 @@ def saved_epochs(args: argparse.Namespace, started: float) -> str:
     return f"{done} of {total} epochs are saved in {last}; '{resume}' continues the run"
 
 
+def _done_before(args: argparse.Namespace) -> int:
+    """The epochs a resumed run had done (0 for a new run, or when its ``last`` checkpoint
+    cannot be read: the training names what is wrong with it)."""
+    from ..checkpoint import CHECKPOINT_DIR, read_checkpoint_meta
+
+    if not args.resume:
+        return 0
+    try:
+        return (
+            int(
+                read_checkpoint_meta(Path(args.run_dir) / CHECKPOINT_DIR / "last.safetensors")[
+                    "epoch"
+                ]
+            )
+            + 1
+        )
+    except (OSError, ValueError, KeyError, TypeError):
+        return 0
+
+
+def _reading(args: argparse.Namespace, cfg):
+    """The run's reading settings: a resumed run's own (its ``config.yaml``, written as it
+    resumed), not the command line's defaults."""
+    if not args.resume:
+        return cfg.reading
+    from ..train import load_config
+
+    try:
+        return load_config(Path(args.run_dir) / "config.yaml", []).reading
+    except (OSError, ValueError):
+        return cfg.reading
+
+
+def _epochs_run(before: int, after: int, wall_s: float) -> str:
+    """What this command trained, numbered as the progress lines are (from 1)."""
+    if after <= before:
+        return (f"no epoch to train: the run has done its {after} epochs (--epochs N trains it "
+                f"on to N)")  # fmt: skip
+    if before:
+        span = f"epoch {after}" if after == before + 1 else f"epochs {before + 1}-{after}"
+        return f"{span} of {after} in {wall_s:.1f} s"
+    return f"{after} epoch{'s' if after != 1 else ''} in {wall_s:.1f} s"
+
+
 def run(args: argparse.Namespace) -> int:
     check_resume(args)
     _args.check_device(args.device)
@@ -187,7 +231,7 @@ def run(args: argparse.Namespace) -> int:
     check_run_outputs(args)
     cfg = load_config(args.config, overrides(args))
     force = args.force or args.overwrite
-    started = time.time()
+    started, before = time.time(), _done_before(args)
     try:
         res = train(
             cfg,
@@ -202,12 +246,12 @@ def run(args: argparse.Namespace) -> int:
         e.args = (saved_epochs(args, started),)
         raise
     print(
-        f"{res.epochs_run} epoch{'s' if res.epochs_run != 1 else ''} in {res.wall_s:.1f} s; "
-        f"best validation {ERROR_MEASURES[res.error_measure]} {res.best_val_error_px:.4f} px "
-        f"(epoch {res.best_epoch}{STROKE_SHAPE if res.error_measure == 'stroke-shape' else ''}); "
+        f"{_epochs_run(before, res.epochs_run, res.wall_s)}; best validation "
+        f"{ERROR_MEASURES[res.error_measure]} {res.best_val_error_px:.4f} px (epoch "
+        f"{res.best_epoch + 1}{STROKE_SHAPE if res.error_measure == 'stroke-shape' else ''}); "
         f"run in {res.run_dir}"
     )
-    settings = {k: v for k, v in cfg.reading.recommended().items() if v}
+    settings = {k: v for k, v in _reading(args, cfg).recommended().items() if v}
     if settings:
         flags = " ".join(f"--{k.replace('_', '-')} {v}" for k, v in settings.items())
         print(f"predict, write, evaluate and serve read it with {flags}, as its configuration's "
