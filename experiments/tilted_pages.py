@@ -19,6 +19,9 @@ grey one, 240, lighter than the paper). Each image is read by
   one, count here;
 - *turned*: the angle :func:`segment_page` turned the page by (0: read as it stands).
 
+``--ruled PITCH`` prints pale blue rules (1 px, ``PITCH`` px apart) under the ink first,
+as ruled paper is (``lines_on_photos.py``'s "under").
+
 ``--model NAME`` also reads every image with that model as ``predict --page`` does and
 counts the characters flagged (any flag).
 
@@ -35,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lines_on_photos import BLUE, _coverage, _lines
 from page_reading import miscounted
 from sheet_on_desk import SEED, _desk, _paste, score, shipped_photos
 
@@ -63,6 +67,8 @@ def main(argv=None) -> int:
     p.add_argument("--angles", default=",".join(str(a) for a in ANGLES))
     p.add_argument("--light", action="store_true", help="also on a light desk (240)")
     p.add_argument("--model", default=None, help="also read with this model; count flags")
+    p.add_argument("--ruled", type=float, default=0.0, metavar="PITCH",
+                   help="print blue rules PITCH px apart under the ink first (ruled paper)")
     args = p.parse_args(argv)
     angles = [float(a) for a in args.angles.split(",")]
     model = None
@@ -76,7 +82,12 @@ def main(argv=None) -> int:
     desks = [("grey 110", (110, 110, 110), 3.0)] + ([("light 240", (240,) * 3, 0.0)]
                                                     if args.light else [])  # fmt: skip
     for file, photo, ref in shipped_photos(args.photos):
-        w, h = photo.size
+        if args.ruled:
+            from PIL import Image
+
+            rgb = np.asarray(photo, np.float64)
+            cover = _coverage(rgb.shape[:2], args.ruled, 1.0, 0.0, 3.0, 0)
+            photo = Image.fromarray(np.clip(_lines(rgb, cover, BLUE, True), 0, 255).astype(np.uint8))
         for desk_name, colour, grain in desks:
             for angle in angles:
                 frame = photo.rotate(angle, expand=True).size
