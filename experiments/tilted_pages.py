@@ -87,7 +87,8 @@ def main(argv=None) -> int:
 
             rgb = np.asarray(photo, np.float64)
             cover = _coverage(rgb.shape[:2], args.ruled, 1.0, 0.0, 3.0, 0)
-            photo = Image.fromarray(np.clip(_lines(rgb, cover, BLUE, True), 0, 255).astype(np.uint8))
+            ruled = np.clip(_lines(rgb, cover, BLUE, True), 0, 255)
+            photo = Image.fromarray(ruled.astype(np.uint8))
         for desk_name, colour, grain in desks:
             for angle in angles:
                 frame = photo.rotate(angle, expand=True).size
