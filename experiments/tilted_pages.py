@@ -67,8 +67,13 @@ def main(argv=None) -> int:
     p.add_argument("--angles", default=",".join(str(a) for a in ANGLES))
     p.add_argument("--light", action="store_true", help="also on a light desk (240)")
     p.add_argument("--model", default=None, help="also read with this model; count flags")
-    p.add_argument("--ruled", type=float, default=0.0, metavar="PITCH",
-                   help="print blue rules PITCH px apart under the ink first (ruled paper)")
+    p.add_argument(
+        "--ruled",
+        type=float,
+        default=0.0,
+        metavar="PITCH",
+        help="print blue rules PITCH px apart under the ink first (ruled paper)",
+    )
     args = p.parse_args(argv)
     angles = [float(a) for a in args.angles.split(",")]
     model = None
