@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -359,7 +360,7 @@ def test_a_page_nearly_level_or_of_few_characters_is_read_as_it_stands():
     assert few.turn_deg == 0.0 and len(few.layout.characters) == 2
 
 
-def test_a_page_turned_level_is_predicted_where_its_ink_stands(tmp_path):
+def test_a_page_turned_level_is_predicted_where_its_ink_stands(tmp_path, capsys):
     """The map from the model's input to the photo goes through the turn: each
     character's path lies on its own ink in the photo, and the document says the angle."""
     photo, centres = _askew(-14.0)
@@ -372,6 +373,10 @@ def test_a_page_turned_level_is_predicted_where_its_ink_stands(tmp_path):
         assert c.prediction.fit["path_on_ink"] > 0.85, c.prediction.fit
     doc = json.loads(result.to_json())
     assert abs(doc["turned_deg"] - 14.0) < 1.5 and abs(doc["writing_angle_deg"] - 14.0) < 1.5
+    # the command says so (the photo turned clockwise: its lines fall to the right)
+    assert main(["predict", str(tmp_path / "askew.png"), "--page", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"in 3 lines \(turned 1[345]\.\d degrees counter-clockwise to level", out), out
 
 
 def test_explain_draws_a_large_photo_s_boxes_around_its_characters(tmp_path, run, monkeypatch):

@@ -177,7 +177,10 @@ def _run_pages(args, predictor) -> int:
             files.append(_explain(args, path, [c.box_image for c in page.characters]))
         strokes = [getattr(c.prediction, "n_strokes", None) for c in page.characters]
         n = "" if None in strokes or not strokes else f" ({sum(strokes)} strokes)"
-        print(f"{path}: {len(page.characters)} characters{n} in {len(page.lines)} lines, "
+        d = page.turn_deg  # < 0: lines rising to the right, turned clockwise to lie level
+        way = "clockwise" if d < 0 else "counter-clockwise"
+        turned = f" (turned {abs(d):.1f} degrees {way} to level them)" if d else ""
+        print(f"{path}: {len(page.characters)} characters{n} in {len(page.lines)} lines{turned}, "
               f"{len(flagged)} flagged -> " + ", ".join(str(f) for f in files))  # fmt: skip
     return 0
 
