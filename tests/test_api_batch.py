@@ -39,11 +39,12 @@ def grey() -> np.ndarray:
 
 
 def _weights_close(a: img2dmp.DMPParams, b: img2dmp.DMPParams, what: str) -> None:
-    """Equal to a batch's float32 rounding: every number within 1e-5 of its row's largest
-    weight (weights reach thousands, tau about 1)."""
+    """Equal to a batch's float32 rounding, which refinement may carry further (docs/API.md):
+    every number within 1e-4 of its row's largest weight (weights reach thousands, tau
+    about 1); another image's DMP would be off by far more."""
     va, vb = a.to_vector(), b.to_vector()
     scale = np.abs(vb).max(axis=-1, keepdims=True)
-    assert np.all(np.abs(va - vb) <= 1e-5 * scale), what
+    assert np.all(np.abs(va - vb) <= 1e-4 * scale), what
 
 
 def test_a_batch_gives_each_image_what_predict_gives_it(model, grey):
