@@ -1014,8 +1014,8 @@ class Predictor(Generic[PredictionT]):
         The images are prepared one by one, then read ``chunk`` at a time: one network
         pass and one refinement over the whole part instead of one per image. The
         numbers are those of :meth:`predict` to float32 rounding, as every batch's (a
-        few 1e-6 of the weights; refinement can carry it further where two points of a
-        path are equally near an ink pixel: docs/API.md), not bit for bit.
+        few 1e-6 of the weights; refinement can carry it further on a few images:
+        docs/API.md), not bit for bit.
 
         Parameters
         ----------
