@@ -447,6 +447,8 @@ def test_epochs_below_one_are_refused(command, value, data, tmp_path, capsys):
         ("optim.lr=-1", "optim.lr must be a finite number > 0, got -1"),
         ("optim.lr=.inf", "optim.lr must be a finite number, got inf"),
         ("seed=-1", "seed must be >= 0, got -1"),
+        # 0 is a setting too (one DMP per drawing, the default): it said "from 1 to 32"
+        ("strokes.slots=-1", "or 0 (one DMP per drawing), got -1"),
     ],
 )
 def test_a_bad_setting_is_one_line_naming_field_and_value(setting, named, data, tmp_path, capsys):

@@ -315,8 +315,14 @@ class StrokesConfig:
         w = check_positive("strokes.count_class_weight", self.count_class_weight, allow_zero=True)
         if w > 1:
             raise ConfigError(f"strokes.count_class_weight must be a number from 0 to 1, got {w!r}")
-        from ..nn.strokes import StrokeLayout
+        from ..nn.strokes import MAX_SLOTS, StrokeLayout
 
+        s = self.slots
+        if isinstance(s, bool) or not isinstance(s, int) or not 0 <= s <= MAX_SLOTS:
+            raise ConfigError(
+                f"strokes.slots must be an integer from 1 to {MAX_SLOTS} (a stroke model: the "
+                f"most strokes a drawing has), or 0 (one DMP per drawing), got {s!r}"
+            )
         try:  # the other fields are checked also when the slots are off (0)
             StrokeLayout(1 if self.slots == 0 else self.slots, self.n_kernels, self.n_points,
                          self.matching)  # fmt: skip
