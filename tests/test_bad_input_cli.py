@@ -374,6 +374,29 @@ def test_force_replaces_the_output(command, tmp_path, data, model, images, dmp_f
     assert not _temporaries(tmp_path)
 
 
+def test_evaluate_never_replaces_its_worst_figure_without_force(tmp_path, data, model, capsys):
+    """evaluate checked evaluation.json, .txt and examples.png, then also wrote worst.png:
+    an earlier worst.png was replaced without --force, and the line "written:" left it out
+    (and named examples.png with --figures 0, which writes none)."""
+    out = tmp_path / "E"
+    out.mkdir()
+    (out / "worst.png").write_bytes(b"an earlier figure")
+    argv = ["evaluate", str(model), str(data), "--out", str(out), "--no-progress"]
+    line = _fails(capsys, argv)
+    assert "--force" in line and str(out / "worst.png") in line
+    assert (out / "worst.png").read_bytes() == b"an earlier figure"
+    assert cli.main([*argv, "--force"]) == 0
+    written = capsys.readouterr().out.strip().splitlines()[-1]
+    assert written == f"written: {out / 'evaluation.json'}, evaluation.txt, examples.png, worst.png"
+    assert cli.main([*argv[:-3], "--out", str(tmp_path / "F"), "--figures", "0"]) == 0
+    written = capsys.readouterr().out.strip().splitlines()[-1]
+    assert written == f"written: {tmp_path / 'F' / 'evaluation.json'}, evaluation.txt"
+    assert sorted(p.name for p in (tmp_path / "F").iterdir()) == [
+        "evaluation.json",
+        "evaluation.txt",
+    ]
+
+
 @pytest.mark.parametrize("command", WRITERS)
 def test_every_writing_command_documents_the_rule(command, capsys):
     assert cli.main([command, "--help"]) == 0

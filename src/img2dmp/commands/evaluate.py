@@ -8,9 +8,9 @@ demonstration's own share (the human reference), the median ratio of enclosed ar
 network / demonstration for the closed digits 0, 6, 8, 9, and the distance between the
 start points. A model with several hypotheses is judged on its most probable one, with a
 best-of-K line. Writes evaluation.json (every statistic and the per-sample values),
-evaluation.txt and examples.png (image, demonstrated path in blue, DMP path in red, like
-Fig. 4 of the paper) to --out; those files, if already there, are replaced only with
---force (checked before the evaluation starts).
+evaluation.txt, examples.png (image, demonstrated path in blue, DMP path in red, like
+Fig. 4 of the paper) and worst.png (the 12 largest path errors) to --out; those files, if
+already there, are replaced only with --force (checked before the evaluation starts).
 
   img2dmp evaluate --model runs/paper --data digits.safetensors --digits 2,3
   img2dmp evaluate --model digits-real --data runs/real/data.safetensors --split test
@@ -64,7 +64,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="N",
         type=_args.int_at_least(0),
         default=16,
-        help="samples drawn in examples.png (0 = no picture)",
+        help="samples drawn in examples.png, at most 12 of them in worst.png (0 = no picture)",
     )
     _args.add_refine(p)
     _args.add_count_views(p)
@@ -106,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
     if Path(data).exists():  # a missing one the library names itself
         _args.check_inputs([data], "data set")
     _args.check_output_dir(out, "--out")
-    names = ["evaluation.json", "evaluation.txt"] + (["examples.png"] if args.figures else [])
+    # every file it writes (worst.png was replaced without --force, and not said)
+    names = ["evaluation.json", "evaluation.txt"] + (FIGURES if args.figures else [])
     inputs = [("data set", data), *_args.model_inputs(model)]
     _args.check_outputs([(Path(out) / n, None) for n in names], args.force, inputs)
     _args.check_device(args.device)
@@ -132,8 +133,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"note: the model trained on some of these samples ({seen}): not a test")
     if not res.get("framing", {}).get("same", True):
         print(framing_note(res["framing"], data))
-    print(f"written: {Path(out) / 'evaluation.json'}, evaluation.txt, examples.png")
+    print(f"written: {Path(out) / names[0]}, {', '.join(names[1:])}")
     return 0
+
+
+#: The figures evaluate writes beside its tables (--figures > 0): Fig. 4 and the worst.
+FIGURES = ["examples.png", "worst.png"]
 
 
 def framing_note(framing: dict, data: str) -> str:
