@@ -193,3 +193,33 @@ def test_the_summary_counts_what_this_command_trained_and_numbers_epochs_from_on
     assert cli.main([*resume, "--epochs", "4"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("epochs 3-4 of 4 in ") and "--refine 7" in out, out
+
+
+def test_a_full_disk_in_mid_run_says_which_epochs_are_saved(data, tmp_path, monkeypatch, capsys):
+    """A disk that fills during a run ended it with the file and "No space left on
+    device" only; the line now adds the epochs kept and the command that resumes them."""
+    import errno
+
+    from img2dmp.training import state
+
+    real, calls = state.save_checkpoint, {"last": 0}
+
+    def save(path, *args, **kwargs):
+        if path.name == "last.safetensors":
+            calls["last"] += 1
+            if calls["last"] == 3:
+                raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(state, "save_checkpoint", save)
+    run = tmp_path / "run"
+    argv = ["train", "--data", str(data), "--run-dir", str(run), "--epochs", "5", "--no-progress"]
+    assert cli.main([*argv, "--set", f"model.encoder_layers={TINY['encoder_layers']}"]) == 2
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    last = run / "checkpoints" / "last.safetensors"
+    assert line == (
+        f"img2dmp train: error: {last}: No space left on device; 2 of 5 epochs are saved in "
+        f"{last}; 'img2dmp train --run-dir {run} --resume' continues the run"
+    )
+    monkeypatch.setattr(state, "save_checkpoint", real)  # room again
+    assert cli.main(["train", "--run-dir", str(run), "--resume", "--no-progress"]) == 0

@@ -27,6 +27,7 @@ DMP rollout stay on the CPU); a resumed run may change its device.
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import shlex
 import time
@@ -151,6 +152,10 @@ def check_run_outputs(args: argparse.Namespace) -> None:
     _args.check_outputs(outputs, True, inputs + _args.config_inputs(args))
 
 
+#: Failures to write a file that end a training whose earlier epochs may be saved.
+WRITE_FAILURES = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EIO})
+
+
 def saved_epochs(args: argparse.Namespace, started: float) -> str:
     """What an interrupted run keeps, and how to go on: the epochs its ``last`` checkpoint
     holds (written by this run, or the resumed run's own) and the command that resumes."""
@@ -245,6 +250,10 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt as e:  # Ctrl-C or SIGTERM: the one line says what is kept
         e.args = (saved_epochs(args, started),)
         raise
+    except OSError as e:  # a full disk, a quota: the same, after the file and the reason
+        if e.errno not in WRITE_FAILURES:
+            raise
+        raise OSError(e.errno, f"{e.strerror}; {saved_epochs(args, started)}", e.filename) from None
     print(
         f"{_epochs_run(before, res.epochs_run, res.wall_s)}; best validation "
         f"{ERROR_MEASURES[res.error_measure]} {res.best_val_error_px:.4f} px (epoch "
