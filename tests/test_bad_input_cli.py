@@ -484,6 +484,35 @@ def test_a_bad_setting_is_one_line_naming_field_and_value(setting, named, data, 
 # --- 5. a diverged training --------------------------------------------------------------
 
 
+def test_a_configuration_that_does_not_parse_says_what_and_where(data, tmp_path, capsys):
+    """YAML's errors were cut to their first line, "while parsing a flow sequence",
+    which says neither what is wrong nor where; a folder given as --config was "a folder
+    this command reads" that the run directory lay in."""
+    bad = tmp_path / "mine.yaml"
+    bad.write_text("optim:\n  lr: [1\n")
+    run = tmp_path / "run"
+    line = _fails(
+        capsys, ["train", "--config", str(bad), "--data", str(data), "--run-dir", str(run)]
+    )
+    assert line.endswith(
+        f"config file {bad} cannot be parsed: while parsing a flow sequence (line 2, column 7): "
+        "expected ',' or ']', but got '<stream end>' (line 3, column 1)"
+    )
+    bad.write_text("optim:\n  lr: 0.1\n  epochs 3\n")
+    line = _fails(
+        capsys, ["train", "--config", str(bad), "--data", str(data), "--run-dir", str(run)]
+    )
+    assert "(line 3, column 3): could not find expected ':'" in line
+    line = _fails(capsys, ["train", "--data", str(data), "--run-dir", str(run), "--set", "x.y=[1"])
+    assert "override 'x.y': value cannot be parsed: while parsing a flow sequence" in line
+    assert "(line 1, column 1)" in line
+    line = _fails(
+        capsys, ["train", "--config", str(tmp_path), "--data", str(data), "--run-dir", str(run)]
+    )
+    assert line.endswith(f"config file {tmp_path} is a directory")
+    assert not run.exists()
+
+
 def _diverge_at(monkeypatch, epoch: int) -> None:
     """Make the training cost NaN from ``epoch`` on (through the real loop's handling)."""
     real_epoch, real_step, now = loop.train_epoch, loop.train_step, {"epoch": 0}

@@ -212,6 +212,19 @@ def config_path(path: str | os.PathLike) -> Path:
     return Path(text)
 
 
+def parse_problem(e: Exception) -> str:
+    """A parser's error in one line: for YAML, what is wrong and where (its first line
+    alone, "while parsing a flow sequence", said neither), else the first line."""
+    if isinstance(e, yaml.MarkedYAMLError) and e.problem:
+
+        def at(mark) -> str:
+            return f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
+
+        context = f"{e.context}{at(e.context_mark)}: " if e.context else ""
+        return f"{context}{e.problem}{at(e.problem_mark)}"
+    return str(e).splitlines()[0] if str(e) else type(e).__name__
+
+
 def read_config_file(path: str | os.PathLike) -> dict:
     """A YAML (``.yaml``/``.yml``), TOML (``.toml``) or JSON (``.json``) file as a dict;
     a bare name (``paper``) reads the configuration of that name shipped with img2dmp."""
@@ -247,8 +260,7 @@ def read_config_file(path: str | os.PathLike) -> dict:
         raise ConfigError(f"config file {p} cannot be parsed: nested too deeply") from None
     except (yaml.YAMLError, tomllib.TOMLDecodeError, ValueError) as e:
         # ValueError: the loader's bounds, or Python's refusal of a 5,000-digit number
-        first = str(e).splitlines()[0] if str(e) else type(e).__name__
-        raise ConfigError(f"config file {p} cannot be parsed: {first}") from e
+        raise ConfigError(f"config file {p} cannot be parsed: {parse_problem(e)}") from e
     if not isinstance(d, dict):
         raise ConfigError(f"config file {p} must hold a mapping at the top level")
     return d
@@ -276,8 +288,8 @@ def apply_overrides(d: dict, overrides: list[str] | None) -> dict:
         try:
             node[parts[-1]] = parse_yaml(raw)
         except (yaml.YAMLError, ValueError) as e:
-            first = str(e).splitlines()[0] if str(e) else type(e).__name__
-            raise ConfigError(f"override {show(key)}: value cannot be parsed: {first}") from e
+            problem = parse_problem(e)
+            raise ConfigError(f"override {show(key)}: value cannot be parsed: {problem}") from e
     return d
 
 

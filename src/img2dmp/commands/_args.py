@@ -535,7 +535,8 @@ def config_inputs(args) -> list[tuple[str, Path]]:
     """``--config FILE`` as :func:`check_outputs` ``inputs`` (a shipped one by its name
     is no file of the user's)."""
     config = getattr(args, "config", None)
-    return [("config file", Path(config))] if config and Path(config).exists() else []
+    # a file only: a folder given as --config is named as such by the config reader
+    return [("config file", Path(config))] if config and Path(config).is_file() else []
 
 
 def model_inputs(path, what: str = "model") -> list[tuple[str, Path]]:
