@@ -192,7 +192,7 @@ def test_the_summary_counts_what_this_command_trained_and_numbers_epochs_from_on
     assert "--refine 7" in out
     assert cli.main([*resume, "--epochs", "4"]) == 0
     out = capsys.readouterr().out
-    assert out.startswith("epochs 3-4 of 4 in ") and "--refine 7" in out, out
+    assert out.startswith("epochs 3-4 in ") and " s (4 in all); " in out and "--refine 7" in out
 
 
 def test_a_full_disk_in_mid_run_says_which_epochs_are_saved(data, tmp_path, monkeypatch, capsys):
@@ -223,3 +223,25 @@ def test_a_full_disk_in_mid_run_says_which_epochs_are_saved(data, tmp_path, monk
     )
     monkeypatch.setattr(state, "save_checkpoint", real)  # room again
     assert cli.main(["train", "--run-dir", str(run), "--resume", "--no-progress"]) == 0
+
+
+def test_an_early_stopped_run_counts_every_epoch_it_ran(data, tmp_path, monkeypatch, capsys):
+    """The closing line of the epochs' bar left out the epoch at which training stopped
+    early ("epochs: 4 epochs" after five), and said "1 epochs"."""
+    from img2dmp.training import loop
+
+    errors = iter([5.0, 4.0, 4.5, 4.6])  # patience 1: the third epoch is the last
+    monkeypatch.setattr(loop, "validate", lambda run, epoch, fallback: next(errors))
+    monkeypatch.setenv("IMG2DMP_PROGRESS", "lines")
+    run = tmp_path / "run"
+    argv = ["train", "--data", str(data), "--run-dir", str(run), "--epochs", "10"]
+    argv += ["--set", "optim.patience=1", f"model.encoder_layers={TINY['encoder_layers']}"]
+    assert cli.main(argv) == 0
+    captured = capsys.readouterr()
+    assert "early stop" in captured.err and "\nepochs: 3 epochs in " in captured.err
+    assert captured.out.startswith("3 epochs in ") and "(epoch 2)" in captured.out
+    errors = iter([4.7])
+    assert cli.main(["train", "--run-dir", str(run), "--resume"]) == 0
+    captured = capsys.readouterr()
+    assert "\nepochs: 1 epoch in " in captured.err, captured.err
+    assert captured.out.startswith("epoch 4 in ") and "(4 in all)" in captured.out

@@ -214,7 +214,7 @@ def _epochs_run(before: int, after: int, wall_s: float) -> str:
                 f"on to N)")  # fmt: skip
     if before:
         span = f"epoch {after}" if after == before + 1 else f"epochs {before + 1}-{after}"
-        return f"{span} of {after} in {wall_s:.1f} s"
+        return f"{span} in {wall_s:.1f} s ({after} in all)"
     return f"{after} epoch{'s' if after != 1 else ''} in {wall_s:.1f} s"
 
 

@@ -149,7 +149,7 @@ def fit(run: Run, t_start: float | None = None) -> TrainResult:
         desc="epochs",
         total=cfg.optim.epochs,
         initial=state.next_epoch,
-        unit="epochs",
+        unit="epoch",
         enabled=run.show_progress,
     )
     last_plot = -math.inf
@@ -184,6 +184,7 @@ def fit(run: Run, t_start: float | None = None) -> TrainResult:
         if _stopping(run) and epoch < cfg.optim.epochs - 1:
             if run.rank == 0 and run.show_progress:
                 say(f"early stop: no better validation error for {cfg.optim.patience} epochs")
+            epochs.update(1)  # a bar counts an epoch as the next begins: this one is done
             break
     epochs.close()
     if run.rank == 0:
