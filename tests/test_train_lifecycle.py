@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -151,8 +152,8 @@ def test_sigterm_stops_a_training_in_one_line_that_says_how_to_resume(data, tmp_
     saved = json.loads((run / "checkpoints" / "last.json").read_text())["epoch"] + 1
     assert last == (
         f"img2dmp train: terminated; {saved} of 500 epochs are saved in "
-        f"{run / 'checkpoints' / 'last.safetensors'}; 'img2dmp train --run-dir {run} --resume' "
-        "continues the run"
+        f"{run / 'checkpoints' / 'last.safetensors'}; to continue: img2dmp train --run-dir "
+        f"{shlex.quote(str(run))} --resume"
     )
     assert not [p for p in run.rglob("*") if p.name.endswith(".tmp")]
     assert cli.main(["train", "--run-dir", str(run), "--resume", "--epochs", str(saved + 1)]) == 0
@@ -219,7 +220,7 @@ def test_a_full_disk_in_mid_run_says_which_epochs_are_saved(data, tmp_path, monk
     last = run / "checkpoints" / "last.safetensors"
     assert line == (
         f"img2dmp train: error: {last}: No space left on device; 2 of 5 epochs are saved in "
-        f"{last}; 'img2dmp train --run-dir {run} --resume' continues the run"
+        f"{last}; to continue: img2dmp train --run-dir {shlex.quote(str(run))} --resume"
     )
     monkeypatch.setattr(state, "save_checkpoint", real)  # room again
     assert cli.main(["train", "--run-dir", str(run), "--resume", "--no-progress"]) == 0
@@ -245,3 +246,17 @@ def test_an_early_stopped_run_counts_every_epoch_it_ran(data, tmp_path, monkeypa
     captured = capsys.readouterr()
     assert "\nepochs: 1 epoch in " in captured.err, captured.err
     assert captured.out.startswith("epoch 4 in ") and "(4 in all)" in captured.out
+
+
+def test_the_command_to_continue_is_one_a_shell_takes(data, tmp_path):
+    """A run directory with a space in its name: the command is quoted for a shell."""
+    from argparse import Namespace
+
+    from img2dmp.commands.train import saved_epochs
+
+    run = tmp_path / "my runs" / "a"
+    train(config(data, epochs=1), run)
+    said = saved_epochs(Namespace(run_dir=str(run), resume=True), time.time())
+    assert said.startswith(f"1 of 1 epochs are saved in {run}")
+    command = said.split("; to continue: ")[1]
+    assert shlex.split(command) == ["img2dmp", "train", "--run-dir", str(run), "--resume"]

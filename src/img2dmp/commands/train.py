@@ -171,7 +171,7 @@ def saved_epochs(args: argparse.Namespace, started: float) -> str:
     if not ours:
         return "no epoch of this run finished, so nothing of it is saved"
     resume = shlex.join(["img2dmp", "train", "--run-dir", str(args.run_dir), "--resume"])
-    return f"{done} of {total} epochs are saved in {last}; '{resume}' continues the run"
+    return f"{done} of {total} epochs are saved in {last}; to continue: {resume}"
 
 
 def _done_before(args: argparse.Namespace) -> int:
