@@ -260,3 +260,18 @@ def test_the_command_to_continue_is_one_a_shell_takes(data, tmp_path):
     assert said.startswith(f"1 of 1 epochs are saved in {run}")
     command = said.split("; to continue: ")[1]
     assert shlex.split(command) == ["img2dmp", "train", "--run-dir", str(run), "--resume"]
+
+
+def test_a_damaged_last_checkpoint_says_what_is_left(data, tmp_path, capsys):
+    """A truncated last checkpoint ended a resume with the file's damage alone; the line
+    now says the run cannot be resumed and how its best weights can start a new one."""
+    run = tmp_path / "run"
+    train(config(data, epochs=1), run)
+    last = run / "checkpoints" / "last.safetensors"
+    last.write_bytes(last.read_bytes()[:1000])
+    capsys.readouterr()
+    assert cli.main(["train", "--run-dir", str(run), "--resume", "--epochs", "2"]) == 2
+    line = capsys.readouterr().err.strip()
+    assert line.startswith(f"img2dmp train: error: cannot resume: checkpoint {last} is corrupt")
+    assert f"--init-from {run / 'checkpoints' / 'best.safetensors'} --run-dir NEW" in line
+    assert "\n" not in line

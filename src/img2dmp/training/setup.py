@@ -161,7 +161,17 @@ def _configuration(config, run_dir, resume, overwrite, epochs, data=None):
         return cfg, None
     if not last_path.is_file():
         raise FileNotFoundError(f"cannot resume: {last_path} does not exist")
-    last = load_checkpoint(last_path)
+    try:
+        last = load_checkpoint(last_path)
+    except CheckpointError as e:  # damaged: say what is left to go on from
+        best = last_path.with_name("best.safetensors")
+        hint = (
+            f"; its best weights can start a new run: --init-from {best} --run-dir NEW "
+            "(with the run's --config)"
+            if best.is_file()
+            else ""
+        )
+        raise CheckpointError(f"cannot resume: {e}{hint}") from None
     cfg = TrainConfig.from_dict(_on_this_machine(last.meta["train_config"]))
     cfg.progress = config.progress
     cfg.data.path = _resumed_data_path(cfg.data.path, data, run_dir)
