@@ -137,5 +137,11 @@ def test_reprs_say_what_a_researcher_checks_first(model):
         assert part in text, (part, text)
     strokes = repr(img2dmp.load_model("omniglot-strokes", refine=0))
     assert "omniglot-strokes: stroke model of 8 slots" in strokes and "refine 0" in strokes
+    fam = model.familiar
+    familiar = repr(fam)  # its sizes and line, not its thousands of feature rows
+    n, f = fam.features.shape
+    assert familiar.startswith(f"Familiar({n} training drawings x {f} features, line ")
+    assert f"% of {fam.n_validation} validation drawings below it)" in familiar
+    assert len(familiar) < 200
     frame = img2dmp.ImageFrame(np.array([[0.5, 0.0, -3.0], [0.0, 0.5, 2.0]]), (80, 60), (28, 28))
     assert repr(frame).endswith("x_m = 0.5 x + 0 y - 3, y_m = 0 x + 0.5 y + 2)"), repr(frame)

@@ -73,6 +73,15 @@ class Familiar:
     def feature_size(self) -> int:
         return int(np.asarray(self.features).shape[1])
 
+    def __repr__(self) -> str:  # the features themselves are thousands of rows
+        n, f = np.asarray(self.features).shape
+        drawn = f", for weights {self.weights_sha256[:12]}" if self.weights_sha256 else ""
+        return (
+            f"Familiar({n} training drawings x {f} features, line {self.line:.4f}: "
+            f"{100 * self.quantile:g} % of {self.n_validation} validation drawings below it"
+            f"{drawn})"
+        )
+
     def familiarity(self, features) -> np.ndarray:
         """The familiarity ``[B]`` of images whose encoder features are ``[B, F]``: the
         largest cosine similarity to a training drawing's."""
