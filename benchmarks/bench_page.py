@@ -84,7 +84,8 @@ def stages(model_dir: str, refine: int | None, photo: Path, backend: str = "auto
     lap("separate the ink from the paper")
     layout = find_characters(found.mask, core=found.core, grow=P._grow(found.pen_width_px))
     lap(f"find the characters ({len(layout.characters)})")
-    inputs, _ = P._frame_characters(model, found, layout, reduction, size, label, True)
+    seg = P.PageSegmentation(levels, reduction, size, label, found, layout)
+    inputs, _ = P._frame_characters(model, seg, True)
     lap("frame them")
     import numpy as np
 
