@@ -969,3 +969,20 @@ def test_a_nul_byte_in_a_file_name_is_named(capsys):
     assert err == "img2dmp predict: error: image 'a\\x00b.png': the name holds a NUL byte (\\x00)"
     with pytest.raises(ValueError, match="the name holds a NUL byte"):
         _files.check_readable("x\x00", "data set")
+
+
+def test_evaluate_names_the_classes_a_model_never_trained_on(tmp_path, data, capsys):
+    """A model trained on digit 2 alone, evaluated on 2 and 3: the 3s' figures were
+    mixed into the table without a word."""
+    run = tmp_path / "run"
+    assert cli.main(_train_argv(data, run, "--epochs", "1", "--digits", "2")) == 0
+    argv = ["evaluate", str(run), str(data), "--out", str(tmp_path / "E"), "--split", "all"]
+    capsys.readouterr()
+    assert cli.main([*argv, "--no-progress", "--figures", "0"]) == 0
+    out = capsys.readouterr().out
+    assert f"note: the model never trained on the class 3 of {data}" in out
+    assert json.loads((tmp_path / "E" / "evaluation.json").read_text())["untrained_classes"] == [
+        "3"
+    ]
+    assert cli.main([*argv, "--no-progress", "--figures", "0", "--digits", "2", "--force"]) == 0
+    assert "never trained" not in capsys.readouterr().out

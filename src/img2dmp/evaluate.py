@@ -560,8 +560,29 @@ def _described(predictor, model_path, dataset_path, data, split, digits, classes
         cost=predictor.meta.get("train_config", {}).get("cost", {}).get("name"),
         fit_error_px=error_statistics(data.fit_error_px),
         trained_on_split=trained_on_split(predictor.meta, sha, data.split),
+        untrained_classes=untrained_classes(predictor.meta, data),
         framing=framing(predictor, data.images),
     )
+
+
+def untrained_classes(meta: dict, data) -> list[str]:
+    """The classes of ``data``'s samples that the model (its checkpoint's ``meta``) never
+    trained on: outside its run's ``data.classes`` or ``data.digits``, or else outside
+    the classes of the data set it trained on; [] when those are not recorded (a model
+    of the generator's digits, an older checkpoint)."""
+    data_cfg = (meta.get("train_config") or {}).get("data") or {}
+    if data_cfg.get("classes"):
+        learnt = {str(c) for c in data_cfg["classes"]}
+    elif data_cfg.get("digits") is not None:
+        learnt = {str(d) for d in data_cfg["digits"]}
+    elif (meta.get("dataset") or {}).get("path"):
+        names = (meta.get("dataset") or {}).get("class_names")
+        learnt = {str(c) for c in names} if names else {str(d) for d in range(10)}
+    else:
+        return []
+    names = data.label_names
+    shown = sorted({int(label) for label in np.unique(np.asarray(data.labels))})
+    return [names[label] for label in shown if names[label] not in learnt]
 
 
 #: A data set's ink margin this far (share of the side) from the one its model trained

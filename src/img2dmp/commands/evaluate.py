@@ -131,10 +131,24 @@ def run(args: argparse.Namespace) -> int:
     if res.get("trained_on_split"):
         seen = f"{data} [{args.split}]"
         print(f"note: the model trained on some of these samples ({seen}): not a test")
+    if res.get("untrained_classes"):
+        print(untrained_note(res["untrained_classes"], data))
     if not res.get("framing", {}).get("same", True):
         print(framing_note(res["framing"], data))
     print(f"written: {Path(out) / names[0]}, {', '.join(names[1:])}")
     return 0
+
+
+def untrained_note(classes: list[str], data: str) -> str:
+    """One line naming the classes of ``data`` the model never trained on."""
+    shown = ", ".join(classes[:20]) + (
+        f" and {len(classes) - 20} more" if len(classes) > 20 else ""
+    )
+    return (
+        f"note: the model never trained on the class{'es' if len(classes) > 1 else ''} "
+        f"{shown} of {data}: these figures include how it reads what it never learnt "
+        "(--classes selects the ones it did)"
+    )
 
 
 #: The figures evaluate writes beside its tables (--figures > 0): Fig. 4 and the worst.
