@@ -401,3 +401,35 @@ def test_explain_draws_a_large_photo_s_boxes_around_its_characters(tmp_path, run
     assert len(drawn["boxes"]) == len(boxes)
     for got, (x0, y0, x1, y1) in zip(drawn["boxes"], boxes, strict=True):  # small: 1/2 of it
         assert _close(got, (x0 * 2, y0 * 2, x1 * 2, y1 * 2), tol=6.0), (got, (x0, y0, x1, y1))
+
+
+@pytest.mark.parametrize("quarters", [1, 3])
+def test_a_page_photographed_sideways_is_read_upright(tmp_path, quarters):
+    """A page stored sideways without an EXIF tag (a scan, a screenshot) was read as
+    columns of broken characters, most flagged: its characters line up in columns, so
+    it is read turned a quarter each way too, and the reading the model flags clearly
+    least kept; the characters come back in the upright page's reading order, in the
+    photo's pixels."""
+    from img2dmp.page import segment_page
+
+    upright, centres = _askew(0.0)
+    h, w = upright.shape[:2]
+    photo = np.ascontiguousarray(np.rot90(upright, quarters))  # counter-clockwise
+    if quarters == 1:  # (x, y) -> (y, W - x)
+        moved = [(y, w - x) for x, y in centres]
+    else:  # (x, y) -> (H - y, x)
+        moved = [(h - y, x) for x, y in centres]
+    seg = segment_page(photo)  # as it stands, with the angle that would level its columns
+    assert seg.turn_deg == 0.0 and 80.0 < abs(seg.sideways) < 100.0, seg.sideways
+    turned = segment_page(photo, turn_deg=seg.sideways)
+    assert sorted(len(idx) for idx in turned.layout.lines) == sorted(len(x) for x in TILT_LINES)
+    if quarters == 3:  # the model's choice of way up read once, on the other quarter
+        return
+    Image.fromarray(photo).save(tmp_path / "sideways.png")
+    result = load_model("digits-real").predict_page(tmp_path / "sideways.png")
+    assert abs(result.turn_deg + 90.0) < 5.0, result.turn_deg  # turned back clockwise
+    assert [len(x) for x in result.lines] == [len(x) for x in TILT_LINES]
+    for c, (x, y) in zip(result.characters, moved, strict=True):  # upright reading order
+        x0, y0, x1, y1 = c.box_image
+        assert x0 < x < x1 and y0 < y < y1, ((x, y), c.box_image)
+    assert len(result.flagged) <= 2, [c.flags for c in result.characters]

@@ -62,6 +62,12 @@ _CROP_PAD_PX = 2
 PAGE_LEVEL_DEG = 7.5
 #: ... its writing's angle searched within this many degrees of the rows.
 PAGE_MAX_TURN_DEG = 30.0
+#: A page whose characters line up in columns better than this many times as well as in
+#: rows is taken as photographed sideways (its lines running down the photo).
+PAGE_SIDEWAYS_RATIO = 1.0
+#: ... and read turned a quarter, it is kept so when the share of its characters flagged
+#: is below this share of the reading as it stands.
+PAGE_SIDEWAYS_GAIN = 0.5
 #: ... and only a page of at least this many characters is turned (a few characters do
 #: not line up: the angle would be one stroke's).
 PAGE_TURN_MIN_CHARACTERS = 3
@@ -187,13 +193,17 @@ class PagePrediction:
         The angle of the writing turned level before the characters were found (0: the
         page was read as it stands; :data:`PAGE_LEVEL_DEG`). ``layout`` is in the pixels
         of the page turned.
+    turn : float64 [3, 3]
+        The map of pixel-edge positions from the photo as read (``reduction``) to the
+        pixels of ``layout`` (:attr:`PageSegmentation.turn`).
     """
 
     def __init__(self, characters, layout, image_size, reduction, source, flags, removed,
                  user_image=None, refine_steps=0, refine_unfamiliar=None,
-                 turn_deg=0.0):  # fmt: skip
+                 turn_deg=0.0, turn=None):  # fmt: skip
         self.characters = list(characters)
         self.turn_deg = float(turn_deg)
+        self.turn = np.eye(3) if turn is None else np.asarray(turn, np.float64)
         self.layout, self.image_size, self.reduction = layout, tuple(image_size), reduction
         self.source, self._flags, self.removed = source, list(flags), dict(removed)
         self.user_image, self.refine_steps = user_image, int(refine_steps)
@@ -374,6 +384,11 @@ class PageSegmentation:
     turn_deg : float
         The angle of the writing that was turned level (0: read as it stands;
         ``PAGE_LEVEL_DEG``).
+    sideways : float or None
+        Read as it stands, its characters line up in columns better than in rows (a page
+        stored sideways, or a few characters in a grid): the angle that would turn its
+        columns level (counter-clockwise; the other way is 180 degrees less), for
+        :func:`read_page` to read it turned too; else None.
     """
 
     levels: np.ndarray
@@ -384,11 +399,12 @@ class PageSegmentation:
     layout: PageLayout
     turn: np.ndarray = field(default_factory=lambda: np.eye(3))
     turn_deg: float = 0.0
+    sideways: float | None = None
 
     def levels_box(self, c: PageCharacter) -> tuple[int, int, int, int]:
         """Character ``c``'s box in the pixels of ``levels`` (half-open): around its own
         pixels turned back when the page was turned."""
-        if not self.turn_deg:
+        if not self.turn_deg:  # read as it stands
             return c.box
         ys, xs = np.nonzero(c.mask)
         back = np.linalg.inv(self.turn)
@@ -467,15 +483,18 @@ def _read_turned(levels: np.ndarray, found, angle_deg: float):
 _ANGLE_SAMPLE = 400
 
 
-def _lines_angle(layout: PageLayout, max_deg: float) -> float:
+def _lines_angle(layout: PageLayout, max_deg: float, columns: bool = False) -> tuple[float, float]:
     """The angle (degrees, within +-``max_deg``, the sign of
     :func:`img2dmp.data.paper.dominant_angle`) along which the characters' centres line
-    up best: the shear ``y - x tan(angle)`` under which most pairs of centres lie within
-    a sixth of a character's height of each other (a smooth count). The centres, not the
-    ink: italic strokes and a stroke's own slope do not move them."""
+    up best, and how well: the shear ``y - x tan(angle)`` under which most pairs of
+    centres lie within a sixth of a character's height of each other (a smooth count of
+    the pairs). The centres, not the ink: italic strokes and a stroke's own slope do not
+    move them. ``columns``: x and y swapped (lines running down the page, as on a page
+    photographed sideways)."""
     chars = layout.characters[:: max(1, math.ceil(len(layout.characters) / _ANGLE_SAMPLE))]
     x = np.array([(c.box[0] + c.box[2]) / 2.0 for c in chars])
     y = np.array([(c.box[1] + c.box[3]) / 2.0 for c in chars])
+    x, y = (y, x) if columns else (x, y)
     width = max(1.0, layout.height_px / 6.0)
 
     def score(deg: float) -> float:
@@ -486,7 +505,8 @@ def _lines_angle(layout: PageLayout, max_deg: float) -> float:
     coarse = np.arange(-max_deg, max_deg + 1e-9, 0.5)
     best = coarse[int(np.argmax([score(d) for d in coarse]))]
     fine = np.clip(best + np.arange(-0.5, 0.5 + 1e-9, 0.1), -max_deg, max_deg)
-    return float(fine[int(np.argmax([score(d) for d in fine]))])
+    scores = [score(d) for d in fine]
+    return float(fine[int(np.argmax(scores))]), max(scores)
 
 
 def _find_on(found, cut: bool, join_sides: bool) -> PageLayout:
@@ -494,8 +514,8 @@ def _find_on(found, cut: bool, join_sides: bool) -> PageLayout:
                            cut=cut, join_sides=join_sides)  # fmt: skip
 
 
-def segment_page(image, *, name: str | None = None, cut: bool = True,
-                 join_sides: bool = False) -> PageSegmentation:  # fmt: skip
+def segment_page(image, *, name: str | None = None, cut: bool = True, join_sides: bool = False,
+                 turn_deg: float | None = None) -> PageSegmentation:  # fmt: skip
     """The page read upright at most ``PAGE_WORK_PIXELS``, its ink separated from the paper
     and its characters found (:func:`read_page`'s steps 1 and 2, without a model).
 
@@ -511,6 +531,10 @@ def segment_page(image, *, name: str | None = None, cut: bool = True,
     join_sides : bool
         Join neighbours that nearly touch side by side into one character when together
         they are about one character wide (letters of pieces side by side; default False).
+    turn_deg : float, optional
+        Turn the page by this angle (degrees; its lines at this angle made level) before
+        its characters are found; 0: read it as it stands. Default: found from the
+        characters (docs/PAGE.md, "A page photographed askew or sideways").
     """
     levels, reduction, size, label = _images._levels_framed(image, name, PAGE_WORK_PIXELS)
     found = paper_ink(levels)
@@ -518,18 +542,32 @@ def segment_page(image, *, name: str | None = None, cut: bool = True,
         return PageSegmentation(levels, reduction, size, label, None,
                                 PageLayout(shape=levels.shape[:2]))  # fmt: skip
     seg = PageSegmentation(levels, reduction, size, label, found, _find_on(found, cut, join_sides))
-    if len(seg.layout.characters) < PAGE_TURN_MIN_CHARACTERS:
+    if turn_deg is None:
+        turn_deg, seg.sideways = _page_turn(seg.layout)
+    if not turn_deg:
         return seg
-    skew = _lines_angle(seg.layout, PAGE_MAX_TURN_DEG)
-    if abs(skew) <= PAGE_LEVEL_DEG:
-        return seg
-    # A photo taken askew: its characters found on the page turned level.
-    read = _read_turned(levels, found, skew)
+    # A photo taken askew or sideways: its characters found on the page turned level.
+    read = _read_turned(levels, found, float(turn_deg))
     if read is None:
         return seg
     found, turn = read
     return PageSegmentation(levels, reduction, size, label, found,
-                            _find_on(found, cut, join_sides), turn, skew)  # fmt: skip
+                            _find_on(found, cut, join_sides), turn, float(turn_deg))  # fmt: skip
+
+
+def _page_turn(layout: PageLayout) -> tuple[float, float | None]:
+    """The angle a page is turned by before its characters are found: its lines' when
+    they slope more than ``PAGE_LEVEL_DEG`` (else 0); and, when they line up in columns
+    better than in rows (``PAGE_SIDEWAYS_RATIO``), the angle that would turn the columns
+    level (else None). A few characters in a grid line up both ways: whether the page is
+    sideways, the model's reading decides (:func:`read_page`)."""
+    if len(layout.characters) < PAGE_TURN_MIN_CHARACTERS:
+        return 0.0, None
+    skew, rows = _lines_angle(layout, PAGE_MAX_TURN_DEG)
+    down, columns = _lines_angle(layout, PAGE_MAX_TURN_DEG, columns=True)
+    if columns > PAGE_SIDEWAYS_RATIO * rows:
+        return 0.0, 90.0 - down  # columns at ``down`` from the vertical: lines at 90 - down
+    return (skew if abs(skew) > PAGE_LEVEL_DEG else 0.0), None
 
 
 def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool = True,
@@ -554,8 +592,30 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
 
     n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
     letters = predictor.reads_letters
-    seg = segment_page(image, name=name, cut=not letters or STROKE_PAGE_CUT,
-                       join_sides=letters and STROKE_PAGE_JOIN)  # fmt: skip
+    how = {"name": name, "cut": not letters or STROKE_PAGE_CUT,
+           "join_sides": letters and STROKE_PAGE_JOIN}  # fmt: skip
+    seg = segment_page(image, **how)
+    page = _read_segmentation(predictor, seg, image, n_points, match_stroke_width)
+    if seg.sideways is None:
+        return page
+    # Its characters line up in columns: read it turned a quarter each way too, and keep
+    # the reading that flags clearly fewer characters (PAGE_SIDEWAYS_GAIN), if any.
+    best, share = page, _flagged_share(page)
+    for angle in (seg.sideways, seg.sideways - 180.0):
+        turned = segment_page(image, **how, turn_deg=angle)
+        if turned.turn_deg:
+            other = _read_segmentation(predictor, turned, image, n_points, match_stroke_width)
+            if _flagged_share(other) < min(share, PAGE_SIDEWAYS_GAIN * _flagged_share(page)):
+                best, share = other, _flagged_share(other)
+    return best
+
+
+def _flagged_share(page: PagePrediction) -> float:
+    return len(page.flagged) / len(page.characters) if page.characters else 1.0
+
+
+def _read_segmentation(predictor, seg, image, n_points, match_stroke_width) -> PagePrediction:
+    """:func:`read_page`'s steps 3 and 4 on a :class:`PageSegmentation`."""
     levels, reduction, size, found = seg.levels, seg.reduction, seg.size, seg.ink
     source = str(image) if isinstance(image, (str, os.PathLike)) else None
     o = predictor.refine_options
@@ -563,7 +623,8 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
     page = PagePrediction([], seg.layout, size, reduction, source,
                           ["no_ink"] if found is None else [],
                           {} if found is None else found.removed, refine_steps=steps,
-                          refine_unfamiliar=unfamiliar, turn_deg=seg.turn_deg)  # fmt: skip
+                          refine_unfamiliar=unfamiliar, turn_deg=seg.turn_deg,
+                          turn=seg.turn)  # fmt: skip
     page.preview = _preview(levels)
     if found is None or not page.layout.characters:
         return page
