@@ -986,3 +986,18 @@ def test_evaluate_names_the_classes_a_model_never_trained_on(tmp_path, data, cap
     ]
     assert cli.main([*argv, "--no-progress", "--figures", "0", "--digits", "2", "--force"]) == 0
     assert "never trained" not in capsys.readouterr().out
+
+
+def test_a_misspelt_key_of_a_config_file_names_the_file(data, tmp_path, capsys):
+    """An unknown key was named, but not the file it came from (a --set's as well)."""
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("model:\n  encoder: conv\n  conv_chanels: [8]\n")
+    run = tmp_path / "run"
+    line = _fails(
+        capsys, ["train", "--config", str(mine), "--data", str(data), "--run-dir", str(run)]
+    )
+    assert f"error: config file {mine}: unknown field(s) model.conv_chanels; known: " in line
+    mine.write_text("model:\n  encoder: conv\n")
+    argv = ["train", "--config", str(mine), "--data", str(data), "--run-dir", str(run)]
+    line = _fails(capsys, [*argv, "--set", "model.conv_chanels=[8]"])
+    assert "error: unknown field(s) model.conv_chanels" in line and "config file" not in line

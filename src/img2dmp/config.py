@@ -405,12 +405,7 @@ def from_mapping(cls, d: dict, section: str = ""):
             f"config section {section or cls.__name__!r} must be a mapping, got {show(d)}"
         )
     hints = typing.get_type_hints(cls)
-    names = [f.name for f in dataclasses.fields(cls) if f.init]
-    unknown = sorted(str(k) for k in set(d) - set(names))
-    if unknown:
-        listed = ", ".join(show(where + u, 40).strip("'") for u in unknown[:10])
-        more = f" and {len(unknown) - 10:,} more" if len(unknown) > 10 else ""
-        raise ConfigError(f"unknown field(s) {listed}{more}; known: {', '.join(names)}")
+    _refuse_unknown(cls, d, where)
     kwargs = {k: _coerce(v, hints.get(k, typing.Any), where + k) for k, v in d.items()}
     try:
         return cls(**kwargs)
@@ -433,8 +428,35 @@ def load(
     """``cls`` from ``base`` (a mapping), then the file at ``path``, then ``overrides``."""
     d = copy.deepcopy(base or {})
     if path:
-        d = merge(d, read_config_file(path))
+        found = read_config_file(path)
+        try:  # a misspelt key of the file is the file's: say which (--set's are named too)
+            check_known(cls, found)
+        except ConfigError as e:
+            raise ConfigError(f"config file {config_path(path)}: {e}") from None
+        d = merge(d, found)
     return from_mapping(cls, apply_overrides(d, overrides))
+
+
+def check_known(cls, d, section: str = "") -> None:
+    """Refuse the keys of mapping ``d`` (and of its sections) that the dataclass ``cls``
+    has no field of, as :func:`from_mapping` does; values are left to it."""
+    if not isinstance(d, dict):
+        return
+    _refuse_unknown(cls, d, f"{section}." if section else "")
+    hints = typing.get_type_hints(cls)
+    for k, v in d.items():
+        kind = hints.get(k)
+        if isinstance(kind, type) and dataclasses.is_dataclass(kind):
+            check_known(kind, v, f"{section}.{k}" if section else str(k))
+
+
+def _refuse_unknown(cls, d: dict, where: str) -> None:
+    names = [f.name for f in dataclasses.fields(cls) if f.init]
+    unknown = sorted(str(k) for k in set(d) - set(names))
+    if unknown:
+        listed = ", ".join(show(where + u, 40).strip("'") for u in unknown[:10])
+        more = f" and {len(unknown) - 10:,} more" if len(unknown) > 10 else ""
+        raise ConfigError(f"unknown field(s) {listed}{more}; known: {', '.join(names)}")
 
 
 def merge(base: dict, update: dict) -> dict:
