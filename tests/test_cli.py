@@ -400,7 +400,8 @@ def test_train_shortcuts_become_overrides_before_set():
     [
         ["--set", "optim.lr=0.1"],
         ["--config", "c.yaml"],
-        ["--data", "d.st"],
+        # not --data: with --resume it names where the run's own data set is now
+        # (tests/test_train_lifecycle.py)
         ["--cost", "parameter"],
         ["--seed", "0"],
         ["--digits", "2"],
