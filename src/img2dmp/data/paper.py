@@ -29,7 +29,8 @@ drops the rest, in named steps (each kept for a picture with ``keep_steps``;
 4. **sheet**: cells much darker than the paper and connected to the image's border are
    the table beyond the sheet's edge; nothing there is ink;
 5. **rules**: thin straight lines along the page's two directions (the dominant angle of
-   the dark pixels, within +-``MAX_RULE_ANGLE_DEG``) that run most of the sheet's width
+   the dark pixels, within +-``MAX_RULE_ANGLE_DEG`` of the rows and columns, or of the
+   sides of a sheet found on a desk) that run most of the sheet's width
    (``RULE_SHARE``; ``PERIODIC_RULE_SHARE`` when at least three run in parallel at an
    even spacing, as ruled and squared paper's do) are removed, except where a stroke
    crosses them (ink just above and just below a rule pixel keeps it), on rules as
@@ -102,6 +103,9 @@ BACKGROUND_WINDOW = 10
 TABLE_LEVEL = 0.45
 #: ... and the cells joined to those that are darker than this share of it.
 TABLE_GROW_LEVEL = 0.5
+#: On a sheet found on a desk, the rules' level beside its edge is read this many pixels
+#: inside it (the desk is painted with the paper's colour up to the edge).
+SHEET_EDGE_PX = 3
 #: A component is ink when at least this share of its pixels (and two) are strong: a
 #: pen's stroke mostly is, a smudge of shade or a crease's edge hardly.
 STRONG_SHARE = 0.25
@@ -549,10 +553,12 @@ def _ring_labels(labels: np.ndarray) -> np.ndarray:
     return np.concatenate([labels[0], labels[-1], labels[:, 0], labels[:, -1]])
 
 
-def dominant_angle(mask: np.ndarray, max_deg: float = MAX_RULE_ANGLE_DEG) -> float:
-    """The angle (degrees, within +-``max_deg``) of the rows along which the pixels of
-    ``mask`` line up best: the shear ``r - c tan(angle)`` whose row histogram has the
-    largest sum of squares (a straight rule or a text line is a sharp peak)."""
+def dominant_angle(mask: np.ndarray, max_deg: float = MAX_RULE_ANGLE_DEG,
+                   centre_deg: float = 0.0) -> float:  # fmt: skip
+    """The angle (degrees, within +-``max_deg`` of ``centre_deg``) of the rows along which
+    the pixels of ``mask`` line up best: the shear ``r - c tan(angle)`` whose row
+    histogram has the largest sum of squares (a straight rule or a text line is a sharp
+    peak)."""
     rows, cols = np.nonzero(mask)
     if rows.size < 2:
         return 0.0
@@ -564,9 +570,10 @@ def dominant_angle(mask: np.ndarray, max_deg: float = MAX_RULE_ANGLE_DEG) -> flo
         counts = np.bincount(q - q.min()).astype(np.float64)
         return float(counts @ counts)
 
-    coarse = np.arange(-max_deg, max_deg + 1e-9, 0.5)
+    coarse = centre_deg + np.arange(-max_deg, max_deg + 1e-9, 0.5)
     best = coarse[int(np.argmax([score(d) for d in coarse]))]
-    fine = np.clip(best + np.arange(-0.5, 0.5 + 1e-9, 0.1), -max_deg, max_deg)
+    fine = np.clip(best + np.arange(-0.5, 0.5 + 1e-9, 0.1), centre_deg - max_deg,
+                   centre_deg + max_deg)  # fmt: skip
     return float(fine[int(np.argmax([score(d) for d in fine]))])
 
 
@@ -789,9 +796,11 @@ def _rule_pieces(rest: np.ndarray, rule: np.ndarray, reach: int) -> np.ndarray:
 
 def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
           pen_width_px: float = 0.0, channels: np.ndarray | None = None,
-          ) -> tuple[np.ndarray, dict]:  # fmt: skip
+          sheet_deg: float = 0.0) -> tuple[np.ndarray, dict]:  # fmt: skip
     """Pixels of ``mask`` on ruled or squared paper's lines (both directions), and the
-    angles found (``{"rows_deg", "columns_deg"}``).
+    angles found (``{"rows_deg", "columns_deg"}``): within ``MAX_RULE_ANGLE_DEG`` of the
+    sheet's sides, ``sheet_deg`` (a sheet found on a desk lying askew,
+    :attr:`img2dmp.data.sheet.Sheet.angle_deg`) from the rows and columns.
 
     Per direction, two passes: the rules at the direction's dominant angle, then a lone
     line across the whole extent that they left (broken up, as a faint margin line, or at
@@ -814,13 +823,14 @@ def rules(mask: np.ndarray, sheet: np.ndarray, dark: np.ndarray | None = None,
         if cols.size < 8:
             continue
         extent = (int(cols[0]), int(cols[-1]) + 1)
-        angles[name] = dominant_angle(m)
+        centre = sheet_deg if axis == 0 else -sheet_deg  # the columns' angle, transposed
+        angles[name] = dominant_angle(m, centre_deg=centre)
         r, reach = _row_rules(m, extent, angles[name], along(found), pen_width_px)
         if reach:
             per_axis.append((axis, angles[name], r, reach))
             found |= along(r)
         rest = m & ~along(found)
-        second = dominant_angle(rest)
+        second = dominant_angle(rest, centre_deg=centre)
         r, reach = _row_rules(m, extent, second, along(found), pen_width_px, lone=True)
         r &= rest
         if reach and r.any():
@@ -1124,7 +1134,8 @@ def _kept_strokes(mask, dark, lv: _Levels, shape_filters: bool, rough_pen: float
         keep[0] = False
         removed["faint_components"] -= int(np.count_nonzero(keep & was_faint))
     if shape_filters:
-        edge = keep & (_along_border(labels, len(area) - 1, ruled) | _edge_lines(labels, band))
+        edge = keep & (_along_border(labels, len(area) - 1, ruled)
+                       | _edge_lines(labels, band, ruled))  # fmt: skip
         if np.count_nonzero(keep & ~edge):  # the edge first: its band is no pen width
             keep &= ~edge
             removed["edge_components"] = int(edge.sum())
@@ -1293,9 +1304,14 @@ def _along_border(labels: np.ndarray, n: int, ruled=None) -> np.ndarray:
     return out
 
 
-def _edge_lines(labels: np.ndarray, band=None) -> np.ndarray:
+def _edge_lines(labels: np.ndarray, band=None, ruled=None) -> np.ndarray:
     """Per label (index 0 unused): whether the component is a line of the sheet's edge
-    (``EDGE_LINE_*``) beside the image's border or the desk's ``band`` (``bool [H, W]``)."""
+    (``EDGE_LINE_*``) beside the image's border or the desk's ``band`` (``bool [H, W]``).
+    With ``ruled`` (the rules' pixels removed) the marks joined through the rules' pixels
+    in the desk's band count as one when they lie in the band: the sheet's edge along the
+    rules, which their removal cut into pieces, as :func:`_along_border` joins them."""
+    from scipy.ndimage import label
+
     h, w = labels.shape
     n = int(labels.max())
     near = np.zeros((h, w), bool)
@@ -1304,18 +1320,21 @@ def _edge_lines(labels: np.ndarray, band=None) -> np.ndarray:
     if band is not None:
         near |= band
     out = np.zeros(n + 1, bool)
-    touching = np.unique(labels[near & (labels > 0)])
+    joined, k = labels, n
+    if band is not None and ruled is not None and (ruled & band).any():
+        joined, k = label((labels > 0) | (ruled & band), structure=np.ones((3, 3), bool))
+    touching = np.unique(joined[near & (labels > 0)])
     if touching.size == 0:
         return out
-    rows, cols = np.nonzero(np.isin(labels, touching))
-    lab = labels[rows, cols]
-    count = np.bincount(lab, minlength=n + 1).astype(np.float64)
-    inside = np.bincount(lab, weights=near[rows, cols], minlength=n + 1)
+    rows, cols = np.nonzero(np.isin(joined, touching) & (labels > 0))  # the marks' own
+    lab = joined[rows, cols]
+    count = np.bincount(lab, minlength=k + 1).astype(np.float64)
+    inside = np.bincount(lab, weights=near[rows, cols], minlength=k + 1)
     c = np.maximum(count, 1)
-    mr, mc = np.bincount(lab, rows, n + 1) / c, np.bincount(lab, cols, n + 1) / c
-    vr = np.bincount(lab, (rows - mr[lab]) ** 2, n + 1) / c
-    vc = np.bincount(lab, (cols - mc[lab]) ** 2, n + 1) / c
-    vrc = np.bincount(lab, (rows - mr[lab]) * (cols - mc[lab]), n + 1) / c
+    mr, mc = np.bincount(lab, rows, k + 1) / c, np.bincount(lab, cols, k + 1) / c
+    vr = np.bincount(lab, (rows - mr[lab]) ** 2, k + 1) / c
+    vc = np.bincount(lab, (cols - mc[lab]) ** 2, k + 1) / c
+    vrc = np.bincount(lab, (rows - mr[lab]) * (cols - mc[lab]), k + 1) / c
     half, root = (vr + vc) / 2, np.sqrt(((vr - vc) / 2) ** 2 + vrc**2)
     length = np.sqrt(12 * (half + root))  # a uniform line's spread along it: L^2 / 12
     thick = np.sqrt(12 * np.maximum(half - root, 0))
@@ -1325,8 +1344,32 @@ def _edge_lines(labels: np.ndarray, band=None) -> np.ndarray:
     )
     piece = (length >= EDGE_PIECE_SHARE * min(h, w)) & (length >= EDGE_PIECE_THIN * thick)
     piece &= inside >= EDGE_LINE_INSIDE * count
-    out[touching] = (line | piece)[touching]
+    if joined is not labels:  # joined by the rules: pieces of a line lying in the band
+        line &= inside >= EDGE_LINE_INSIDE * count
+    edge = np.zeros(k + 1, bool)
+    edge[touching] = (line | piece)[touching]
+    marks = labels > 0  # each mark takes its group's answer
+    out[labels[marks]] = edge[joined[marks]]
     return out
+
+
+def _sheet_rules(weak, sheet, dark, pen: float, channels, desk) -> np.ndarray:
+    """:func:`rules` of the sheet: on a sheet found on a ``desk``
+    (:class:`img2dmp.data.sheet.Sheet`), at its sides' angle, and the darkness beside it
+    that of the nearest pixel ``SHEET_EDGE_PX`` inside it (the lines' level read along a
+    rule's last stretch is the rule's and the paper's, not the desk's none, nor the
+    paper's colour painted up to the sheet's edge)."""
+    if desk is None:
+        return rules(weak, sheet, dark, pen, np.where(sheet, channels, 0.0))[0]
+    from scipy.ndimage import binary_erosion, distance_transform_edt
+
+    inner = binary_erosion(sheet, np.ones((3, 3), bool), iterations=SHEET_EDGE_PX)
+    inner = inner if inner.any() else sheet
+    near = distance_transform_edt(~inner, return_distances=False, return_indices=True)
+    off = ~sheet  # the sheet's own pixels as they are
+    dark = np.where(off, dark[near[0], near[1]], dark)
+    channels = np.where(off, channels[:, near[0], near[1]], channels)
+    return rules(weak & sheet, sheet, dark, pen, channels, desk.angle_deg)[0]
 
 
 def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
@@ -1364,7 +1407,7 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
     if lv is None:
         return None
     weak = dark >= lv.weak
-    ruled, _ = rules(weak, sheet, dark, pen, np.where(sheet, channels, 0.0))
+    ruled = _sheet_rules(weak, sheet, dark, pen, channels, desk)
     if ruled.any():  # the pen's own level, which many rules would pull down
         lv = thresholds(dark, _noise(a, bg, on_sheet) if local else 0.0, exclude=ruled)
         if lv is None:

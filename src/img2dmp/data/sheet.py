@@ -6,7 +6,9 @@ finds the sheet so that :func:`img2dmp.data.paper.paper_ink` reads only what is 
 On the photo reduced to about ``SHEET_SIDE`` pixels on its shorter side and smoothed:
 
 1. **edges**: the pixels where the colour changes faster than ``STEP_NOISE`` times the
-   image's usual change (and ``STEP_MIN``): the sheet's edge, the strokes, the rules.
+   image's usual change (and ``STEP_MIN``): the sheet's edge, the strokes; not the
+   lines of ruled or squared paper (:func:`_rules`: thin, with the paper on both sides,
+   straight and in parallel sets, ``RULE_*``), which, closed, would fill the sheet.
    The long straight ones (the sheet's border) are drawn on through their faint
    stretches (where the paper's shade nears the desk's level, ``LINE_*``) and on to the
    corner where two of them meet (``CORNER_GAP``); all grown by a pixel, gaps of up to
@@ -30,7 +32,8 @@ On the photo reduced to about ``SHEET_SIDE`` pixels on its shorter side and smoo
    away from it by ``EDGE_MARGIN`` pixels (the edge's blur), the part that holds the
    paper, its convex hull (a sheet is a quadrilateral, in perspective too; the notch a
    gap let in is back), drawn straight at the photo's
-   pixels; at least ``SHEET_MIN_SHARE`` of the image. Off the sheet the photo is
+   pixels; at least ``SHEET_MIN_SHARE`` of the image. Its sides' angle is where its
+   rules run (:attr:`Sheet.angle_deg`). Off the sheet the photo is
    painted with the nearest paper's colour, from ``EDGE_GAP + 2`` pixels inside.
 
 The sheet is None when no desk is found (a photo of the sheet alone, a scan), when the
@@ -103,6 +106,21 @@ EDGE_BAND = 6
 EDGE_REACH = 12
 #: ... and the sheet keeps this many reduced pixels clear of them (the edge's blur).
 EDGE_MARGIN = 3
+#: A thin line on the paper (a rule): an edge pixel that differs more from the two pixels
+#: this many reduced pixels away across it than they differ from each other, ...
+RULE_SIDE = 3
+#: ... with such pixels along it for this share of this share of the shorter side one way
+#: or the other, ...
+RULE_COVER = 0.7
+RULE_RUN = 0.12
+#: ... and more of them on one side, beyond its own band (this many pixels), within this
+#: share of the shorter side (ruled and squared paper's pitch); grown across it over the
+#: changing pixels within this many pixels (its blurred sides, a stroke's pixels on it).
+RULE_OWN = 4
+RULE_PITCH = 0.15
+RULE_BAND = 3
+#: Groups of edge pixels this small that touch the rules go with them.
+RULE_SPECK = 12
 #: The band beside the desk: this share of the photo's shorter side.
 BAND_SHARE = 0.03
 #: The sheet covers at least this share of the image.
@@ -125,12 +143,17 @@ class Sheet:
         may leave a line: :func:`img2dmp.data.paper.paper_ink` drops long ones).
     desk_px : int
         Pixels of the photo off the sheet.
+    angle_deg : float
+        The angle of the sheet's sides from the photo's rows and columns (degrees in
+        [-45, 45), the rows' convention of :func:`img2dmp.data.paper.dominant_angle`):
+        where the rules of ruled paper lying askew run.
     """
 
     mask: np.ndarray
     fill: np.ndarray
     band: np.ndarray
     desk_px: int
+    angle_deg: float = 0.0
 
 
 def _reduce(planes: np.ndarray, factor: int) -> np.ndarray:
@@ -265,20 +288,127 @@ def _straight(strong: np.ndarray, weak: np.ndarray, normal: np.ndarray) -> np.nd
     return out
 
 
-def _edges(small: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Edge pixels (step 1) of the reduced, smoothed ``small [C, h, w]`` and the straight
-    lines drawn among them: ``bool [h, w]`` each."""
+def _along(mask: np.ndarray, ys, xs, dy, dx, offsets) -> np.ndarray:
+    """``mask`` read at the points ``(ys, xs) + d (dy, dx)`` for every ``d`` of
+    ``offsets`` (rounded, outside the image False): ``bool [len(offsets), n]``."""
+    h, w = mask.shape
+    out = np.zeros((len(offsets), ys.size), bool)
+    for i, d in enumerate(offsets):
+        y, x = np.round(ys + d * dy).astype(np.int64), np.round(xs + d * dx).astype(np.int64)
+        inside = (y >= 0) & (y < h) & (x >= 0) & (x < w)
+        out[i, inside] = mask[y[inside], x[inside]]
+    return out
+
+
+def _orientation(small: np.ndarray) -> np.ndarray:
+    """The direction (radians in [0, pi)) across which ``small [C, h, w]`` changes, read
+    over ``RULE_SIDE`` pixels (the structure tensor summed over the channels, smoothed):
+    steady along a faint rule, where a pixel's own change turns with the grain."""
+    from scipy.ndimage import gaussian_filter
+
+    jxx = np.zeros(small.shape[1:], np.float32)
+    jxy, jyy = np.zeros_like(jxx), np.zeros_like(jxx)
+    for p in small:
+        gy, gx = np.gradient(p)
+        jxx += gx * gx
+        jxy += gx * gy
+        jyy += gy * gy
+    jxx, jxy, jyy = (gaussian_filter(j, RULE_SIDE / 2, mode="nearest") for j in (jxx, jxy, jyy))
+    return np.mod(0.5 * np.arctan2(2 * jxy, jxx - jyy), np.pi)
+
+
+def _rules(small: np.ndarray, weak: np.ndarray) -> np.ndarray:
+    """The pixels of ``weak`` (changing by a share of an edge's change) on ruled or squared
+    paper's lines (``bool``, the same shape): thin lines, a pixel differing more from the
+    two sides ``RULE_SIDE`` pixels away across it than they differ from each other, and
+    those by less than ``DESK_CONTRAST``, as they are or once the paper's own slope is
+    taken out (read twice as far away: the paper on both sides, if shaded; a step, the
+    sheet's border, a thin line between the desk and the paper of nearly one shade, or a
+    shadow's edge, is no rule), straight (such pixels along it for ``RULE_COVER`` of
+    ``RULE_RUN`` of the shorter side one way or the other: on to the sheet's edge) and
+    with another such line on one side within ``RULE_PITCH`` of it (rules come in
+    parallel sets: a margin line, a fold, a long stroke stay edges); grown across the line
+    over the pixels of ``weak`` within ``RULE_BAND`` (the line's blurred sides, a stroke's
+    pixels on it; not on past its end into the sheet's border). Across and along:
+    :func:`_orientation`'s direction; the pixels tested: ``weak`` and those beside them
+    (a sharp line's middle changes little)."""
+    from scipy.ndimage import binary_dilation
+
+    h, w = weak.shape
+    ys, xs = np.nonzero(binary_dilation(weak, np.ones((3, 3), bool)))
+    if ys.size == 0:
+        return np.zeros_like(weak)
+    normal = _orientation(small)
+    ny, nx = np.sin(normal[ys, xs]), np.cos(normal[ys, xs])
+    side = []
+    for d in (RULE_SIDE, -RULE_SIDE, 2 * RULE_SIDE, -2 * RULE_SIDE):
+        y = np.clip(np.round(ys + d * ny).astype(np.int64), 0, h - 1)
+        x = np.clip(np.round(xs + d * nx).astype(np.int64), 0, w - 1)
+        side.append(small[:, y, x])
+    across = side[0] - side[1]
+    step = np.max(np.abs(across), axis=0)
+    dev = np.max(np.abs(small[:, ys, xs] - 0.5 * (side[0] + side[1])), axis=0)
+    # a step between its sides, the paper's own slope taken out (twice as far away, the
+    # sides differ twice as much on a slope, as much across a step)
+    sheer = np.max(np.abs(2 * across - (side[2] - side[3])), axis=0)
+    ok = (dev > step) & (np.minimum(step, sheer) < DESK_CONTRAST)
+    thin = np.zeros_like(weak)
+    thin[ys[ok], xs[ok]] = True
+    ys, xs, ny, nx = ys[ok], xs[ok], ny[ok], nx[ok]
+    run = max(4, round(RULE_RUN * min(h, w)))
+    near = binary_dilation(thin, np.ones((3, 3), bool))  # a pixel either way: rounding
+    ahead = _along(near, ys, xs, nx, -ny, range(run + 1)).mean(axis=0)
+    behind = _along(near, ys, xs, -nx, ny, range(run + 1)).mean(axis=0)
+    ok = np.maximum(ahead, behind) >= RULE_COVER
+    ys, xs, ny, nx = ys[ok], xs[ok], ny[ok], nx[ok]
+    straight = np.zeros_like(weak)
+    straight[ys, xs] = True
+    reach = range(RULE_OWN + 1, max(RULE_OWN + 2, round(RULE_PITCH * min(h, w)) + 1))
+    ok = _along(straight, ys, xs, ny, nx, reach).any(axis=0)
+    ok |= _along(straight, ys, xs, -ny, -nx, reach).any(axis=0)
+    out = np.zeros_like(weak)
+    ys, xs, ny, nx = ys[ok], xs[ok], ny[ok], nx[ok]
+    for d in range(-RULE_BAND, RULE_BAND + 1):  # across the line, not on past its end
+        y = np.clip(np.round(ys + d * ny).astype(np.int64), 0, h - 1)
+        x = np.clip(np.round(xs + d * nx).astype(np.int64), 0, w - 1)
+        out[y, x] = True
+    return weak & out
+
+
+def _specks_on(edges: np.ndarray, rules: np.ndarray) -> np.ndarray:
+    """The groups of ``edges`` (``bool``) of at most ``RULE_SPECK`` pixels that touch
+    ``rules``: what the rules' removal left where squared paper's lines cross, which the
+    closing of the edges' gaps would join into a net over the sheet."""
+    from scipy.ndimage import binary_dilation, label
+
+    groups, n = label(edges, np.ones((3, 3), bool))
+    size = np.bincount(groups.ravel(), minlength=n + 1)
+    touch = np.zeros(n + 1, bool)
+    touch[np.unique(groups[binary_dilation(rules, np.ones((3, 3), bool)) & edges])] = True
+    small = touch & (size <= RULE_SPECK)
+    small[0] = False
+    return small[groups]
+
+
+def _edges(small: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Edge pixels (step 1) of the reduced, smoothed ``small [C, h, w]``, the straight
+    lines drawn among them and the rules of ruled or squared paper (:func:`_rules`,
+    left out of the edges: closed, they would fill the sheet): ``bool [h, w]`` each."""
     from scipy.ndimage import binary_closing, binary_dilation
 
     change, normal = _change(small)
     level = max(STEP_MIN, STEP_NOISE * float(np.median(change)))
     strong = change > level
-    lines = _straight(strong, change > LINE_WEAK * level, normal)
-    edges = binary_dilation(strong | lines, np.ones((3, 3), bool))
+    weak = change > LINE_WEAK * level
+    rules = _rules(small, weak)
+    if rules.any():  # and the specks its removal left on them (where lines cross)
+        rules |= _specks_on(strong & ~rules, rules)
+    lines = _straight(strong & ~rules, weak & ~rules, normal)
+    edges = binary_dilation((strong & ~rules) | lines, np.ones((3, 3), bool))
     # gaps in the sheet's edge closed (where the paper's shade meets the desk's level)
     g = EDGE_GAP
     padded = np.pad(edges, g, mode="edge")
-    return binary_closing(padded, np.ones((3, 3), bool), iterations=g)[g:-g, g:-g], lines
+    return binary_closing(padded, np.ones((3, 3), bool), iterations=g)[g:-g, g:-g], lines, rules
 
 
 def _hull(mask: np.ndarray) -> np.ndarray | None:
@@ -293,6 +423,17 @@ def _hull(mask: np.ndarray) -> np.ndarray | None:
         return pts[ConvexHull(pts).vertices].astype(np.float64)
     except (QhullError, ValueError):
         return None
+
+
+def _sides_angle(corners: np.ndarray) -> float:
+    """The angle (degrees in [-45, 45)) of a polygon's sides (``corners [k, 2]``, x, y)
+    from the rows and columns: their directions modulo 90 degrees averaged, each
+    weighted by its length (a quadrilateral's four sides, its hull's short steps aside)."""
+    d = np.diff(np.vstack([corners, corners[:1]]), axis=0)
+    length = np.hypot(d[:, 0], d[:, 1])
+    four = 4.0 * np.arctan2(d[:, 1], d[:, 0])  # a quarter turn is a whole turn
+    mean = np.arctan2((length * np.sin(four)).sum(), (length * np.cos(four)).sum()) / 4.0
+    return float(np.mod(np.degrees(mean) + 45.0, 90.0) - 45.0)
 
 
 def _polygon(corners: np.ndarray, scale: int, shape: tuple[int, int]) -> np.ndarray:
@@ -424,8 +565,10 @@ def _is_desk(small, labels, lab: int, edges, lines, area: int, paper: np.ndarray
     return sizes[sizes < DESK_MIN_SHARE * h * w].sum() <= DESK_HOLES * area
 
 
-def _desk(small: np.ndarray, edges: np.ndarray, lines: np.ndarray) -> np.ndarray | None:
-    """The desk regions of step 3 (``bool [h, w]``), or None."""
+def _desk(small: np.ndarray, edges: np.ndarray, lines: np.ndarray,
+          rules: np.ndarray) -> np.ndarray | None:  # fmt: skip
+    """The desk regions of step 3 (``bool [h, w]``), or None; ``rules``: the paper's lines
+    left out of ``edges`` (a shade on ruled paper has them between its regions)."""
     from scipy.ndimage import label
 
     labels, n = label(~edges)
@@ -457,7 +600,7 @@ def _desk(small: np.ndarray, edges: np.ndarray, lines: np.ndarray) -> np.ndarray
             continue  # a band of the paper, between rules, that reaches the border
         if _is_desk(small, labels, lab, edges, lines, area[lab], labels == paper):
             desk |= labels == lab
-    desk &= ~_lined(desk, edges)
+    desk &= ~_lined(desk, edges | rules)
     if not desk.any():
         return None
     luma = np.asarray(_LUMA[: len(small)] if len(small) == 3 else (1.0,), np.float32)
@@ -510,8 +653,8 @@ def find_sheet(planes: np.ndarray) -> Sheet | None:
     factor = max(1, min(height, width) // SHEET_SIDE)
     small = _reduce(planes, factor)
     small = np.stack([gaussian_filter(p, 1.0, mode="nearest") for p in small])
-    edges, lines = _edges(small)
-    found = _desk(small, edges, lines)
+    edges, lines, rules = _edges(small)
+    found = _desk(small, edges, lines, rules)
     if found is None:
         return None
     desk = found | _edge_band(found, edges)
@@ -545,7 +688,7 @@ def find_sheet(planes: np.ndarray) -> Sheet | None:
     rr = np.minimum(rows // factor, h - 1)
     cc = np.minimum(cols // factor, w - 1)
     fill[:, rows, cols] = paper[:, rr, cc]
-    return Sheet(full, fill, band, int(off.sum()))
+    return Sheet(full, fill, band, int(off.sum()), _sides_angle(corners))
 
 
 __all__ = ["Sheet", "find_sheet"]
