@@ -20,7 +20,7 @@ grey one, 240, lighter than the paper). Each image is read by
 - *turned*: the angle :func:`segment_page` turned the page by (0: read as it stands).
 
 ``--ruled PITCH`` prints pale blue rules (1 px, ``PITCH`` px apart) under the ink first,
-as ruled paper is (``lines_on_photos.py``'s "under").
+as ruled paper is (``lines_on_photos.py``'s "under"); with ``--squared`` both ways.
 
 ``--model NAME`` reads every image with that model as ``predict --page`` does instead
 (a page whose characters line up in columns is also read turned a quarter each way, and
@@ -76,6 +76,11 @@ def main(argv=None) -> int:
         metavar="PITCH",
         help="print blue rules PITCH px apart under the ink first (ruled paper)",
     )
+    p.add_argument(
+        "--squared",
+        action="store_true",
+        help="with --ruled: lines both ways (squared paper of PITCH px squares)",
+    )
     args = p.parse_args(argv)
     angles = [float(a) for a in args.angles.split(",")]
     model = None
@@ -94,6 +99,8 @@ def main(argv=None) -> int:
 
             rgb = np.asarray(photo, np.float64)
             cover = _coverage(rgb.shape[:2], args.ruled, 1.0, 0.0, 3.0, 0)
+            if args.squared:
+                cover = np.maximum(cover, _coverage(rgb.shape[:2], args.ruled, 1.0, 0.0, 3.0, 1))
             ruled = np.clip(_lines(rgb, cover, BLUE, True), 0, 255)
             photo = Image.fromarray(ruled.astype(np.uint8))
         for desk_name, colour, grain in desks:
