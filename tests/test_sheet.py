@@ -21,30 +21,13 @@ def _sheet_on_a_desk_of_its_shade(desk_grey, *, angle_deg=3.0, shadow=0.6, seed=
     vanishing where they cross), a slight shadow along its right and bottom edges
     (``shadow``: the light there, 3 px), turned by ``angle_deg``, on a desk with grain,
     slightly blurred as a phone sees it; the image and the characters' true centres."""
-    from PIL import Image, ImageFilter
-
     ink, boxes = page(LINES)
     h, w = ink.shape
     light = np.linspace(1.0, 0.76, h, dtype=np.float32)[:, None, None]
     paper = np.full((h, w, 3), 0.93, np.float32) * light
     paper[-3:] *= shadow
     paper[:, -3:] *= shadow
-    sheet = Image.fromarray((on_paper(ink, paper) * 255).astype(np.uint8)).convert("RGBA")
-    sheet = sheet.rotate(angle_deg, resample=Image.Resampling.BICUBIC, expand=True)
-    my, mx = 40, 48
-    out_h, out_w = sheet.height + 2 * my, sheet.width + 2 * mx
-    desk = np.full((out_h, out_w, 3), desk_grey, np.float32)
-    desk += np.random.default_rng(seed).normal(0.0, 3.0, (out_h, out_w, 1))
-    im = Image.fromarray(np.clip(desk, 0, 255).astype(np.uint8))
-    im.paste(sheet, (mx, my), sheet)
-    im = im.filter(ImageFilter.GaussianBlur(0.8))
-    a = np.deg2rad(angle_deg)
-    centres = []
-    for b in boxes:  # moved as the sheet was turned and put down
-        dx, dy = (b[0] + b[2]) / 2 - w / 2, (b[1] + b[3]) / 2 - h / 2
-        centres.append((mx + sheet.width / 2 + np.cos(a) * dx + np.sin(a) * dy,
-                        my + sheet.height / 2 - np.sin(a) * dx + np.cos(a) * dy))  # fmt: skip
-    return np.asarray(im, np.float32) / 255.0, centres
+    return _on_desk(on_paper(ink, paper), boxes, desk_grey, angle_deg, seed)
 
 
 @pytest.mark.parametrize(("desk_grey", "angle_deg", "seed"), [(204, 3.0, 0), (195, 0.0, 1)])
@@ -73,14 +56,22 @@ def _ruled_sheet_on_desk(desk_grey, *, angle_deg=0.0, spacing=12.0, seed=0, edge
     edge and shadow is), the sheet turned by
     ``angle_deg`` (counter-clockwise as seen) and lying on a desk of ``desk_grey`` with
     grain, slightly blurred; the image and the characters' true centres."""
-    from PIL import Image, ImageFilter
-
     ink, boxes = page(LINES)
     h, w = ink.shape
     paper = ruled((h + 5, w + 5), spacing)[5:, 5:]
     paper[:4] *= edge
     paper[:, -3:] *= edge
     rgb = on_paper(ink, paper, colour=(0.1, 0.15, 0.6))
+    return _on_desk(rgb, boxes, desk_grey, angle_deg, seed)
+
+
+def _on_desk(rgb, boxes, desk_grey, angle_deg, seed):
+    """A sheet ``rgb`` (float ``[h, w, 3]`` in [0, 1]) turned by ``angle_deg``
+    (counter-clockwise as seen) and lying on a desk of ``desk_grey`` with grain, slightly
+    blurred as a phone sees it; the image and the centres of ``boxes`` moved with it."""
+    from PIL import Image, ImageFilter
+
+    h, w = rgb.shape[:2]
     sheet = Image.fromarray((np.clip(rgb, 0, 1) * 255).astype(np.uint8)).convert("RGBA")
     sheet = sheet.rotate(angle_deg, resample=Image.Resampling.BICUBIC, expand=True)
     my, mx = 40, 48
