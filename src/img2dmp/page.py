@@ -433,10 +433,8 @@ def _turn_matrix(shape, angle_deg: float) -> tuple[np.ndarray, tuple[int, int]]:
     out_h = math.ceil(h * abs(c) + w * abs(s) - 1e-9)
     out_w = math.ceil(w * abs(c) + h * abs(s) - 1e-9)
     turn = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
-    return _edge_shift(out_w / 2.0, out_h / 2.0) @ turn @ _edge_shift(-w / 2.0, -h / 2.0), (
-        out_h,
-        out_w,
-    )
+    about_centre = _edge_shift(out_w / 2.0, out_h / 2.0) @ turn @ _edge_shift(-w / 2.0, -h / 2.0)
+    return about_centre, (out_h, out_w)
 
 
 def _turned(plane: np.ndarray, turn: np.ndarray, shape, fill: float) -> np.ndarray:
@@ -544,14 +542,19 @@ def segment_page(image, *, name: str | None = None, cut: bool = True, join_sides
     seg = PageSegmentation(levels, reduction, size, label, found, _find_on(found, cut, join_sides))
     if turn_deg is None:
         turn_deg, seg.sideways = _page_turn(seg.layout)
-    if not turn_deg:
-        return seg
-    # A photo taken askew or sideways: its characters found on the page turned level.
-    read = _read_turned(levels, found, float(turn_deg))
+    return _turned_segmentation(seg, turn_deg, cut, join_sides) if turn_deg else seg
+
+
+def _turned_segmentation(seg: PageSegmentation, turn_deg: float, cut: bool,
+                         join_sides: bool) -> PageSegmentation:  # fmt: skip
+    """``seg`` (a page read as it stands) with its characters found on the page turned
+    by ``turn_deg`` (a photo taken askew or sideways); ``seg`` itself when nothing stands
+    out there."""
+    read = _read_turned(seg.levels, seg.ink, float(turn_deg))
     if read is None:
         return seg
     found, turn = read
-    return PageSegmentation(levels, reduction, size, label, found,
+    return PageSegmentation(seg.levels, seg.reduction, seg.size, seg.label, found,
                             _find_on(found, cut, join_sides), turn, float(turn_deg))  # fmt: skip
 
 
@@ -592,9 +595,8 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
 
     n_points = check_count("n_points (--points)", n_points, 2, MAX_POINTS)
     letters = predictor.reads_letters
-    how = {"name": name, "cut": not letters or STROKE_PAGE_CUT,
-           "join_sides": letters and STROKE_PAGE_JOIN}  # fmt: skip
-    seg = segment_page(image, **how)
+    cut, join_sides = not letters or STROKE_PAGE_CUT, letters and STROKE_PAGE_JOIN
+    seg = segment_page(image, name=name, cut=cut, join_sides=join_sides)
     page = _read_segmentation(predictor, seg, image, n_points, match_stroke_width)
     if seg.sideways is None:
         return page
@@ -602,7 +604,7 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
     # the reading that flags clearly fewer characters (PAGE_SIDEWAYS_GAIN), if any.
     best, share = page, _flagged_share(page)
     for angle in (seg.sideways, seg.sideways - 180.0):
-        turned = segment_page(image, **how, turn_deg=angle)
+        turned = _turned_segmentation(seg, angle, cut, join_sides)
         if turned.turn_deg:
             other = _read_segmentation(predictor, turned, image, n_points, match_stroke_width)
             if _flagged_share(other) < min(share, PAGE_SIDEWAYS_GAIN * _flagged_share(page)):
