@@ -477,8 +477,13 @@ def _read_turned(levels: np.ndarray, found, angle_deg: float):
     return replace(again, mask=mask, ink=ink), turn
 
 
-#: Characters whose centres are compared for the angle of the lines (every k-th beyond).
-_ANGLE_SAMPLE = 400
+#: Up to this many characters, every pair of centres is compared for the angle of the
+#: lines; beyond, their counts in bins of a quarter of the pairs' reach (pairs cost 0.5 s
+#: for a page of 1,360; every k-th character, a sample, can line up better in columns
+#: or along a diagonal of a regular page than in its rows).
+_ANGLE_PAIRS = 400
+_ANGLE_BIN = 0.25
+_ANGLE_KERNEL = np.exp(-0.5 * (np.arange(-16, 17) * _ANGLE_BIN) ** 2)
 
 
 def _lines_angle(layout: PageLayout, max_deg: float, columns: bool = False) -> tuple[float, float]:
@@ -489,7 +494,7 @@ def _lines_angle(layout: PageLayout, max_deg: float, columns: bool = False) -> t
     the pairs). The centres, not the ink: italic strokes and a stroke's own slope do not
     move them. ``columns``: x and y swapped (lines running down the page, as on a page
     photographed sideways)."""
-    chars = layout.characters[:: max(1, math.ceil(len(layout.characters) / _ANGLE_SAMPLE))]
+    chars = layout.characters
     x = np.array([(c.box[0] + c.box[2]) / 2.0 for c in chars])
     y = np.array([(c.box[1] + c.box[3]) / 2.0 for c in chars])
     x, y = (y, x) if columns else (x, y)
@@ -497,8 +502,12 @@ def _lines_angle(layout: PageLayout, max_deg: float, columns: bool = False) -> t
 
     def score(deg: float) -> float:
         across = (y - x * math.tan(math.radians(deg))) / width
-        d = across[:, None] - across[None, :]
-        return float(np.exp(-0.5 * d * d).sum())
+        if across.size <= _ANGLE_PAIRS:
+            d = across[:, None] - across[None, :]
+            return float(np.exp(-0.5 * d * d).sum())
+        counts = np.bincount(np.round((across - across.min()) / _ANGLE_BIN).astype(np.int64))
+        counts = counts.astype(np.float64)
+        return float(counts @ np.convolve(counts, _ANGLE_KERNEL, mode="same"))
 
     coarse = np.arange(-max_deg, max_deg + 1e-9, 0.5)
     best = coarse[int(np.argmax([score(d) for d in coarse]))]
