@@ -1,6 +1,6 @@
 """The one configuration mechanism of img2dmp: a file, then ``--set key=value`` overrides.
 
-Every command that takes settings (``generate``, ``prepare``, ``train``, ``demo``) reads
+Every command that takes settings (``generate``, ``prepare``, ``import``, ``train``, ``demo``) reads
 them the same way:
 
 1. the dataclass defaults (:class:`img2dmp.data.synthetic.SyntheticConfig`,
@@ -428,13 +428,22 @@ def load(
     """``cls`` from ``base`` (a mapping), then the file at ``path``, then ``overrides``."""
     d = copy.deepcopy(base or {})
     if path:
-        found = read_config_file(path)
-        try:  # a misspelt key of the file is the file's: say which (--set's are named too)
-            check_known(cls, found)
-        except ConfigError as e:
-            raise ConfigError(f"config file {config_path(path)}: {e}") from None
-        d = merge(d, found)
+        d = merge(d, read_config_of(cls, path))
     return from_mapping(cls, apply_overrides(d, overrides))
+
+
+def read_config_of(cls, path: str | os.PathLike) -> dict:
+    """The mapping of the configuration file ``path`` (:func:`read_config_file`), its keys
+    and its sections' keys checked against the fields of the dataclass ``cls``: a misspelt
+    key is the file's, and the one-line error says so (``config file bad.yaml: unknown
+    field(s) model.conv_chanels; known: ...``; a ``--set`` key is named alone). Every
+    command that takes ``--config`` reads it here; values are left to :func:`from_mapping`."""
+    found = read_config_file(path)
+    try:
+        check_known(cls, found)
+    except ConfigError as e:
+        raise ConfigError(f"config file {config_path(path)}: {e}") from None
+    return found
 
 
 def check_known(cls, d, section: str = "") -> None:
@@ -496,6 +505,7 @@ __all__ = [
     "merge",
     "parse_yaml",
     "read_config_file",
+    "read_config_of",
     "shipped_config_path",
     "shipped_configs",
     "to_dict",

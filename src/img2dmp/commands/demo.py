@@ -67,9 +67,11 @@ OWN_SETTINGS = {
 def demo_overrides(args: argparse.Namespace) -> dict:
     """``--config`` and ``--set`` as the section mapping :func:`run_demo` merges; refuses
     the settings the demo sets itself (they would be silently replaced)."""
-    from ..config import ConfigError, apply_overrides, read_config_file
+    from ..config import ConfigError, apply_overrides, read_config_of
+    from ..training.config import TrainConfig
 
-    over = apply_overrides(read_config_file(args.config) if args.config else {}, args.set)
+    found = read_config_of(TrainConfig, args.config) if args.config else {}
+    over = apply_overrides(found, args.set)
     for keys, instead in OWN_SETTINGS.items():
         node = over
         for k in keys[:-1]:

@@ -81,10 +81,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def synthetic_config(args: argparse.Namespace):
     """The :class:`~img2dmp.data.synthetic.SyntheticConfig` of the command line: file,
     then ``--digits`` / ``--image-size`` if given, then ``--set``."""
-    from ..config import apply_overrides, read_config_file
+    from ..config import apply_overrides, read_config_of
     from ..data.synthetic import SyntheticConfig
 
-    fields = read_config_file(args.config) if args.config else {}
+    fields = read_config_of(SyntheticConfig, args.config) if args.config else {}
     if args.digits is not None:
         fields["digits"] = list(args.digits)
     if args.image_size is not None:

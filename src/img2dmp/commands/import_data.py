@@ -224,10 +224,10 @@ def _options(p: argparse.ArgumentParser) -> None:
 def import_options(args: argparse.Namespace):
     """The :class:`~img2dmp.data.importer.ImportOptions` of the command line: defaults,
     then ``--config``, then the flags given, then ``--set``."""
-    from ..config import apply_overrides, from_mapping, merge, read_config_file
+    from ..config import apply_overrides, from_mapping, merge, read_config_of
     from ..data.importer import ImportOptions
 
-    d = read_config_file(args.config) if args.config else {}
+    d = read_config_of(ImportOptions, args.config) if args.config else {}
     flags = {key: getattr(args, flag) for flag, key in FLAG_FIELDS.items()}
     flags = {k: v for k, v in flags.items() if v is not None}
     return from_mapping(ImportOptions, apply_overrides(merge(d, flags), args.set))

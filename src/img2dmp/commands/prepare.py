@@ -185,10 +185,10 @@ def _options(parser: argparse.ArgumentParser) -> None:
 def prepare_options(args: argparse.Namespace):
     """The :class:`~img2dmp.data.prepare.PrepareOptions` of the command line: defaults,
     then ``--config``, then the flags given, then ``--set``."""
-    from ..config import apply_overrides, from_mapping, merge, read_config_file
+    from ..config import apply_overrides, from_mapping, merge, read_config_of
     from ..data.prepare import PrepareOptions
 
-    d = read_config_file(args.config) if args.config else {}
+    d = read_config_of(PrepareOptions, args.config) if args.config else {}
     flags: dict = {}
     for flag, key in FLAG_FIELDS.items():
         value = getattr(args, flag)
