@@ -377,6 +377,26 @@ def test_a_page_turned_level_is_predicted_where_its_ink_stands(tmp_path, capsys)
     assert main(["predict", str(tmp_path / "askew.png"), "--page", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert re.search(r"in 3 lines \(turned 1[345]\.\d degrees counter-clockwise to level", out), out
+    # the robot writes it level, turned as it was to be read (as it stands: falling 14 deg)
+    assert abs(_slope_on_paper_deg(doc)) < 2.0, _slope_on_paper_deg(doc)
+    assert abs(_slope_on_paper_deg({**doc, "turned_deg": 0.0}) + 14.0) < 2.0  # falling
+
+
+def _slope_on_paper_deg(doc: dict) -> float:
+    """The angle (degrees, rising to the writer's right) of a page document's lines as
+    the robot would write them: a line through the centres of each line's planned paths
+    on the paper, fitted with one slope for all lines (no simulation)."""
+    from img2dmp.robot import check_page_document, plan_page
+
+    plan = plan_page(check_page_document(doc, "askew_page.json"))
+    centres = {cp.character.index: cp.plan.xy_m.mean(axis=0) for cp in plan.characters}
+    xs, ys = [], []
+    for line in plan.page.lines:  # world -y is the writer's right, +x away from the robot
+        pts = np.array([centres[i] for i in line])
+        xs.append(-pts[:, 1] - (-pts[:, 1]).mean())
+        ys.append(pts[:, 0] - pts[:, 0].mean())
+    xs, ys = np.concatenate(xs), np.concatenate(ys)
+    return float(np.degrees(np.arctan2((xs * ys).sum(), (xs * xs).sum())))
 
 
 def test_explain_draws_a_large_photo_s_boxes_around_its_characters(tmp_path, run, monkeypatch):

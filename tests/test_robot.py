@@ -127,6 +127,29 @@ def test_paper_mapping_by_hand():
 
 
 @needs_pybullet
+def test_a_turned_paper_mapping_turns_the_image_about_its_centre_by_hand():
+    """``turn_deg`` 90 (counter-clockwise as seen): the image's right (+column) becomes
+    its up (away from the robot, world +x), its down becomes its right (world -y)."""
+    from img2dmp.robot import PaperMapping
+
+    m = PaperMapping((20, 40), writing_height_mm=40.0, center_m=(0.5, 0.1), turn_deg=90.0)
+    # turned, the 40 x 20 image stands 40 px tall and 20 wide: 1 mm per pixel, its centre
+    # (the pixel centre 19.5, 9.5) on the paper's
+    np.testing.assert_allclose(m.area_px, (10.0, -10.0, 30.0, 30.0), atol=1e-9)  # pixel bounds
+    np.testing.assert_allclose(m.area_size_mm, (20.0, 40.0), atol=1e-9)
+    np.testing.assert_allclose(m.to_table([19.5, 9.5]), [0.5, 0.1], atol=1e-12)
+    np.testing.assert_allclose(m.to_table([20.5, 9.5]), [0.501, 0.1], atol=1e-12)
+    np.testing.assert_allclose(m.to_table([19.5, 10.5]), [0.5, 0.099], atol=1e-12)
+    xy = np.array([[3.0, 7.0], [39.0, 1.0]])
+    np.testing.assert_allclose(m.to_pixels(m.to_table(xy)), xy, atol=1e-9)
+    assert m.image_area_px == (0, 0, 40, 20)
+    with pytest.raises(ValueError, match="turn_deg must be a number of degrees"):
+        PaperMapping((28, 28), turn_deg=float("nan"))
+    with pytest.raises(ValueError, match="area_px of a turned mapping"):
+        PaperMapping((28, 28), area_px=(5, 5, 5, 9), turn_deg=10.0)
+
+
+@needs_pybullet
 def test_ik_puts_the_tip_frame_at_the_pen_tip():
     from img2dmp.robot import WritingScene
     from img2dmp.robot.scene import HOME_JOINTS_RAD

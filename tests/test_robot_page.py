@@ -212,6 +212,8 @@ BAD_DOCUMENTS = [
     ("version", 2, r"field 'version' is 2: written by a newer img2dmp"),
     ("version", True, r"field 'version' must be a whole number"),
     ("characters", _DELETE, r"field 'characters' is missing"),
+    ("turned_deg", "12", r"field 'turned_deg' must be a number of degrees in \[-180, 180\]"),
+    ("turned_deg", 270.0, r"field 'turned_deg' must be a number of degrees"),
     ("image_size_px", [240], r"field 'image_size_px' must be \[W, H\]"),
     ("lines[0].characters", [0], r"field 'lines' must list the 3 characters"),
     ("characters[1].index", 2, r"field 'characters\[1\]\.index' must be 1"),

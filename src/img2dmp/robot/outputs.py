@@ -95,7 +95,7 @@ def _plot_pixels(ax, result: WritingResult, image: np.ndarray | None) -> None:
     """The input image (if any) under the DMP's path in pixels, pen down and pen up."""
     plan = result.plan
     h, w = result.mapping.image_size
-    x0, y0, x1, y1 = result.mapping.area_px
+    x0, y0, x1, y1 = result.mapping.image_area_px
     if image is not None:
         # An image of another size (a reduced view of a photo) still spans the pixels of
         # the frame the DMP is in.
@@ -164,7 +164,7 @@ def _plot_paper(ax, result: WritingResult) -> None:
 
 def _whole_image(mapping) -> bool:
     h, w = mapping.image_size
-    return tuple(mapping.area_px) == (0, 0, w, h)
+    return not mapping.turn_deg and tuple(mapping.area_px) == (0, 0, w, h)
 
 
 def _plot_force(ax, result: WritingResult) -> None:
@@ -498,7 +498,7 @@ def _number_characters(axes, result) -> None:
     """Each character's index at its box (pixels and paper) and over its time; dashed
     boxes (and grey numbers) for the characters not written. On a page of many, smaller
     numbers, and over time only those at least ``TIME_LABEL_GAP`` of the axis apart."""
-    from matplotlib.patches import Rectangle
+    from matplotlib.patches import Polygon, Rectangle
 
     many = len(result.characters) > MANY_CHARACTERS
     text = {"fontsize": 6 if many else 8, "ha": "right", "va": "bottom"}
@@ -506,7 +506,8 @@ def _number_characters(axes, result) -> None:
     last_t = -math.inf
     for r in result.characters:
         x0, y0, x1, y1 = r.character.box_image_px
-        corners_px = [[x0 - 0.5, y0 - 0.5], [x1 - 0.5, y1 - 0.5]]
+        corners_px = [[x0 - 0.5, y0 - 0.5], [x1 - 0.5, y0 - 0.5], [x1 - 0.5, y1 - 0.5],
+                      [x0 - 0.5, y1 - 0.5]]  # fmt: skip
         corners_mm = _paper_mm(result, result.mapping.to_table(corners_px))
         label = str(r.character.index)
         if not r.written and not many:
@@ -517,8 +518,7 @@ def _number_characters(axes, result) -> None:
         if not r.written:
             box = {"fill": False, "ls": "--", "color": "gray"}
             axes[0, 0].add_patch(Rectangle((x0 - 0.5, y0 - 0.5), x1 - x0, y1 - y0, **box))
-            (ax0, ay1), (ax1, ay0) = corners_mm
-            axes[0, 1].add_patch(Rectangle((ax0, ay0), ax1 - ax0, ay1 - ay0, **box))
+            axes[0, 1].add_patch(Polygon(corners_mm, closed=True, **box))
             continue
         a, b = r.steps
         t_mid = (result.log.time_s[a] + result.log.time_s[b - 1]) / 2

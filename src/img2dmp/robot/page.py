@@ -62,6 +62,7 @@ from .writing import (
     WritingRun,
     check_path,
     checked_dmp,
+    level_box_px,
     move_towards,
     plan_path,
     sheet_bounds_m,
@@ -240,9 +241,16 @@ class PagePlan:
 def page_mapping(page: Page, width_mm: float, center_m) -> PaperMapping:
     """The layout rule: the page's written area (the union of its characters' boxes,
     :attr:`Page.written_area_px`) ``width_mm`` wide, aspect kept, centred on
-    ``center_m``."""
+    ``center_m``. A page read turned level (:attr:`Page.turned_deg`) is written level:
+    its written area is then the box around its characters' boxes turned the same way."""
     w, h = page.image_size_px
-    return PaperMapping.for_width((h, w), page.written_area_px, width_mm, center_m)
+    if not page.turned_deg or not page.characters:
+        return PaperMapping.for_width((h, w), page.written_area_px, width_mm, center_m)
+    boxes = [level_box_px(c.box_image_px, (h, w), page.turned_deg) for c in page.characters]
+    x0, y0 = (min(b[i] for b in boxes) for i in (0, 1))
+    x1, y1 = (max(b[i] for b in boxes) for i in (2, 3))
+    return PaperMapping.for_width((h, w), (x0, y0, x1, y1), width_mm, center_m,
+                                  page.turned_deg)  # fmt: skip
 
 
 def travel_targets(from_xy_m, to_xy_m, dt_s: float) -> np.ndarray:

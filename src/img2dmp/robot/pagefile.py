@@ -6,6 +6,7 @@ version 1::
 
     {"format": "img2dmp-page", "version": 1,
      "image": "<the photo's path>" | null, "image_size_px": [W, H],
+     "turned_deg": 0.0,            # optional: read turned level by this angle, written level
      "lines": [{"index": 0, "characters": [0, 1, 2]}, ...],   # top to bottom
      "characters": [                                          # in reading order
        {"index": 0, "line": 0,
@@ -148,6 +149,10 @@ class Page:
         In reading order.
     document : dict
         The document as read (notes included).
+    turned_deg : float
+        The angle the page was turned by to read its lines level (the document's
+        optional ``turned_deg``, counter-clockwise as seen; 0: read as it stands). The
+        robot writes the page turned the same way, level on the paper.
     """
 
     path: str
@@ -156,6 +161,7 @@ class Page:
     lines: tuple
     characters: tuple
     document: dict = field(default_factory=dict, repr=False)
+    turned_deg: float = 0.0
 
     @property
     def written_area_px(self) -> tuple[int, int, int, int]:
@@ -374,7 +380,17 @@ def check_page_document(doc, path: str = "page document") -> Page:
         )
     lines = _check_lines(path, doc["lines"], len(raw_chars))
     chars = tuple(_check_character(path, i, c, size, lines) for i, c in enumerate(raw_chars))
-    return Page(path, image, size, lines, chars, doc)
+    return Page(path, image, size, lines, chars, doc, _turned_deg(path, doc))
+
+
+def _turned_deg(path: str, doc: dict) -> float:
+    """The optional ``turned_deg`` (0 when absent), a number of degrees in [-180, 180]."""
+    v = doc.get("turned_deg", 0.0)
+    if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            and -180.0 <= v <= 180.0):  # fmt: skip
+        raise _bad(path, "turned_deg", f"must be a number of degrees in [-180, 180], got "
+                                       f"{show_value(v)}")  # fmt: skip
+    return float(v)
 
 
 #: The format of a stroke model's prediction (:data:`img2dmp.predict.STROKES_FORMAT`,

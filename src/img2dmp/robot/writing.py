@@ -139,19 +139,33 @@ class PaperMapping:
     area_px : tuple (x0, y0, x1, y1) or None
         The written area: half-open integer pixel bounds (columns ``x0 <= j < x1``,
         rows ``y0 <= i < y1``) inside the image, e.g. the characters of a page; None:
-        the whole image.
+        the whole image. With ``turn_deg``, bounds in the image turned level (any
+        finite numbers; None: around the whole image turned).
+    turn_deg : float
+        The image is turned by this angle, counter-clockwise as seen (negative:
+        clockwise), about its centre before it is laid on the paper: a page photographed
+        askew and read turned level (its document's ``turned_deg``) is written level.
+        0 (default): as it stands.
     """
 
     image_size: tuple[int, int]
     writing_height_mm: float = 40.0
     center_m: tuple[float, float] = (0.55, 0.0)
-    area_px: tuple[int, int, int, int] | None = None
+    area_px: tuple[float, float, float, float] | None = None
+    turn_deg: float = 0.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "image_size", _image_size(self.image_size))
         check_positive("writing_height_mm", self.writing_height_mm)
         if not (len(self.center_m) == 2 and all(_is_finite(v) for v in self.center_m)):
             raise ValueError(f"center_m must be two finite numbers (x, y), got {self.center_m!r}")
+        if not (_is_finite(self.turn_deg) and -180.0 <= self.turn_deg <= 180.0):
+            raise ValueError(f"turn_deg must be a number of degrees in [-180, 180], got "
+                             f"{self.turn_deg!r}")  # fmt: skip
+        object.__setattr__(self, "turn_deg", float(self.turn_deg))
+        if self.turn_deg:
+            object.__setattr__(self, "area_px", self._turned_area())
+            return
         h, w = self.image_size
         area = (0, 0, w, h) if self.area_px is None else self.area_px
         try:
@@ -167,8 +181,26 @@ class PaperMapping:
             )
         object.__setattr__(self, "area_px", (x0, y0, x1, y1))
 
+    def _turned_area(self) -> tuple[float, float, float, float]:
+        """The written area of a turned mapping, checked: its given bounds as floats, or
+        the bounds around the whole image turned (pixel edges)."""
+        if self.area_px is None:
+            h, w = self.image_size
+            return level_box_px((0, 0, w, h), self.image_size, self.turn_deg)
+        try:
+            area = tuple(float(v) for v in self.area_px)
+            ok = len(area) == 4 and all(_is_finite(v) for v in self.area_px)
+            ok = ok and area[0] < area[2] and area[1] < area[3]
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise ValueError("area_px of a turned mapping must be four finite numbers (x0, y0, "
+                             f"x1, y1) with x0 < x1 and y0 < y1, got {self.area_px!r}")  # fmt: skip
+        return area  # type: ignore[return-value]
+
     @classmethod
-    def for_width(cls, image_size, area_px, width_mm: float, center_m) -> PaperMapping:
+    def for_width(cls, image_size, area_px, width_mm: float, center_m,
+                  turn_deg: float = 0.0) -> PaperMapping:  # fmt: skip
         """The mapping that writes ``area_px`` ``width_mm`` wide (its aspect kept)."""
         x0, y0, x1, y1 = area_px
         width_mm = check_positive("width_mm", width_mm)
@@ -176,7 +208,7 @@ class PaperMapping:
         if not lo <= width_mm <= hi:  # 1e-300 wrote a page 0.0 mm wide, 1e308 overflowed
             raise ValueError(f"width_mm {width_mm:g} must be from {lo:g} to {hi:g} mm (the "
                              "written area's width on the paper)")  # fmt: skip
-        return cls(image_size, width_mm * (y1 - y0) / (x1 - x0), center_m, area_px)
+        return cls(image_size, width_mm * (y1 - y0) / (x1 - x0), center_m, area_px, turn_deg)
 
     @property
     def metres_per_px(self) -> float:
@@ -196,6 +228,8 @@ class PaperMapping:
     def to_table(self, xy_px) -> np.ndarray:
         """``[..., 2]`` pixels (x = column, y = row) to world ``[..., 2]`` (x, y) metres."""
         xy = np.asarray(xy_px, dtype=float)
+        if self.turn_deg:
+            xy = _apply(level_map_px(self.image_size, self.turn_deg), xy)
         cx, cy = self._center_px()
         s = self.metres_per_px
         wx = self.center_m[0] - (xy[..., 1] - cy) * s
@@ -209,7 +243,60 @@ class PaperMapping:
         s = self.metres_per_px
         col = cx - (xy[..., 1] - self.center_m[1]) / s
         row = cy - (xy[..., 0] - self.center_m[0]) / s
-        return np.stack([col, row], axis=-1)
+        out = np.stack([col, row], axis=-1)
+        if self.turn_deg:
+            out = _apply(np.linalg.inv(level_map_px(self.image_size, self.turn_deg)), out)
+        return out
+
+    @property
+    def image_area_px(self) -> tuple[int, int, int, int]:
+        """The written area in the image's own pixels: ``area_px`` as it stands, or for a
+        turned mapping the upright box around the area turned back, inside the image."""
+        if not self.turn_deg:
+            return self.area_px  # type: ignore[return-value]
+        back = np.linalg.inv(level_map_px(self.image_size, self.turn_deg))
+        x0, y0, x1, y1 = _box_around(_apply(back, _edge_corners(self.area_px)))
+        h, w = self.image_size
+        x0, y0 = max(0, math.floor(x0)), max(0, math.floor(y0))
+        x1, y1 = min(w, max(x0 + 1, math.ceil(x1))), min(h, max(y0 + 1, math.ceil(y1)))
+        return x0, y0, x1, y1
+
+
+def level_map_px(image_size, turn_deg: float) -> np.ndarray:
+    """The ``[3, 3]`` map of pixel positions (x = column, y = row) of an image ``(H, W)``
+    to the same image turned by ``turn_deg`` (counter-clockwise as seen) about its
+    centre, as :func:`img2dmp.page.read_page` turns a page taken askew to read it
+    level."""
+    h, w = image_size
+    a = math.radians(turn_deg)
+    c, s = math.cos(a), math.sin(a)
+    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
+    turn = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    shift = np.array([[1.0, 0.0, -cx], [0.0, 1.0, -cy], [0.0, 0.0, 1.0]])
+    return np.linalg.inv(shift) @ turn @ shift
+
+
+def level_box_px(box_px, image_size, turn_deg: float) -> tuple[float, float, float, float]:
+    """The half-open box ``(x0, y0, x1, y1)`` (pixel bounds) around a box of the image
+    turned by ``turn_deg`` about the image's centre (:func:`level_map_px`)."""
+    return _box_around(_apply(level_map_px(image_size, turn_deg), _edge_corners(box_px)))
+
+
+def _edge_corners(box) -> np.ndarray:
+    """The four corners ``[4, 2]`` of a half-open pixel box, at the pixels' outer edges."""
+    x0, y0, x1, y1 = (float(v) for v in box)
+    return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]]) - 0.5
+
+
+def _box_around(corners: np.ndarray) -> tuple[float, float, float, float]:
+    """The half-open box (pixel bounds) whose outer edges hold ``corners [n, 2]``."""
+    lo, hi = corners.min(axis=0) + 0.5, corners.max(axis=0) + 0.5
+    return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
+
+
+def _apply(m: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """The affine map ``m [3, 3]`` applied to points ``[..., 2]``."""
+    return xy @ m[:2, :2].T + m[:2, 2]
 
 
 @dataclass
