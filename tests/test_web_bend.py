@@ -94,6 +94,24 @@ def test_a_bent_hypothesis_is_the_librarys_bend_in_a_document_write_takes(client
         check_write(answer["dmp"], 2)  # one hypothesis: the bent one
 
 
+def test_the_server_s_rollouts_take_one_path_from_its_start(tmp_path, monkeypatch):
+    """rollout's ``"auto"`` takes torch's operations for small calls until the fused
+    kernels are loaded, which a process of many small calls does after a while: a
+    server's first bends and its later ones came from two paths (equal to rounding).
+    The server loads the kernels at its start."""
+    import importlib
+
+    from img2dmp.dmp import _kernels
+
+    if not _kernels.available():
+        pytest.skip("numba missing: every rollout takes the torch operations")
+    rollout_module = importlib.import_module("img2dmp.dmp.rollout")
+    monkeypatch.setattr(rollout_module, "_fused_loaded", False)  # as in a fresh process
+    monkeypatch.setitem(rollout_module._unfused, "seconds", 0.0)
+    create_app([], data_dir=tmp_path / "r")
+    assert rollout_module._fused_loaded
+
+
 def test_each_bend_is_the_librarys(client):
     doc = _document()
     for options in ({"start": [15.0, 12.0]}, {"shift": [-3.0, 4.5]}, {"scale": 0.5},

@@ -182,8 +182,10 @@ def rollout(
         pass, float32/float64 on CPU; ``"torch"``: the same maths in torch operations
         (any device and dtype). ``"auto"`` (default) takes the fused kernels where they
         apply, except for calls of fewer than 4096 time stamps (over the batch) until
-        the kernels have run once in the process or the torch operations have spent
-        0.5 s on such calls (loading the kernels takes 0.3-0.7 s). Both give the same
+        the kernels have run once in the process (:func:`load_fused_kernels`) or such
+        calls would have taken the torch operations 0.5 s on an idle machine (counted
+        from their sizes, not timed: where a process switches does not depend on the
+        machine's load; loading the kernels takes 0.3-0.7 s). Both give the same
         numbers to rounding and the same gradients. Once the kernels are loaded, a call
         that records no gradient runs the compiled forward loop without autograd.
 
@@ -213,10 +215,9 @@ def rollout(
         flat += (g.reshape(-1, g.shape[-1]), y0.reshape(-1, y0.shape[-1]))
         y = _FusedRollout.apply(*flat, config)
         return y.reshape(*batch, *y.shape[-2:])
-    start = time.perf_counter()
     y = _torch_rollout(t, params, config)
     if not _fused_loaded:
-        _unfused["seconds"] += time.perf_counter() - start
+        _unfused["seconds"] += _TORCH_CALL_S + _TORCH_STAMP_S * t.numel()
     return y
 
 
@@ -471,10 +472,34 @@ def _use_fused(backend: str, w: torch.Tensor, t: torch.Tensor) -> bool:
 # twice what knowing its future would have cost, and ~20 us per B = 1 call after, where
 # the torch operations take 0.3 ms on an idle machine and up to 25 ms on a loaded one
 # (each of their parallel regions waits for a busy core; see fused_threads).
+# That time is counted from the calls' sizes, as an idle machine takes them, not timed:
+# timed, the call at which a process switched (and so the last bits of every result
+# after it) followed the machine's load. The sizes' cost: one thread of a 2-core Intel
+# Xeon, the fastest of 200 calls, float64, d = 2, 25 kernels: 0.21 ms at 100 stamps,
+# 0.23 at 1,000, 0.43-0.51 at 4,000 (B = 1 to 16).
 _FUSED_MIN_STAMPS = 4096
 _KERNEL_LOAD_S = 0.5
+_TORCH_CALL_S = 2e-4
+_TORCH_STAMP_S = 7e-8
 _fused_loaded = False  # set by the first fused rollout
-_unfused = {"seconds": 0.0}  # time of the torch operations' rollouts before that
+_unfused = {"seconds": 0.0}  # idle time of the torch operations' rollouts before that
+
+
+def load_fused_kernels(config: DMPConfig | None = None) -> bool:
+    """Load the rollout's fused kernels now (numba's compiled code, 0.3-0.7 s once per
+    process; those for ``config``'s kernels and dimensions, default ``DMPConfig()``), so
+    that every later :func:`rollout` with ``backend="auto"`` of float CPU tensors takes
+    them: the results of a long-running process (a server, a controller, a training)
+    then do not depend on the calls made before. False without numba (the torch
+    operations throughout)."""
+    config = DEFAULT_CONFIG if config is None else config
+    n, d = config.n_kernels, config.n_dims
+    params = DMPParams(torch.zeros(1, n, d), torch.ones(1), torch.ones(1, d), torch.zeros(1, d))
+    try:
+        rollout(params, torch.linspace(0.0, 1.0, 2), config, backend="fused")
+    except ValueError:  # no numba
+        return False
+    return True
 
 
 @functools.lru_cache(maxsize=16)

@@ -476,7 +476,7 @@ def create_app(
         Recordings(data_dir, source),
         JobManager(jobs_dir, max_jobs),
     )
-
+    _load_rollout_kernels(state.models.values())
     app = _new_app(state)
     _install_guards(app, max_upload_mb, max_page_mb, body_timeout_s, allowed)
     _install_error_handlers(app)
@@ -486,6 +486,20 @@ def create_app(
     _job_routes(app, state)
     _static_routes(app, Path(static_dir) if static_dir is not None else STATIC_DIR)
     return app
+
+
+def _load_rollout_kernels(models) -> None:
+    """The rollout's fused kernels loaded at the start, for every model's DMP constants
+    and the default ones: every request's numbers then come from them, whatever the
+    requests before it (:func:`img2dmp.dmp.rollout`'s ``"auto"`` would take torch's
+    operations for a server's small calls until it had made enough of them, so the same
+    request could differ in its last bits before and after). Without numba, nothing."""
+    from ..dmp import DMPConfig
+    from ..dmp.rollout import load_fused_kernels
+
+    for config in {DMPConfig(), *(m.predictor.dmp_config for m in models)}:
+        if not load_fused_kernels(config):
+            return
 
 
 def _new_app(state: ServerState) -> FastAPI:
