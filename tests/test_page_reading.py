@@ -455,6 +455,28 @@ def test_a_page_photographed_sideways_is_read_upright(tmp_path, quarters):
     assert len(result.flagged) <= 2, [c.flags for c in result.characters]
 
 
+def test_a_page_upside_down_is_read_upright(tmp_path, capsys):
+    """A page upside down was read as it stood: its paths on the ink but written from the
+    wrong end, right to left, a 6 read as a 9. A page of which the model flags many
+    characters (``PAGE_UPSIDE_DOWN_SHARE``) is read upside down too, and kept so when
+    that reading flags clearly fewer."""
+    upright, centres = _askew(0.0)
+    h, w = upright.shape[:2]
+    Image.fromarray(np.ascontiguousarray(upright[::-1, ::-1])).save(tmp_path / "down.png")
+    moved = [(w - x, h - y) for x, y in centres]  # pixel edges: (x, y) -> (W - x, H - y)
+    assert main(["predict", str(tmp_path / "down.png"), "--page", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"in 3 lines \(turned 180\.0 degrees [a-z-]+ to read it upright\)", out), out
+    doc = json.loads((tmp_path / "down_page.json").read_text())
+    assert abs(abs(doc["turned_deg"]) - 180.0) < 1e-6
+    assert [len(line["characters"]) for line in doc["lines"]] == [len(x) for x in TILT_LINES]
+    for c, (x, y) in zip(doc["characters"], moved, strict=True):  # upright reading order
+        x0, y0, x1, y1 = c["box_image_px"]
+        assert x0 < x < x1 and y0 < y < y1, ((x, y), c["box_image_px"])
+    flags = [c["flags"] for c in doc["characters"]]
+    assert sum(map(bool, flags)) <= 1, flags  # as it stood: 3 of 11
+
+
 def test_the_lines_angle_of_a_page_of_many_characters_counts_them_all():
     """Beyond 400 characters the pairs of centres are counted in bins, all of them. Every
     4th character, the sample before, lined up better in columns than in rows on a

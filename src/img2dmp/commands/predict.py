@@ -179,7 +179,8 @@ def _run_pages(args, predictor) -> int:
         n = "" if None in strokes or not strokes else f" ({sum(strokes)} strokes)"
         d = page.turn_deg  # < 0: lines rising to the right, turned clockwise to lie level
         way = "clockwise" if d < 0 else "counter-clockwise"
-        turned = f" (turned {abs(d):.1f} degrees {way} to level them)" if d else ""
+        why = "to level them" if abs(d) < 45.0 else "to read it upright"  # sideways, upside down
+        turned = f" (turned {abs(d):.1f} degrees {way} {why})" if d else ""
         print(f"{path}: {len(page.characters)} characters{n} in {len(page.lines)} lines{turned}, "
               f"{len(flagged)} flagged -> " + ", ".join(str(f) for f in files))  # fmt: skip
     return 0
