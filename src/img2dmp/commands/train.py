@@ -16,9 +16,22 @@ checkpoints/{best,last}.safetensors (+ .json).
 stored there; only --epochs (train on to this many epochs), --no-progress and --data (the
 run's data set at another place: the same file, checked by its SHA-256) may be given
 with it. A run directory that holds a model is never replaced without --force (the rule of
-every command that writes; --overwrite is its older name). While a run trains, its
-directory is locked (the file DIR/.lock): a second run on the same --run-dir stops at once
-with an error, and the lock goes with the first run (its end, an error or a kill).
+every command that writes; --overwrite is its older name); a --force restart deletes the
+old run's checkpoints and records before it writes anything, so a restart stopped early
+leaves nothing of the old run to resume.
+
+--init-from RUN without --config takes the run's network, cost and reading settings
+(model, strokes, cost, reading) from its checkpoint, the data, optimiser and seed from
+the command line:
+
+  img2dmp train --init-from runs/pre --data mine.safetensors --run-dir runs/tuned \\
+      --epochs 20 --set optim.lr=1e-4
+
+With --config, a network setting that differs from the run's is refused by name.
+
+While a run trains, its directory is locked (the file DIR/.lock): a second run on the same
+--run-dir stops at once with an error, and the lock goes with the first run (its end, an
+error or a kill).
 Data-parallel: torchrun --nproc_per_node 2 -m img2dmp train ...
 --device cuda trains the network on a GPU (where the machine has one; the costs and the
 DMP rollout stay on the CPU); a resumed run may change its device.
@@ -91,7 +104,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="RUN|NAME",
         help="start from the weights (and output normalisation) of this run directory, "
         "checkpoint or shipped model (e.g. digits-real) instead of random weights: "
-        "fine-tuning (= init_from)",
+        "fine-tuning (= init_from). Without --config its model, strokes, cost and reading "
+        "settings are the run's; with --config they must be its network's",
     )
     _args.add_device(p, "the network's training (its weights, forward and backward passes)")
     _args.add_no_progress(p)
@@ -169,7 +183,8 @@ def saved_epochs(args: argparse.Namespace, started: float) -> str:
     except (OSError, ValueError, KeyError, TypeError):
         ours = False
     if not ours:
-        return "no epoch of this run finished, so nothing of it is saved"
+        earlier = f"; the earlier run in {args.run_dir} is as it was" if last.is_file() else ""
+        return f"no epoch of this run finished, so nothing of it is saved{earlier}"
     resume = shlex.join(["img2dmp", "train", "--run-dir", str(args.run_dir), "--resume"])
     return f"{done} of {total} epochs are saved in {last}; to continue: {resume}"
 
@@ -235,6 +250,10 @@ def run(args: argparse.Namespace) -> int:
                           "only --epochs can extend the run)") from None  # fmt: skip
     check_run_outputs(args)
     cfg = load_config(args.config, overrides(args))
+    if cfg.init_from and not args.config and not args.resume:  # the run's own network
+        from ..training.config import run_sections
+
+        cfg = load_config(None, overrides(args), base=run_sections(cfg.init_from))
     force = args.force or args.overwrite
     started, before = time.time(), _done_before(args)
     try:

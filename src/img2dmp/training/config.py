@@ -476,14 +476,41 @@ class TrainConfig:
 
 
 def load_config(
-    path: str | os.PathLike | None = None, overrides: list[str] | None = None
+    path: str | os.PathLike | None = None,
+    overrides: list[str] | None = None,
+    base: dict | None = None,
 ) -> TrainConfig:
-    """Defaults, then the file (if any), then the ``section.key=value`` overrides.
+    """Defaults, then ``base`` (a mapping of sections, e.g. :func:`run_sections`), then
+    the file (if any), then the ``section.key=value`` overrides.
 
     ``path`` is a YAML, TOML or JSON file, or the name of a configuration shipped with
     img2dmp (``"paper"``, ``"conv-wide"``, ``"real"`` ...; :func:`img2dmp.config.shipped_configs`).
     """
-    return _config.load(TrainConfig, path, overrides)
+    return _config.load(TrainConfig, path, overrides, base)
+
+
+#: The sections of a run's configuration that ``img2dmp train --init-from RUN`` takes from
+#: the run when no ``--config`` is given: what its network is (``model``; ``strokes``, the
+#: layout of a stroke model's outputs), what it was trained to answer (``cost``) and how it
+#: is read (``reading``). The data, the optimiser and the seed are the command line's.
+RUN_SECTIONS = ("model", "cost", "strokes", "reading")
+
+
+def run_sections(init_from: str | os.PathLike) -> dict:
+    """The :data:`RUN_SECTIONS` of the configuration stored in the checkpoint ``init_from``
+    (a run directory, a checkpoint file or a shipped model's name), as a mapping for
+    :func:`load_config`'s ``base``; a section the checkpoint does not record is left out
+    (the defaults'). The weights are not read."""
+    from ..checkpoint import read_checkpoint_meta, resolve_checkpoint
+
+    path = resolve_checkpoint(init_from)
+    stored = read_checkpoint_meta(path).get("train_config") or {}
+    sections = {k: stored[k] for k in RUN_SECTIONS if isinstance(stored.get(k), dict)}
+    try:  # a run of an older img2dmp may hold a setting this one no longer has
+        _config.check_known(TrainConfig, sections)
+    except ConfigError as e:
+        raise ConfigError(f"the configuration stored in {path}: {e}") from None
+    return sections
 
 
 __all__ = [
@@ -492,9 +519,11 @@ __all__ = [
     "DataConfig",
     "ModelConfig",
     "OptimConfig",
+    "RUN_SECTIONS",
     "ReadingConfig",
     "StrokesConfig",
     "TrainConfig",
     "load_config",
     "machine_cores",
+    "run_sections",
 ]

@@ -17,6 +17,9 @@ The run directory receives::
     familiar.safetensors     at the end: how familiar an image is to the best checkpoint
                              (img2dmp.familiar; trained on a data-set file only)
 
+A run that replaces another (``overwrite``) leaves the old one whole until its first
+epoch is saved, then replaces all its files at once (:func:`.setup.replacing_old_run`).
+
 Reproducibility: the initial weights, the per-epoch shuffling and (in generator mode) the
 per-epoch samples are all drawn from generators seeded by ``(seed, epoch)``, never from
 global state, so an uninterrupted run and one killed and resumed from ``last`` follow the
@@ -35,6 +38,7 @@ process, raises :class:`img2dmp._files.DirectoryBusy` at once.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
 from dataclasses import dataclass
@@ -52,7 +56,7 @@ from .config import TrainConfig
 from .data import Augmenter, Split, TrainingData
 from .distributed import epoch_generator, on_rank0, process_group
 from .records import ERROR_MEASURES, error_measure, plot_training_curve, write_metrics_csv
-from .setup import Run, open_run
+from .setup import Run, open_run, replacing_old_run
 from .state import EpochStats, checkpoint_meta, save_state
 
 #: The training curve costs ~0.3 s to draw; it is redrawn at most this often.
@@ -174,11 +178,15 @@ def fit(run: Run, t_start: float | None = None) -> TrainResult:
         _schedule(run, val_error)
         _report(run, epochs, state.history[-1])
         if run.rank == 0:
-            save_state(run.run_dir, _meta(run), state, improved)
-            write_metrics_csv(run.run_dir / "metrics.csv", state.history_dicts())
-            if _stopping(run) or time.perf_counter() - last_plot >= PLOT_EVERY_S:
-                _plot(run)
-                last_plot = time.perf_counter()
+            with replacing_old_run(run.run_dir) if run.replaces else contextlib.nullcontext():
+                if run.replaces:  # the old run's files go with this epoch's saved
+                    run.write_config()
+                save_state(run.run_dir, _meta(run), state, improved)
+                write_metrics_csv(run.run_dir / "metrics.csv", state.history_dicts())
+                if _stopping(run) or time.perf_counter() - last_plot >= PLOT_EVERY_S:
+                    _plot(run)
+                    last_plot = time.perf_counter()
+            run.replaces = False
         if run.world > 1:
             torch.distributed.barrier()
         if _stopping(run) and epoch < cfg.optim.epochs - 1:

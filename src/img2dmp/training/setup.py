@@ -2,13 +2,17 @@
 
 :func:`open_run` reads the configuration (the stored one when resuming), loads the data,
 checks that a resumed or initialising checkpoint fits them, builds the network, the
-optimiser, the schedule and the cost, and writes ``config.yaml``. What it returns,
+optimiser, the schedule and the cost, and writes ``config.yaml`` (a run that replaces
+another writes it with its first epoch: :func:`replacing_old_run`). What it returns,
 :class:`Run`, is everything the loop needs; only ``run.state`` changes afterwards.
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import os
+import shutil
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,10 +51,18 @@ class Run:
     net: torch.nn.Module  # state.model, or its DistributedDataParallel wrapper
     rank: int = 0
     world: int = 1
+    # a fresh run (overwrite) in a directory that holds another: the old run stays whole
+    # until this one's first epoch is saved (replacing_old_run)
+    replaces: bool = False
 
     @property
     def show_progress(self) -> bool:
         return self.cfg.progress and self.rank == 0
+
+    def write_config(self) -> None:
+        """``config.yaml``: the resolved configuration."""
+        text = yaml.safe_dump(self.cfg.to_dict(), sort_keys=False)
+        atomic_write_text(self.run_dir / "config.yaml", text)
 
 
 def open_run(
@@ -74,6 +86,8 @@ def open_run(
     data = TrainingData(cfg, _kept_normaliser(cfg, last or init))
     _check_fits(cfg, data, last, init)
     cfg = _resolved(cfg, data)
+    if init is not None:
+        _check_same_network(cfg, init)
     if last is None:
         cfg = _within_sample_limit(cfg, data.samples_per_epoch, say=rank == 0)
     stored = last.meta.get("parameter_weighting") if last is not None else None
@@ -88,13 +102,15 @@ def open_run(
     cost = make_cost(cfg, data.normaliser, data.dmp_config, weighting)
     _one_rollout_path(cfg, data.dmp_config)
     net = torch.nn.parallel.DistributedDataParallel(model) if world > 1 else model
-    if rank == 0:
+    augment = Augmenter.from_config(cfg, data)
+    replaces = last is None and holds_run(run_dir)
+    run = Run(cfg, run_dir, data, weighting, cost, augment, state, net, rank, world, replaces)
+    if rank == 0 and not replaces:  # a replacing run writes it with its first epoch
         run_dir.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(run_dir / "config.yaml", yaml.safe_dump(cfg.to_dict(), sort_keys=False))
+        run.write_config()
         if state.history:
             write_metrics_csv(run_dir / "metrics.csv", state.history_dicts())
-    augment = Augmenter.from_config(cfg, data)
-    return Run(cfg, run_dir, data, weighting, cost, augment, state, net, rank, world)
+    return run
 
 
 def _one_rollout_path(cfg: TrainConfig, dmp_config) -> None:
@@ -121,6 +137,106 @@ def _one_rollout_path(cfg: TrainConfig, dmp_config) -> None:
         pass
 
 
+#: What a run writes into its directory (:mod:`.loop`), its checkpoints' folder first.
+RUN_FILES = (CHECKPOINT_DIR, "config.yaml", "metrics.csv", "training_curve.png",
+             "familiar.safetensors")  # fmt: skip
+#: Where a run that replaces another puts the old one's files while it writes its own.
+REPLACED = ".replaced-run"
+
+
+def holds_run(run_dir: Path) -> bool:
+    """Whether ``run_dir`` holds a run's checkpoint (``best`` or ``last``)."""
+    folder = run_dir / CHECKPOINT_DIR
+    return any((folder / f"{n}.safetensors").is_file() for n in ("best", "last"))
+
+
+@contextlib.contextmanager
+def replacing_old_run(run_dir: Path):
+    """Replace the run in ``run_dir`` by the files the block writes, all or nothing.
+
+    The old run's files (:data:`RUN_FILES`; files of the user's own are left) are moved
+    into ``run_dir/.replaced-run``, its checkpoints first (a rename each, no copy); when
+    the block ends they are deleted, and when it fails (a full disk, Ctrl-C) the files it
+    wrote are deleted and the old ones moved back, as they were. So a ``--force``
+    restart leaves either the old run whole (stopped or failed before its first epoch is
+    saved: ``--resume`` continues the old run, with its own configuration and weights)
+    or its own first epoch, never the new ``config.yaml`` beside the old checkpoints.
+    A ``kill -9`` inside the block (milliseconds) leaves the old run in
+    ``.replaced-run``, which the next replacing run deletes."""
+    aside = run_dir / REPLACED
+    if aside.exists():  # the old run of a replacement killed in here
+        shutil.rmtree(aside)
+    aside.mkdir()
+    moved = [name for name in RUN_FILES if os.path.lexists(run_dir / name)]
+    for name in moved:
+        (run_dir / name).rename(aside / name)
+    try:
+        yield
+    except BaseException:
+        for name in RUN_FILES:
+            _remove(run_dir / name)
+        for name in moved:
+            (aside / name).rename(run_dir / name)
+        aside.rmdir()
+        raise
+    shutil.rmtree(aside)
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    elif os.path.lexists(path):
+        path.unlink()
+
+
+#: Settings of ``model`` that a network's weights leave free: how its weights would start
+#: (``init``), its output count (the data's, whose DMP constants are checked against the
+#: checkpoint's by :func:`_check_fits`) and ``dropout``, which changes no weight (where it
+#: adds or removes dropout layers the weights' names do not fit: :func:`_load_init`).
+FREE_OF_WEIGHTS = ("dropout", "init", "n_outputs")
+
+
+def network_settings(train_config: dict) -> dict:
+    """``"model.KEY"`` / ``"strokes.KEY"`` -> value: the settings of a stored configuration
+    (:meth:`TrainConfig.to_dict`) that decide what its network's weights are and compute,
+    each written one way (a convolutional encoder's default strides given, only its code's
+    width of ``encoder_layers``; a fully connected encoder without the convolutions')."""
+    model = {k: v for k, v in (train_config.get("model") or {}).items()
+             if k not in FREE_OF_WEIGHTS}  # fmt: skip
+    if model.get("encoder") == "conv":
+        if model.get("conv_strides") is None and isinstance(model.get("conv_channels"), list):
+            model["conv_strides"] = [2] * len(model["conv_channels"])
+        if isinstance(model.get("encoder_layers"), list):
+            model["encoder_layers"] = model["encoder_layers"][-1:]
+    else:
+        for k in ("conv_channels", "conv_strides", "conv_norm"):
+            model.pop(k, None)
+    out = {f"model.{k}": v for k, v in model.items()}
+    strokes = train_config.get("strokes") or {}
+    out["strokes.slots"] = strokes.get("slots") or 0
+    if out["strokes.slots"]:
+        out["strokes.n_kernels"] = strokes.get("n_kernels")
+    return out
+
+
+def _check_same_network(cfg: TrainConfig, init: Checkpoint) -> None:
+    """Refuse to start from ``init`` a network that differs from its run's in a setting
+    its weights do not fix (an activation, an input filter: weights of the same shapes
+    that would compute something else), naming each such setting."""
+    stored = init.meta.get("train_config")
+    if not isinstance(stored, dict):
+        return  # nothing recorded: the weights' shapes alone are checked
+    theirs, ours = network_settings(stored), network_settings(cfg.to_dict())
+    differ = [f"{k} {theirs[k]!r} (this run: {ours[k]!r})"
+              for k in ours if k in theirs and theirs[k] != ours[k]]  # fmt: skip
+    if differ:
+        raise CheckpointError(
+            f"cannot initialise from {init.path}: it was saved from another architecture; "
+            f"the run it comes from differs in {', '.join(differ)}; without --config, train "
+            "--init-from takes the run's network (its model and strokes sections)"
+        )
+
+
 def _load_init(model: torch.nn.Module, init: Checkpoint, cfg: TrainConfig) -> None:
     """``init``'s weights into ``model``; when they do not fit, the error names the
     ``model`` settings in which the checkpoint's run differs from this one."""
@@ -132,7 +248,7 @@ def _load_init(model: torch.nn.Module, init: Checkpoint, cfg: TrainConfig) -> No
         differ = [
             f"model.{k} {theirs[k]!r} (this run: {ours[k]!r})"
             for k in ours
-            if k in theirs and theirs[k] != ours[k]
+            if k in theirs and theirs[k] != ours[k] and k not in ("init", "n_outputs")
         ]
         if not differ:
             raise
@@ -160,7 +276,9 @@ def _configuration(config, run_dir, resume, overwrite, epochs, data=None):
             cfg.optim = _with_epochs(cfg.optim, epochs)
         return cfg, None
     if not last_path.is_file():
-        raise FileNotFoundError(f"cannot resume: {last_path} does not exist")
+        started = " (no epoch of the run started there finished)" if (
+            run_dir / "config.yaml").is_file() else ""  # fmt: skip
+        raise FileNotFoundError(f"cannot resume: {last_path} does not exist{started}")
     try:
         last = load_checkpoint(last_path)
     except CheckpointError as e:  # damaged: say what is left to go on from
@@ -266,6 +384,12 @@ def _check_fits(cfg: TrainConfig, data: TrainingData, last, init) -> None:
     if last is not None and cfg.data.path:
         _check_same_data(cfg.data.path, data.dataset_sha256, last)
     size = cfg.model.image_size
+    if init is not None and size is not None and list(size) != data.image_size:
+        if list(size) == list(init.meta.get("image_size") or []):  # the run's own size
+            raise ValueError(
+                f"the data's images are {data.image_size} pixels but the network of "
+                f"{init.path} reads {list(size)} (model.image_size): give it data of that size"
+            )
     if size is not None and list(size) != data.image_size:
         raise ValueError(
             f"the data's images are {data.image_size} pixels but model.image_size is {size} "
@@ -348,4 +472,4 @@ def make_scheduler(opt: torch.optim.Optimizer, o: OptimConfig):
     return None
 
 
-__all__ = ["Run", "make_cost", "make_scheduler", "open_run"]
+__all__ = ["Run", "holds_run", "make_cost", "make_scheduler", "open_run", "replacing_old_run"]
