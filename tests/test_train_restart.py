@@ -237,3 +237,41 @@ def test_a_force_restart_replaces_the_old_run_s_records(data, pre, tmp_path, cap
     assert _digest(run) != old
     assert not (run / "familiar.safetensors").exists()
     assert len((run / "metrics.csv").read_text().splitlines()) == 2  # its header, its epoch
+
+
+def test_init_from_a_run_of_other_dmp_constants_names_them_and_the_remedy(
+    data, pre, tmp_path, capsys
+):
+    """The line gave both whole DMP configurations, for the reader to compare."""
+    other = tmp_path / "none.safetensors"
+    assert cli.main(["generate", "--out", str(other), "--per-digit", "4", "--digits", "2",
+                     "--scaling", "none", "--workers", "1", "--no-progress"]) == 0  # fmt: skip
+    line = _error_line(capsys, _argv(other, tmp_path / "tuned", "--init-from", str(pre)))
+    assert f"cannot initialise from {pre / 'checkpoints' / 'best.safetensors'}" in line
+    assert (
+        f"differ from those of the data set {other} in scaling 'goal-start' (the data: 'none')"
+        in line
+    )
+    assert "--scaling goal-start" in line and "alpha_z" not in line
+
+
+def test_init_from_a_shipped_model_takes_its_network_and_its_card_s_reading(tmp_path, capsys):
+    """Fine-tuning digits-real without --config: its network, and the reading its card
+    recommends (the record has no reading section; the fine-tuned run recommended none)."""
+    from img2dmp import models
+    from img2dmp.checkpoint import read_checkpoint_meta, resolve_checkpoint
+
+    record = read_checkpoint_meta(resolve_checkpoint("digits-real"))
+    size = record["train_config"]["model"]["image_size"]
+    scaling = record["dmp_config"]["scaling"]
+    data = tmp_path / "d.safetensors"
+    argv = ["generate", "--out", str(data), "--per-digit", "4", "--digits", "3", "--no-progress",
+            "--image-size", str(size[0]), "--scaling", scaling, "--workers", "1"]  # fmt: skip
+    assert cli.main(argv) == 0
+    run = tmp_path / "tuned"
+    assert cli.main(_argv(data, run, "--init-from", "digits-real", "--epochs", "1")) == 0
+    stored = _stored(run)
+    assert stored["model"] == record["train_config"]["model"]
+    card = models.resolve("digits-real").reading.recommended()
+    assert card["refine"] > 0
+    assert {k: v for k, v in stored["reading"].items() if v is not None} == card

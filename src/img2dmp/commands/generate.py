@@ -8,10 +8,12 @@ The file format is described in docs/DATASET.md. The same seed gives identical d
 The generator's settings (img2dmp.data.synthetic.SyntheticConfig: digits, image_size,
 duration_s, dt_s, ranges of the template parameters, pen width, blur, noise_amount,
 affine ranges, ridge ...) come from the defaults, then --config FILE, then --digits and
---image-size (when given), then --set KEY=VALUE. An existing --out file is replaced only
+--image-size (when given), then --set KEY=VALUE. The DMPs are fitted with --scaling and
+--n-kernels (the other constants: img2dmp.dmp.DMPConfig's). An existing --out file is replaced only
 with --force (checked before anything is generated). Examples:
 
   img2dmp generate --out twos.safetensors --digits 2 --per-digit 500
+  img2dmp generate --out d28.safetensors --image-size 28 --scaling none   # digits-real's
   img2dmp generate --out d.safetensors --config synth.yaml --set noise_amount=0.1 \\
       --set 'affine.scale=[0.9, 1.0]'
 """
@@ -65,6 +67,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--splits", type=parse_splits, default="0.8,0.1,0.1", help="train,validation,test fractions"
     )
+    p.add_argument(
+        "--scaling",
+        choices=("goal-start", "none"),
+        default="goal-start",
+        help="the fitted DMPs' forcing-term scaling (a model to fine-tune on the data needs "
+        "its own: the shipped digits-real's is none)",
+    )
+    p.add_argument(
+        "--n-kernels",
+        metavar="N",
+        type=_args.int_at_least(1),
+        default=25,
+        help="the fitted DMPs' kernels per dimension",
+    )
     _args.add_config(p, "SyntheticConfig fields (ranges, pen, noise, affine ...)")
     _args.add_set(p, "--set noise_amount=0.1 --set 'affine.scale=[0.9, 1.0]'")
     p.add_argument(
@@ -108,8 +124,10 @@ def save_new_dataset(out, data, force: bool) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..data.synthetic import generate_dataset
+    from ..dmp import DMPConfig
 
     config = synthetic_config(args)
+    dmp_config = DMPConfig(n_kernels=args.n_kernels, scaling=args.scaling)
     _args.check_outputs([(args.out, None)], args.force, _args.config_inputs(args))
     _args.check_file_dir(args.out)
     data = generate_dataset(
@@ -117,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
         config,
         seed=args.seed,
         splits=args.splits,
+        dmp_config=dmp_config,
         progress=not args.no_progress,
         workers=args.workers,
     )
@@ -127,6 +146,7 @@ def run(args: argparse.Namespace) -> int:
         "samples": len(data),
         "digits": list(config.digits),
         "image_size": list(config.image_size),
+        "dmp": {"scaling": dmp_config.scaling, "n_kernels": dmp_config.n_kernels},
         "splits": {
             k: int((data.split == v).sum())
             for k, v in (("train", 0), ("validation", 1), ("test", 2))

@@ -500,12 +500,18 @@ def run_sections(init_from: str | os.PathLike) -> dict:
     """The :data:`RUN_SECTIONS` of the configuration stored in the checkpoint ``init_from``
     (a run directory, a checkpoint file or a shipped model's name), as a mapping for
     :func:`load_config`'s ``base``; a section the checkpoint does not record is left out
-    (the defaults'). The weights are not read."""
+    (the defaults'), but for a shipped model's ``reading``, which its card recommends
+    (``digits-real``: 30 refinement steps, 60 for what it finds unfamiliar). The weights
+    are not read."""
+    from .. import models
     from ..checkpoint import read_checkpoint_meta, resolve_checkpoint
 
     path = resolve_checkpoint(init_from)
     stored = read_checkpoint_meta(path).get("train_config") or {}
     sections = {k: stored[k] for k in RUN_SECTIONS if isinstance(stored.get(k), dict)}
+    shipped = models.resolve(init_from)
+    if shipped is not None and "reading" not in sections:
+        sections["reading"] = shipped.reading.recommended()
     try:  # a run of an older img2dmp may hold a setting this one no longer has
         _config.check_known(TrainConfig, sections)
     except ConfigError as e:

@@ -376,10 +376,17 @@ def _kept_normaliser(cfg: TrainConfig, ckpt: Checkpoint | None) -> ParamNormalis
 
 def _check_fits(cfg: TrainConfig, data: TrainingData, last, init) -> None:
     if init is not None and init.meta["dmp_config"] != data.dmp_config.to_dict():
+        theirs, ours = init.meta["dmp_config"], data.dmp_config.to_dict()
+        keys = [k for k in ours if theirs.get(k) != ours[k]]
+        differ = ", ".join(f"{k} {theirs.get(k)!r} (the data: {ours[k]!r})" for k in keys)
+        flags = " ".join(f"--{k.replace('_', '-')} {theirs[k]}" for k in keys
+                         if k in ("scaling", "n_kernels", "n_dims") and k in theirs)  # fmt: skip
+        remedy = (f": make the data with the network's ({flags.replace('--n-dims', '--dims')}"
+                  " in generate, prepare or import)" if flags else "")  # fmt: skip
+        where = f"data set {cfg.data.path}" if cfg.data.path else "generator (data.generator)"
         raise ValueError(
-            f"cannot initialise from {init.path}: it was trained with DMP config "
-            f"{init.meta['dmp_config']}, the data set {cfg.data.path} has "
-            f"{data.dmp_config.to_dict()}"
+            f"cannot initialise from {init.path}: its DMP constants differ from those of the "
+            f"{where} in {differ}{remedy}"
         )
     if last is not None and cfg.data.path:
         _check_same_data(cfg.data.path, data.dataset_sha256, last)
