@@ -274,4 +274,5 @@ def test_a_damaged_last_checkpoint_says_what_is_left(data, tmp_path, capsys):
     line = capsys.readouterr().err.strip()
     assert line.startswith(f"img2dmp train: error: cannot resume: checkpoint {last} is corrupt")
     assert f"--init-from {run / 'checkpoints' / 'best.safetensors'} --run-dir NEW" in line
+    assert "--config" not in line  # the network comes with the weights (no --config)
     assert "\n" not in line

@@ -285,7 +285,8 @@ def _configuration(config, run_dir, resume, overwrite, epochs, data=None):
         best = last_path.with_name("best.safetensors")
         hint = (
             f"; its best weights can start a new run: --init-from {best} --run-dir NEW "
-            "(with the run's --config)"
+            "(the run's network and reading settings come with them; --data and --epochs "
+            "are the new run's)"
             if best.is_file()
             else ""
         )
