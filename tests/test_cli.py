@@ -238,7 +238,7 @@ def test_generate_reads_its_config_file_and_overrides(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("setting", "message"),
     [
-        ("pen_size=3", "unknown synthetic config field(s): ['pen_size']"),
+        ("pen_size=3", "unknown field(s) pen_size; known: "),
         ("affine.foo=1", "affine.foo"),
         ("ridge=abc", "ridge must be a number, got 'abc'"),
         ("noise_amount=2", "noise_amount must lie in [0, 1]"),

@@ -497,6 +497,7 @@ def to_dict(obj) -> dict:
 __all__ = [
     "ConfigError",
     "apply_overrides",
+    "check_known",
     "check_positive",
     "check_positive_fields",
     "config_path",

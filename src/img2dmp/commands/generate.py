@@ -97,7 +97,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def synthetic_config(args: argparse.Namespace):
     """The :class:`~img2dmp.data.synthetic.SyntheticConfig` of the command line: file,
     then ``--digits`` / ``--image-size`` if given, then ``--set``."""
-    from ..config import apply_overrides, read_config_of
+    from ..config import apply_overrides, check_known, read_config_of
     from ..data.synthetic import SyntheticConfig
 
     fields = read_config_of(SyntheticConfig, args.config) if args.config else {}
@@ -105,7 +105,9 @@ def synthetic_config(args: argparse.Namespace):
         fields["digits"] = list(args.digits)
     if args.image_size is not None:
         fields["image_size"] = [args.image_size, args.image_size]
-    return SyntheticConfig.from_dict(apply_overrides(fields, args.set))
+    fields = apply_overrides(fields, args.set)
+    check_known(SyntheticConfig, fields)  # a misspelt --set key said as every command says it
+    return SyntheticConfig.from_dict(fields)
 
 
 def save_new_dataset(out, data, force: bool) -> None:
