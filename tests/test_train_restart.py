@@ -167,6 +167,8 @@ def test_a_force_restart_stopped_as_it_replaces_the_old_run_puts_it_back(
     run = tmp_path / "run"
     shutil.copytree(pre, run)
     (run / "notes.txt").write_text("mine")  # a file of the user's own is left where it is
+    (run / "evaluation").mkdir()
+    (run / "evaluation" / "evaluation.txt").write_text("the old run's")
     before = _snapshot(run)
     target = {"config": (setup.Run, "write_config"), "checkpoint": (loop, "save_state"),
               "metrics": (loop, "write_metrics_csv")}[at]  # fmt: skip
@@ -188,6 +190,8 @@ def test_a_force_restart_replaces_the_whole_run_with_its_first_epoch(
     run = tmp_path / "run"
     shutil.copytree(pre, run)
     (run / "notes.txt").write_text("mine")
+    (run / "evaluation").mkdir()  # evaluate's default --out: the old weights' figures
+    (run / "evaluation" / "evaluation.txt").write_text("the old run's")
     old = _digest(run)
     seen = {}
     real = loop.save_state
@@ -204,6 +208,7 @@ def test_a_force_restart_replaces_the_whole_run_with_its_first_epoch(
     assert _digest(run) != old and _stored(run)["seed"] == 3
     assert len((run / "metrics.csv").read_text().splitlines()) == 3  # its header, its epochs
     assert not (run / setup.REPLACED).exists() and (run / "notes.txt").read_text() == "mine"
+    assert not (run / "evaluation").exists()
 
 
 def _interrupted(run, epoch):

@@ -137,9 +137,10 @@ def _one_rollout_path(cfg: TrainConfig, dmp_config) -> None:
         pass
 
 
-#: What a run writes into its directory (:mod:`.loop`), its checkpoints' folder first.
+#: What a run writes into its directory (:mod:`.loop`), its checkpoints' folder first,
+#: and ``img2dmp evaluate``'s default output for it (figures of the weights it replaces).
 RUN_FILES = (CHECKPOINT_DIR, "config.yaml", "metrics.csv", "training_curve.png",
-             "familiar.safetensors")  # fmt: skip
+             "familiar.safetensors", "evaluation")  # fmt: skip
 #: Where a run that replaces another puts the old one's files while it writes its own.
 REPLACED = ".replaced-run"
 
