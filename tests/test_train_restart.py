@@ -6,7 +6,11 @@ stopped before its first epoch ends."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -17,6 +21,7 @@ from img2dmp.data.store import save_dataset
 from img2dmp.data.synthetic import SyntheticConfig, generate_dataset
 from img2dmp.training import loop, setup
 
+SRC = str(Path(__file__).resolve().parents[1] / "src")
 #: A network and optimiser small enough that an epoch of 8 samples takes milliseconds.
 TINY = [
     "threads=1",
@@ -216,7 +221,9 @@ def _interrupted(run, epoch):
 
 
 def _snapshot(path: Path) -> dict:
-    return {str(p.relative_to(path)): p.read_bytes() for p in path.rglob("*") if p.is_file()}
+    """Every file under ``path`` -> its bytes (but the lock's, which holds its holder's pid)."""
+    files = [p for p in path.rglob("*") if p.is_file() and p.name != ".lock"]
+    return {str(p.relative_to(path)): p.read_bytes() for p in files}
 
 
 def test_a_force_restart_that_fails_its_checks_keeps_the_old_run(data, pre, tmp_path, capsys):
@@ -280,3 +287,32 @@ def test_init_from_a_shipped_model_takes_its_network_and_its_card_s_reading(tmp_
     card = models.resolve("digits-real").reading.recommended()
     assert card["refine"] > 0
     assert {k: v for k, v in stored["reading"].items() if v is not None} == card
+
+
+def test_a_force_restart_killed_in_its_first_epoch_leaves_the_old_run_whole(data, pre, tmp_path):
+    """kill -9, which no clean-up follows, in the restart's first epoch."""
+    run = tmp_path / "run"
+    shutil.copytree(pre, run)
+    before = _snapshot(run)
+    started = tmp_path / "in-epoch"
+    code = (
+        "import sys, time\nfrom pathlib import Path\nfrom img2dmp import cli\n"
+        "from img2dmp.training import loop\n"
+        "def stays(run, epoch):\n"
+        f"    Path({str(started)!r}).touch()\n"
+        "    time.sleep(600)\n"
+        "loop.train_epoch = stays\n"
+        "sys.exit(cli.main(sys.argv[1:]))\n"
+    )
+    env = dict(os.environ, PYTHONPATH=SRC, OMP_NUM_THREADS="1")
+    argv = _argv(data, run, "--force", "--seed", "3")
+    proc = subprocess.Popen([sys.executable, "-c", code, *argv], env=env)
+    try:
+        deadline = time.monotonic() + 120
+        while not started.exists() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert started.exists(), "the restart never reached its first epoch"
+    finally:
+        proc.kill()
+        proc.wait()
+    assert _snapshot(run) == before
