@@ -9,8 +9,8 @@ The generator's settings (img2dmp.data.synthetic.SyntheticConfig: digits, image_
 duration_s, dt_s, ranges of the template parameters, pen width, blur, noise_amount,
 affine ranges, ridge ...) come from the defaults, then --config FILE, then --digits and
 --image-size (when given), then --set KEY=VALUE. The DMPs are fitted with --scaling and
---n-kernels (the other constants: img2dmp.dmp.DMPConfig's). An existing --out file is replaced only
-with --force (checked before anything is generated). Examples:
+--n-kernels (the other constants: img2dmp.dmp.DMPConfig's). An existing --out file is
+replaced only with --force (checked before anything is generated). Examples:
 
   img2dmp generate --out twos.safetensors --digits 2 --per-digit 500
   img2dmp generate --out d28.safetensors --image-size 28 --scaling none   # digits-real's
