@@ -136,3 +136,29 @@ def test_the_rules_beside_a_sheets_own_dark_edge_on_a_light_desk_are_no_ink():
     boxes = [c.box for c in find_characters(found.mask, core=found.core).characters]
     inside = [[b[0] <= x < b[2] and b[1] <= y < b[3] for b in boxes] for x, y in centres]
     assert len(boxes) == len(centres) and all(sum(row) == 1 for row in inside), boxes
+
+
+@pytest.mark.parametrize("angle_deg", [-10.0, 8.0])
+def test_a_squared_sheets_thin_border_on_a_light_desk_of_its_shade_is_its_edge(angle_deg):
+    """Squared paper whose grid runs on to its edge, a thin darker line all around (its
+    edge, 2 px), on a plain light desk (240) within ``DESK_CONTRAST`` of the paper, turned:
+    the border is a thin line with the paper's shade on both sides and parallel to the
+    grid, so it was taken for a rule and left out of the edges, and the desk came in
+    through it (no desk, the grid read as ink: 1 box, or 2862). Beyond it nothing changes,
+    as beyond a rule the paper does: it is the sheet's edge, and the nine characters are
+    read, one box each."""
+    ink, boxes = page(LINES)
+    h, w = ink.shape
+    paper = ruled((h, w), 7.0, vertical=True, colour=(0.75, 0.82, 0.97), width=1.0)
+    for side in (np.s_[:2], np.s_[-2:], np.s_[:, :2], np.s_[:, -2:]):
+        paper[side] *= 0.6
+    img, centres = _on_desk(on_paper(ink, paper, colour=(0.1, 0.15, 0.6)), boxes, 240,
+                            angle_deg, 0)  # fmt: skip
+    sheet = find_sheet(np.ascontiguousarray(np.moveaxis(img, 2, 0)))
+    assert sheet is not None, "no desk found"
+    assert abs(sheet.angle_deg + angle_deg) < 1.5, sheet.angle_deg
+    found = paper_ink(img)
+    assert found is not None, "no ink found"
+    boxes = [c.box for c in find_characters(found.mask, core=found.core).characters]
+    inside = [[b[0] <= x < b[2] and b[1] <= y < b[3] for b in boxes] for x, y in centres]
+    assert len(boxes) == len(centres) and all(sum(row) == 1 for row in inside), boxes

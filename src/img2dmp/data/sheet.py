@@ -8,7 +8,9 @@ On the photo reduced to about ``SHEET_SIDE`` pixels on its shorter side and smoo
 1. **edges**: the pixels where the colour changes faster than ``STEP_NOISE`` times the
    image's usual change (and ``STEP_MIN``): the sheet's edge, the strokes; not the
    lines of ruled or squared paper (:func:`_rules`: thin, with the paper on both sides,
-   straight and in parallel sets, ``RULE_*``), which, closed, would fill the sheet.
+   straight and in parallel sets, ``RULE_*``), which, closed, would fill the sheet (a
+   sheet's own thin dark border on a desk of its shade, with a plain desk beyond it, is
+   an edge).
    The long straight ones (the sheet's border) are drawn on through their faint
    stretches (where the paper's shade nears the desk's level, ``LINE_*``) and on to the
    corner where two of them meet (``CORNER_GAP``); all grown by a pixel, gaps of up to
@@ -119,6 +121,10 @@ RULE_RUN = 0.12
 RULE_OWN = 4
 RULE_PITCH = 0.15
 RULE_BAND = 3
+#: A line with the set's other lines on one side only, and nothing changing on the other
+#: for this many times the distance to the nearest of them, is where the set ends (a
+#: sheet's own thin border on a plain desk of its shade), no rule.
+RULE_END = 1.5
 #: Groups of edge pixels this small that touch the rules go with them.
 RULE_SPECK = 12
 #: The band beside the desk: this share of the photo's shorter side.
@@ -327,9 +333,12 @@ def _rules(small: np.ndarray, weak: np.ndarray) -> np.ndarray:
     shadow's edge, is no rule), straight (such pixels along it for ``RULE_COVER`` of
     ``RULE_RUN`` of the shorter side one way or the other: on to the sheet's edge) and
     with another such line on one side within ``RULE_PITCH`` of it (rules come in
-    parallel sets: a margin line, a fold, a long stroke stay edges); grown across the line
-    over the pixels of ``weak`` within ``RULE_BAND`` (the line's blurred sides, a stroke's
-    pixels on it; not on past its end into the sheet's border). Across and along:
+    parallel sets: a margin line, a fold, a long stroke stay edges) and pixels of ``weak``
+    within that reach on both sides (the paper on both: beyond a sheet's own thin dark
+    border on a plain desk of its shade, the set's outermost line there, nothing
+    changes); grown across the line over the pixels of ``weak`` within ``RULE_BAND``
+    (the line's blurred sides, a stroke's pixels on it; not on past its end into the
+    sheet's border). Across and along:
     :func:`_orientation`'s direction; the pixels tested: ``weak`` and those beside them
     (a sharp line's middle changes little)."""
     from scipy.ndimage import binary_dilation
@@ -364,8 +373,10 @@ def _rules(small: np.ndarray, weak: np.ndarray) -> np.ndarray:
     straight = np.zeros_like(weak)
     straight[ys, xs] = True
     reach = range(RULE_OWN + 1, max(RULE_OWN + 2, round(RULE_PITCH * min(h, w)) + 1))
-    ok = _along(straight, ys, xs, ny, nx, reach).any(axis=0)
-    ok |= _along(straight, ys, xs, -ny, -nx, reach).any(axis=0)
+    ahead = _along(straight, ys, xs, ny, nx, reach)  # [len(reach), n]
+    behind = _along(straight, ys, xs, -ny, -nx, reach)
+    ok = ahead.any(axis=0) | behind.any(axis=0)
+    ok &= ~_set_ends(weak, ys, xs, ny, nx, ahead, behind, reach.start)
     out = np.zeros_like(weak)
     ys, xs, ny, nx = ys[ok], xs[ok], ny[ok], nx[ok]
     for d in range(-RULE_BAND, RULE_BAND + 1):  # across the line, not on past its end
@@ -373,6 +384,33 @@ def _rules(small: np.ndarray, weak: np.ndarray) -> np.ndarray:
         x = np.clip(np.round(xs + d * nx).astype(np.int64), 0, w - 1)
         out[y, x] = True
     return weak & out
+
+
+def _set_ends(weak, ys, xs, ny, nx, ahead, behind, start: int) -> np.ndarray:
+    """Whether each line pixel ``(ys, xs)`` (across it ``(ny, nx)``), with the set's
+    other lines on one side only (``ahead`` / ``behind``: :func:`_along`'s answers from
+    ``start`` pixels on), has nothing of ``weak`` on its other side for ``RULE_END``
+    times the distance to the nearest of them, all inside the image: where the set ends
+    (``bool [n]``). A sheet's own thin dark border on a plain desk of its shade: beyond
+    it nothing changes; beyond a page's last rule, the image's border within a pitch
+    and a half (a margin narrower than that) leaves it a rule."""
+    h, w = weak.shape
+    ahead_any, behind_any = ahead.any(axis=0), behind.any(axis=0)
+    lone = np.flatnonzero(ahead_any ^ behind_any)
+    out = np.zeros(ys.size, bool)
+    if lone.size == 0:
+        return out
+    fwd = ahead_any[lone]
+    pitch = np.where(fwd, ahead[:, lone].argmax(axis=0), behind[:, lone].argmax(axis=0)) + start
+    far = np.ceil(RULE_END * pitch).astype(np.int64)
+    sign = np.where(fwd, -1.0, 1.0)  # towards the side without lines
+    y, x, dy, dx = ys[lone], xs[lone], sign * ny[lone], sign * nx[lone]
+    end_y, end_x = np.round(y + far * dy), np.round(x + far * dx)
+    inside = (end_y >= 0) & (end_y < h) & (end_x >= 0) & (end_x < w)
+    beyond = _along(weak, y, x, dy, dx, range(RULE_OWN + 1, int(far.max()) + 1))
+    beyond &= np.arange(RULE_OWN + 1, int(far.max()) + 1)[:, None] <= far[None, :]
+    out[lone] = inside & ~beyond.any(axis=0)
+    return out
 
 
 def _specks_on(edges: np.ndarray, rules: np.ndarray) -> np.ndarray:
