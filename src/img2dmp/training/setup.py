@@ -115,26 +115,20 @@ def open_run(
 
 def _one_rollout_path(cfg: TrainConfig, dmp_config) -> None:
     """Load the rollout's fused kernels before the first step, so that every rollout of
-    the run goes through them.
+    the run goes through them (:func:`img2dmp.dmp.rollout.load_fused_kernels`).
 
     :func:`img2dmp.dmp.rollout` (``backend="auto"``) takes the torch operations for small
-    calls until the kernels have run once in the process, and loads them once those
-    calls have taken 0.5 s of wall time: a training switched paths at a step that
-    depended on the machine's speed and load, and a resumed one (a new process) at
-    another, so runs of one configuration differed after that step (to rounding, then
-    growing). Loaded first, every step takes one path: the same weights, bit for bit,
-    run after run and after a resume. Without numba every rollout takes torch's path.
+    calls until the kernels have run once in the process, or until such calls would have
+    taken 0.5 s: a training switched paths at a step that depended on the machine's
+    speed and load (then timed), and a resumed one (a new process) at another, so runs of
+    one configuration differed after that step (to rounding, then growing). Loaded
+    first, every step takes one path: the same weights, bit for bit, run after run and
+    after a resume. Without numba every rollout takes torch's path.
     """
-    from ..dmp import DMPParams, rollout
+    from ..dmp.rollout import load_fused_kernels
 
     layout = cfg.strokes.layout()
-    config = dmp_config if layout is None else layout.config
-    n, d = config.n_kernels, config.n_dims
-    params = DMPParams(torch.zeros(1, n, d), torch.ones(1), torch.ones(1, d), torch.zeros(1, d))
-    try:
-        rollout(params, torch.linspace(0.0, 1.0, 2), config, backend="fused")
-    except ValueError:  # no numba: the torch operations throughout
-        pass
+    load_fused_kernels(dmp_config if layout is None else layout.config)
 
 
 #: What a run writes into its directory (:mod:`.loop`), its checkpoints' folder first,
