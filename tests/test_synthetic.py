@@ -261,8 +261,10 @@ def test_bad_arguments_are_named():
         generate_dataset(0, progress=False)
     with pytest.raises(ValueError, match="splits"):
         generate_dataset(2, splits=(0.5, 0.5, 0.5), progress=False)
-    with pytest.raises(ValueError, match="unknown synthetic config"):
+    with pytest.raises(ValueError, match=r"unknown field\(s\) pen_size; known: digits, "):
         SyntheticConfig.from_dict({"pen_size": 3})
+    with pytest.raises(ValueError, match=r"unknown field\(s\) affine\.shaer; known: "):
+        SyntheticConfig.from_dict({"affine": {"shaer": 0.1}})
 
 
 def test_cli_generate_and_preview(tmp_path, capsys):

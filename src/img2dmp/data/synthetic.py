@@ -50,14 +50,14 @@ from __future__ import annotations
 import math
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import torch
 
 from .._processes import children_ignore_interrupts
 from .._progress import bar as progress_bar
-from ..config import ConfigError, check_positive_fields, from_mapping
+from ..config import ConfigError, check_known, check_positive_fields, from_mapping
 from ..dmp import DMPConfig, fit_dmp
 from .affine import AffineRanges, sample_affine, warp_images, warp_points
 from .render import gaussian_filter, render_paths, salt_and_pepper
@@ -334,12 +334,7 @@ class SyntheticConfig:
         given as a plain integer."""
         if not isinstance(d, dict):
             raise ConfigError(f"a synthetic config must be a mapping of fields, got {d!r}")
-        names = [f.name for f in fields(cls)]
-        unknown = sorted(set(d) - set(names))
-        if unknown:
-            raise ConfigError(
-                f"unknown synthetic config field(s): {unknown}; known: {', '.join(names)}"
-            )
+        check_known(cls, d)  # worded as every config's: "unknown field(s) pen_size; known: ..."
         d = dict(d)
         for key, n in (("digits", 1), ("image_size", 2)):
             if isinstance(d.get(key), (int, np.integer)) and not isinstance(d[key], bool):
