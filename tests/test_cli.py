@@ -180,6 +180,31 @@ def test_evaluate_refuses_missing_or_contradicting_model_and_data(argv, message,
     assert message in _one_error_line(capsys.readouterr().err, "evaluate")
 
 
+def test_evaluate_without_data_takes_the_data_set_the_run_recorded(monkeypatch, tmp_path):
+    """``evaluate RUN`` refused without DATA although the run's checkpoint records the
+    file it trained on: that file is taken when it is still there, unchanged."""
+    import hashlib
+
+    import img2dmp.checkpoint as checkpoint
+
+    data = tmp_path / "d.safetensors"
+    data.write_bytes(b"the data")
+    record = {"path": str(data), "sha256": hashlib.sha256(b"the data").hexdigest()}
+    monkeypatch.setattr(checkpoint, "read_checkpoint_meta", lambda model: {"dataset": record})
+    args = cli.build_parser().parse_args(["evaluate", "runs/r"])
+    assert evaluate.model_and_data(args) == ("runs/r", str(data))
+    data.write_bytes(b"other data")
+    with pytest.raises(ValueError, match=r"no data given, and the data set runs/r trained on, "
+                                         r".*d\.safetensors, has changed since"):  # fmt: skip
+        evaluate.model_and_data(args)
+    data.unlink()
+    with pytest.raises(ValueError, match=r"d\.safetensors, is not there"):
+        evaluate.model_and_data(args)
+    record.update(path=None)
+    with pytest.raises(ValueError, match=r"runs/r records no data-set file \(it trained on gen"):
+        evaluate.model_and_data(args)
+
+
 def test_evaluate_passes_the_digits_to_the_library(monkeypatch, tmp_path, capsys):
     import img2dmp.evaluate as library
 

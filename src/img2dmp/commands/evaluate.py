@@ -17,7 +17,9 @@ already there, are replaced only with --force (checked before the evaluation sta
   img2dmp evaluate runs/paper digits.safetensors --digits 2 3     (the older form)
 
 The model and the data are given with --model and --data, as in the other commands, or
-as the two positional arguments MODEL DATA; if both forms are used they must agree. MODEL
+as the two positional arguments MODEL DATA; if both forms are used they must agree.
+Without DATA, a run (or checkpoint) is evaluated on the data-set file it trained on, as
+its checkpoint records it, if that file is still there unchanged (SHA-256). MODEL
 is a run directory, a checkpoint or a shipped model's name (img2dmp models), which is
 evaluated with the refinement its card (a shipped model) or its training configuration's
 reading section (a run) recommends unless --refine says otherwise.
@@ -87,19 +89,47 @@ def model_and_data(args: argparse.Namespace) -> tuple[str, str]:
                 f"--{name} {option!r}"
             )
         value = option if option is not None else positional
+        if value is None and name == "data":
+            value = recorded_data_set(out[0])
         if value is None:
-            raise ValueError(
-                f"no {name} given: img2dmp evaluate --model RUN --data FILE "
-                "(or img2dmp evaluate RUN FILE)"
-            )
+            raise ValueError(f"no {name} given: {EVALUATE_USAGE}")
         out.append(value)
     return out[0], out[1]
+
+
+EVALUATE_USAGE = "img2dmp evaluate --model RUN --data FILE (or img2dmp evaluate RUN FILE)"
+
+
+def recorded_data_set(model: str) -> str:
+    """The data-set file the run or checkpoint ``model`` trained on, as its checkpoint
+    records it (``dataset.path``, still there and of the recorded SHA-256), for
+    ``evaluate MODEL`` without DATA; ``ValueError`` ("no data given: ...") saying why
+    that file cannot stand in."""
+    from .._files import file_digest
+    from ..checkpoint import CheckpointError, read_checkpoint_meta
+
+    try:
+        record = read_checkpoint_meta(model).get("dataset") or {}
+    except (OSError, CheckpointError):  # no such run: the usage says what to give
+        raise ValueError(f"no data given: {EVALUATE_USAGE}") from None
+    path, sha256 = record.get("path"), record.get("sha256")
+    if not isinstance(path, str) or not path:
+        why = f"{model} records no data-set file (it trained on generated samples)"
+    elif not Path(path).is_file():
+        why = f"the data set {model} trained on, {path}, is not there (as given when it trained)"
+    elif sha256 and file_digest(path) != sha256:
+        why = f"the data set {model} trained on, {path}, has changed since (SHA-256 differs)"
+    else:
+        return path
+    raise ValueError(f"no data given, and {why}: {EVALUATE_USAGE}")
 
 
 def run(args: argparse.Namespace) -> int:
     from ..evaluate import evaluate, format_table
 
     model, data = model_and_data(args)
+    if args.data is None and args.data_option is None:
+        print(f"note: evaluating on the data set {model} trained on: {data}")
     out = args.out
     if out is None:
         out = Path(model) / "evaluation" if Path(model).is_dir() else "evaluation"
