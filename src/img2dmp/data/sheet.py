@@ -175,10 +175,25 @@ def _reduce(planes: np.ndarray, factor: int) -> np.ndarray:
 
 
 def _upsample(mask: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray:
-    """A reduced ``mask`` at the photo's pixels (nearest; the rows and columns that the
-    reduction left out take the last ones')."""
+    """A reduced ``mask`` (or plane) at the photo's pixels (nearest; the rows and columns
+    that the reduction left out take the last ones')."""
     full = np.repeat(np.repeat(mask, factor, axis=0), factor, axis=1)[: shape[0], : shape[1]]
     return np.pad(full, ((0, shape[0] - full.shape[0]), (0, shape[1] - full.shape[1])), mode="edge")
+
+
+def _grown(mask: np.ndarray, n: int) -> np.ndarray:
+    """``mask`` grown by ``n`` pixels every way (a 3 x 3 square's dilation ``n`` times,
+    outside the image nothing), in one pass: a maximum over a square of ``2 n + 1``."""
+    from scipy.ndimage import maximum_filter
+
+    return maximum_filter(mask, 2 * n + 1, mode="constant", cval=False)
+
+
+def _shrunk(mask: np.ndarray, n: int) -> np.ndarray:
+    """``mask`` eroded by ``n`` pixels every way (outside the image nothing), in one pass."""
+    from scipy.ndimage import minimum_filter
+
+    return minimum_filter(mask, 2 * n + 1, mode="constant", cval=False)
 
 
 def _change(small: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -191,7 +206,7 @@ def _change(small: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         c = np.maximum(np.abs(gx), np.abs(gy))
         more = c > change
         change[more] = c[more]
-        normal[more] = np.mod(np.arctan2(gy, gx), np.pi)[more]
+        normal[more] = np.mod(np.arctan2(gy[more], gx[more]), np.pi)
     return change, normal
 
 
@@ -218,10 +233,11 @@ def _segments(
     firm = strong[ys, xs]
     reach = int(np.ceil(np.hypot(h, w)))
     bins = np.round(theta / step).astype(np.int64)
+    cos, sin = np.cos(np.arange(n_theta) * step), np.sin(np.arange(n_theta) * step)
     votes = []
     for d in (-2, -1, 0, 1, 2):  # each pixel votes near its own direction only
         t = np.mod(bins + d, n_theta)
-        rho = np.round(xs * np.cos(t * step) + ys * np.sin(t * step)).astype(np.int64) + reach
+        rho = np.round(xs * cos[t] + ys * sin[t]).astype(np.int64) + reach
         votes.append(t * (2 * reach + 1) + rho)
     votes = np.stack(votes)  # [5, pixels]
     size = n_theta * (2 * reach + 1)
@@ -298,18 +314,17 @@ def _along(mask: np.ndarray, ys, xs, dy, dx, offsets) -> np.ndarray:
     """``mask`` read at the points ``(ys, xs) + d (dy, dx)`` for every ``d`` of
     ``offsets`` (rounded, outside the image False): ``bool [len(offsets), n]``."""
     h, w = mask.shape
-    out = np.zeros((len(offsets), ys.size), bool)
-    for i, d in enumerate(offsets):
-        y, x = np.round(ys + d * dy).astype(np.int64), np.round(xs + d * dx).astype(np.int64)
-        inside = (y >= 0) & (y < h) & (x >= 0) & (x < w)
-        out[i, inside] = mask[y[inside], x[inside]]
-    return out
+    d = np.asarray(offsets, np.float64)[:, None]
+    y, x = np.round(ys + d * dy).astype(np.int64), np.round(xs + d * dx).astype(np.int64)
+    inside = (y >= 0) & (y < h) & (x >= 0) & (x < w)
+    return mask[np.clip(y, 0, h - 1), np.clip(x, 0, w - 1)] & inside
 
 
-def _orientation(small: np.ndarray) -> np.ndarray:
-    """The direction (radians in [0, pi)) across which ``small [C, h, w]`` changes, read
-    over ``RULE_SIDE`` pixels (the structure tensor summed over the channels, smoothed):
-    steady along a faint rule, where a pixel's own change turns with the grain."""
+def _orientation(small: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    """The direction (radians in [0, pi)) across which ``small [C, h, w]`` changes at the
+    pixels ``(ys, xs)``, read over ``RULE_SIDE`` pixels (the structure tensor summed over
+    the channels, smoothed): steady along a faint rule, where a pixel's own change turns
+    with the grain."""
     from scipy.ndimage import gaussian_filter
 
     jxx = np.zeros(small.shape[1:], np.float32)
@@ -319,7 +334,8 @@ def _orientation(small: np.ndarray) -> np.ndarray:
         jxx += gx * gx
         jxy += gx * gy
         jyy += gy * gy
-    jxx, jxy, jyy = (gaussian_filter(j, RULE_SIDE / 2, mode="nearest") for j in (jxx, jxy, jyy))
+    jxx, jxy, jyy = (gaussian_filter(j, RULE_SIDE / 2, mode="nearest")[ys, xs]
+                     for j in (jxx, jxy, jyy))  # fmt: skip
     return np.mod(0.5 * np.arctan2(2 * jxy, jxx - jyy), np.pi)
 
 
@@ -347,20 +363,24 @@ def _rules(small: np.ndarray, weak: np.ndarray) -> np.ndarray:
     ys, xs = np.nonzero(binary_dilation(weak, np.ones((3, 3), bool)))
     if ys.size == 0:
         return np.zeros_like(weak)
-    normal = _orientation(small)
-    ny, nx = np.sin(normal[ys, xs]), np.cos(normal[ys, xs])
-    side = []
-    for d in (RULE_SIDE, -RULE_SIDE, 2 * RULE_SIDE, -2 * RULE_SIDE):
+    normal = _orientation(small, ys, xs)
+    ny, nx = np.sin(normal), np.cos(normal)
+
+    def sides(d):  # small at the pixels d across them
         y = np.clip(np.round(ys + d * ny).astype(np.int64), 0, h - 1)
         x = np.clip(np.round(xs + d * nx).astype(np.int64), 0, w - 1)
-        side.append(small[:, y, x])
-    across = side[0] - side[1]
+        return small[:, y, x]
+
+    ahead, behind = sides(RULE_SIDE), sides(-RULE_SIDE)
+    across = ahead - behind
     step = np.max(np.abs(across), axis=0)
-    dev = np.max(np.abs(small[:, ys, xs] - 0.5 * (side[0] + side[1])), axis=0)
+    dev = np.max(np.abs(small[:, ys, xs] - 0.5 * (ahead + behind)), axis=0)
+    ok = dev > step
+    ys, xs, ny, nx, step, across = ys[ok], xs[ok], ny[ok], nx[ok], step[ok], across[:, ok]
     # a step between its sides, the paper's own slope taken out (twice as far away, the
     # sides differ twice as much on a slope, as much across a step)
-    sheer = np.max(np.abs(2 * across - (side[2] - side[3])), axis=0)
-    ok = (dev > step) & (np.minimum(step, sheer) < DESK_CONTRAST)
+    sheer = np.max(np.abs(2 * across - (sides(2 * RULE_SIDE) - sides(-2 * RULE_SIDE))), axis=0)
+    ok = np.minimum(step, sheer) < DESK_CONTRAST
     thin = np.zeros_like(weak)
     thin[ys[ok], xs[ok]] = True
     ys, xs, ny, nx = ys[ok], xs[ok], ny[ok], nx[ok]
@@ -432,7 +452,7 @@ def _edges(small: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Edge pixels (step 1) of the reduced, smoothed ``small [C, h, w]``, the straight
     lines drawn among them and the rules of ruled or squared paper (:func:`_rules`,
     left out of the edges: closed, they would fill the sheet): ``bool [h, w]`` each."""
-    from scipy.ndimage import binary_closing, binary_dilation
+    from scipy.ndimage import binary_dilation
 
     change, normal = _change(small)
     level = max(STEP_MIN, STEP_NOISE * float(np.median(change)))
@@ -446,7 +466,7 @@ def _edges(small: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     # gaps in the sheet's edge closed (where the paper's shade meets the desk's level)
     g = EDGE_GAP
     padded = np.pad(edges, g, mode="edge")
-    return binary_closing(padded, np.ones((3, 3), bool), iterations=g)[g:-g, g:-g], lines, rules
+    return _shrunk(_grown(padded, g), g)[g:-g, g:-g], lines, rules
 
 
 def _hull(mask: np.ndarray) -> np.ndarray | None:
@@ -527,14 +547,13 @@ def _lined(desk: np.ndarray, edges: np.ndarray) -> np.ndarray:
     each group of regions closed over ``EDGE_GAP + 2`` pixels, its edges that are not
     on its outline more than ``DESK_LINED`` of its area (the rules, grid or writing that
     run on through a shade on the paper; a desk is plain)."""
-    from scipy.ndimage import binary_closing, binary_dilation, label
+    from scipy.ndimage import label
 
     g = EDGE_GAP + 2
-    grid = np.ones((3, 3), bool)
-    closed = binary_closing(np.pad(desk, g, mode="edge"), grid, iterations=g)[g:-g, g:-g]
+    closed = _shrunk(_grown(np.pad(desk, g, mode="edge"), g), g)[g:-g, g:-g]
     closed |= desk
     groups, n = label(closed)
-    outline = binary_dilation(~closed, grid, iterations=g)  # the edge along the sheet
+    outline = _grown(~closed, g)  # the edge along the sheet
     inner = edges & closed & ~desk & ~outline
     lines = np.bincount(groups[inner], minlength=n + 1)
     area = np.bincount(groups[desk], minlength=n + 1)
@@ -580,8 +599,8 @@ def _is_desk(small, labels, lab: int, edges, lines, area: int, paper: np.ndarray
     if np.count_nonzero(edges[sl] & outline) < DESK_EDGED * np.count_nonzero(outline):
         return False  # bounded by a shade's level, not by an edge
     # what lies just beyond the edge's band (the edges grown and closed are wide)
-    near = binary_dilation(region, grid, iterations=EDGE_GAP + 2)
-    beyond = binary_dilation(near, grid, iterations=4) & ~near & ~edges[sl]
+    near = _grown(region, EDGE_GAP + 2)
+    beyond = _grown(near, 4) & ~near & ~edges[sl]
     if not beyond.any():
         return False
     inside = np.median(small[(slice(None), *sl)][:, region], axis=1)
@@ -597,7 +616,7 @@ def _is_desk(small, labels, lab: int, edges, lines, area: int, paper: np.ndarray
             return False
     # the marks it encloses, with the straight lines along it (writing that touches a
     # shadow's edge drawn straight), not the sheet that a desk all around encloses
-    solid = region | (binary_dilation(lines[sl], grid, iterations=EDGE_GAP + 1) & edges[sl])
+    solid = region | (_grown(lines[sl], EDGE_GAP + 1) & edges[sl])
     holes, k = label(binary_fill_holes(solid) & ~solid)
     sizes = np.bincount(holes.ravel(), minlength=k + 1)[1:]
     return sizes[sizes < DESK_MIN_SHARE * h * w].sum() <= DESK_HOLES * area
@@ -654,16 +673,14 @@ def _edge_band(desk: np.ndarray, edges: np.ndarray) -> np.ndarray:
     the desk of each group of edge pixels joined to it that reaches no farther than
     ``EDGE_REACH`` (a character touching a margin line taken for the desk reaches into the
     sheet)."""
-    from scipy.ndimage import distance_transform_edt, label
+    from scipy.ndimage import distance_transform_edt, label, maximum, minimum
 
     groups, n = label(edges & ~desk, np.ones((3, 3), bool))
     if n == 0:
         return np.zeros_like(desk)
     far = distance_transform_edt(~desk)
-    reach = np.zeros(n + 1)
-    np.maximum.at(reach, groups.ravel(), far.ravel())
-    near = np.full(n + 1, np.inf)
-    np.minimum.at(near, groups.ravel(), far.ravel())
+    index = np.arange(n + 1)
+    reach, near = np.asarray(maximum(far, groups, index)), np.asarray(minimum(far, groups, index))
     keep = (near <= 1.5) & (reach <= EDGE_REACH)
     keep[0] = False
     return keep[groups] & (far <= EDGE_BAND)
@@ -677,13 +694,7 @@ def find_sheet(planes: np.ndarray) -> Sheet | None:
     planes : float32 [C, H, W]
         The photo's channels (1 or 3), levels in [0, 1], either polarity.
     """
-    from scipy.ndimage import (
-        binary_dilation,
-        binary_erosion,
-        distance_transform_edt,
-        gaussian_filter,
-        label,
-    )
+    from scipy.ndimage import distance_transform_edt, gaussian_filter, label
 
     height, width = planes.shape[1:]
     if min(height, width) < 2 * SHEET_SIDE // 3:
@@ -696,7 +707,7 @@ def find_sheet(planes: np.ndarray) -> Sheet | None:
     if found is None:
         return None
     desk = found | _edge_band(found, edges)
-    grown = binary_dilation(desk, np.ones((3, 3), bool), iterations=EDGE_MARGIN)
+    grown = _grown(desk, EDGE_MARGIN)
     parts, _ = label(~grown)
     h, w = desk.shape
     middle = parts[h // 3 : h - h // 3, w // 3 : w - w // 3]
@@ -712,20 +723,19 @@ def find_sheet(planes: np.ndarray) -> Sheet | None:
         return None
     # the desk painted over with the nearest paper's colour: the paper's level, not the
     # desk's, for the cells of the background estimate beside the edge
-    inner = binary_erosion(sheet, np.ones((3, 3), bool), iterations=EDGE_GAP + 2)
+    inner = _shrunk(sheet, EDGE_GAP + 2)
     inner = inner if inner.any() else sheet  # paper clear of the edge's band and blur
     near = distance_transform_edt(~inner, return_distances=False, return_indices=True)
     paper = small[:, near[0], near[1]]
     full = _polygon(corners, factor, (height, width))
     reach = max(1, round(BAND_SHARE * min(height, width) / factor))
-    band = _upsample(binary_dilation(~sheet, np.ones((3, 3), bool), iterations=reach), factor,
-                     (height, width))  # fmt: skip
+    band = _upsample(_grown(~sheet, reach), factor, (height, width))
     fill = planes.astype(np.float32, copy=True)
     off = ~full
-    rows, cols = np.nonzero(off)
-    rr = np.minimum(rows // factor, h - 1)
-    cc = np.minimum(cols // factor, w - 1)
-    fill[:, rows, cols] = paper[:, rr, cc]
+    # each pixel off the sheet takes its reduced pixel's paper (the last row and column
+    # of them for the rows and columns the reduction left out)
+    np.copyto(fill, np.stack([_upsample(p, factor, (height, width)) for p in paper]),
+              where=off[None])  # fmt: skip
     return Sheet(full, fill, band, int(off.sum()), _sides_angle(corners))
 
 
