@@ -14,6 +14,12 @@ true boxes and pen paths). Per condition:
   starts at the other end);
 - *flagged*: the share of characters the reading flags.
 
+``--choose`` reads every page as it stands both ways (the rule switched off) and prints,
+per threshold of the share of characters flagged, how many upright pages a rule at that
+threshold would read twice (and turn) and how many upside-down pages it would read
+upright (the turned reading kept when it flags below ``PAGE_SIDEWAYS_GAIN`` of the
+share): how ``PAGE_UPSIDE_DOWN_SHARE`` was chosen, on the validation pages.
+
 ``--photos DIR`` (a folder with ``photos.json``, as ``../shared/data/photos``): each photo
 as it is and turned half a turn: characters found, lines, flagged, the angle turned.
 
@@ -78,6 +84,27 @@ def _share_flagged(readings: list[dict]) -> float:
     return sum(x["flagged"] for x in readings) / max(1, sum(x["characters"] for x in readings))
 
 
+THRESHOLDS = (0.10, 0.15, 0.20, 0.25, 0.30)
+
+
+def choose(readings: dict) -> list[dict]:
+    """Per threshold: upright pages read twice and turned, upside-down pages read upright
+    by a rule at that threshold, from readings made with the rule off."""
+    from img2dmp.page import PAGE_SIDEWAYS_GAIN
+
+    share = {c: [x["flagged"] / max(1, x["characters"]) for x in v] for c, v in readings.items()}
+    up, down = share[CONDITIONS[0]], share[CONDITIONS[1]]
+    pairs = list(zip(up, down, strict=True))
+    rows = []
+    for t in THRESHOLDS:
+        twice = [(u, d) for u, d in pairs if u >= t]
+        rows.append({"threshold": t, "upright_read_twice": len(twice),
+                     "upright_turned": sum(d < PAGE_SIDEWAYS_GAIN * u for u, d in twice),
+                     "upside_down_read_upright": sum(d >= t and u < PAGE_SIDEWAYS_GAIN * d
+                                                     for u, d in pairs)})  # fmt: skip
+    return rows
+
+
 def summarise(readings: list[dict]) -> dict:
     rows = [r for x in readings for r in x["rows"]]
     found = [r for r in rows if r["found"]]
@@ -120,11 +147,15 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=7)
     p.add_argument("--split", choices=("validation", "test"), default="validation")
     p.add_argument("--photos", help="a folder of photos with photos.json")
+    p.add_argument("--choose", action="store_true", help="the rule off: the threshold's table")
     p.add_argument("--out", help="write the results as JSON here")
     args = p.parse_args(argv)
 
+    import img2dmp.page
     from img2dmp import load_model
 
+    if args.choose:  # every page read as it stands, both ways
+        img2dmp.page.PAGE_UPSIDE_DOWN_SHARE = float("inf")
     record = run_record(__file__, sys.argv[1:] if argv is None else list(argv))
     t0 = time.perf_counter()
     model = load_model(args.model)
@@ -136,6 +167,8 @@ def main(argv=None) -> int:
                 readings[cond].append(read(model, pg))
             print(f"page {k + 1}/{args.pages}", file=sys.stderr, flush=True)
     result = {"generated": {c: summarise(v) for c, v in readings.items() if v}}
+    if args.choose and args.pages:
+        result["choose"] = choose(readings)
     if args.photos:
         result["photos"] = photos(model, Path(args.photos))
     result["run"] = {**record, "wall_s": round(time.perf_counter() - t0, 1)}
@@ -144,6 +177,10 @@ def main(argv=None) -> int:
               f"found {100 * s['found']:.2f} %, Chamfer {s['chamfer']:.4f}, on the line "
               f"{100 * s['on_line']:.2f} %, starts right {100 * s['starts_right']:.2f} %, "
               f"flagged {100 * s['flagged']:.2f} %")  # fmt: skip
+    for r in result.get("choose", []):
+        print(f"threshold {r['threshold']:.2f}: upright pages read twice "
+              f"{r['upright_read_twice']}, of them turned {r['upright_turned']}; upside-down "
+              f"pages read upright {r['upside_down_read_upright']}")  # fmt: skip
     for r in result.get("photos", []):
         print(
             f"{r['photo']} {r['condition']}: lines {r['found_per_line']} (true "
