@@ -349,10 +349,10 @@ def _rules(small: np.ndarray, weak: np.ndarray) -> np.ndarray:
     shadow's edge, is no rule), straight (such pixels along it for ``RULE_COVER`` of
     ``RULE_RUN`` of the shorter side one way or the other: on to the sheet's edge) and
     with another such line on one side within ``RULE_PITCH`` of it (rules come in
-    parallel sets: a margin line, a fold, a long stroke stay edges) and pixels of ``weak``
-    within that reach on both sides (the paper on both: beyond a sheet's own thin dark
-    border on a plain desk of its shade, the set's outermost line there, nothing
-    changes); grown across the line over the pixels of ``weak`` within ``RULE_BAND``
+    parallel sets: a margin line, a fold, a long stroke stay edges), not where the set
+    ends (:func:`_set_ends`: its outermost line with nothing changing beyond it for
+    ``RULE_END`` times the pitch, a sheet's own thin dark border on a plain desk of its
+    shade); grown across the line over the pixels of ``weak`` within ``RULE_BAND``
     (the line's blurred sides, a stroke's pixels on it; not on past its end into the
     sheet's border). Across and along:
     :func:`_orientation`'s direction; the pixels tested: ``weak`` and those beside them
