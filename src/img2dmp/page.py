@@ -33,6 +33,7 @@ from ._files import atomic_write_bytes, atomic_write_text, check_stem
 from .data import images as _images
 from .data.pages import PageCharacter, PageLayout, find_characters
 from .data.paper import paper_ink
+from .data.sheet import sheet_factor
 
 #: The page document's format name and version.
 PAGE_FORMAT = "img2dmp-page"
@@ -470,7 +471,11 @@ def _read_turned(levels: np.ndarray, found, angle_deg: float):
     border = np.concatenate([planes[0], planes[-1], planes[:, 0], planes[:, -1]])
     turned = np.stack([_turned(planes[..., k], turn, shape, float(np.median(border[:, k])))
                        for k in range(planes.shape[2])], axis=2)  # fmt: skip
-    again = paper_ink(turned[..., 0] if levels.ndim == 2 else turned)
+    # the sheet looked for at the page's own reduction: the canvas is larger, its rules
+    # lie no farther apart (reduced 5 times instead of 3, a 22-px grid came too close for
+    # the rule test, and the sheet was lost)
+    again = paper_ink(turned[..., 0] if levels.ndim == 2 else turned,
+                      sheet_factor=sheet_factor(levels.shape))  # fmt: skip
     if again is None:
         return None
     before = dilate3(_turned(found.mask, turn, shape, 0.0) > 0.25)

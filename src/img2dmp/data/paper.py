@@ -1376,7 +1376,9 @@ def _sheet_rules(weak, sheet, dark, pen: float, channels, desk) -> np.ndarray:
     return rules(weak & sheet, sheet, dark, pen, channels, desk.angle_deg)[0]
 
 
-def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
+def paper_ink(
+    levels, *, keep_steps: bool = False, sheet_factor: int | None = None
+) -> PaperInk | None:
     """The handwriting of an image, separated from its paper (module docstring).
 
     Parameters
@@ -1384,13 +1386,16 @@ def paper_ink(levels, *, keep_steps: bool = False) -> PaperInk | None:
     levels : float array [H, W] (grey) or [H, W, 3] (RGB), values in [0, 1]
     keep_steps : bool
         Keep each step's picture in :attr:`PaperInk.steps`.
+    sheet_factor : int, optional
+        The reduction :func:`img2dmp.data.sheet.find_sheet` looks for the sheet at
+        (default: its own, from the image's size).
 
     Returns
     -------
     PaperInk, or None when nothing in the image stands out from the paper.
     """
     a = _planes(levels)
-    desk = find_sheet(a)  # the sheet on a desk: the paper's colour painted over the desk
+    desk = find_sheet(a, sheet_factor)  # the sheet on a desk: the paper's colour painted over it
     if desk is not None:
         a = desk.fill
     polarity = dark_on_light(a)

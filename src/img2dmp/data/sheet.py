@@ -686,20 +686,30 @@ def _edge_band(desk: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return keep[groups] & (far <= EDGE_BAND)
 
 
-def find_sheet(planes: np.ndarray) -> Sheet | None:
+def sheet_factor(shape) -> int:
+    """How many times :func:`find_sheet` reduces a photo of ``shape`` (H, W, ...)."""
+    return max(1, min(shape[0], shape[1]) // SHEET_SIDE)
+
+
+def find_sheet(planes: np.ndarray, factor: int | None = None) -> Sheet | None:
     """The sheet of paper in a photo (module docstring), or None when no desk shows.
 
     Parameters
     ----------
     planes : float32 [C, H, W]
         The photo's channels (1 or 3), levels in [0, 1], either polarity.
+    factor : int, optional
+        Look at the photo reduced this many times (default: to about ``SHEET_SIDE``
+        pixels on its shorter side). A photo turned onto a larger canvas keeps the
+        reduction of the photo as it stands, so that its rules lie as far apart.
     """
     from scipy.ndimage import distance_transform_edt, gaussian_filter, label
 
     height, width = planes.shape[1:]
     if min(height, width) < 2 * SHEET_SIDE // 3:
         return None  # a character's crop, not a photo of a sheet
-    factor = max(1, min(height, width) // SHEET_SIDE)
+    if factor is None:
+        factor = sheet_factor((height, width))
     small = _reduce(planes, factor)
     small = np.stack([gaussian_filter(p, 1.0, mode="nearest") for p in small])
     edges, lines, rules = _edges(small)
