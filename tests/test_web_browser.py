@@ -562,6 +562,28 @@ def _paths_drawn(page) -> int:
     )
 
 
+def test_a_page_photographed_askew_says_it_was_turned(page, server, tmp_path):
+    """A page read turned level (the document's ``turned_deg``) says so beside its counts;
+    one read as it stands does not."""
+    from PIL import Image
+
+    from test_page_reading import _askew
+
+    for angle, said in ((-14.0, True), (0.0, False)):
+        photo = tmp_path / f"askew{angle:g}.png"
+        Image.fromarray(_askew(angle)[0]).save(photo)
+        page.goto(server["url"] + "/page")
+        page.locator("#photo-file").set_input_files(str(photo))
+        page.locator('#page-card[data-characters="11"]').wait_for()
+        assert page.locator("#page-count").inner_text() == "11\u00a0characters in 3\u00a0lines"
+        if said:
+            text = page.locator("#page-turned").inner_text()
+            assert re.fullmatch(r"turned 1[345]\.\d\u00b0 counter-clockwise to level its lines",
+                                text), text  # fmt: skip
+        else:
+            assert page.locator("#page-turned").count() == 0
+
+
 def test_a_page_photo_is_boxed_counted_written_and_its_flagged_character_marked(
     page, server, shots, tmp_path, handwritten_page
 ):

@@ -187,7 +187,19 @@ function showSummary(answer, nFlagged) {
   const refined = r.steps || r.unfamiliar_steps ? ` \u00b7 refined ${r.steps} steps${unfamiliar}` : "";
   const rest = ` \u00b7 photo ${w}\u00d7${h}\u00a0px \u00b7 model ${answer.model}${refined}` +
     ` \u00b7 read in ${(answer.elapsed_ms / 1000).toFixed(2)}\u00a0s`;
-  ui.summary.replaceChildren(counts, n ? " \u00b7 " : "", flags, rest);
+  ui.summary.replaceChildren(counts, n ? " \u00b7 " : "", flags, ...turnedText(page), rest);
+}
+
+/** " · turned 14.4° clockwise to level its lines" for a page read turned (a photo taken
+ * askew, sideways or upside down: the document's turned_deg); nothing for one read as it
+ * stands. */
+function turnedText(page) {
+  const d = page.turned_deg || 0;
+  if (!d) return [];
+  const way = d < 0 ? "clockwise" : "counter-clockwise";
+  const why = Math.abs(d) < 45 ? "to level its lines" : "to read it upright";
+  return [" \u00b7 ", el("span", { id: "page-turned" },
+    `turned ${Math.abs(d).toFixed(1)}\u00b0 ${way} ${why}`)];
 }
 
 function noCharactersText(page) {
