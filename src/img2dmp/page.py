@@ -619,14 +619,13 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
     # Its characters line up in columns: read it turned a quarter each way too. Many of
     # its characters flagged: read it upside down too. A turned reading is kept when it
     # flags clearly fewer characters (PAGE_SIDEWAYS_GAIN).
+    how = (n_points, match_stroke_width, cut, join_sides)
     angles = [] if seg.sideways is None else [seg.sideways, seg.sideways - 180.0]
-    best = _best_reading(predictor, seg, image, (n_points, match_stroke_width, cut, join_sides),
-                         page, angles)  # fmt: skip
+    best = _best_reading(predictor, seg, image, how, page, angles)
     if _flagged_share(best) < PAGE_UPSIDE_DOWN_SHARE or not best.characters:
         return best
     upside_down = best.turn_deg + 180.0 if best.turn_deg <= 0.0 else best.turn_deg - 180.0
-    return _best_reading(predictor, seg, image, (n_points, match_stroke_width, cut, join_sides),
-                         best, [upside_down])  # fmt: skip
+    return _best_reading(predictor, seg, image, how, best, [upside_down])
 
 
 def _best_reading(predictor, seg, image, how, page: PagePrediction, angles) -> PagePrediction:

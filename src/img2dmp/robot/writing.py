@@ -153,6 +153,10 @@ class PaperMapping:
     center_m: tuple[float, float] = (0.55, 0.0)
     area_px: tuple[float, float, float, float] | None = None
     turn_deg: float = 0.0
+    # the turn's map of pixel positions and its inverse, made once (to_table runs every
+    # control step); None as it stands
+    _level: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+    _unlevel: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "image_size", _image_size(self.image_size))
@@ -164,6 +168,9 @@ class PaperMapping:
                              f"{self.turn_deg!r}")  # fmt: skip
         object.__setattr__(self, "turn_deg", float(self.turn_deg))
         if self.turn_deg:
+            level = level_map_px(self.image_size, self.turn_deg)
+            object.__setattr__(self, "_level", level)
+            object.__setattr__(self, "_unlevel", np.linalg.inv(level))
             object.__setattr__(self, "area_px", self._turned_area())
             return
         h, w = self.image_size
@@ -186,7 +193,7 @@ class PaperMapping:
         the bounds around the whole image turned (pixel edges)."""
         if self.area_px is None:
             h, w = self.image_size
-            return level_box_px((0, 0, w, h), self.image_size, self.turn_deg)
+            return _box_around(_apply(self._level, _edge_corners((0, 0, w, h))))
         try:
             area = tuple(float(v) for v in self.area_px)
             ok = len(area) == 4 and all(_is_finite(v) for v in self.area_px)
@@ -228,8 +235,8 @@ class PaperMapping:
     def to_table(self, xy_px) -> np.ndarray:
         """``[..., 2]`` pixels (x = column, y = row) to world ``[..., 2]`` (x, y) metres."""
         xy = np.asarray(xy_px, dtype=float)
-        if self.turn_deg:
-            xy = _apply(level_map_px(self.image_size, self.turn_deg), xy)
+        if self._level is not None:
+            xy = _apply(self._level, xy)
         cx, cy = self._center_px()
         s = self.metres_per_px
         wx = self.center_m[0] - (xy[..., 1] - cy) * s
@@ -244,8 +251,8 @@ class PaperMapping:
         col = cx - (xy[..., 1] - self.center_m[1]) / s
         row = cy - (xy[..., 0] - self.center_m[0]) / s
         out = np.stack([col, row], axis=-1)
-        if self.turn_deg:
-            out = _apply(np.linalg.inv(level_map_px(self.image_size, self.turn_deg)), out)
+        if self._unlevel is not None:
+            out = _apply(self._unlevel, out)
         return out
 
     @property
@@ -254,8 +261,7 @@ class PaperMapping:
         turned mapping the upright box around the area turned back, inside the image."""
         if not self.turn_deg:
             return self.area_px  # type: ignore[return-value]
-        back = np.linalg.inv(level_map_px(self.image_size, self.turn_deg))
-        x0, y0, x1, y1 = _box_around(_apply(back, _edge_corners(self.area_px)))
+        x0, y0, x1, y1 = _box_around(_apply(self._unlevel, _edge_corners(self.area_px)))
         h, w = self.image_size
         x0, y0 = max(0, math.floor(x0)), max(0, math.floor(y0))
         x1, y1 = min(w, max(x0 + 1, math.ceil(x1))), min(h, max(y0 + 1, math.ceil(y1)))
