@@ -4,8 +4,10 @@ The two photos of ``--photos`` (``../shared/data/photos``: white paper with 14 d
 two lines, yellow paper with 64 in three and two marks at its corner) are turned by each
 angle of ``--angles`` (degrees, counter-clockwise as the eye sees it) about their centre
 and put on a desk as a phone sees a sheet lying askew (:func:`sheet_on_desk._paste`: a
-grey desk with grain, 110, 56 px or more around the sheet; and, for ``--light``, a light
-grey one, 240, lighter than the paper). Each image is read by
+grey desk with grain, 110, ``--margin`` px (56) or more around the sheet; and, for
+``--light``, a light grey one, 240, lighter than the paper; ``--margin 0``: the frame
+just holds the turned photo, the desk shows in its corners only, as when the sheet
+fills the phone's view). Each image is read by
 :func:`img2dmp.page.segment_page` (``predict --page``'s steps without a network):
 
 - *matched* / *extra*: as in ``sheet_on_desk.py``, the boxes against those found on the
@@ -81,7 +83,18 @@ def main(argv=None) -> int:
         action="store_true",
         help="with --ruled: lines both ways (squared paper of PITCH px squares)",
     )
+    p.add_argument(
+        "--margin",
+        type=int,
+        default=56,
+        metavar="PX",
+        help="desk around the turned photo's frame (px; default 56; 0: the desk in the "
+        "corners only, the sheet filling the view)",
+    )
+    p.add_argument("--save", metavar="DIR", help="also write every image read, as PNG")
     args = p.parse_args(argv)
+    if args.margin < 0:
+        p.error(f"--margin {args.margin}: give 0 or more pixels")
     angles = [float(a) for a in args.angles.split(",")]
     model = None
     if args.model:
@@ -105,9 +118,12 @@ def main(argv=None) -> int:
             photo = Image.fromarray(ruled.astype(np.uint8))
         for desk_name, colour, grain in desks:
             for angle in angles:
-                frame = photo.rotate(angle, expand=True).size
-                im, move = _paste(photo, _desk((frame[1] + 112, frame[0] + 112), colour, rng,
-                                               grain), angle)  # fmt: skip
+                w, h = np.add(photo.rotate(angle, expand=True).size, 2 * args.margin)
+                im, move = _paste(photo, _desk((h, w), colour, rng, grain), angle)
+                if args.save:
+                    Path(args.save).mkdir(parents=True, exist_ok=True)
+                    im.save(Path(args.save) / f"{file.split('_')[1]}_{desk_name.split()[0]}_"
+                            f"{angle:g}.png")  # fmt: skip
                 # with a model, its page (read turned a quarter where that flags fewer)
                 seg = segment_page(im) if model is None else model.predict_page(im)
                 boxes = [c.box for c in seg.layout.characters]

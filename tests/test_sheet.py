@@ -185,3 +185,24 @@ def test_a_squared_sheet_turned_far_on_a_desk_is_turned_level_with_its_own_reduc
     assert len(rows) == 2, rows  # a grey and a light desk
     for _, desk, _, turned, _, _, matched, _, miscounted in (map(str.strip, r) for r in rows):
         assert abs(float(turned) + 25.0) < 1.0 and int(miscounted) <= 2, (desk, turned, matched)
+
+
+def test_the_desks_strip_beside_a_sheet_filling_the_view_is_no_character(experiment_script, capsys):
+    """The white photo (a strip of dark desk along its right side) turned 3 degrees with
+    the grey desk in the frame's corners only: the sheet is found by those corners, the
+    rules test takes pixels along their edges, and the strip, long, straight and beside
+    the border, was kept as a tall "1" because marks joined through rules must lie in the
+    desk's band, and every mark was held to that, joined or not. A mark alone is judged
+    as it is."""
+    from pathlib import Path
+
+    photos = Path(__file__).resolve().parents[2] / "shared" / "data" / "photos"
+    if not (photos / "photos.json").is_file():
+        pytest.skip(f"the shared phone photos are not at {photos} (../shared/data/photos)")
+    tp = experiment_script("tilted_pages")
+    assert tp.main(["--photos", str(photos), "--margin", "0", "--angles", "-3"]) == 0
+    rows = [r.split("|")[1:-1] for r in capsys.readouterr().out.splitlines()
+            if r.startswith("| white")]  # fmt: skip
+    assert len(rows) == 1, rows
+    _, _, _, _, reference, boxes, matched, extra, miscounted = map(str.strip, rows[0])
+    assert (int(matched), int(extra), int(miscounted)) == (int(reference), 0, 0), rows[0]

@@ -1309,7 +1309,8 @@ def _edge_lines(labels: np.ndarray, band=None, ruled=None) -> np.ndarray:
     (``EDGE_LINE_*``) beside the image's border or the desk's ``band`` (``bool [H, W]``).
     With ``ruled`` (the rules' pixels removed) the marks joined through the rules' pixels
     in the desk's band count as one when they lie in the band: the sheet's edge along the
-    rules, which their removal cut into pieces, as :func:`_along_border` joins them."""
+    rules, which their removal cut into pieces, as :func:`_along_border` joins them (a
+    mark joined to no other is judged as it stands)."""
     from scipy.ndimage import label
 
     h, w = labels.shape
@@ -1345,7 +1346,9 @@ def _edge_lines(labels: np.ndarray, band=None, ruled=None) -> np.ndarray:
     piece = (length >= EDGE_PIECE_SHARE * min(h, w)) & (length >= EDGE_PIECE_THIN * thick)
     piece &= inside >= EDGE_LINE_INSIDE * count
     if joined is not labels:  # joined by the rules: pieces of a line lying in the band
-        line &= inside >= EDGE_LINE_INSIDE * count
+        pairs = np.unique(np.stack([lab, labels[rows, cols]]), axis=1)
+        several = np.bincount(pairs[0], minlength=k + 1) > 1  # a mark alone: as it is
+        line &= ~several | (inside >= EDGE_LINE_INSIDE * count)
     edge = np.zeros(k + 1, bool)
     edge[touching] = (line | piece)[touching]
     marks = labels > 0  # each mark takes its group's answer
