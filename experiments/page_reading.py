@@ -147,10 +147,12 @@ def page_sources(data: str, split: str) -> list:
     from img2dmp.data.clutter import page_sources_from_recorded
     from img2dmp.data.recorded import load_recorded, split_of_index
 
+    archive = Path(data) / "ijs-mnist-trajectories" / "trajectories.tar.gz"
+    if not archive.is_file():  # one line, not load_recorded's traceback
+        sys.exit(f"no recorded pen paths at {archive}: --data names ../shared/data")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        recs = load_recorded(Path(data) / "ijs-mnist-trajectories" / "trajectories.tar.gz",
-                             progress=False)  # fmt: skip
+        recs = load_recorded(archive, progress=False)
     code = {"validation": 1, "test": 2}[split]
     return page_sources_from_recorded([r for r in recs if split_of_index(r.image_index) == code])
 
