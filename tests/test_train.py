@@ -357,6 +357,12 @@ def test_demo_runs_the_whole_chain(tmp_path):
     ):
         assert (tmp_path / "demo" / f).is_file(), f
     assert s["epochs_run"] == 2 and np.isfinite(s["test_error_px"]["mean"])
+    # what else decides the figures' last digits: as the run's checkpoints record it
+    from img2dmp.checkpoint import read_checkpoint_meta
+
+    meta = read_checkpoint_meta(tmp_path / "demo" / "run" / "checkpoints" / "best.safetensors")
+    assert s["numerics"] == meta["numerics"] and s["numerics"]["torch_threads"] >= 1
+    assert s["numerics"]["torch_cpu_capability"] == torch.backends.cpu.get_cpu_capability()
 
 
 def test_demo_config_is_shipped_once_and_is_what_the_demo_trains(tmp_path):

@@ -132,6 +132,8 @@ def _train_config(data_path, epochs, cost, seed, progress, overrides):
 
 
 def _summary(out: Path, data_path: Path, samples_per_digit, cost, res, ev, times) -> dict:
+    from .training.state import numerics
+
     summary = {
         "data": str(data_path),
         "run_dir": str(out / "run"),
@@ -146,6 +148,7 @@ def _summary(out: Path, data_path: Path, samples_per_digit, cost, res, ev, times
         "best_val_error_px": res.best_val_error_px,
         "test_error_px": {k: ev["overall"][k] for k in ("mean", "std", "median", "p95")},
         "time_s": times,
+        "numerics": numerics(),  # what else decides the figures' last digits
     }
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=1) + "\n")
     return summary

@@ -116,6 +116,35 @@ def checkpoint_meta(cfg: TrainConfig, data: TrainingData, state: RunState, weigh
         "val_error_measure": error_measure(bool(cfg.strokes.slots)),
         "best_epoch": state.best_epoch,
         "torch_version": torch.__version__,
+        "numerics": numerics(),
+    }
+
+
+#: The environment variables that choose how MKL and OpenMP sum (their threads, MKL's
+#: instruction set): runs that differ in them train other weights, to rounding at first.
+NUMERICS_ENV = ("MKL_ENABLE_INSTRUCTIONS", "MKL_NUM_THREADS", "OMP_NUM_THREADS")
+
+
+def numerics() -> dict:
+    """What decides a run's last bits besides its configuration and data: the CPU, torch's
+    threads and instruction set, the variables of :data:`NUMERICS_ENV` that are set (one
+    recipe trained other weights on an AVX2 CPU than on an AVX-512 one, and MKL's thread
+    count or instruction set moves a demo's test error in the third decimal)."""
+    import os
+    import platform
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f
+                        if line.startswith("model name")), cpu)  # fmt: skip
+    except OSError:  # not Linux
+        pass
+    return {
+        "cpu": cpu,
+        "torch_threads": torch.get_num_threads(),
+        "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+        "env": {k: os.environ[k] for k in NUMERICS_ENV if k in os.environ},
     }
 
 
