@@ -394,6 +394,9 @@ class PageSegmentation:
         stored sideways, or a few characters in a grid): the angle that would turn its
         columns level (counter-clockwise; the other way is 180 degrees less), for
         :func:`read_page` to read it turned too; else None.
+    ink_as_it_stands : PaperInk or None
+        A page turned: its ink as it stands, in the pixels of ``levels``, from which it
+        is read turned another way (upside down, by :func:`read_page`); else None.
     """
 
     levels: np.ndarray
@@ -405,6 +408,7 @@ class PageSegmentation:
     turn: np.ndarray = field(default_factory=lambda: np.eye(3))
     turn_deg: float = 0.0
     sideways: float | None = None
+    ink_as_it_stands: object = None
 
     def levels_box(self, c: PageCharacter) -> tuple[int, int, int, int]:
         """Character ``c``'s box in the pixels of ``levels`` (half-open): around its own
@@ -565,15 +569,19 @@ def segment_page(image, *, name: str | None = None, cut: bool = True, join_sides
 
 def _turned_segmentation(seg: PageSegmentation, turn_deg: float, cut: bool,
                          join_sides: bool) -> PageSegmentation:  # fmt: skip
-    """``seg`` (a page read as it stands) with its characters found on the page turned
-    by ``turn_deg`` (a photo taken askew or sideways); ``seg`` itself when nothing stands
-    out there."""
-    read = _read_turned(seg.levels, seg.ink, float(turn_deg))
+    """``seg`` with its characters found on the page turned by ``turn_deg`` from where
+    it stands (a photo taken askew or sideways); ``seg`` itself when nothing stands out
+    there. A page read turned is turned another way from its ink as it stands (its
+    turned ink, turned again, was laid on the photo's pixels askew: an upside-down page
+    first turned level lost all but one of its 14 characters)."""
+    stands = seg.ink if seg.ink_as_it_stands is None else seg.ink_as_it_stands
+    read = _read_turned(seg.levels, stands, float(turn_deg))
     if read is None:
         return seg
     found, turn = read
     return PageSegmentation(seg.levels, seg.reduction, seg.size, seg.label, found,
-                            _find_on(found, cut, join_sides), turn, float(turn_deg))  # fmt: skip
+                            _find_on(found, cut, join_sides), turn, float(turn_deg),
+                            ink_as_it_stands=stands)  # fmt: skip
 
 
 def _page_turn(layout: PageLayout) -> tuple[float, float | None]:
