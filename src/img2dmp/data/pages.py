@@ -6,7 +6,10 @@ into text lines and ordered for reading:
 
 1. **marks**: the 8-connected components of the ink, and the page's scale, the typical
    character height ``height_px`` (the median component height, weighted by ink);
-2. **joined parts**: components that stack over one another (a 5's bar over its body,
+2. **joined parts**: pieces of one stroke broken by a scanner's threshold or a large
+   scan's reduction (an end of one facing an end of the other across at most
+   ``BREAK_GAP`` heights, or ``BREAK_MIN_PX``, and a pixel: :func:`join_breaks`); then
+   components that stack over one another (a 5's bar over its body,
    the two strokes of a 4) are one character when one lies within the other's columns
    (``JOIN_OVERLAP``), or is low (``SMALL_PART``) and overlaps them, they are at most
    ``JOIN_GAP`` character heights apart and together no taller than ``JOIN_HEIGHT``
@@ -104,6 +107,24 @@ MIN_CHARACTER = 0.3
 WORD_GAP = 0.6
 #: The most characters a page may hold.
 MAX_CHARACTERS = 5000
+#: Pieces of one stroke broken by a scanner's threshold (a 1-bit scan) or by the
+#: reduction of a large scan are joined when an end of one faces an end of the other
+#: across at most this share of the typical character height (plus a pixel) of paper:
+#: the nearest pixels of the two are each at an end of their piece (the piece's ink
+#: within ``BREAK_REACH`` heights of it runs away from the other piece in one
+#: direction, ``BREAK_END``), and one of the two is at least ``MIN_CHARACTER`` heights
+#: on its longer side (crumbs of a removed rule in a shadow, end to end, stay crumbs).
+#: Two characters side by side face each other with the sides of their strokes or the
+#: corners of their bowls, not with ends.
+BREAK_GAP = 0.06
+#: ... or at least this many pixels (two pixels straight, one on the diagonal: a thin
+#: line of a large scan reduced to a page's working size, its core broken);
+BREAK_MIN_PX = 2.0
+#: ... the reach around an end that says which way its piece runs, character heights;
+BREAK_REACH = 0.3
+#: ... and how much its pixels there lie in one direction (the length of the mean of
+#: the unit vectors from the end to them: 1 a straight line, 0 a stroke passing by).
+BREAK_END = 0.75
 
 
 @dataclass
@@ -212,6 +233,93 @@ def typical_height(marks: list[_Mark]) -> float:
     order = np.argsort(h)
     cum = np.cumsum(w[order])
     return float(h[order][np.searchsorted(cum, cum[-1] / 2.0)])
+
+
+def _end_facing(pixels: np.ndarray, at: np.ndarray, toward: np.ndarray, reach: float) -> bool:
+    """Whether ``at`` (row, column), a pixel of a piece ``pixels [n, 2]``, is an end of it
+    that faces ``toward``: seen from ``at``, the piece's other pixels within ``reach`` lie
+    in one direction (the mean of their unit directions at least ``BREAK_END`` long: a
+    stroke running away, not a stroke passing by or a bowl's corner), within 60 degrees
+    of straight away from ``toward``."""
+    d = pixels - at
+    r = np.hypot(d[:, 0], d[:, 1])
+    near = (r > 0) & (r <= reach)
+    if not near.any():
+        return True  # a piece of a pixel: no way it runs
+    mean = (d[near] / r[near, None]).mean(axis=0)
+    u = (toward - at) / max(1e-9, float(np.hypot(*(toward - at))))
+    length = float(np.hypot(*mean))
+    return length >= BREAK_END and float(mean @ u) <= -0.5 * length
+
+
+def _near_box(pixels: np.ndarray, m: _Mark, limit: float) -> np.ndarray:
+    """The pixels ``[n, 2]`` (row, column) within ``limit`` of ``m``'s box."""
+    r, c = pixels[:, 0], pixels[:, 1]
+    keep = (r > m.y0 - 1 - limit) & (r < m.y1 + limit) & (c > m.x0 - 1 - limit) & (c < m.x1 + limit)
+    return pixels[keep]
+
+
+def _nearest(pa: np.ndarray, pb: np.ndarray, limit: float, chunk: int = 4096):
+    """The nearest pair of pixels ``(of pa, of pb)`` at most ``limit`` apart, or None."""
+    best, pair = limit * limit, None
+    for k in range(0, len(pb), chunk):
+        part = pb[k : k + chunk]
+        d = ((pa[:, None, :] - part[None, :, :]) ** 2).sum(axis=2)  # [n_a, n_part]
+        if d.size and d.min() <= best:
+            ia, ib = np.unravel_index(int(np.argmin(d)), d.shape)
+            best, pair = float(d[ia, ib]), (pa[ia], part[ib])
+    return pair
+
+
+def join_breaks(labels: np.ndarray, marks: list[_Mark], height: float) -> list[_Mark]:
+    """``marks`` with the pieces of broken strokes merged (``BREAK_GAP``): an end of one
+    facing an end of the other across a gap of at most ``BREAK_GAP`` heights and a
+    pixel (a 1-bit scan's threshold, a large scan's reduction), one of the two at least
+    ``MIN_CHARACTER`` heights on its longer side."""
+    limit = max(BREAK_GAP * height, BREAK_MIN_PX) + 1.0
+    if len(marks) < 2:
+        return marks
+    reach = max(3.0, BREAK_REACH * height)
+    order = sorted(range(len(marks)), key=lambda i: marks[i].x0)
+    parent = list(range(len(marks)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    cache: dict[int, np.ndarray] = {}
+
+    def coords(i: int) -> np.ndarray:
+        if i not in cache:
+            m = marks[i]
+            rows, cols = np.nonzero(labels[m.y0 : m.y1, m.x0 : m.x1] == m.labels[0])
+            cache[i] = np.column_stack([rows + m.y0, cols + m.x0]).astype(np.float64)
+        return cache[i]
+
+    for k, i in enumerate(order):
+        a = marks[i]
+        for j in order[k + 1 :]:
+            b = marks[j]
+            if b.x0 - a.x1 >= limit:
+                break
+            if max(a.y0, b.y0) - min(a.y1, b.y1) >= limit or root(i) == root(j):
+                continue
+            if max(a.width, a.height, b.width, b.height) < MIN_CHARACTER * height:
+                continue  # two crumbs (of a rule, of the paper's grain): no stroke to mend
+            pa, pb = coords(i), coords(j)
+            near = _nearest(_near_box(pa, b, limit), _near_box(pb, a, limit), limit)
+            if near is None:
+                continue
+            at_a, at_b = near
+            if _end_facing(pa, at_a, at_b, reach) and _end_facing(pb, at_b, at_a, reach):
+                parent[root(j)] = root(i)
+    groups: dict[int, _Mark] = {}
+    for i, m in enumerate(marks):
+        r = root(i)
+        groups[r] = _merge(groups[r], m) if r in groups else m
+    return list(groups.values())
 
 
 def _stack(a: _Mark, b: _Mark, height: float) -> bool:
@@ -547,6 +655,7 @@ def _find(mask: np.ndarray, angle_deg: float | None, cut: bool = True,
     labels, marks = _marks(mask)
     if not marks:
         return PageLayout(shape=mask.shape)
+    marks = join_breaks(labels, marks, typical_height(marks))
     marks = join_parts(marks, typical_height(marks))
     if len(marks) > MAX_CHARACTERS:
         raise ValueError(
@@ -593,6 +702,7 @@ __all__ = [
     "PageLayout",
     "find_characters",
     "group_lines",
+    "join_breaks",
     "join_parts",
     "typical_height",
 ]
