@@ -495,6 +495,29 @@ def test_a_page_upside_down_and_askew_is_read_upright_with_every_character(tmp_p
         assert x0 < x < x1 and y0 < y < y1, ((x, y), c["box_image_px"])
 
 
+def test_a_turned_reading_that_lost_characters_is_not_kept(monkeypatch):
+    """A reading turned another way is kept when it flags clearly fewer characters, and
+    not when it reads fewer characters unflagged: 1 character of 14, none flagged, is no
+    better than 14 with 3 flagged (the upside-down reading of a page turned level once
+    kept such a reading)."""
+    from types import SimpleNamespace
+
+    from img2dmp import page as page_module
+
+    def reading(n, flagged):
+        chars = [SimpleNamespace(flags=["unfamiliar"] if i < flagged else []) for i in range(n)]
+        return SimpleNamespace(characters=chars, flagged=[c for c in chars if c.flags])
+
+    as_it_stands = reading(14, 3)
+    turn = lambda seg, angle, cut, join: SimpleNamespace(turn_deg=angle)  # noqa: E731
+    monkeypatch.setattr(page_module, "_turned_segmentation", turn)
+    for turned, kept in ((reading(1, 0), False), (reading(14, 0), True), (reading(14, 2), False)):
+        monkeypatch.setattr(page_module, "_read_segmentation", lambda *a, t=turned: t)
+        best = page_module._best_reading(None, None, None, (100, True, True, False),
+                                         as_it_stands, [180.0])  # fmt: skip
+        assert (best is turned) is kept, (len(turned.characters), len(turned.flagged))
+
+
 def test_the_lines_angle_of_a_page_of_many_characters_counts_them_all():
     """Beyond 400 characters the pairs of centres are counted in bins, all of them. Every
     4th character, the sample before, lined up better in columns than in rows on a

@@ -638,7 +638,9 @@ def read_page(predictor, image, *, n_points: int = 100, match_stroke_width: bool
 
 def _best_reading(predictor, seg, image, how, page: PagePrediction, angles) -> PagePrediction:
     """``page`` or the reading of ``seg`` turned by one of ``angles`` that flags the
-    smallest share of characters, below ``PAGE_SIDEWAYS_GAIN`` of ``page``'s; ``how``:
+    smallest share of characters, below ``PAGE_SIDEWAYS_GAIN`` of ``page``'s, and reads
+    no fewer characters unflagged than ``page`` (a turned reading that lost characters
+    is no better for flagging few of the rest); ``how``:
     ``(n_points, match_stroke_width, cut, join_sides)``."""
     n_points, match_stroke_width, cut, join_sides = how
     best, share = page, _flagged_share(page)
@@ -646,9 +648,14 @@ def _best_reading(predictor, seg, image, how, page: PagePrediction, angles) -> P
         turned = _turned_segmentation(seg, angle, cut, join_sides)
         if turned.turn_deg:
             other = _read_segmentation(predictor, turned, image, n_points, match_stroke_width)
-            if _flagged_share(other) < min(share, PAGE_SIDEWAYS_GAIN * _flagged_share(page)):
+            fewer = _flagged_share(other) < min(share, PAGE_SIDEWAYS_GAIN * _flagged_share(page))
+            if fewer and _unflagged(other) >= _unflagged(page):
                 best, share = other, _flagged_share(other)
     return best
+
+
+def _unflagged(page: PagePrediction) -> int:
+    return len(page.characters) - len(page.flagged)
 
 
 def _flagged_share(page: PagePrediction) -> float:
