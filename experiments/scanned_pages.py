@@ -213,25 +213,29 @@ def photo_rows(folder: str, thresholds) -> list[dict]:
     return rows
 
 
+def _table(head: list[str], rows: list[list]) -> list[str]:
+    """A markdown table's lines, then a blank one."""
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    return lines + ["| " + " | ".join(str(v) for v in r) + " |" for r in rows] + [""]
+
+
 def markdown(report: dict) -> str:
     out = [format_record(report["run"]), f"CPU: {report['cpu']}", ""]
     if report.get("table"):
-        out += ["| scan | pages | characters | found | merged | split (broken) | missed | "
-                "extra | miscounted | s / page (median, max) |", "|" + "---|" * 10]  # fmt: skip
-        for e in report["table"]:
-            out.append(f"| {e['condition']} | {e['pages']} | {e['characters']} | "
-                       f"{e['found']} ({100 * e['found_share']:.1f} %) | {e['merged']} | "
-                       f"{e['split']} | {e['missed']} | {e['extra']} | {e['miscounted']} | "
-                       f"{e['wall_s_median']:.2f}, {e['wall_s_max']:.2f} |")  # fmt: skip
-        out.append("")
+        out += _table(["scan", "pages", "characters", "found", "merged", "split (broken)",
+                       "missed", "extra", "miscounted", "s / page (median, max)"],
+                      [[e["condition"], e["pages"], e["characters"],
+                        f"{e['found']} ({100 * e['found_share']:.1f} %)", e["merged"],
+                        e["split"], e["missed"], e["extra"], e["miscounted"],
+                        f"{e['wall_s_median']:.2f}, {e['wall_s_max']:.2f}"]
+                       for e in report["table"]])  # fmt: skip
     if report.get("photos"):
-        out += ["| photo | view | scan | reference | boxes | matched | extra | per line | "
-                "miscounted | s |", "|" + "---|" * 10]  # fmt: skip
-        for r in report["photos"]:
-            out.append(f"| {r['photo']} | {r['view']} | {r['condition']} | {r['reference']} | "
-                       f"{r['boxes']} | {r['matched']} | {r['extra']} | {r['lines']} | "
-                       f"{r['miscounted']} | {r['wall_s']:.2f} |")  # fmt: skip
-    return "\n".join(out) + "\n"
+        out += _table(["photo", "view", "scan", "reference", "boxes", "matched", "extra",
+                       "per line", "miscounted", "s"],
+                      [[r["photo"], r["view"], r["condition"], r["reference"], r["boxes"],
+                        r["matched"], r["extra"], r["lines"], r["miscounted"],
+                        f"{r['wall_s']:.2f}"] for r in report["photos"]])  # fmt: skip
+    return "\n".join(out).rstrip("\n") + "\n"
 
 
 def _thresholds(text: str) -> list[float]:
