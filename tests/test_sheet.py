@@ -164,6 +164,16 @@ def test_a_squared_sheets_thin_border_on_a_light_desk_of_its_shade_is_its_edge(a
     assert len(boxes) == len(centres) and all(sum(row) == 1 for row in inside), boxes
 
 
+def _shared_photos():
+    """The folder of the two shared phone photos; the test skips, saying so, without it."""
+    from pathlib import Path
+
+    photos = Path(__file__).resolve().parents[2] / "shared" / "data" / "photos"
+    if not (photos / "photos.json").is_file():
+        pytest.skip(f"the shared phone photos are not at {photos} (../shared/data/photos)")
+    return photos
+
+
 def test_a_squared_sheet_turned_far_on_a_desk_is_turned_level_with_its_own_reduction(
     experiment_script, capsys
 ):
@@ -172,11 +182,7 @@ def test_a_squared_sheet_turned_far_on_a_desk_is_turned_level_with_its_own_reduc
     larger, was reduced 5 times instead of 3 to look for the sheet, the grid came too close
     for the rule test and no ink was left (59-70 characters miscounted per image). The
     turned page keeps the reduction of the photo as it stands."""
-    from pathlib import Path
-
-    photos = Path(__file__).resolve().parents[2] / "shared" / "data" / "photos"
-    if not (photos / "photos.json").is_file():
-        pytest.skip(f"the shared phone photos are not at {photos} (../shared/data/photos)")
+    photos = _shared_photos()
     tp = experiment_script("tilted_pages")
     assert tp.main(["--photos", str(photos), "--light", "--ruled", "22", "--squared",
                     "--angles", "25"]) == 0  # fmt: skip
@@ -194,11 +200,7 @@ def test_the_desks_strip_beside_a_sheet_filling_the_view_is_no_character(experim
     the border, was kept as a tall "1" because marks joined through rules must lie in the
     desk's band, and every mark was held to that, joined or not. A mark alone is judged
     as it is."""
-    from pathlib import Path
-
-    photos = Path(__file__).resolve().parents[2] / "shared" / "data" / "photos"
-    if not (photos / "photos.json").is_file():
-        pytest.skip(f"the shared phone photos are not at {photos} (../shared/data/photos)")
+    photos = _shared_photos()
     tp = experiment_script("tilted_pages")
     assert tp.main(["--photos", str(photos), "--margin", "0", "--angles", "-3"]) == 0
     rows = [r.split("|")[1:-1] for r in capsys.readouterr().out.splitlines()
