@@ -264,7 +264,7 @@ def _read(model, image):
     else:
         in_image = [c.box_image for c in seg.characters]
     flagged = None if model is None else len(seg.flagged)
-    small = "too_small" in (getattr(seg, "flags", None) or [])
+    small = bool(getattr(seg, "too_small", False)) or "too_small" in getattr(seg, "flags", [])
     return (seg, [c.box for c in chars], in_image, [len(i) for i in seg.layout.lines], flagged,
             small)  # fmt: skip
 

@@ -4,7 +4,10 @@
 --page``) runs in four steps:
 
 1. the photo is read upright at most ``PAGE_WORK_PIXELS`` (area average) and its ink
-   separated from the paper (:func:`img2dmp.data.paper.paper_ink`);
+   separated from the paper (:func:`img2dmp.data.paper.paper_ink`); a page whose
+   characters come out under ``PAGE_SMALL_HEIGHT_PX`` tall (photographed from far away)
+   is read again enlarged, and one whose characters are under ``PAGE_MIN_HEIGHT_PX`` in
+   the photo is flagged ``too_small``, no character given;
 2. the characters are found and put in reading order
    (:func:`img2dmp.data.pages.find_characters`);
 3. each character's own ink (a neighbour's reaching into its box left out) is framed as
@@ -76,6 +79,20 @@ PAGE_TURN_MIN_CHARACTERS = 3
 #: too, and kept so when the share flagged there is below ``PAGE_SIDEWAYS_GAIN`` of it
 #: (chosen on 96 generated validation pages: 7 of them read twice, none turned).
 PAGE_UPSIDE_DOWN_SHARE = 0.15
+#: A page whose characters are found under this many pixels tall, as read, is read again
+#: enlarged (a page photographed from far away: its strokes a pixel wide or less, faint,
+#: broken into specks, and the sheet's edge at the border darker than any of them), by
+#: the whole factor that brings them to it, at most ``PAGE_ENLARGE_MAX`` and
+#: ``PAGE_WORK_PIXELS`` in all (bicubic). Chosen on the two shared photos scaled by 0.35
+#: to 0.18 and 8 generated validation pages scaled to characters 6 to 20 px tall (12 or
+#: 16 and 4 did best; 12 leaves the generated pages with characters 13 px tall or more as
+#: they were).
+PAGE_SMALL_HEIGHT_PX = 12.0
+PAGE_ENLARGE_MAX = 4
+#: Characters under this many pixels tall in the photo are too small to read: the page is
+#: flagged ``too_small`` and no character is given (a page's edge or a few specks would
+#: otherwise be cut into dozens of characters a pixel tall).
+PAGE_MIN_HEIGHT_PX = 4.0
 #: Longest side of the page picture, pixels (a smaller photo is enlarged to it, up to
 #: four times, so that the paths stay visible).
 PICTURE_SIDE_PX = 1600
@@ -188,7 +205,9 @@ class PagePrediction:
         The photo's file, or None for an array or PIL image.
     flags : list of str
         Of the whole page: ``"no_ink"`` when nothing on it stands out from the paper,
-        ``"mostly_unreadable"`` when more than half of its characters are flagged.
+        ``"too_small"`` when its characters are too small to read (``PAGE_MIN_HEIGHT_PX``;
+        none is given), ``"mostly_unreadable"`` when more than half of its characters are
+        flagged.
     removed : dict
         What the preparation dropped (:attr:`img2dmp.data.paper.PaperInk.removed`).
     preview : uint8 [h, w, 3] or None
@@ -225,8 +244,9 @@ class PagePrediction:
 
     @property
     def flags(self) -> list[str]:
-        """The page's flags: ``"no_ink"``, or ``"mostly_unreadable"`` when more than half
-        of its characters are flagged (a photo of something other than writing)."""
+        """The page's flags: ``"no_ink"``, ``"too_small"``, or ``"mostly_unreadable"``
+        when more than half of its characters are flagged (a photo of something other
+        than writing)."""
         if self._flags or not self.characters:
             return list(self._flags)
         return ["mostly_unreadable"] if 2 * len(self.flagged) > len(self.characters) else []
@@ -373,7 +393,8 @@ class PageSegmentation:
     levels : float array [h, w] or [h, w, 3]
         The page as read (at most ``PAGE_WORK_PIXELS``).
     reduction : float
-        Photo pixels per pixel of ``levels``.
+        Photo pixels per pixel of ``levels`` (below 1: a page of small characters read
+        enlarged, ``PAGE_SMALL_HEIGHT_PX``).
     size : (H, W)
         The photo's own size (upright).
     label : str
@@ -397,6 +418,9 @@ class PageSegmentation:
     ink_as_it_stands : PaperInk or None
         A page turned: its ink as it stands, in the pixels of ``levels``, from which it
         is read turned another way (upside down, by :func:`read_page`); else None.
+    too_small : bool
+        Its characters are under ``PAGE_MIN_HEIGHT_PX`` tall in the photo: too small to
+        read, and none is given (``layout`` is empty).
     """
 
     levels: np.ndarray
@@ -409,6 +433,7 @@ class PageSegmentation:
     turn_deg: float = 0.0
     sideways: float | None = None
     ink_as_it_stands: object = None
+    too_small: bool = False
 
     def levels_box(self, c: PageCharacter) -> tuple[int, int, int, int]:
         """Character ``c``'s box in the pixels of ``levels`` (half-open): around its own
@@ -562,9 +587,41 @@ def segment_page(image, *, name: str | None = None, cut: bool = True, join_sides
         return PageSegmentation(levels, reduction, size, label, None,
                                 PageLayout(shape=levels.shape[:2]))  # fmt: skip
     seg = PageSegmentation(levels, reduction, size, label, found, _find_on(found, cut, join_sides))
+    seg = _enlarged(seg, cut, join_sides)
+    if seg.layout.characters and seg.layout.height_px * seg.reduction < PAGE_MIN_HEIGHT_PX:
+        seg.layout, seg.too_small = PageLayout(shape=seg.layout.shape), True
+        return seg
     if turn_deg is None:
         turn_deg, seg.sideways = _page_turn(seg.layout)
     return _turned_segmentation(seg, turn_deg, cut, join_sides) if turn_deg else seg
+
+
+def _enlargement(height_px: float, pixels: int) -> int:
+    """The whole factor a page of ``pixels`` whose characters are ``height_px`` tall is
+    read enlarged by (``PAGE_SMALL_HEIGHT_PX``; 1: as it is)."""
+    if not 0 < height_px < PAGE_SMALL_HEIGHT_PX:
+        return 1
+    factor = min(PAGE_ENLARGE_MAX, math.ceil(PAGE_SMALL_HEIGHT_PX / height_px))
+    return max(1, min(factor, math.isqrt(PAGE_WORK_PIXELS // max(1, pixels))))
+
+
+def _enlarged(seg: PageSegmentation, cut: bool, join_sides: bool) -> PageSegmentation:
+    """``seg`` read again enlarged when its characters are small (``PAGE_SMALL_HEIGHT_PX``),
+    ``reduction`` then below 1; else ``seg`` itself (and when nothing stands out there)."""
+    from scipy.ndimage import zoom
+
+    factor = _enlargement(seg.layout.height_px, seg.levels.shape[0] * seg.levels.shape[1])
+    if factor == 1:
+        return seg
+    scale = (factor, factor) + (1,) * (seg.levels.ndim - 2)
+    # grid_mode: pixel edges map onto pixel edges, as ``reduction`` takes them
+    levels = zoom(seg.levels, scale, order=3, mode="nearest", grid_mode=True)
+    levels = np.clip(levels, 0.0, 1.0).astype(np.float32)
+    found = paper_ink(levels)
+    if found is None:
+        return seg
+    return PageSegmentation(levels, seg.reduction / factor, seg.size, seg.label, found,
+                            _find_on(found, cut, join_sides))  # fmt: skip
 
 
 def _turned_segmentation(seg: PageSegmentation, turn_deg: float, cut: bool,
@@ -668,8 +725,8 @@ def _read_segmentation(predictor, seg, image, n_points, match_stroke_width) -> P
     source = str(image) if isinstance(image, (str, os.PathLike)) else None
     o = predictor.refine_options
     steps, unfamiliar = (0, None) if o is None else (o.steps, predictor.refine_unfamiliar)
-    page = PagePrediction([], seg.layout, size, reduction, source,
-                          ["no_ink"] if found is None else [],
+    page_flags = ["no_ink"] if found is None else ["too_small"] if seg.too_small else []
+    page = PagePrediction([], seg.layout, size, reduction, source, page_flags,
                           {} if found is None else found.removed, refine_steps=steps,
                           refine_unfamiliar=unfamiliar, turn_deg=seg.turn_deg,
                           turn=seg.turn)  # fmt: skip
