@@ -386,6 +386,51 @@ def test_no_desk_is_found_on_a_sheet_alone_nor_in_its_shadow():
     assert found.removed["desk_px"] == 0
 
 
+@pytest.mark.parametrize(
+    ("level", "soft", "slope"),
+    [(0.4, 1.0, 0.0), (0.3, 6.0, 0.0), (0.25, 3.0, -0.5), (0.6, 1.0, 0.35)],
+)
+def test_a_shadow_across_the_page_is_paper_with_its_writing_read(level, soft, slope):
+    """A phone's shadow across half the sheet (hard or soft, straight or slanted), as
+    dark as a table (``TABLE_LEVEL``) or a desk's shade: the paper in it holds writing,
+    so it is no table and no desk (``holds_writing``), and the band its hard edge leaves
+    in the paper's level joins nothing (``without_shade_bands``): all nine characters,
+    nothing more. Before, the shaded half was off the sheet and its characters lost.
+    The page is enlarged to 450 x 780 first: a smaller image is read as a crop, its
+    paper one smooth surface."""
+    from PIL import Image
+    from scipy.ndimage import gaussian_filter
+
+    small, centres = _sheet_on_desk(128, margin=(0, 0))
+    im = Image.fromarray((small * 255).astype(np.uint8))
+    im = im.resize((im.width * 3 // 2, im.height * 3 // 2), Image.Resampling.BICUBIC)
+    img, centres = np.asarray(im, np.float32) / 255.0, [(1.5 * x, 1.5 * y) for x, y in centres]
+    rows, cols = np.mgrid[: img.shape[0], : img.shape[1]]
+    edge = cols - 0.5 * img.shape[1] + slope * (rows - 0.5 * img.shape[0])
+    shade = gaussian_filter(np.where(edge > 0, level, 1.0), soft)
+    found, boxes, ok = _found_at((img * shade[..., None]).astype(np.float32), centres)
+    assert ok, (len(boxes), boxes)
+    assert found.removed["off_sheet_px"] == 0 and found.removed["desk_px"] == 0
+
+
+def test_a_photographed_character_half_in_a_shadow_keeps_its_strokes():
+    """One character photographed (a crop under ``SURFACE_MAX_SIDE``, read with a smooth
+    paper), the shadow's edge across it: its strokes joined to the shadow made one mark
+    half the image wide, the rough pen width came out 40 px, and no ink was found."""
+    from scipy.ndimage import gaussian_filter
+
+    from img2dmp.data.paper import rough_pen_width
+
+    truth = _ink((200, 200), [_stroke([(40, 40), (160, 40), (80, 170)]),
+                              _stroke([(60, 110), (150, 110)])], width=5.0)  # fmt: skip
+    img = _on_paper(truth, np.full((200, 200, 3), 0.9, np.float32))
+    cols = np.mgrid[:200, :200][1]
+    shaded = img * gaussian_filter(np.where(cols > 100, 0.5, 1.0), 1.0)[..., None]
+    assert rough_pen_width(np.moveaxis(shaded, 2, 0).astype(np.float32)) < 10.0
+    found = paper_ink(shaded.astype(np.float32))
+    assert found is not None and _kept(found, truth) > 0.9
+
+
 def test_a_faint_stroke_that_runs_beside_a_printed_rule_and_leaves_it_is_kept():
     # ruled lines (0.3) much lighter than the pen (0.8), printed under the ink; a thin
     # stroke (0.45: lighter than half way from the line to the pen) comes down, runs

@@ -103,6 +103,39 @@ BACKGROUND_WINDOW = 10
 TABLE_LEVEL = 0.45
 #: ... and the cells joined to those that are darker than this share of it.
 TABLE_GROW_LEVEL = 0.5
+#: A region taken for the table (step 4) or the desk (step 0) is the paper in a shadow
+#: (a phone's or a hand's, across the page) when it holds writing: at least
+#: ``SHADE_MARKS`` marks as dark as the pen's strong level (read against the paper beside
+#: each, the shadow's own), each ``SHADE_MARK_PEN2`` pen widths squared or more and no
+#: thicker than ``SHADE_THIN`` pen widths, farther than ``SHADE_MARGIN`` background cells
+#: inside its outline (where the paper's level, read across the shadow's edge, lags).
+SHADE_MARKS = 2
+SHADE_MARK_PEN2 = 4.0
+SHADE_THIN = 2.5
+SHADE_MARGIN = 0.0
+#: ... its holes smaller than this share of the image taken with it (the writing a region
+#: of the desk's colour leaves out), not the sheet a desk all around it encloses.
+SHADE_HOLE = 0.05
+#: ... and it is not paper when more than this share of it is at least the pen's weak
+#: level, and ``SHADE_TEXTURE_RATIO`` times the share of the rest of the image (a wooden
+#: table's grain: 16-90 % on the generated pages; paper in a shadow, writing and all,
+#: up to 5 %, as much as the lit paper).
+SHADE_TEXTURE = 0.1
+SHADE_TEXTURE_RATIO = 2.0
+#: ... and not the marks that lie within a background cell of its outline for this share
+#: of their pixels (lines along the sheet's edge, not across it).
+SHADE_ALONG = 0.8
+#: Where the paper's level steps by this share of it from one background cell to the
+#: next (a shadow's hard edge; a lighting gradient steps by at most 0.05), the band
+#: that the cells' interpolation leaves along the step inside the shadow is taken out of
+#: the darkness: what a grey opening wider than ``THICK_FACTOR`` pen widths keeps.
+SHADE_STEP = 0.1
+#: The rough pen width is measured on strokes, not on a mark of this share of the image
+#: (:func:`rough_pen_width`).
+ROUGH_BLOB = 0.1
+#: ... where what the opening keeps is no darker than this (a band; a dark strip, the
+#: desk's or a photo's own edge, stays whole for the edge's tests).
+SHADE_BAND = 0.5
 #: On a sheet found on a desk, the rules' level beside its edge is read this many pixels
 #: inside it (the desk is painted with the paper's colour up to the edge).
 SHEET_EDGE_PX = 3
@@ -466,24 +499,34 @@ def rough_pen_width(planes: np.ndarray) -> float:
     """A first estimate of the pen's width (pixels) before the paper is known: the
     strokes darker than half the darkest ink against the image's brightest tenth,
     measured as :func:`pen_width` measures them (not those that reach the border, the
-    table's, while others do); on every s-th pixel of a large image (about a million)."""
-    from scipy.ndimage import label
+    table's, while others do); on every s-th pixel of a large image (about a million).
+    When what it would measure holds a mark of ``ROUGH_BLOB`` of the image (a shadow
+    across a photographed character, its strokes joined to it), the darkness less a
+    grey opening a tenth of the shorter side wide is measured instead: strokes, not
+    the shade they lie in."""
+    from scipy.ndimage import grey_opening, label
 
     step = max(1, round(math.sqrt(planes[0].size / 1_000_000)))
     lum = _luma(planes[:, ::step, ::step])
     dark = 1.0 - lum / max(float(np.percentile(lum, 90)), 1e-3)
-    top = float(np.percentile(dark, 99.5))
-    if top < 0.15:
-        return 0.0
-    mask = dark > 0.5 * top
-    labels, n = label(mask, structure=np.ones((3, 3), bool))
-    area = np.bincount(labels.ravel(), minlength=n + 1)
-    boundary = np.bincount(labels[mask & ~_erode3(mask)], minlength=n + 1)
-    keep = area >= 4
-    keep[0] = False
-    inside = keep.copy()  # the table or the sheet's edge beyond the border is no stroke
-    inside[_ring_labels(labels)] = False
-    return pen_width(area, boundary, inside if inside.any() else keep) * step
+    for shade in (False, True):
+        if shade:
+            dark = dark - grey_opening(dark, size=(max(3, min(dark.shape) // 10),) * 2)
+        top = float(np.percentile(dark, 99.5))
+        if top < 0.15:
+            return 0.0
+        mask = dark > 0.5 * top
+        labels, n = label(mask, structure=np.ones((3, 3), bool))
+        area = np.bincount(labels.ravel(), minlength=n + 1)
+        boundary = np.bincount(labels[mask & ~_erode3(mask)], minlength=n + 1)
+        keep = area >= 4
+        keep[0] = False
+        inside = keep.copy()  # the table or the sheet's edge beyond the border is no stroke
+        inside[_ring_labels(labels)] = False
+        use = inside if inside.any() else keep
+        if shade or not np.any(area[use] > ROUGH_BLOB * mask.size):
+            break
+    return pen_width(area, boundary, use) * step
 
 
 def darkness(planes: np.ndarray, bg: np.ndarray) -> np.ndarray:
@@ -522,10 +565,112 @@ def _noise(planes: np.ndarray, bg: np.ndarray, where=None) -> float:
     return float(1.4826 * np.median(np.abs(s - np.median(s))))
 
 
-def sheet_mask(bg: np.ndarray, cell: int) -> np.ndarray:
+def holds_writing(dark: np.ndarray, region: np.ndarray, lv: _Levels, pen: float,
+                  cell: int) -> bool:  # fmt: skip
+    """Whether ``region`` (``bool [H, W]``) holds writing and no table's texture
+    (``SHADE_*``): the paper in a shadow, not a table or a desk. ``dark``: the darkness
+    against the paper beside each pixel; ``lv``: the page's levels; ``pen``: the pen's
+    width, ``cell``: the background's cell (pixels)."""
+    from scipy.ndimage import binary_fill_holes, distance_transform_edt, label
+
+    # its holes filled, but not the sheet a desk around it encloses (a region of the
+    # desk's colour leaves the writing out), then shrunk by the margin
+    holes, n = label(binary_fill_holes(region) & ~region)
+    if n:
+        small = np.bincount(holes.ravel(), minlength=n + 1) < SHADE_HOLE * region.size
+        small[0] = False
+        region = region | small[holes]
+    pen = max(pen, 1.0)
+    strong = dark >= lv.strong
+    if np.count_nonzero(strong & region) < SHADE_MARKS * SHADE_MARK_PEN2 * pen**2:
+        return False  # not ink enough for that many marks (most desks: none at all)
+    # how far inside it each pixel lies (the image's border is no outline)
+    depth = distance_transform_edt(np.pad(region, 1, constant_values=True))[1:-1, 1:-1]
+    inner = depth > max(2.0, SHADE_MARGIN * cell)
+    if not inner.any() or region.all():
+        return False
+    textured, rest = (float(np.mean(dark[m] >= lv.weak)) for m in (inner, ~region))
+    if textured > max(SHADE_TEXTURE, SHADE_TEXTURE_RATIO * rest):
+        return False  # a table's grain or pattern, not paper
+    labels, area, boundary, _ = _components(inner & strong, dark, lv.strong)
+    thin = 2.0 * area / np.maximum(boundary, 1) <= SHADE_THIN * pen
+    # not a line along its outline (the sheet's edge beside a desk, where the paper's
+    # level read across it lags)
+    along = np.bincount(labels.ravel(), weights=(depth <= max(cell, 2)).ravel(),
+                        minlength=len(area)) >= SHADE_ALONG * area  # fmt: skip
+    marks = (area >= SHADE_MARK_PEN2 * pen**2) & thin & ~along
+    marks[0] = False
+    return int(np.count_nonzero(marks)) >= SHADE_MARKS
+
+
+def shade_test(planes: np.ndarray):
+    """``region -> bool`` for :func:`img2dmp.data.sheet.find_sheet`: whether a region of
+    the photo ``planes`` (``[C, H, W]``, as given, before any desk is painted over) that
+    looks like a desk holds writing (:func:`holds_writing`, its paper read as it is,
+    the page's levels from the rest of it): a shadow across the page. The photo's
+    paper is read once, at the first call."""
+    seen: dict = {}
+
+    def written(region: np.ndarray) -> bool:
+        if not seen:
+            p = planes if dark_on_light(planes) else 1.0 - planes
+            pen = rough_pen_width(p)
+            bg, cell = background(p, pen)
+            seen.update(p=p, pen=pen, bg=bg, cell=cell, dark=darkness(p, bg))
+        if seen["cell"] == 0:
+            return False
+        noise = _noise(seen["p"], seen["bg"], ~region)
+        lv = thresholds(seen["dark"], noise, exclude=region) or thresholds(seen["dark"], noise)
+        return lv is not None and holds_writing(seen["dark"], region, lv, seen["pen"], seen["cell"])
+
+    return written
+
+
+def without_shade_bands(dark: np.ndarray, bg: np.ndarray, cell: int, pen: float) -> np.ndarray:
+    """``dark`` with the bands along a shadow's hard edge taken out (``SHADE_STEP``): the
+    paper's level read in cells lags a sharp step by a cell or two, and in that band
+    the paper reads as faint ink that joins the characters it touches into one faint
+    mark. Within a cell of such a step, the darkness less what a grey opening wider
+    than ``THICK_FACTOR`` pen widths keeps of it, where that is at most ``SHADE_BAND``:
+    strokes, thinner than the opening, keep their darkness over the band's."""
+    from scipy.ndimage import binary_dilation, grey_opening
+
+    if cell == 0:
+        return dark
+    lum = _luma(bg[:, cell // 2 :: cell, cell // 2 :: cell])
+    limit = SHADE_STEP * max(float(np.percentile(lum, 95)), 1e-3)
+    step = np.zeros(lum.shape, bool)
+    for axis in (0, 1):
+        big = np.abs(np.diff(lum, axis=axis)) >= limit
+        lead = [slice(None), slice(None)]
+        lead[axis] = slice(0, -1)
+        step[tuple(lead)] |= big
+        lead[axis] = slice(1, None)
+        step[tuple(lead)] |= big
+    if not step.any():
+        return dark
+    near = binary_dilation(step, np.ones((3, 3), bool))
+    near = np.repeat(np.repeat(near, cell, axis=0), cell, axis=1)[: dark.shape[0], : dark.shape[1]]
+    near = np.pad(near, ((0, dark.shape[0] - near.shape[0]), (0, dark.shape[1] - near.shape[1])),
+                  mode="edge")  # fmt: skip
+    size = max(3, math.ceil(THICK_FACTOR * max(pen, 1.0)))
+    r = max(1, size // 6)  # the opening on the darkness reduced: about 6 pixels wide
+    small = _block_mean(dark, r) if r > 1 else dark
+    opened = grey_opening(small, size=(math.ceil(size / r),) * 2)
+    if r > 1:
+        opened = _upsample(opened[None], r, dark.shape)[0]
+    # a dark strip (the desk's, a photo's edge) loses no more than a band's level
+    less = np.minimum(opened, SHADE_BAND)
+    return np.where(near, np.clip(dark - less, 0.0, 1.0), dark).astype(np.float32)
+
+
+def sheet_mask(bg: np.ndarray, cell: int, dark: np.ndarray | None = None, pen: float = 0.0,
+               noise: float = 0.0) -> np.ndarray:  # fmt: skip
     """Where the sheet is (``bool [H, W]``): not the cells far darker than the paper
     (``TABLE_LEVEL``) that connect to the image's border, nor the cell beside them (the
-    edge's own band)."""
+    edge's own band). With ``dark`` (the darkness against the paper, ``pen`` and
+    ``noise`` as :func:`paper_ink` reads them), a part of them that holds writing
+    (:func:`holds_writing`) is the paper in a shadow and stays on the sheet."""
     from scipy.ndimage import binary_dilation, label
 
     h, w = bg.shape[1:]
@@ -533,8 +678,8 @@ def sheet_mask(bg: np.ndarray, cell: int) -> np.ndarray:
         return np.ones((h, w), bool)
     lum = _luma(bg[:, cell // 2 :: cell, cell // 2 :: cell])  # one sample per cell
     paper = np.percentile(lum, 95)
-    dark = lum < TABLE_LEVEL * paper
-    labels, _ = label(dark)
+    far = lum < TABLE_LEVEL * paper
+    labels, _ = label(far)
     edge = np.unique(np.concatenate([_ring_labels(labels)]))
     table = np.isin(labels, edge[edge > 0])
     # ... grown over the cells beside it that are still far darker than the paper (the
@@ -546,7 +691,16 @@ def sheet_mask(bg: np.ndarray, cell: int) -> np.ndarray:
         return np.ones((h, w), bool)
     table = binary_dilation(table, np.ones((3, 3), bool))
     full = np.repeat(np.repeat(~table, cell, axis=0), cell, axis=1)[:h, :w]
-    return np.pad(full, ((0, h - full.shape[0]), (0, w - full.shape[1])), mode="edge")
+    full = np.pad(full, ((0, h - full.shape[0]), (0, w - full.shape[1])), mode="edge")
+    if dark is None:
+        return full
+    parts, n = label(~full)
+    lv = thresholds(dark, noise, exclude=~full) or thresholds(dark, noise)
+    for k in range(1, n + 1) if lv is not None else ():
+        part = parts == k
+        if holds_writing(dark, part, lv, pen, cell):
+            full |= part
+    return full
 
 
 def _ring_labels(labels: np.ndarray) -> np.ndarray:
@@ -1398,7 +1552,8 @@ def paper_ink(
     PaperInk, or None when nothing in the image stands out from the paper.
     """
     a = _planes(levels)
-    desk = find_sheet(a, sheet_factor)  # the sheet on a desk: the paper's colour painted over it
+    # the sheet on a desk (not a shadow across the page): the paper's colour painted over it
+    desk = find_sheet(a, sheet_factor, written=shade_test(a))
     if desk is not None:
         a = desk.fill
     polarity = dark_on_light(a)
@@ -1408,20 +1563,22 @@ def paper_ink(
     bg, cell = background(a, pen)
     channels = channel_darkness(a, bg)
     dark = np.max(channels, axis=0)
-    sheet = sheet_mask(bg, cell)
+    local = min(a.shape[1:]) >= LOCAL_BACKGROUND_MIN_SIDE  # not one level for the image
+    on_sheet = None if desk is None else desk.mask  # not the desk painted smooth
+    noise = _noise(a, bg, on_sheet) if local else 0.0
+    dark = without_shade_bands(dark, bg, cell, pen)
+    sheet = sheet_mask(bg, cell, dark, pen, noise)  # a shadow across the page stays
     if desk is not None:
         sheet &= desk.mask
     dark = np.where(sheet, dark, 0.0).astype(np.float32)
-    local = min(a.shape[1:]) >= LOCAL_BACKGROUND_MIN_SIDE  # not one level for the image
-    on_sheet = None if desk is None else desk.mask  # not the desk painted smooth
-    lv = thresholds(dark, _noise(a, bg, on_sheet) if local else 0.0)
+    lv = thresholds(dark, noise)
     steps = {"input": np.asarray(levels), "background": bg, "darkness": dark, "sheet": sheet}
     if lv is None:
         return None
     weak = dark >= lv.weak
     ruled = _sheet_rules(weak, sheet, dark, pen, channels, desk)
     if ruled.any():  # the pen's own level, which many rules would pull down
-        lv = thresholds(dark, _noise(a, bg, on_sheet) if local else 0.0, exclude=ruled)
+        lv = thresholds(dark, noise, exclude=ruled)
         if lv is None:
             return None
         weak = dark >= lv.weak
@@ -1443,9 +1600,11 @@ __all__ = [
     "dark_on_light",
     "darkness",
     "dominant_angle",
+    "holds_writing",
     "paper_ink",
     "pen_width",
     "rules",
+    "shade_test",
     "sheet_mask",
     "thresholds",
 ]

@@ -622,10 +622,19 @@ def _is_desk(small, labels, lab: int, edges, lines, area: int, paper: np.ndarray
     return sizes[sizes < DESK_MIN_SHARE * h * w].sum() <= DESK_HOLES * area
 
 
-def _desk(small: np.ndarray, edges: np.ndarray, lines: np.ndarray,
-          rules: np.ndarray) -> np.ndarray | None:  # fmt: skip
+def _shaded(small: np.ndarray, region: np.ndarray, paper: np.ndarray) -> bool:
+    """Whether ``region`` could be the paper in a shadow: darker than the ``paper``'s
+    colour, but not so dark that it is left to the table's test (``DESK_DARK``)."""
+    luma = np.asarray(_LUMA[: len(small)] if len(small) == 3 else (1.0,), np.float32)
+    level = float(luma @ np.median(small[:, region], axis=1)) / max(float(luma @ paper), 1e-3)
+    return DESK_DARK <= level < 1.0
+
+
+def _desk(small: np.ndarray, edges: np.ndarray, lines: np.ndarray, rules: np.ndarray,
+          written=None) -> np.ndarray | None:  # fmt: skip
     """The desk regions of step 3 (``bool [h, w]``), or None; ``rules``: the paper's lines
-    left out of ``edges`` (a shade on ruled paper has them between its regions)."""
+    left out of ``edges`` (a shade on ruled paper has them between its regions);
+    ``written``: ``region -> bool``, whether a region holds writing, read in the photo."""
     from scipy.ndimage import label
 
     labels, n = label(~edges)
@@ -655,7 +664,9 @@ def _desk(small: np.ndarray, edges: np.ndarray, lines: np.ndarray,
             continue  # the middle of the image is the sheet's
         if np.count_nonzero(edge_ring == lab) < DESK_BORDER * edge_ring.size:
             continue  # a band of the paper, between rules, that reaches the border
-        if _is_desk(small, labels, lab, edges, lines, area[lab], labels == paper):
+        if _is_desk(small, labels, lab, edges, lines, area[lab], labels == paper) and not (
+            written is not None and _shaded(small, labels == lab, colour) and written(labels == lab)
+        ):
             desk |= labels == lab
     desk &= ~_lined(desk, edges | rules)
     if not desk.any():
@@ -691,7 +702,7 @@ def sheet_factor(shape) -> int:
     return max(1, min(shape[0], shape[1]) // SHEET_SIDE)
 
 
-def find_sheet(planes: np.ndarray, factor: int | None = None) -> Sheet | None:
+def find_sheet(planes: np.ndarray, factor: int | None = None, written=None) -> Sheet | None:
     """The sheet of paper in a photo (module docstring), or None when no desk shows.
 
     Parameters
@@ -702,6 +713,10 @@ def find_sheet(planes: np.ndarray, factor: int | None = None) -> Sheet | None:
         Look at the photo reduced this many times (default: to about ``SHEET_SIDE``
         pixels on its shorter side). A photo turned onto a larger canvas keeps the
         reduction of the photo as it stands, so that its rules lie as far apart.
+    written : callable, optional
+        ``region -> bool`` for a region of the photo (``bool [H, W]``) that passes the
+        desk's tests: True when it holds writing, the paper in a shadow across the page
+        (:func:`img2dmp.data.paper.shade_test`), which then is no desk.
     """
     from scipy.ndimage import distance_transform_edt, gaussian_filter, label
 
@@ -713,7 +728,12 @@ def find_sheet(planes: np.ndarray, factor: int | None = None) -> Sheet | None:
     small = _reduce(planes, factor)
     small = np.stack([gaussian_filter(p, 1.0, mode="nearest") for p in small])
     edges, lines, rules = _edges(small)
-    found = _desk(small, edges, lines, rules)
+    test = (
+        None
+        if written is None
+        else (lambda region: written(_upsample(region, factor, (height, width))))
+    )
+    found = _desk(small, edges, lines, rules, test)
     if found is None:
         return None
     desk = found | _edge_band(found, edges)
