@@ -58,10 +58,12 @@ def test_a_page_photographed_from_far_away_is_read_character_by_character():
     assert seg.reduction < 1.0  # read enlarged: the boxes still in the photo's pixels
 
 
-def test_characters_too_small_to_read_are_said_to_be_so_not_invented(run, experiment_script):
+def test_characters_too_small_to_read_are_said_to_be_so_not_invented(run, experiment_script,
+                                                                     capsys):  # fmt: skip
     """Characters 2 px tall: no character is given, and the page is flagged (and counted
-    so by the experiment)."""
-    from img2dmp.page import segment_page
+    so by the experiment); ``predict --page`` says what the flag means in its line."""
+    from img2dmp.commands._args import warn_page
+    from img2dmp.page import PAGE_MIN_HEIGHT_PX, segment_page
     from img2dmp.predict import load_model
 
     photo, _ = _far_page(0.05)  # 26 x 15 px
@@ -71,6 +73,10 @@ def test_characters_too_small_to_read_are_said_to_be_so_not_invented(run, experi
     result = load_model(run).predict_page(photo)
     assert result.flags == ["too_small"] and not result.characters
     assert result.to_document(dmps=False)["flags"] == ["too_small"]
+    warn_page("predict", "far.png", result)
+    line = capsys.readouterr().err
+    assert line.count("\n") == 1 and "far.png: too_small (" in line
+    assert f"under {PAGE_MIN_HEIGHT_PX:g} px" in line and "closer" in line
     small, _ = _far_page(0.25)  # characters 10 px tall: read
     assert not segment_page(small).too_small
 
@@ -141,3 +147,42 @@ def test_the_experiment_scores_the_shared_photos_and_writes_its_tables(
     text = (tmp_path / "photo_conditions.md").read_text()
     assert "| family |" in text and "CPU:" in text
     assert "far-0.25" in capsys.readouterr().out
+
+
+def test_a_page_half_in_a_hard_shadow_beside_a_dark_desk_is_dark_ink_on_light_paper():
+    """The white photo on a dark desk (right and below), the right half of the frame at 0.7
+    of the light: the cells across the shadow's hard edge voted for light ink (the median
+    interpolated across the step), the votes came out even, and the dark desk along the
+    border then read the page as light ink on dark paper. Cells at a step to a neighbour
+    (``POLARITY_STEP``) vote no more."""
+    from img2dmp.data.paper import dark_on_light, paper_ink
+
+    rgb = np.asarray(Image.open(_shared_photos() / "page_white_black_ink.png").convert("RGB"),
+                     np.float32) / 255.0  # fmt: skip
+    h, w = rgb.shape[:2]
+    img = np.empty((int(h * 1.15), int(w * 1.15), 3), np.float32)
+    img[:] = 0.16 * np.array([1.0, 0.7, 0.45], np.float32)  # a dark wooden desk
+    img[:h, :w] = rgb
+    cols = np.mgrid[: img.shape[0], : img.shape[1]][1]
+    img *= np.where(cols > 0.5 * img.shape[1], 0.7, 1.0)[..., None].astype(np.float32)
+    assert dark_on_light(np.ascontiguousarray(np.moveaxis(img, 2, 0)))
+    found = paper_ink(img)
+    assert found is not None and found.dark_on_light
+
+
+def test_a_shaken_photo_s_ink_level_is_the_pen_s_not_the_sheet_s_edge():
+    """The white photo blurred 5 px sideways (a shaken phone): its dark edge strips at the
+    border stayed as dark while the pen's upright strokes grew faint, set the page's ink
+    level, and the strokes fell apart under it (43 boxes in 6 lines). The marks along the
+    border within its band set no level of the pen's: its 14 digits in two lines."""
+    from scipy.ndimage import convolve
+
+    from img2dmp.page import segment_page
+
+    rgb = np.asarray(Image.open(_shared_photos() / "page_white_black_ink.png").convert("RGB"),
+                     np.float64)  # fmt: skip
+    kernel = np.zeros((5, 5))
+    kernel[2, :] = 0.2
+    shaken = np.stack([convolve(rgb[..., c], kernel) for c in range(3)], -1)
+    seg = segment_page(Image.fromarray(np.clip(shaken + 0.5, 0, 255).astype(np.uint8)))
+    assert [len(line) for line in seg.layout.lines] == [7, 7]

@@ -79,6 +79,9 @@ POLARITY_CELLS = 16
 POLARITY_EVEN = 0.25
 #: ... the pixels beyond this many times the paper's spread counted either way ...
 POLARITY_SPREADS = 4.0
+#: ... nor the cells whose median differs by this much from a neighbour's (a shadow's
+#: hard edge; a lighting gradient changes by a few hundredths from cell to cell).
+POLARITY_STEP = 0.1
 #: ... when they are at least this share of the image.
 POLARITY_MIN_SHARE = 0.0005
 #: An image whose median grey is at least this light (or this dark, from black) is dark
@@ -339,6 +342,15 @@ def dark_on_light(planes: np.ndarray) -> bool:
 
         usual = float(np.median(grid))
         even = np.abs(grid[0] - usual) < POLARITY_EVEN
+        # ... nor those at a step to a neighbour (a shadow's hard edge across the page:
+        # the median interpolated across it puts the lit side above it, the shaded below)
+        # (between two cells of the paper's level: a table's edge is left out above)
+        g, e = np.pad(grid[0], 1, mode="edge"), np.pad(even, 1, mode="edge")
+        h, w = grid.shape[1:]
+        step = np.max([np.abs(g[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w] - grid[0])
+                       * e[1 + dy : 1 + dy + h, 1 + dx : 1 + dx + w]
+                       for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)  # fmt: skip
+        even &= step < POLARITY_STEP
         # ... nor the cells beside those (the median interpolated across the edge)
         even = binary_erosion(even, np.ones((3, 3), bool), border_value=1)
         even = _upsample(even[None].astype(np.float32), cell, lum.shape)[0] > 0.99
@@ -1215,6 +1227,26 @@ def thresholds(dark: np.ndarray, noise: float, exclude=None) -> _Levels | None:
     return _Levels(weak=weak, strong=strong, ink=ink)
 
 
+def _border_marks(weak: np.ndarray) -> np.ndarray:
+    """The pixels of the marks of ``weak`` that lie along the image's border
+    (:func:`_along_border`: the sheet's edge, the desk beyond it) within its band
+    (``EDGE_BAND``), which set no level of the pen's: on a page photographed from far
+    away the edge stays as dark as it was while the pen's strokes, a pixel wide or less,
+    grow faint, and the page's ink level, read with the edge, would leave every stroke
+    below the strong level. Only the band: a page's writing joined to the border (by
+    rules not removed) keeps its level."""
+    from scipy.ndimage import label
+
+    labels, n = label(weak, structure=np.ones((3, 3), bool))
+    edge = _along_border(labels, n)
+    edge[0] = False
+    h, w = weak.shape
+    m = max(2, round(EDGE_BAND * min(h, w)))
+    band = np.zeros((h, w), bool)
+    band[:m], band[-m:], band[:, :m], band[:, -m:] = True, True, True, True
+    return edge[labels] & band
+
+
 def dilate3(mask: np.ndarray) -> np.ndarray:
     """``mask`` grown by one pixel in all eight directions (a 3 x 3 dilation by slicing:
     several times faster than a general structuring element)."""
@@ -1577,8 +1609,9 @@ def paper_ink(
         return None
     weak = dark >= lv.weak
     ruled = _sheet_rules(weak, sheet, dark, pen, channels, desk)
-    if ruled.any():  # the pen's own level, which many rules would pull down
-        lv = thresholds(dark, noise, exclude=ruled)
+    edge = _border_marks(weak & ~ruled) if local else np.zeros_like(weak)
+    if ruled.any() or edge.any():  # the pen's own level: many rules pull it down, the edge up
+        lv = thresholds(dark, noise, exclude=ruled | edge)
         if lv is None:
             return None
         weak = dark >= lv.weak
