@@ -384,6 +384,18 @@ def _document_hint(path) -> str:
     return f"; it is {what.format(path=path)}" if what else ""
 
 
+def _page_flag_words(flag: str) -> str:
+    """A page's flag as :func:`warn_page` says it: the name, and what it means where the
+    name alone does not say what to do."""
+    if flag == "too_small":
+        from img2dmp.page import PAGE_MIN_HEIGHT_PX
+
+        return (f"too_small (its characters are under {PAGE_MIN_HEIGHT_PX:g} px tall in the "
+                "photo, too small to read: none is given; photograph the page closer or at a "
+                "higher resolution)")  # fmt: skip
+    return flag
+
+
 def warn_page(command: str, path, page, hint: str = "") -> None:
     """One warning line for a page read with flags (``PagePrediction``): the page's own
     and its flagged characters by index, ``hint`` after them."""
@@ -394,7 +406,7 @@ def warn_page(command: str, path, page, hint: str = "") -> None:
     more = f" and {len(flagged) - 8} more" if len(flagged) > 8 else ""
     noun = "character" if len(flagged) == 1 else "characters"
     listed = [f"{len(flagged)} {noun} flagged (by index): {which}{more}"] if flagged else []
-    what = "; ".join(page.flags + listed)
+    what = "; ".join([_page_flag_words(f) for f in page.flags] + listed)
     print(f"img2dmp {command}: warning: {path}: {what}{hint if flagged else ''}",
           file=sys.stderr)  # fmt: skip
 

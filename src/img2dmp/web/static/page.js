@@ -206,6 +206,10 @@ function noCharactersText(page) {
   if (page.flags.includes("no_ink")) {
     return "Nothing on this photo stands out from the paper: no characters found.";
   }
+  if (page.flags.includes("too_small")) {
+    return "The characters on this photo are under 4 pixels tall, too small to read: " +
+      "photograph the page closer or at a higher resolution.";
+  }
   return "No characters found on this photo.";
 }
 
