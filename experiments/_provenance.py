@@ -8,6 +8,7 @@ module from their own directory (Python puts a script's directory on ``sys.path`
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import shlex
 import subprocess
 from pathlib import Path
@@ -56,3 +57,19 @@ def format_record(record: dict) -> str:
         return "date, revision and command not recorded"
     date, rev, cmd = (record.get(k, "unknown") for k in ("date", "revision", "command"))
     return f"{date}, revision {rev}: `{cmd}`"
+
+
+def write_report(out, name: str, report: dict, text: str | None = None) -> None:
+    """``report`` as ``OUT/NAME.json`` and, when given, ``text`` as ``OUT/NAME.md`` (then
+    also printed, with the run's ``wall_s`` after it); the folder made, each file written
+    whole (a temporary file beside it, then renamed)."""
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    files = [(f"{name}.json", json.dumps(report, indent=1))]
+    files += [(f"{name}.md", text)] if text is not None else []
+    for file, content in files:
+        tmp = folder / f".{file}.tmp"
+        tmp.write_text(content)
+        tmp.replace(folder / file)
+    if text is not None:
+        print(text + (f"({report['wall_s']:.0f} s)" if "wall_s" in report else ""))

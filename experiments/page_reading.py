@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _provenance import format_record, run_record
+from _provenance import format_record, run_record, write_report
 
 KINDS = ("ruled", "squared", "dotted", "plain")
 
@@ -328,9 +328,7 @@ def main(argv=None) -> int:
     if args.fit_scores:
         report["fit_scores"] = fit_score_percentiles(model, args.fit_scores)
     report["wall_s"] = round(time.perf_counter() - start, 1)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "page_reading.json").write_text(json.dumps(report, indent=1))
+    write_report(args.out, "page_reading", report)
     print(format_record(report["run"]))
     print(json.dumps({k: v for k, v in report.items() if k != "run"}, indent=1))
     return 0

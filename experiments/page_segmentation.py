@@ -30,14 +30,12 @@ command, the table, and every page's counts (seed, kind, tight, per class).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-from _provenance import format_record, run_record
+from _provenance import format_record, run_record, write_report
 from page_reading import KINDS, generated_pages, match, page_sources
 
 CLASSES = ("found", "merged", "split", "missed")
@@ -147,9 +145,7 @@ def main(argv=None) -> int:
     report["table"] = summarise(rows)
     report["wall_s"] = round(time.perf_counter() - start, 1)
     report["pages"] = rows
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "page_segmentation.json").write_text(json.dumps(report, indent=1))
+    write_report(args.out, "page_segmentation", report)
     print(format_record(report["run"]))
     _print_table(report["table"])
     return 0

@@ -51,7 +51,6 @@ from __future__ import annotations
 
 import argparse
 import io
-import json
 import sys
 import time
 from dataclasses import dataclass
@@ -59,7 +58,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _provenance import format_record, run_record
+from _provenance import format_record, run_record, write_report
 from page_reading import generated_pages, miscounted, page_sources
 from page_segmentation import CLASSES, classify
 from scanned_pages import cpu_name
@@ -423,12 +422,7 @@ def main(argv=None) -> int:
                            "conditions": summarise(rows, PAGE_KEYS, "condition"),
                            "rows": rows}  # fmt: skip
     report["wall_s"] = round(time.perf_counter() - start, 1)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "photo_conditions.json").write_text(json.dumps(report, indent=1))
-    text = markdown(report)
-    (out / "photo_conditions.md").write_text(text)
-    print(text + f"({report['wall_s']:.0f} s)")
+    write_report(args.out, "photo_conditions", report, markdown(report))
     return 0
 
 

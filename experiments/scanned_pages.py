@@ -52,7 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _provenance import format_record, run_record
+from _provenance import format_record, run_record, write_report
 from page_reading import generated_pages, miscounted, page_sources
 from page_segmentation import CLASSES, classify
 from sheet_on_desk import score, shipped_photos
@@ -279,12 +279,7 @@ def main(argv=None) -> int:
     report["photos"] = photo_rows(args.photos, args.thresholds) if args.photos else []
     report["wall_s"] = round(time.perf_counter() - start, 1)
     report["pages"] = rows
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "scanned_pages.json").write_text(json.dumps(report, indent=1))
-    text = markdown(report)
-    (out / "scanned_pages.md").write_text(text)
-    print(text + f"({report['wall_s']:.0f} s)")
+    write_report(args.out, "scanned_pages", report, markdown(report))
     return 0
 
 
