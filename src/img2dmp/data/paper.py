@@ -110,12 +110,11 @@ TABLE_GROW_LEVEL = 0.5
 #: (a phone's or a hand's, across the page) when it holds writing: at least
 #: ``SHADE_MARKS`` marks as dark as the pen's strong level (read against the paper beside
 #: each, the shadow's own), each ``SHADE_MARK_PEN2`` pen widths squared or more and no
-#: thicker than ``SHADE_THIN`` pen widths, farther than ``SHADE_MARGIN`` background cells
-#: inside its outline (where the paper's level, read across the shadow's edge, lags).
+#: thicker than ``SHADE_THIN`` pen widths, inside it by more than two pixels (a
+#: character may straddle a shadow's edge).
 SHADE_MARKS = 2
 SHADE_MARK_PEN2 = 4.0
 SHADE_THIN = 2.5
-SHADE_MARGIN = 0.0
 #: ... its holes smaller than this share of the image taken with it (the writing a region
 #: of the desk's colour leaves out), not the sheet a desk all around it encloses.
 SHADE_HOLE = 0.05
@@ -133,12 +132,12 @@ SHADE_ALONG = 0.8
 #: that the cells' interpolation leaves along the step inside the shadow is taken out of
 #: the darkness: what a grey opening wider than ``THICK_FACTOR`` pen widths keeps.
 SHADE_STEP = 0.1
-#: The rough pen width is measured on strokes, not on a mark of this share of the image
-#: (:func:`rough_pen_width`).
-ROUGH_BLOB = 0.1
 #: ... where what the opening keeps is no darker than this (a band; a dark strip, the
 #: desk's or a photo's own edge, stays whole for the edge's tests).
 SHADE_BAND = 0.5
+#: The rough pen width is measured on strokes, not on a mark of this share of the image
+#: (:func:`rough_pen_width`).
+ROUGH_BLOB = 0.1
 #: On a sheet found on a desk, the rules' level beside its edge is read this many pixels
 #: inside it (the desk is painted with the paper's colour up to the edge).
 SHEET_EDGE_PX = 3
@@ -586,7 +585,7 @@ def holds_writing(dark: np.ndarray, region: np.ndarray, lv: _Levels, pen: float,
     from scipy.ndimage import binary_fill_holes, distance_transform_edt, label
 
     # its holes filled, but not the sheet a desk around it encloses (a region of the
-    # desk's colour leaves the writing out), then shrunk by the margin
+    # desk's colour leaves the writing out)
     holes, n = label(binary_fill_holes(region) & ~region)
     if n:
         small = np.bincount(holes.ravel(), minlength=n + 1) < SHADE_HOLE * region.size
@@ -598,7 +597,7 @@ def holds_writing(dark: np.ndarray, region: np.ndarray, lv: _Levels, pen: float,
         return False  # not ink enough for that many marks (most desks: none at all)
     # how far inside it each pixel lies (the image's border is no outline)
     depth = distance_transform_edt(np.pad(region, 1, constant_values=True))[1:-1, 1:-1]
-    inner = depth > max(2.0, SHADE_MARGIN * cell)
+    inner = depth > 2.0
     if not inner.any() or region.all():
         return False
     textured, rest = (float(np.mean(dark[m] >= lv.weak)) for m in (inner, ~region))
@@ -638,6 +637,14 @@ def shade_test(planes: np.ndarray):
     return written
 
 
+def _cell_pixels(cells: np.ndarray, cell: int, shape: tuple[int, int]) -> np.ndarray:
+    """A value per cell (``[gh, gw]``, one sample per ``cell`` pixels) at the pixels of
+    ``shape`` (nearest; the rows and columns beyond the last cell take its value)."""
+    full = np.repeat(np.repeat(cells, cell, axis=0), cell, axis=1)[: shape[0], : shape[1]]
+    return np.pad(full, ((0, shape[0] - full.shape[0]), (0, shape[1] - full.shape[1])),
+                  mode="edge")  # fmt: skip
+
+
 def without_shade_bands(dark: np.ndarray, bg: np.ndarray, cell: int, pen: float) -> np.ndarray:
     """``dark`` with the bands along a shadow's hard edge taken out (``SHADE_STEP``): the
     paper's level read in cells lags a sharp step by a cell or two, and in that band
@@ -661,10 +668,7 @@ def without_shade_bands(dark: np.ndarray, bg: np.ndarray, cell: int, pen: float)
         step[tuple(lead)] |= big
     if not step.any():
         return dark
-    near = binary_dilation(step, np.ones((3, 3), bool))
-    near = np.repeat(np.repeat(near, cell, axis=0), cell, axis=1)[: dark.shape[0], : dark.shape[1]]
-    near = np.pad(near, ((0, dark.shape[0] - near.shape[0]), (0, dark.shape[1] - near.shape[1])),
-                  mode="edge")  # fmt: skip
+    near = _cell_pixels(binary_dilation(step, np.ones((3, 3), bool)), cell, dark.shape)
     size = max(3, math.ceil(THICK_FACTOR * max(pen, 1.0)))
     r = max(1, size // 6)  # the opening on the darkness reduced: about 6 pixels wide
     small = _block_mean(dark, r) if r > 1 else dark
@@ -701,9 +705,7 @@ def sheet_mask(bg: np.ndarray, cell: int, dark: np.ndarray | None = None, pen: f
     table |= np.isin(labels, grown[grown > 0])
     if not table.any():
         return np.ones((h, w), bool)
-    table = binary_dilation(table, np.ones((3, 3), bool))
-    full = np.repeat(np.repeat(~table, cell, axis=0), cell, axis=1)[:h, :w]
-    full = np.pad(full, ((0, h - full.shape[0]), (0, w - full.shape[1])), mode="edge")
+    full = _cell_pixels(~binary_dilation(table, np.ones((3, 3), bool)), cell, (h, w))
     if dark is None:
         return full
     parts, n = label(~full)
