@@ -28,7 +28,8 @@ On the photo reduced to about ``SHEET_SIDE`` pixels on its shorter side and smoo
    margin line do not), have no lines between them (``DESK_LINED``: a
    shade on ruled paper) and hold no writing (marks enclosed by them and the straight
    edges along them under ``DESK_HOLES`` of their area: a shadow's edge across the page
-   is a region too, with characters in it or at its edge);
+   is a region too, with characters in it or at its edge; and, darker than the paper,
+   no writing read in the photo itself, ``written``: a shadow across the page);
 4. **sheet**: the desk grown over the edges beside it (``EDGE_BAND``, those reaching no
    farther than ``EDGE_REACH``: the sheet's edge, a shadow along it), the rest grown
    away from it by ``EDGE_MARGIN`` pixels (the edge's blur), the part that holds the
@@ -622,12 +623,16 @@ def _is_desk(small, labels, lab: int, edges, lines, area: int, paper: np.ndarray
     return sizes[sizes < DESK_MIN_SHARE * h * w].sum() <= DESK_HOLES * area
 
 
+def _level(small: np.ndarray, region: np.ndarray, paper: np.ndarray) -> float:
+    """The brightness of ``region``'s median colour as a share of the ``paper``'s."""
+    luma = np.asarray(_LUMA[: len(small)] if len(small) == 3 else (1.0,), np.float32)
+    return float(luma @ np.median(small[:, region], axis=1)) / max(float(luma @ paper), 1e-3)
+
+
 def _shaded(small: np.ndarray, region: np.ndarray, paper: np.ndarray) -> bool:
     """Whether ``region`` could be the paper in a shadow: darker than the ``paper``'s
     colour, but not so dark that it is left to the table's test (``DESK_DARK``)."""
-    luma = np.asarray(_LUMA[: len(small)] if len(small) == 3 else (1.0,), np.float32)
-    level = float(luma @ np.median(small[:, region], axis=1)) / max(float(luma @ paper), 1e-3)
-    return DESK_DARK <= level < 1.0
+    return DESK_DARK <= _level(small, region, paper) < 1.0
 
 
 def _desk(small: np.ndarray, edges: np.ndarray, lines: np.ndarray, rules: np.ndarray,
@@ -671,9 +676,7 @@ def _desk(small: np.ndarray, edges: np.ndarray, lines: np.ndarray, rules: np.nda
     desk &= ~_lined(desk, edges | rules)
     if not desk.any():
         return None
-    luma = np.asarray(_LUMA[: len(small)] if len(small) == 3 else (1.0,), np.float32)
-    level = float(luma @ np.median(small[:, desk], axis=1)) / max(float(luma @ colour), 1e-3)
-    if level < DESK_DARK:
+    if _level(small, desk, colour) < DESK_DARK:
         return None  # a dark table: paper.sheet_mask's, as it always was
     return desk
 
