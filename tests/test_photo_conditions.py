@@ -149,12 +149,15 @@ def test_the_experiment_scores_the_shared_photos_and_writes_its_tables(
     assert "far-0.25" in capsys.readouterr().out
 
 
-def test_a_page_half_in_a_hard_shadow_beside_a_dark_desk_is_dark_ink_on_light_paper():
+@pytest.mark.parametrize("light", [0.7, 0.6])
+def test_a_page_half_in_a_hard_shadow_beside_a_dark_desk_is_dark_ink_on_light_paper(light):
     """The white photo on a dark desk (right and below), the right half of the frame at 0.7
-    of the light: the cells across the shadow's hard edge voted for light ink (the median
-    interpolated across the step), the votes came out even, and the dark desk along the
-    border then read the page as light ink on dark paper. Cells at a step to a neighbour
-    (``POLARITY_STEP``) vote no more."""
+    or 0.6 of the light: the cells across the shadow's hard edge voted for light ink (the
+    median interpolated across the step), the votes came out even, and the dark desk along
+    the border then read the page as light ink on dark paper. Cells at a step to a
+    neighbour (``POLARITY_STEP``) vote no more; at 0.6 the shaded half held the median
+    cell, and the lit half, far from it, voted no more either: cells near the lightest
+    common level vote too."""
     from img2dmp.data.paper import dark_on_light, paper_ink
 
     rgb = np.asarray(Image.open(_shared_photos() / "page_white_black_ink.png").convert("RGB"),
@@ -164,7 +167,7 @@ def test_a_page_half_in_a_hard_shadow_beside_a_dark_desk_is_dark_ink_on_light_pa
     img[:] = 0.16 * np.array([1.0, 0.7, 0.45], np.float32)  # a dark wooden desk
     img[:h, :w] = rgb
     cols = np.mgrid[: img.shape[0], : img.shape[1]][1]
-    img *= np.where(cols > 0.5 * img.shape[1], 0.7, 1.0)[..., None].astype(np.float32)
+    img *= np.where(cols > 0.5 * img.shape[1], light, 1.0)[..., None].astype(np.float32)
     assert dark_on_light(np.ascontiguousarray(np.moveaxis(img, 2, 0)))
     found = paper_ink(img)
     assert found is not None and found.dark_on_light

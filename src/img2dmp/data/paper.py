@@ -341,6 +341,9 @@ def dark_on_light(planes: np.ndarray) -> bool:
 
         usual = float(np.median(grid))
         even = np.abs(grid[0] - usual) < POLARITY_EVEN
+        # ... or near the lightest common level (the lit paper, where a shadow across the
+        # page holds the median cell)
+        even |= np.abs(grid[0] - float(np.percentile(grid, 90))) < POLARITY_EVEN
         # ... nor those at a step to a neighbour (a shadow's hard edge across the page:
         # the median interpolated across it puts the lit side above it, the shaded below)
         # (between two cells of the paper's level: a table's edge is left out above)
