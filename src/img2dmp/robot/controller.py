@@ -25,7 +25,11 @@ Per control step (one physics step of ``dt``):
    controller needs a larger ``d_a``.
 2. **Inverse kinematics**: the tip target ``(x_c, y_c, z_c)`` with the pen vertical is
    turned into joint angles ``q_d`` by damped least squares on a kinematic twin
-   (:meth:`WritingScene.solve_ik`), warm-started from the previous ``q_d``.
+   (:meth:`WritingScene.solve_ik`), warm-started from the previous ``q_d``, at least one
+   iteration every step: a solve that stopped at once where the warm start was within
+   its 1 um tolerance (a target moving less than that per step, as near a stroke's ends
+   or while the pen sinks into the paper at 1 kHz) left ``q_d`` standing for a step and
+   caught up on the next, a jolt of up to 6.5 rad/s^2 in ``qdd_d``.
 3. **Joint-torque control** (computed torque): with ``qd_d`` and ``qdd_d`` from finite
    differences of ``q_d``,
 
@@ -230,7 +234,7 @@ class WritingController:
         """Joint torques (N m) that track the tip target ``(xy_m, z_c)``; updates ``q_d``."""
         target = np.array([xy_m[0], xy_m[1], self.z_c])
         q_new, self.last_ik_residual_m = self.scene.solve_ik(
-            target, self.rotation, self.q_d, max_iterations=10
+            target, self.rotation, self.q_d, max_iterations=10, min_iterations=1
         )
         qd_new = (q_new - self.q_d) / self.dt
         self.qdd_d = (qd_new - self.qd_d) / self.dt

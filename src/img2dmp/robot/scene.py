@@ -402,6 +402,7 @@ class WritingScene:
         max_iterations: int = 30,
         damping: float = 1e-3,
         posture_gain: float = 0.1,
+        min_iterations: int = 0,
     ) -> tuple[np.ndarray, float]:
         """Joint angles that put the pen tip at ``position_m`` with orientation ``rotation``.
 
@@ -411,6 +412,11 @@ class WritingScene:
         matrices), plus a step towards the home posture in the null space of ``J``
         (the iiwa has one redundant joint). pybullet's own solver is not used: with
         joint limits and a rest pose it leaves millimetres of residual.
+
+        ``min_iterations``: iterations taken even when ``seed_rad`` is within ``tol_m``
+        already (the controller takes one every control step, so its reference moves
+        with a target that moves less than ``tol_m`` per step, instead of standing and
+        then catching up).
 
         Returns
         -------
@@ -425,12 +431,12 @@ class WritingScene:
         home = np.asarray(HOME_JOINTS_RAD)
         residual = math.inf
         damp = damping**2 * _EYE6
-        for _ in range(max_iterations):
+        for k in range(max_iterations):
             pos, rot = self.tip_pose_at(q)
             e_pos = target - pos
             e_rot = _half_column_cross_sum(rot, rot_d)
             residual = math.sqrt(e_pos @ e_pos)  # np.linalg.norm's own sum, without its checks
-            if residual < tol_m and math.sqrt(e_rot @ e_rot) < 1e-5:
+            if k >= min_iterations and residual < tol_m and math.sqrt(e_rot @ e_rot) < 1e-5:
                 break
             jac = self.tip_jacobian(q)
             jjt = jac @ jac.T + damp
