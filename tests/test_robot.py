@@ -311,7 +311,7 @@ def test_invalid_settings_are_named():
 
 LOG_FIELDS = (
     "time_s", "phase", "dmp_time_s", "pen_down", "cmd_m", "tip_m", "force_n", "torque_nm",
-    "joint_q_rad", "joint_qd_rad_s", "dwell",
+    "joint_q_rad", "joint_qd_rad_s", "dwell", "joint_q_ref_rad", "joint_qd_ref_rad_s",
 )  # fmt: skip
 CSV_HEADER = [
     "time_s", "phase", "dmp_time_s", "pen_down",

@@ -277,6 +277,84 @@ def test_exported_trajectory_replays_by_position_control_to_the_same_ink(tmp_pat
     assert abs(np.median(replay.force_n[touching]) - 5.0) < 1.0
 
 
+def _ink_to_path_mm(plan, ink_m: np.ndarray) -> np.ndarray:
+    """``[m]`` each ink point's distance to the plan's pen-down path (its segments)."""
+    from scipy.spatial import cKDTree
+
+    from img2dmp.robot.strokes import stroke_spans
+
+    u = np.linspace(0.0, 1.0, 50)[:, None]
+    segments = [
+        p[k] + u * (p[k + 1] - p[k])
+        for p in (plan.xy_m[a : b + 1] for a, b in stroke_spans(plan.pen_down))
+        for k in range(len(p) - 1)
+    ]
+    return cKDTree(np.vstack(segments)).query(ink_m)[0] * 1e3
+
+
+@needs_pybullet
+def test_the_reference_replays_on_the_commanded_path_at_the_set_force(tmp_path):
+    """The default export is the controller's reference at the pen's measured depth: its
+    ink lies on the commanded path (the measured joints carry the torque-controlled arm's
+    lag behind its reference), and it presses the set 5 N (the reference as the IK solved
+    it, at the admittance law's commanded height, pressed 8.0 N replayed: a depth the
+    simulated arm, yielding to the pen's force, never reached)."""
+    from img2dmp.robot import (
+        JointTrajectory,
+        load_joint_trajectory,
+        replay_joint_trajectory,
+        save_joint_trajectory,
+    )
+
+    result = written("4")
+    reference = JointTrajectory.from_result(result)
+    measured = JointTrajectory.from_result(result, "measured")
+    assert (reference.joints, measured.joints) == ("reference", "measured")
+    np.testing.assert_array_equal(reference.position_rad[0], measured.position_rad[0])
+    # velocities are the positions' differences, from rest
+    np.testing.assert_allclose(np.diff(reference.position_rad, axis=0) * 240.0,
+                               reference.velocity_rad_s[1:], atol=1e-9)  # fmt: skip
+    assert not reference.velocity_rad_s[0].any()
+    shown = {}
+    for traj in (reference, measured):
+        replay = replay_joint_trajectory(traj)
+        touching = replay.force_n > 0
+        assert abs(np.median(replay.force_n[touching]) - 5.0) < 0.5, traj.joints
+        shown[traj.joints] = _ink_to_path_mm(result.plan, replay.ink_m()).max()
+    assert shown["reference"] < 0.05 < shown["measured"], shown  # 0.025 and 0.092 mm
+    # the JSON says which; a file from before the field holds the measured joints
+    _, path = save_joint_trajectory(reference, tmp_path / "j")
+    doc = json.loads(open(path).read())
+    assert doc["joints"] == "reference" and load_joint_trajectory(path).joints == "reference"
+    del doc["joints"]
+    with open(path, "w") as f:
+        json.dump(doc, f)
+    assert load_joint_trajectory(path).joints == "measured"
+    with pytest.raises(ValueError, match="joints must be one of reference, measured, got 'q'"):
+        JointTrajectory.from_result(result, "q")
+
+
+@needs_pybullet
+def test_the_write_command_exports_the_joints_asked_for(tmp_path, capsys):
+    import argparse
+
+    from img2dmp.cli import main
+    from img2dmp.commands import write as write_cmd
+
+    args = argparse.Namespace(export_joints=str(tmp_path / "j"), no_slowing=False)
+    for joints, expected in ((None, "reference"), ("measured", "measured")):
+        args.joints = joints
+        assert write_cmd._joint_trajectory(args, written("4"), "four", 1).joints == expected
+    params, config = digit_dmp("4")
+    save_dmp_json(tmp_path / "four.json", params, config, IMAGE_SIZE)
+    out = tmp_path / "out"
+    argv = ["write", "--dmp", str(tmp_path / "four.json"), "--out-dir", str(out), "--joints"]
+    assert main([*argv, "measured", "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("--joints chooses what --export-joints writes; give --export-joints FILE")
+    assert "\n" not in err and not out.exists()
+
+
 @needs_pybullet
 def test_limits_are_checked_before_anything_is_written(tmp_path):
     from img2dmp.robot import JointTrajectory, save_joint_trajectory
@@ -310,6 +388,7 @@ def test_limits_are_checked_before_anything_is_written(tmp_path):
         (lambda d: d.update(control_rate_hz="240"), "field 'control_rate_hz'"),
         (lambda d: d["scene"].update(paper_size_m=[0.1, -1.0]), "field 'scene'"),
         (lambda d: d.update(version=True), "field 'version'"),
+        (lambda d: d.update(joints="planned"), "field 'joints' must be one of"),
     ],
 )
 def test_a_bad_trajectory_file_is_named(tmp_path, mutate, needle):
@@ -354,9 +433,8 @@ def test_write_command_exports_joints_and_a_video_that_ends_on_the_digit(tmp_pat
     assert "strokes (share of each commanded pen-down stroke with ink) 1: " in printed
     assert "2: " in printed and "DMP held" in printed
     assert (out / "seven_joints.csv").stat().st_size > 1000
-    assert json.loads((out / "seven_joints.json").read_text())["joint_names"][6] == (
-        "lbr_iiwa_joint_7"
-    )
+    doc = json.loads((out / "seven_joints.json").read_text())
+    assert doc["joint_names"][6] == "lbr_iiwa_joint_7" and doc["joints"] == "reference"
     assert ("seven.mp4" in printed) == mp4_available() and ("no MP4" in printed) != mp4_available()
     with Image.open(out / "seven.gif") as gif:
         frames, durations = [], []

@@ -138,7 +138,7 @@ def test_the_write_command_warns_of_an_over_limit_export_and_writes_it(capsys, t
     trajectory = _trajectory(12.0)
     result_from = JointTrajectory.from_result
     try:
-        JointTrajectory.from_result = classmethod(lambda cls, r: trajectory)
+        JointTrajectory.from_result = classmethod(lambda cls, r, joints: trajectory)
         assert write_cmd._joint_trajectory(args, result, "line", 1) is trajectory
     finally:
         JointTrajectory.from_result = result_from

@@ -16,12 +16,13 @@ each input it writes
 included), with ``--video`` ``NAME.gif`` and, where imageio-ffmpeg is installed,
 ``NAME.mp4``, with ``--export-joints FILE`` the joint trajectory as ``FILE.csv`` and
 ``FILE.json`` (``FILE_NAME.*`` for several inputs; checked against the iiwa's joint
-limits), and prints tracking-error, contact-force and per-stroke ink metrics. NAME is the input
-file's name without its extension: two inputs of one name are refused, naming both, and
-files already in ``--out-dir`` are replaced only with ``--force``; both are checked before
-the simulation starts. An image the model reads with flags (several characters,
-unfamiliar, off the ink: as ``img2dmp predict`` says) gets predict's one-line warning on
-stderr before the arm writes it.
+limits; ``--joints reference``, the default, or ``measured``), and prints
+tracking-error, contact-force and per-stroke ink metrics. NAME is the input file's name
+without its extension: two inputs of one name are refused, naming both, and files
+already in ``--out-dir`` are replaced only with ``--force``; both are checked before the
+simulation starts. An image the model reads with flags (several characters, unfamiliar,
+off the ink: as ``img2dmp predict`` says) gets predict's one-line warning on stderr
+before the arm writes it.
 
 ``--page`` writes a whole page in one run (:mod:`img2dmp.robot.page`): ``PAGE.json
 --page`` a page document (``img2dmp predict PHOTO --page`` writes one), ``PHOTO --page
@@ -129,8 +130,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _add_joint_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--export-joints``, ``--no-slowing``, ``--acceleration-share``: the motion for a
-    real iiwa."""
+    """``--export-joints``, ``--joints``, ``--no-slowing``, ``--acceleration-share``: the
+    motion for a real iiwa."""
     parser.add_argument(
         "--export-joints",
         metavar="FILE",
@@ -138,6 +139,15 @@ def _add_joint_arguments(parser: argparse.ArgumentParser) -> None:
         "FILE.csv and FILE.json for a real iiwa to replay; if it exceeds the iiwa's joint "
         "position or velocity limits, nothing of that input is written (accelerations over "
         "the 10 rad/s^2 planning limit: a warning)",
+    )
+    parser.add_argument(
+        "--joints",
+        choices=("reference", "measured"),
+        default=None,
+        help="with --export-joints, which joint positions are written: 'reference' (the "
+        "default), the controller's inverse kinematics of the commanded pen path, at the "
+        "depth the simulated pen pressed to, for a position-controlled iiwa; 'measured', "
+        "the simulated torque-controlled arm's joints after each step",
     )
     parser.add_argument(
         "--no-slowing",
@@ -339,6 +349,8 @@ def check_files(args) -> None:
     one name per input), before anything is loaded or simulated."""
     _default_model(args)
     _check_export_joints(args.export_joints)
+    if getattr(args, "joints", None) is not None and not args.export_joints:
+        raise ValueError("--joints chooses what --export-joints writes; give --export-joints FILE")
     if args.no_slowing and getattr(args, "acceleration_share", None) is not None:
         raise ValueError("--acceleration-share is for the slowing; not with --no-slowing")
     _joint_acceleration_share(args)
@@ -571,7 +583,7 @@ def _joint_trajectory(args, result, name: str, n_inputs: int):
         return None
     from img2dmp.robot.joints import JointTrajectory, export_paths
 
-    trajectory = JointTrajectory.from_result(result)
+    trajectory = JointTrajectory.from_result(result, getattr(args, "joints", None) or "reference")
     violation = trajectory.limit_violation()
     if violation is not None:
         json_path = export_paths(_joints_base(args, name, n_inputs))[1]

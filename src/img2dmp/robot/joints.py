@@ -1,9 +1,13 @@
 """The joint trajectory of a writing run: export for a real arm, limits, replay.
 
 A :class:`JointTrajectory` is what a position-controlled KUKA LBR iiwa needs to write the
-digit again: time stamps at the control rate (from 0, the start posture at rest), the
-seven joint positions and velocities the simulated arm went through (measured after
-each control step), the joint names. :func:`save_joint_trajectory` writes it as CSV and
+digit again: time stamps at the control rate (from 0, the start posture at rest), seven
+joint positions and velocities, the joint names. Its positions are either (``joints``,
+:data:`JOINT_SOURCES`) the controller's **reference** (the default): its IK solution
+``q_d`` of the commanded point on the paper at every control step, moved along the pen to
+the depth the simulated pen pressed to (:func:`reference_at_tip_depth`), or the
+simulated arm's **measured** joints after each step (a torque-controlled arm that lags
+its reference and yields to the pen's force). :func:`save_joint_trajectory` writes it as CSV and
 JSON after checking it against the iiwa's limits (``IIWA_POSITION_LIMITS_RAD`` from the
 robot model, ``IIWA_VELOCITY_LIMITS_RAD_S`` from KUKA's data sheet of the LBR iiwa 14
 R820, whose masses the model has; the model's own 10 rad/s is a placeholder); its
@@ -21,6 +25,7 @@ JSON (``"format": "img2dmp-joint-trajectory"``, version 1)::
      "acceleration_peak": {"joint", "acceleration_rad_s2", "time_s", "limit_rad_s2",
                            "share"}  -- from the velocities (a note: not read back),
      "scene": SceneConfig fields (where the paper is),
+     "joints": "reference" or "measured" (optional: a file without it holds "measured"),
      "time_s": [N], "position_rad": [N][7], "velocity_rad_s": [N][7]}
 
 CSV: a header ``time_s, <joint>_rad x 7, <joint>_rad_s x 7`` and one row per sample.
@@ -57,6 +62,11 @@ IIWA_VELOCITY_LIMITS_RAD_S = np.radians([85.0, 85.0, 100.0, 75.0, 130.0, 135.0, 
 IIWA_ACCELERATION_LIMITS_RAD_S2 = np.full(7, 10.0)
 ROBOT = "KUKA LBR iiwa 14 R820 (pybullet_data kuka_iiwa/model.urdf) with a pen on the flange"
 SUFFIXES = (".csv", ".json")
+#: What a trajectory's positions are (``JointTrajectory.joints``, ``--joints``): the
+#: controller's reference at the pen's measured depth (the default), or the simulated
+#: arm's measured joints.
+JOINT_SOURCES = ("reference", "measured")
+DEFAULT_JOINTS = "reference"
 
 
 @dataclass(frozen=True)
@@ -73,6 +83,8 @@ class JointTrajectory:
     control_rate_hz : float
     scene : dict
         The :class:`SceneConfig` fields of the cell it was written in.
+    joints : str
+        What the positions are, one of :data:`JOINT_SOURCES`.
     """
 
     time_s: np.ndarray
@@ -81,20 +93,39 @@ class JointTrajectory:
     joint_names: tuple = IIWA_JOINT_NAMES
     control_rate_hz: float = 240.0
     scene: dict = dataclasses.field(default_factory=dict)
+    joints: str = "measured"
 
     @classmethod
-    def from_result(cls, result) -> JointTrajectory:
+    def from_result(cls, result, joints: str = DEFAULT_JOINTS) -> JointTrajectory:
         """The trajectory of a ``WritingResult``: its start posture at ``t = 0`` (at rest),
-        then the joint state after every control step of its log."""
+        then one sample per control step of its log.
+
+        ``joints="reference"``: the controller's reference ``q_d`` of each step at the
+        depth the pen reached (:func:`reference_at_tip_depth`), its velocities the
+        positions' finite differences (the first from rest); ``"measured"``: the
+        simulated arm's joint positions and velocities after each step."""
+        if joints not in JOINT_SOURCES:
+            raise ValueError(f"joints must be one of {', '.join(JOINT_SOURCES)}, got {joints!r}")
         log = result.log
-        if result.start_joints_rad is None or not np.isfinite(log.joint_q_rad).all():
-            raise ValueError("this writing result has no joint log to export")
+        source = log.joint_q_ref_rad if joints == "reference" else log.joint_q_rad
+        if result.start_joints_rad is None or not np.isfinite(source).all():
+            raise ValueError(f"this writing result has no {joints} joints to export")
+        time_s = np.concatenate([[0.0], log.time_s])
+        if joints == "measured":
+            q = np.vstack([result.start_joints_rad, log.joint_q_rad])
+            qd = np.vstack([np.zeros(7), log.joint_qd_rad_s])
+        else:
+            q_ref = reference_at_tip_depth(result.scene_config, source, log.tip_m[:, 2])
+            q = np.vstack([result.start_joints_rad, q_ref])
+            qd = np.zeros_like(q)  # [N, 7]
+            qd[1:] = np.diff(q, axis=0) / np.diff(time_s)[:, None]
         return cls(
-            time_s=np.concatenate([[0.0], log.time_s]),
-            position_rad=np.vstack([result.start_joints_rad, log.joint_q_rad]),
-            velocity_rad_s=np.vstack([np.zeros(7), log.joint_qd_rad_s]),
+            time_s=time_s,
+            position_rad=q,
+            velocity_rad_s=qd,
             control_rate_hz=float(result.metrics["control_rate_hz"]),
             scene=dataclasses.asdict(result.scene_config),
+            joints=joints,
         )
 
     @property
@@ -182,6 +213,7 @@ class JointTrajectory:
             },
             "acceleration_peak": self.acceleration_peak(),
             "scene": self.scene,
+            "joints": self.joints,
             "time_s": np.round(self.time_s, 9).tolist(),
             "position_rad": np.round(self.position_rad, 10).tolist(),
             "velocity_rad_s": np.round(self.velocity_rad_s, 8).tolist(),
@@ -273,7 +305,34 @@ def load_joint_trajectory(path) -> JointTrajectory:
         SceneConfig(**_scene_fields(scene))
     except (TypeError, ValueError) as e:
         raise ValueError(f"{path}: field 'scene' is not a SceneConfig ({e})") from e
-    return JointTrajectory(time_s, q, qd, tuple(names), float(rate), dict(scene))
+    joints = doc.get("joints", "measured")  # what the files before the field held
+    if joints not in JOINT_SOURCES:
+        raise ValueError(f"{path}: field 'joints' must be one of {list(JOINT_SOURCES)}, "
+                         f"got {joints!r}")  # fmt: skip
+    return JointTrajectory(time_s, q, qd, tuple(names), float(rate), dict(scene), joints)
+
+
+def reference_at_tip_depth(scene_config: SceneConfig, q_ref_rad, tip_z_m) -> np.ndarray:
+    """``[S, 7]``: the controller's joint reference ``q_ref_rad [S, 7]`` moved along the
+    pen (world z, the pen held vertical) so that the tip stands at ``tip_z_m [S]``, the
+    measured tip heights, with the same point in the plane and the same orientation.
+
+    The reference puts the tip at the admittance law's commanded height, which lies
+    below the pen's measured depth by what the torque-controlled arm yields to the
+    contact force: replayed by a stiff position servo it pressed 8.0 N instead of the
+    5 N set (docs/ROBOT.md). Each sample is moved by the minimum-norm joint step
+    ``dq = J^T (J J^T)^-1 [0, 0, dz, 0, 0, 0]`` (``J`` the tip's 6 x 7 Jacobian at the
+    reference on the kinematic twin, ``dz`` the height difference, a fraction of a
+    millimetre: first order is exact to nanometres)."""
+    q_ref = np.asarray(q_ref_rad, dtype=float)
+    out = q_ref.copy()  # [S, 7]
+    e = np.zeros(6)
+    with WritingScene(scene_config) as scene:
+        for i, q in enumerate(q_ref):
+            e[2] = float(tip_z_m[i]) - scene.tip_pose_at(q)[0][2]
+            jac = scene.tip_jacobian(q)  # [6, 7]
+            out[i] = q + jac.T @ np.linalg.solve(jac @ jac.T, e)
+    return out
 
 
 @dataclass

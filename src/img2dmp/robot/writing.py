@@ -464,6 +464,9 @@ class WritingLog(Mapping):
     dwell : ndarray [S] bool
         The DMP clock was held on this step (the pen landing at the start of a stroke or
         leaving the paper at its end); False in a log made without it.
+    joint_q_ref_rad, joint_qd_ref_rad_s : ndarray [S, 7]
+        The controller's reference on this step: ``q_d`` from its inverse kinematics and
+        ``qd_d``, its finite difference (NaN in a log made without them).
     """
 
     time_s: np.ndarray  # [S]
@@ -477,10 +480,12 @@ class WritingLog(Mapping):
     joint_q_rad: np.ndarray | None = None  # [S, 7]
     joint_qd_rad_s: np.ndarray | None = None  # [S, 7]
     dwell: np.ndarray | None = None  # [S] bool
+    joint_q_ref_rad: np.ndarray | None = None  # [S, 7]
+    joint_qd_ref_rad_s: np.ndarray | None = None  # [S, 7]
 
     def __post_init__(self) -> None:
         n_steps = len(self.time_s)
-        for name in ("joint_q_rad", "joint_qd_rad_s"):
+        for name in ("joint_q_rad", "joint_qd_rad_s", "joint_q_ref_rad", "joint_qd_ref_rad_s"):
             if getattr(self, name) is None:
                 object.__setattr__(self, name, np.full((n_steps, 7), np.nan))
         if self.dwell is None:
@@ -1097,6 +1102,8 @@ class WritingRun:
             "joint_q_rad": q_after,
             "joint_qd_rad_s": qd_after,
             "dwell": dwell,
+            "joint_q_ref_rad": ctl.q_d.copy(),
+            "joint_qd_ref_rad_s": ctl.qd_d.copy(),
         }
         for name, value in row.items():
             self._columns[name].append(value)
@@ -1153,6 +1160,8 @@ class WritingRun:
             joint_q_rad=np.array(c["joint_q_rad"], dtype=float).reshape(-1, 7),
             joint_qd_rad_s=np.array(c["joint_qd_rad_s"], dtype=float).reshape(-1, 7),
             dwell=np.array(c["dwell"], dtype=bool),
+            joint_q_ref_rad=np.array(c["joint_q_ref_rad"], dtype=float).reshape(-1, 7),
+            joint_qd_ref_rad_s=np.array(c["joint_qd_ref_rad_s"], dtype=float).reshape(-1, 7),
         )
 
     def run_figures(self, wall_s: float, approach_s: float) -> dict:
