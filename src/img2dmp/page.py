@@ -6,8 +6,10 @@
 1. the photo is read upright at most ``PAGE_WORK_PIXELS`` (area average) and its ink
    separated from the paper (:func:`img2dmp.data.paper.paper_ink`); a page whose
    characters come out under ``PAGE_SMALL_HEIGHT_PX`` tall (photographed from far away)
-   is read again enlarged, and one whose characters are under ``PAGE_MIN_HEIGHT_PX`` in
-   the photo is flagged ``too_small``, no character given;
+   is read again: a large photo reduced to ``PAGE_WORK_PIXELS`` from its file at a finer
+   reduction, only the part that holds the characters found, then (either) enlarged if
+   they are still small; one whose characters are under ``PAGE_MIN_HEIGHT_PX`` in the
+   photo is flagged ``too_small``, no character given;
 2. the characters are found and put in reading order
    (:func:`img2dmp.data.pages.find_characters`);
 3. each character's own ink (a neighbour's reaching into its box left out) is framed as
@@ -89,6 +91,15 @@ PAGE_UPSIDE_DOWN_SHARE = 0.15
 #: they were).
 PAGE_SMALL_HEIGHT_PX = 12.0
 PAGE_ENLARGE_MAX = 4
+#: A photo reduced to ``PAGE_WORK_PIXELS`` whose characters come out under
+#: ``PAGE_SMALL_HEIGHT_PX`` (a large photo of a sheet seen from far away) is first read
+#: again from the file at a finer reduction, down to its own pixels: the part that holds
+#: the characters found, with this many character heights of paper around them, at least
+#: this share of the page's shorter side; only when that part allows a reading at least
+#: ``PAGE_FINER_GAIN`` times as fine within ``PAGE_WORK_PIXELS``.
+PAGE_FINER_MARGIN = 3.0
+PAGE_FINER_MARGIN_SHARE = 0.05
+PAGE_FINER_GAIN = 1.5
 #: Characters under this many pixels tall in the photo are too small to read: the page is
 #: flagged ``too_small`` and no character is given (a page's edge or a few specks would
 #: otherwise be cut into dozens of characters a pixel tall).
@@ -220,12 +231,16 @@ class PagePrediction:
     turn : float64 [3, 3]
         The map of pixel-edge positions from the photo as read (``reduction``) to the
         pixels of ``layout`` (:attr:`PageSegmentation.turn`).
+    origin : (x, y)
+        The corner of the part of the photo read, in its pixels (:attr:`PageSegmentation.origin`;
+        (0, 0) unless only the part that holds the writing was read).
     """
 
     def __init__(self, characters, layout, image_size, reduction, source, flags, removed,
                  user_image=None, refine_steps=0, refine_unfamiliar=None,
-                 turn_deg=0.0, turn=None):  # fmt: skip
+                 turn_deg=0.0, turn=None, origin=(0.0, 0.0)):  # fmt: skip
         self.characters = list(characters)
+        self.origin = (float(origin[0]), float(origin[1]))
         self.turn_deg = float(turn_deg)
         self.turn = np.eye(3) if turn is None else np.asarray(turn, np.float64)
         self.layout, self.image_size, self.reduction = layout, tuple(image_size), reduction
@@ -347,11 +362,13 @@ def _touches_border(box, shape, reduction: float) -> bool:
     return x0 < margin or y0 < margin or x1 > shape[1] - margin or y1 > shape[0] - margin
 
 
-def _box_in_image(box, reduction: float, size) -> tuple[int, int, int, int]:
+def _box_in_image(box, reduction: float, size, origin=(0.0, 0.0)) -> tuple[int, int, int, int]:
     x0, y0, x1, y1 = box
     h, w = size
-    return (max(0, math.floor(x0 * reduction)), max(0, math.floor(y0 * reduction)),
-            min(w, math.ceil(x1 * reduction)), min(h, math.ceil(y1 * reduction)))  # fmt: skip
+    ox, oy = origin
+    return (max(0, math.floor(x0 * reduction + ox)), max(0, math.floor(y0 * reduction + oy)),
+            min(w, math.ceil(x1 * reduction + ox)),
+            min(h, math.ceil(y1 * reduction + oy)))  # fmt: skip
 
 
 def _preview(levels: np.ndarray) -> np.ndarray:
@@ -372,7 +389,7 @@ def _frame_characters(predictor, seg, match_stroke_width):
     photo) of a :class:`PageSegmentation`."""
     width = predictor.stroke_width if match_stroke_width else None
     inputs, frames = [], []
-    to_read = seg.turn @ _images._scaling(1.0 / seg.reduction)  # photo -> page as read
+    to_read = seg.photo_to_ink()  # photo -> page as read
     for c in seg.layout.characters:
         crop, cx0, cy0 = _character_ink(seg.ink.ink, c)
         out, edge = _images.frame_ink(crop, predictor.image_size, predictor.margin, width,
@@ -421,6 +438,14 @@ class PageSegmentation:
     too_small : bool
         Its characters are under ``PAGE_MIN_HEIGHT_PX`` tall in the photo: too small to
         read, and none is given (``layout`` is empty).
+    origin : (x, y)
+        The corner of ``levels`` in the photo's pixels (pixel edges): not (0, 0) when
+        only the part of a reduced photo that holds its writing was read again at a
+        finer reduction (:data:`PAGE_SMALL_HEIGHT_PX`); a photo position ``p`` (pixel
+        edges) is at ``(p - origin) / reduction`` in ``levels``.
+    overview : float array [h, w] or [h, w, 3] or None
+        The whole photo as first read, when ``levels`` is a part of it (for the page's
+        picture); else None (``levels`` is the whole photo).
     """
 
     levels: np.ndarray
@@ -434,6 +459,24 @@ class PageSegmentation:
     sideways: float | None = None
     ink_as_it_stands: object = None
     too_small: bool = False
+    origin: tuple[float, float] = (0.0, 0.0)
+    overview: np.ndarray | None = None
+
+    def photo_to_levels(self) -> np.ndarray:
+        """The map ``[3, 3]`` of pixel-edge positions from the photo's own pixels to
+        those of ``levels``."""
+        return _images._scaling(1.0 / self.reduction) @ _edge_shift(
+            -self.origin[0], -self.origin[1]
+        )
+
+    def photo_to_ink(self) -> np.ndarray:
+        """The map ``[3, 3]`` of pixel-edge positions from the photo's own pixels to
+        those of ``ink`` and ``layout`` (the page as read, turned by ``turn``)."""
+        return self.turn @ self.photo_to_levels()
+
+    def whole(self) -> np.ndarray:
+        """The whole photo as read: ``overview``, or ``levels`` when they are all of it."""
+        return self.levels if self.overview is None else self.overview
 
     def levels_box(self, c: PageCharacter) -> tuple[int, int, int, int]:
         """Character ``c``'s box in the pixels of ``levels`` (half-open): around its own
@@ -450,10 +493,11 @@ class PageSegmentation:
 
     def box_in_image(self, c: PageCharacter) -> tuple[int, int, int, int]:
         """Character ``c``'s box in the photo's own pixels (half-open)."""
-        return _box_in_image(self.levels_box(c), self.reduction, self.size)
+        return _box_in_image(self.levels_box(c), self.reduction, self.size, self.origin)
 
     def touches_border(self, c: PageCharacter) -> bool:
-        """Whether character ``c`` touches the photo's border."""
+        """Whether character ``c`` touches the photo's border (the border of ``levels``:
+        of the part of the photo read, when only a part was)."""
         return _touches_border(self.levels_box(c), self.levels.shape[:2], self.reduction)
 
 
@@ -581,12 +625,14 @@ def segment_page(image, *, name: str | None = None, cut: bool = True, join_sides
         its characters are found; 0: read it as it stands. Default: found from the
         characters (docs/PAGE.md, "A page photographed askew or sideways").
     """
-    levels, reduction, size, label = _images._levels_framed(image, name, PAGE_WORK_PIXELS)
+    read = _images._read_levels(image, name, PAGE_WORK_PIXELS)
+    levels, reduction, size, label = read.levels, read.reduction, read.size, read.label
     found = paper_ink(levels)
     if found is None:
         return PageSegmentation(levels, reduction, size, label, None,
                                 PageLayout(shape=levels.shape[:2]))  # fmt: skip
     seg = PageSegmentation(levels, reduction, size, label, found, _find_on(found, cut, join_sides))
+    seg = _finer(seg, image, name, read.white, cut, join_sides)
     seg = _enlarged(seg, cut, join_sides)
     if seg.layout.characters and seg.layout.height_px * seg.reduction < PAGE_MIN_HEIGHT_PX:
         seg.layout, seg.too_small = PageLayout(shape=seg.layout.shape), True
@@ -594,6 +640,42 @@ def segment_page(image, *, name: str | None = None, cut: bool = True, join_sides
     if turn_deg is None:
         turn_deg, seg.sideways = _page_turn(seg.layout)
     return _turned_segmentation(seg, turn_deg, cut, join_sides) if turn_deg else seg
+
+
+def _writing_box(seg: PageSegmentation) -> tuple[float, float, float, float]:
+    """The part of the photo (its pixels, ``(x0, y0, x1, y1)``) that holds the characters
+    found on ``seg`` (read as it stands), with ``PAGE_FINER_MARGIN`` character heights of
+    paper around them (at least ``PAGE_FINER_MARGIN_SHARE`` of the page's shorter side)."""
+    boxes = np.array([c.box for c in seg.layout.characters], np.float64)
+    h, w = seg.levels.shape[:2]
+    pad = max(PAGE_FINER_MARGIN * seg.layout.height_px, PAGE_FINER_MARGIN_SHARE * min(h, w))
+    x0, y0 = max(0.0, boxes[:, 0].min() - pad), max(0.0, boxes[:, 1].min() - pad)
+    x1, y1 = min(float(w), boxes[:, 2].max() + pad), min(float(h), boxes[:, 3].max() + pad)
+    r, (ox, oy) = seg.reduction, seg.origin
+    return x0 * r + ox, y0 * r + oy, x1 * r + ox, y1 * r + oy
+
+
+def _finer(seg: PageSegmentation, image, name, white: float, cut: bool,
+           join_sides: bool) -> PageSegmentation:  # fmt: skip
+    """A reduced photo (``reduction`` above 1) whose characters come out under
+    ``PAGE_SMALL_HEIGHT_PX`` read again from ``image`` at a finer reduction: the part
+    that holds its writing (:func:`_writing_box`), at most ``PAGE_WORK_PIXELS``, its
+    levels divided by the first reading's ``white``; ``seg`` itself when the photo was
+    not reduced, its characters are not small, that part allows no finer reading, or no
+    character is found there."""
+    if seg.reduction <= 1 or not 0 < seg.layout.height_px < PAGE_SMALL_HEIGHT_PX:
+        return seg
+    box = _writing_box(seg)
+    finer = math.ceil(math.sqrt((box[2] - box[0]) * (box[3] - box[1]) / PAGE_WORK_PIXELS))
+    if PAGE_FINER_GAIN * finer > seg.reduction:
+        return seg
+    read = _images._read_levels(image, name, PAGE_WORK_PIXELS, box, white)
+    found = paper_ink(read.levels)
+    layout = None if found is None else _find_on(found, cut, join_sides)
+    if layout is None or not layout.characters:
+        return seg
+    return PageSegmentation(read.levels, read.reduction, seg.size, seg.label, found, layout,
+                            origin=read.origin, overview=seg.levels)  # fmt: skip
 
 
 def _enlargement(height_px: float, pixels: int) -> int:
@@ -621,7 +703,8 @@ def _enlarged(seg: PageSegmentation, cut: bool, join_sides: bool) -> PageSegment
     if found is None:
         return seg
     return PageSegmentation(levels, seg.reduction / factor, seg.size, seg.label, found,
-                            _find_on(found, cut, join_sides))  # fmt: skip
+                            _find_on(found, cut, join_sides), origin=seg.origin,
+                            overview=seg.overview)  # fmt: skip
 
 
 def _turned_segmentation(seg: PageSegmentation, turn_deg: float, cut: bool,
@@ -638,7 +721,8 @@ def _turned_segmentation(seg: PageSegmentation, turn_deg: float, cut: bool,
     found, turn = read
     return PageSegmentation(seg.levels, seg.reduction, seg.size, seg.label, found,
                             _find_on(found, cut, join_sides), turn, float(turn_deg),
-                            ink_as_it_stands=stands)  # fmt: skip
+                            ink_as_it_stands=stands, origin=seg.origin,
+                            overview=seg.overview)  # fmt: skip
 
 
 def _page_turn(layout: PageLayout) -> tuple[float, float | None]:
@@ -721,7 +805,7 @@ def _flagged_share(page: PagePrediction) -> float:
 
 def _read_segmentation(predictor, seg, image, n_points, match_stroke_width) -> PagePrediction:
     """:func:`read_page`'s steps 3 and 4 on a :class:`PageSegmentation`."""
-    levels, reduction, size, found = seg.levels, seg.reduction, seg.size, seg.ink
+    reduction, size, found = seg.reduction, seg.size, seg.ink
     source = str(image) if isinstance(image, (str, os.PathLike)) else None
     o = predictor.refine_options
     steps, unfamiliar = (0, None) if o is None else (o.steps, predictor.refine_unfamiliar)
@@ -729,8 +813,8 @@ def _read_segmentation(predictor, seg, image, n_points, match_stroke_width) -> P
     page = PagePrediction([], seg.layout, size, reduction, source, page_flags,
                           {} if found is None else found.removed, refine_steps=steps,
                           refine_unfamiliar=unfamiliar, turn_deg=seg.turn_deg,
-                          turn=seg.turn)  # fmt: skip
-    page.preview = _preview(levels)
+                          turn=seg.turn, origin=seg.origin)  # fmt: skip
+    page.preview = _preview(seg.whole())
     if found is None or not page.layout.characters:
         return page
     inputs, frames = _frame_characters(predictor, seg, match_stroke_width)

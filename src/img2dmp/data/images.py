@@ -30,6 +30,7 @@ import math
 import numbers
 import os
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -296,11 +297,12 @@ class ImageTooLargeError(ValueError):
     """An image file with more pixels than PIL's decompression-bomb limit."""
 
 
-def _open_reduced(im, label: str, max_pixels: int = MAX_WORK_PIXELS):
+def _open_reduced(im, label: str, max_pixels: int = MAX_WORK_PIXELS, pixels: int | None = None):
     """A loaded PIL image of at most ``max_pixels`` (JPEG: decoded at a reduced
     scale), the further integer reduction it needs and the scale the decoder applied
     (1 unless a JPEG was decoded at 1/2, 1/4 or 1/8); ``ValueError`` for an image beyond
-    PIL's decompression-bomb limit."""
+    PIL's decompression-bomb limit. ``pixels``: the part of the image to be read (a
+    region's), which the decoder's scale is chosen for (default: all of it)."""
     from PIL import Image
 
     w, h = im.size
@@ -310,7 +312,7 @@ def _open_reduced(im, label: str, max_pixels: int = MAX_WORK_PIXELS):
             f"{label} has {w} x {h} = {w * h} pixels, more than the {limit} "
             "an image may have (PIL.Image.MAX_IMAGE_PIXELS)"
         )
-    factor = math.ceil(math.sqrt(w * h / max_pixels))
+    factor = math.ceil(math.sqrt((w * h if pixels is None else pixels) / max_pixels))
     draft = None
     if factor > 1:
         draft = im.draft(None, (max(1, w // factor), max(1, h // factor)))  # JPEG only
@@ -361,15 +363,30 @@ def shown_size(im) -> tuple[int, int]:
     return (w, h) if _orientation(im) in _TURNED else (h, w)
 
 
-def _pil_levels(im, label: str, max_pixels: int = MAX_WORK_PIXELS) -> tuple[np.ndarray, float]:
+def _pil_levels(im, label: str, max_pixels: int = MAX_WORK_PIXELS, box=None,
+                white: float | None = None):  # fmt: skip
     """Levels in [0, 1] of a PIL image: RGB ``float32 [h, w, 3]`` for a colour image,
     grey ``[h, w]`` otherwise; upright (:func:`upright`), transparency composited on
-    white, reduced to at most ``max_pixels``; and the reduction (its pixels per level
-    pixel)."""
+    white, reduced to at most ``max_pixels``; the reduction (its pixels per level
+    pixel), the corner ``(x, y)`` of the levels in its pixels (pixel edges) and the grey
+    level of white the levels were divided by (:func:`full_scale`).
+
+    ``box``: only the region ``(x0, y0, x1, y1)`` (half-open, the upright image's pixels;
+    JPEG: widened to whole pixels of the decoder's scale) is read, reduced as its own
+    size needs; ``white``: divide grey levels by it (the whole image's, as a first
+    reading found it) instead of the region's own :func:`full_scale`."""
     from PIL import Image
 
-    im, factor, scale = _open_reduced(im, label, max_pixels)
+    pixels = None if box is None else (box[2] - box[0]) * (box[3] - box[1])
+    im, factor, scale = _open_reduced(im, label, max_pixels, pixels)
     im = upright(im)
+    origin = (0.0, 0.0)
+    if box is not None:  # in the decoded pixels (a JPEG's: 1 / scale of the file's)
+        x0, y0 = math.floor(box[0] / scale), math.floor(box[1] / scale)
+        x1 = min(im.width, math.ceil(box[2] / scale))
+        y1 = min(im.height, math.ceil(box[3] / scale))
+        im, origin = im.crop((x0, y0, x1, y1)), (x0 * scale, y0 * scale)
+        factor = max(1, math.ceil(math.sqrt(im.width * im.height / max_pixels)))
     if im.mode in ("RGBA", "LA", "PA") or (im.mode == "P" and "transparency" in im.info):
         rgba = im.convert("RGBA")
         bg = Image.new("RGBA", rgba.size, (255, 255, 255, 255))
@@ -381,24 +398,26 @@ def _pil_levels(im, label: str, max_pixels: int = MAX_WORK_PIXELS) -> tuple[np.n
     if factor > 1:  # 8-bit images reduce as 8 bits: a quarter of the memory
         im = (im if colour else im.convert("F" if wide else "L")).reduce(factor)
     if colour:
-        levels = np.asarray(im, dtype=np.float32) / np.float32(255.0)
+        levels, white = np.asarray(im, dtype=np.float32) / np.float32(255.0), 255.0
     else:
         levels = np.array(im.convert("F"), dtype=np.float32)  # a copy: divided in place
         if not np.isfinite(levels).all():  # a floating-point ("F") image may hold NaN
             raise ValueError(f"{label} holds NaN or infinite grey levels")
-        levels /= np.float32(full_scale(float(levels.max()) if levels.size else 0.0))
+        if white is None:
+            white = full_scale(float(levels.max()) if levels.size else 0.0)
+        levels /= np.float32(white)
     if min(levels.shape[:2]) < 2:
         h, w = levels.shape[:2]
         raise ValueError(f"{label} is {w} x {h} pixels (width x height): an image needs at "
                          "least 2 x 2")  # fmt: skip
-    return levels, scale * factor
+    return levels, scale * factor, origin, float(white)
 
 
-def _decode_framed(
-    path: Path, max_pixels: int = MAX_WORK_PIXELS
-) -> tuple[np.ndarray, float, tuple[int, int]]:
-    """Levels in [0, 1] of an image file (:func:`_pil_levels`), the reduction (file
-    pixels per level pixel) and the file's own size ``(H, W)``."""
+def _decode_framed(path: Path, max_pixels: int = MAX_WORK_PIXELS, box=None,
+                   white: float | None = None):  # fmt: skip
+    """Levels in [0, 1] of an image file (:func:`_pil_levels`, ``box`` and ``white`` as
+    there), the reduction (file pixels per level pixel), the file's own size ``(H, W)``,
+    the levels' corner ``(x, y)`` in the file's pixels and the level of white."""
     from PIL import Image, UnidentifiedImageError
 
     check_readable(path, "image file")  # missing, a directory, unreadable: said as such
@@ -408,7 +427,9 @@ def _decode_framed(
             im = Image.open(path)
         with im:
             size = shown_size(im)
-            levels, reduction = _pil_levels(im, f"image file {path}", max_pixels)
+            levels, reduction, origin, white = _pil_levels(
+                im, f"image file {path}", max_pixels, _clipped(box, size), white
+            )
     except ImageTooLargeError:
         raise
     except Image.DecompressionBombError as e:
@@ -419,7 +440,21 @@ def _decode_framed(
         if str(e).startswith(f"image file {path}"):
             raise
         raise ValueError(f"cannot decode image file {path}: {e}") from e
-    return levels, reduction, size
+    return levels, reduction, size, origin, white
+
+
+def _clipped(box, size) -> tuple[int, int, int, int] | None:
+    """A region ``(x0, y0, x1, y1)`` in whole pixels within an image of ``size`` (H, W);
+    None for None."""
+    if box is None:
+        return None
+    h, w = size
+    x0, y0 = max(0, math.floor(box[0])), max(0, math.floor(box[1]))
+    x1, y1 = min(w, math.ceil(box[2])), min(h, math.ceil(box[3]))
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        raise ValueError(f"region {tuple(box)} holds less than 2 x 2 pixels of an image of "
+                         f"{w} x {h}")  # fmt: skip
+    return x0, y0, x1, y1
 
 
 def grey_of(levels: np.ndarray) -> np.ndarray:
@@ -492,20 +527,48 @@ def _reduce_levels(levels: np.ndarray, factor: int) -> np.ndarray:
     return np.stack([_reduce(levels[..., c], factor) for c in range(3)], axis=-1)
 
 
+@dataclass(frozen=True)
+class _Reading:
+    """What :func:`_read_levels` read: ``levels`` in [0, 1] (grey ``[h, w]`` or RGB
+    ``[h, w, 3]``, float32), ``reduction`` (the source's pixels per level pixel), the
+    source's ``size`` ``(H, W)``, a ``label`` for messages, the levels' corner
+    ``origin`` ``(x, y)`` in the source's pixels (pixel edges; not 0 for a region) and
+    the grey level of ``white`` the source's values were divided by."""
+
+    levels: np.ndarray
+    reduction: float
+    size: tuple[int, int]
+    label: str
+    origin: tuple[float, float] = (0.0, 0.0)
+    white: float = 1.0
+
+
 def _levels_framed(source, name: str | None, max_pixels: int = MAX_WORK_PIXELS):
     """Levels in [0, 1] (grey ``[h, w]`` or RGB ``[h, w, 3]``, float32) of a file, PIL
     image or array, the reduction (the source's pixels per level pixel), the source's
     size ``(H, W)`` and a label for messages."""
+    r = _read_levels(source, name, max_pixels)
+    return r.levels, r.reduction, r.size, r.label
+
+
+def _read_levels(source, name: str | None, max_pixels: int = MAX_WORK_PIXELS, box=None,
+                 white: float | None = None) -> _Reading:  # fmt: skip
+    """A file, PIL image or array read as levels (:class:`_Reading`), at most
+    ``max_pixels``; ``box`` ``(x0, y0, x1, y1)``: only that region of it (the source's
+    own pixels, upright; half-open), reduced as its own size needs; ``white``: grey
+    levels divided by it (a first reading's) instead of what the values read show."""
     from PIL import Image
 
     if isinstance(source, (str, os.PathLike)):
-        levels, reduction, size = _decode_framed(Path(source), max_pixels)
-        return levels, reduction, size, str(source)
+        levels, reduction, size, origin, white = _decode_framed(Path(source), max_pixels, box,
+                                                                white)  # fmt: skip
+        return _Reading(levels, reduction, size, str(source), origin, white)
     if isinstance(source, Image.Image):
         label = name or "PIL image"
         size = shown_size(source)
-        levels, reduction = _pil_levels(source.copy(), label, max_pixels)
-        return levels, reduction, size, label
+        levels, reduction, origin, white = _pil_levels(source.copy(), label, max_pixels,
+                                                       _clipped(box, size), white)  # fmt: skip
+        return _Reading(levels, reduction, size, label, origin, white)
     if not (isinstance(source, (np.ndarray, list, tuple)) or hasattr(source, "__array__")):
         raise ValueError(
             f"{name or 'image'} must be a file path, a PIL image or a NumPy array, got "
@@ -526,12 +589,20 @@ def _levels_framed(source, name: str | None, max_pixels: int = MAX_WORK_PIXELS):
     label = name or "image array"
     levels, full = _array_levels(source, label)
     size = (int(levels.shape[0]), int(levels.shape[1]))
-    factor = math.ceil(math.sqrt(size[0] * size[1] / max_pixels))
-    a = source
+    a, origin = source, (0.0, 0.0)
+    if box is not None:
+        x0, y0, x1, y1 = _clipped(box, size)
+        a, levels, origin = a[y0:y1, x0:x1], levels[y0:y1, x0:x1], (float(x0), float(y0))
+        full = full if white is None else white
+    factor = math.ceil(math.sqrt(levels.shape[0] * levels.shape[1] / max_pixels))
     if factor > 1 and a.dtype == np.uint8:  # reduced as its file is read: in 8 bits
-        return _levels_framed(Image.fromarray(np.ascontiguousarray(a)), label, max_pixels)
+        levels, reduction, _, white = _pil_levels(Image.fromarray(np.ascontiguousarray(a)),
+                                                  label, max_pixels, None,
+                                                  None if box is None else full)  # fmt: skip
+        return _Reading(levels, reduction, size, label, origin, white)
     levels = _reduce_levels(levels, factor) if factor > 1 else levels
-    return (levels / np.float32(full)).astype(np.float32), float(factor), size, label
+    levels = (levels / np.float32(full)).astype(np.float32)
+    return _Reading(levels, float(factor), size, label, origin, float(full))
 
 
 def _grey_levels(source, name: str | None) -> tuple[np.ndarray, str]:
