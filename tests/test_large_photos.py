@@ -189,3 +189,46 @@ def test_a_region_beyond_the_image_is_refused_in_one_line():
 
     with pytest.raises(ValueError, match="region .* holds less than 2 x 2 pixels"):
         _read_levels(np.zeros((20, 30)), "page", box=(40, 0, 50, 10))
+
+
+def _scan16(tmp_path, top: int):
+    """A grey scan ``[301, 203]`` in 16 bits whose brightest level is ``top`` (4095: a
+    12-bit scan stored in 16 bits), saved as PNG; its path and the levels."""
+    rng = np.random.default_rng(1)
+    a = rng.integers(0, top + 1, (301, 203)).astype(np.uint16)
+    a[0, 0] = top
+    path = tmp_path / f"scan{top}.png"
+    Image.fromarray(a).save(path)
+    assert Image.open(path).mode == "I;16"
+    return path, a
+
+
+@pytest.mark.parametrize("top", [4095, 65535])
+def test_a_16_bit_scan_is_reduced_a_strip_at_a_time_to_the_same_levels(tmp_path, monkeypatch, top):
+    """Reduced 3 x 3 (and 5 x 5) in strips of a few rows (``_STRIP_PIXELS`` lowered):
+    the levels of converting the whole image to float and reducing it (PIL's area
+    average), divided by its white (4095 for a 12-bit scan), within 1e-6; and no float
+    copy of more than a strip is made (the whole scan's was 140 MB at 600 dpi)."""
+    from img2dmp.data import images
+
+    path, a = _scan16(tmp_path, top)
+    monkeypatch.setattr(images, "_STRIP_PIXELS", 2_000, raising=False)
+    converted = []
+    convert = Image.Image.convert
+
+    def spy(im, mode=None, *args, **kwargs):
+        if mode == "F":
+            converted.append(im.width * im.height)
+        return convert(im, mode, *args, **kwargs)
+
+    monkeypatch.setattr(Image.Image, "convert", spy)
+    for factor in (3, 5):
+        pixels = a.size // factor**2 + 1  # reduced by ``factor``
+        whole = convert(Image.fromarray(a), "F").reduce(factor)
+        want = np.asarray(whole, np.float32) / np.float32(top)
+        for source in (path, a):
+            converted.clear()
+            levels, reduction, _, _ = images._levels_framed(source, None, pixels)
+            assert reduction == factor and levels.shape == want.shape
+            assert np.abs(levels - want).max() <= 1e-6
+            assert max(converted, default=0) <= 2_000 + a.shape[1] * factor

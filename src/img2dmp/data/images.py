@@ -60,6 +60,9 @@ _TURNED = (5, 6, 7, 8)
 OUTPUT_SIDE_PX = (2, 1024)
 # stroke_width enlarges an image to at most this many pixels.
 _MAX_UPSAMPLED_PIXELS = 4_000_000
+# A grey image of more than 8 bits is converted to float and reduced about this many of
+# its pixels at a time (_reduced_wide).
+_STRIP_PIXELS = 1 << 20
 # A grey dilation or erosion compares at most about this many pixel pairs (~0.5 s); a
 # wider disc is applied at a coarser resolution.
 _MAX_MORPHOLOGY_OPS = 2e8
@@ -226,6 +229,11 @@ def _reduce(a: np.ndarray, factor: int, how: str = "mean") -> np.ndarray:
 
     if factor <= 1:
         return a
+    rows = factor * max(1, _STRIP_PIXELS // (a.shape[1] * factor))
+    if how == "mean" and a.shape[0] > rows:  # a strip of whole blocks at a time: no
+        # full-size float32 copy of a large array (the same levels)
+        return np.concatenate([_reduce(a[top : top + rows], factor)
+                               for top in range(0, a.shape[0], rows)])  # fmt: skip
     if how == "mean":
         return np.asarray(Image.fromarray(a.astype(np.float32), mode="F").reduce(factor), float)
     h, w = (-(-n // factor) * factor for n in a.shape)
@@ -395,12 +403,15 @@ def _pil_levels(im, label: str, max_pixels: int = MAX_WORK_PIXELS, box=None,
     colour = not wide and im.mode not in ("1", "L")
     if colour:
         im = im.convert("RGB")
-    if factor > 1:  # 8-bit images reduce as 8 bits: a quarter of the memory
-        im = (im if colour else im.convert("F" if wide else "L")).reduce(factor)
+    if factor > 1 and not wide:  # 8-bit images reduce as 8 bits: a quarter of the memory
+        im = (im if colour else im.convert("L")).reduce(factor)
     if colour:
         levels, white = np.asarray(im, dtype=np.float32) / np.float32(255.0), 255.0
     else:
-        levels = np.array(im.convert("F"), dtype=np.float32)  # a copy: divided in place
+        if factor > 1:  # wide
+            levels = _reduced_wide(im, factor)
+        else:
+            levels = np.array(im.convert("F"), dtype=np.float32)  # a copy: divided in place
         if not np.isfinite(levels).all():  # a floating-point ("F") image may hold NaN
             raise ValueError(f"{label} holds NaN or infinite grey levels")
         if white is None:
@@ -411,6 +422,20 @@ def _pil_levels(im, label: str, max_pixels: int = MAX_WORK_PIXELS, box=None,
         raise ValueError(f"{label} is {w} x {h} pixels (width x height): an image needs at "
                          "least 2 x 2")  # fmt: skip
     return levels, scale * factor, origin, float(white)
+
+
+def _reduced_wide(im, factor: int) -> np.ndarray:
+    """A grey image of more than 8 bits (PIL modes "I;16", "I", "F") as float32 levels
+    ``[h, w]`` reduced ``factor`` times (area average), converted and reduced a strip of
+    whole blocks at a time: the same levels as converting it whole, without a full-size
+    float copy (140 MB for a 600-dpi A4 scan in 16 bits)."""
+    w, h = im.size
+    rows = factor * max(1, _STRIP_PIXELS // (w * factor))
+    out = np.empty((-(-h // factor), -(-w // factor)), np.float32)
+    for top in range(0, h, rows):
+        strip = im.crop((0, top, w, min(h, top + rows))).convert("F").reduce(factor)
+        out[top // factor : top // factor + strip.height] = np.asarray(strip, np.float32)
+    return out
 
 
 def _decode_framed(path: Path, max_pixels: int = MAX_WORK_PIXELS, box=None,
