@@ -18,11 +18,11 @@ AT = (500, 400)  # the page's top-left corner on the canvas (x, y)
 WORK_PIXELS = 120_000
 
 
-def _far_sheet(scale: float):
-    """``LINES`` (characters 40 px tall) on light paper, scaled by ``scale`` (Lanczos) and
-    pasted at ``AT`` on a large canvas of the paper's colour, as a large photo of a sheet
-    seen from far; and the true boxes in the canvas's pixels."""
-    ink, boxes = page(LINES, size=(300, 520))
+def _far_sheet(scale: float, angle_deg: float = 0.0):
+    """``LINES`` (characters 40 px tall, written at ``angle_deg``) on light paper, scaled
+    by ``scale`` (Lanczos) and pasted at ``AT`` on a large canvas of the paper's colour,
+    as a large photo of a sheet seen from far; and the true boxes in the canvas's pixels."""
+    ink, boxes = page(LINES, angle_deg=angle_deg, size=(300, 520))
     rgb = on_paper(ink, np.full((300, 520, 3), 0.93, np.float32), colour=(0.1, 0.1, 0.2))
     im = Image.fromarray((np.clip(rgb, 0, 1) * 255).astype(np.uint8))
     small = im.resize((round(520 * scale), round(300 * scale)), Image.Resampling.LANCZOS)
@@ -63,6 +63,17 @@ def test_a_reduced_photo_of_small_characters_is_read_again_at_a_finer_reduction(
     found = [seg.box_in_image(c) for c in seg.layout.characters]
     assert _centres_inside(found, true) == len(true)
     assert seg.whole().shape[:2] == (CANVAS[0] // 3, CANVAS[1] // 3)  # the picture: all of it
+
+
+def test_a_page_written_askew_is_read_finer_and_turned_level(small_work):
+    """Lines at 12 degrees: the part read again is turned level too, and the boxes,
+    through the turn, the reduction and the part's corner, hold every character."""
+    canvas, true = _far_sheet(0.6, angle_deg=12.0)
+    seg = small_work.segment_page(canvas)
+    assert seg.reduction < 3.0 and seg.origin != (0.0, 0.0) and seg.turn_deg
+    assert [len(line) for line in seg.layout.lines] == [len(line) for line in LINES]
+    found = [seg.box_in_image(c) for c in seg.layout.characters]
+    assert _centres_inside(found, true) == len(true)
 
 
 def test_the_boxes_of_a_part_read_again_are_those_of_the_part_read_alone(small_work):
