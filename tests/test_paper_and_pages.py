@@ -413,10 +413,13 @@ def test_a_shadow_across_the_page_is_paper_with_its_writing_read(level, soft, sl
     assert found.removed["off_sheet_px"] == 0 and found.removed["desk_px"] == 0
 
 
-def test_a_photographed_character_half_in_a_shadow_keeps_its_strokes():
+@pytest.mark.parametrize("level", [0.5, 0.25])
+def test_a_photographed_character_half_in_a_shadow_keeps_its_strokes(level):
     """One character photographed (a crop under ``SURFACE_MAX_SIDE``, read with a smooth
     paper), the shadow's edge across it: its strokes joined to the shadow made one mark
-    half the image wide, the rough pen width came out 40 px, and no ink was found."""
+    half the image wide, the rough pen width came out 40 px, and no ink was found. In a
+    shadow of a quarter of the light the smooth reading found no ink either; the crop is
+    read with cells then (``crop_shade_step``)."""
     from scipy.ndimage import gaussian_filter
 
     from img2dmp.data.paper import rough_pen_width
@@ -425,10 +428,49 @@ def test_a_photographed_character_half_in_a_shadow_keeps_its_strokes():
                               _stroke([(60, 110), (150, 110)])], width=5.0)  # fmt: skip
     img = _on_paper(truth, np.full((200, 200, 3), 0.9, np.float32))
     cols = np.mgrid[:200, :200][1]
-    shaded = img * gaussian_filter(np.where(cols > 100, 0.5, 1.0), 1.0)[..., None]
+    shaded = img * gaussian_filter(np.where(cols > 100, level, 1.0), 1.0)[..., None]
     assert rough_pen_width(np.moveaxis(shaded, 2, 0).astype(np.float32)) < 10.0
     found = paper_ink(shaded.astype(np.float32))
     assert found is not None and _kept(found, truth) > 0.9
+
+
+@pytest.mark.parametrize(("level", "soft", "slope"), [(0.3, 1.0, 0.0), (0.25, 1.5, -0.5),
+                                                     (0.3, 6.0, 0.0)])  # fmt: skip
+def test_a_small_page_across_a_deep_shadow_is_read_with_cells(level, soft, slope):
+    """A page under ``SURFACE_MAX_SIDE`` (300 x 520, read as a crop: one smooth paper)
+    half in a deep shadow: the smooth surface cannot follow the edge, whose band raised
+    the ink's level so that the strokes in the shade were dropped as faint (4 of the 9
+    characters found) or nothing was (no ink). The step between even cells is seen
+    (``crop_shade_step``) and the crop read with cells too: all nine, nothing more."""
+    from scipy.ndimage import gaussian_filter
+
+    from img2dmp.data.paper import SURFACE_MAX_SIDE, crop_shade_step, rough_pen_width
+
+    img, centres = _sheet_on_desk(128, margin=(0, 0))
+    assert min(img.shape[:2]) < SURFACE_MAX_SIDE
+    rows, cols = np.mgrid[: img.shape[0], : img.shape[1]]
+    edge = cols - 0.5 * img.shape[1] + slope * (rows - 0.5 * img.shape[0])
+    shaded = (img * gaussian_filter(np.where(edge > 0, level, 1.0), soft)[..., None]).astype(
+        np.float32
+    )
+    planes = np.ascontiguousarray(np.moveaxis(shaded, 2, 0))
+    assert crop_shade_step(planes, rough_pen_width(planes))
+    found, boxes, ok = _found_at(shaded, centres)
+    assert ok, (len(boxes), boxes)
+
+
+def test_a_crop_without_a_shadow_has_no_shade_step():
+    """The step test keeps a crop's smooth reading where there is no shadow: a page
+    lit by a gradient and a character on plain paper are no step."""
+    from img2dmp.data.paper import crop_shade_step, rough_pen_width
+
+    img, _ = _sheet_on_desk(128, margin=(0, 0))
+    light = np.linspace(1.0, 0.6, img.shape[1], dtype=np.float32)[None, :, None]
+    truth = _ink((200, 200), [_stroke([(40, 40), (160, 40), (80, 170)])], width=5.0)
+    char = _on_paper(truth, np.full((200, 200, 3), 0.9, np.float32))
+    for lit in (img * light, char):
+        planes = np.ascontiguousarray(np.moveaxis(lit.astype(np.float32), 2, 0))
+        assert not crop_shade_step(planes, rough_pen_width(planes))
 
 
 def test_a_faint_stroke_that_runs_beside_a_printed_rule_and_leaves_it_is_kept():

@@ -15,7 +15,9 @@ drops the rest, in named steps (each kept for a picture with ``keep_steps``;
    from the border as :mod:`img2dmp.data.images` has always read it;
 2. **background**: the paper's own colour at every pixel, per channel: for a small
    image (a character's crop, under ``SURFACE_MAX_SIDE``) a quadratic surface fitted to
-   the pixels that are not darker than it, times the soft shadows its even cells show;
+   the pixels that are not darker than it, times the soft shadows its even cells show
+   (a crop across a shadow's hard edge, which a smooth surface cannot follow, is read
+   with cells too: :func:`crop_shade_step`, ``CROP_STEP_GAIN``);
    else the colour of the pixels at a high percentile of brightness in cells of about
    1/24 of the shorter side and at least ``CELL_PEN_WIDTHS`` pen widths (ink covers a
    minority of every cell; brightness, not each channel's own percentile, so that lines
@@ -73,6 +75,16 @@ LOCAL_BACKGROUND_MIN_SIDE = 64
 SURFACE_MAX_SIDE = 400
 #: ... the shadow measured in cells whose brightness spreads less than this (paper).
 EVEN_CELL = 0.08
+#: A crop whose even cells, one or two apart, differ by ``SHADE_STEP`` of the paper's
+#: level lies across a shadow's hard edge, which the smooth surface cannot follow: it is
+#: read with cells too, and that reading is kept where it holds more than
+#: ``CROP_STEP_GAIN`` times the smooth one's ink and the smooth one dropped at least
+#: ``CROP_STEP_FAINT`` more marks as faint (the edge's band raised the ink's level, and
+#: the strokes in the shade fell below it); or where the smooth one found no ink and
+#: the cells keep a character's worth: ``CROP_STEP_INK_PEN2`` pen widths squared.
+CROP_STEP_GAIN = 2.0
+CROP_STEP_FAINT = 5
+CROP_STEP_INK_PEN2 = 20
 #: Cells of the polarity's local median: this many along the shorter side.
 POLARITY_CELLS = 16
 #: ... of which those whose median grey is within this of the typical cell's.
@@ -434,17 +446,18 @@ def _upsample(grid: np.ndarray, cell: int, shape: tuple[int, int]) -> np.ndarray
     return out
 
 
-def background(planes: np.ndarray, pen_width_px: float | None = None) -> tuple[np.ndarray, int]:
+def background(planes: np.ndarray, pen_width_px: float | None = None,
+               cells: bool = False) -> tuple[np.ndarray, int]:  # fmt: skip
     """The paper's level at every pixel of channel planes ``[C, H, W]`` (dark-on-light
     levels), per channel, and the cell side used (0 for no cells: one level per channel,
     the border's median, for a tiny image, then ``[C, 1, 1]``; or the smooth surface of
-    a character's crop)."""
+    a character's crop, unless ``cells``)."""
     from scipy.ndimage import gaussian_filter, grey_closing
 
     if min(planes.shape[1:]) < LOCAL_BACKGROUND_MIN_SIDE:
         return np.median(_ring(planes), axis=-1).astype(np.float32)[:, None, None], 0
     width = rough_pen_width(planes) if pen_width_px is None else pen_width_px
-    if min(planes.shape[1:]) < SURFACE_MAX_SIDE:
+    if min(planes.shape[1:]) < SURFACE_MAX_SIDE and not cells:
         surface = smooth_background(planes)
         return surface * shadow_factor(planes, surface, width), 0
     # A cell must hold paper beside a stroke: at least a few pen widths (a thick pen in a
@@ -497,16 +510,52 @@ def shadow_factor(planes: np.ndarray, surface: np.ndarray, pen_width_px: float) 
     even cell is near."""
     from scipy.ndimage import gaussian_filter
 
-    ratio = _luma(planes) / np.maximum(_luma(surface), 1e-3)
-    cell = max(8, min(ratio.shape) // 12, math.ceil(CELL_PEN_WIDTHS * pen_width_px))
-    lo, _ = _cell_percentile(ratio[None], cell, 20)
-    hi, cell = _cell_percentile(ratio[None], cell, 80)
+    ratio, lo, hi, cell = _shadow_cells(planes, surface, pen_width_px)
     even = ((hi - lo) < EVEN_CELL)[0].astype(np.float32)
     weight = gaussian_filter(even, 1.0, mode="nearest")
     value = gaussian_filter(even * hi[0], 1.0, mode="nearest")
     factor = np.where(weight > 0.05, value / np.maximum(weight, 1e-6), 1.0)
     factor = np.clip(factor, 0.3, 1.0).astype(np.float32)
     return _upsample(factor[None], cell, ratio.shape)[0]
+
+
+def _shadow_cells(planes: np.ndarray, surface: np.ndarray, pen_width_px: float):
+    """The brightness against the smooth ``surface`` (``[H, W]``), its 20th and 80th
+    percentiles in cells of at least ``CELL_PEN_WIDTHS`` pen widths (``[1, gh, gw]``
+    each), and the cells' side."""
+    ratio = _luma(planes) / np.maximum(_luma(surface), 1e-3)
+    cell = max(8, min(ratio.shape) // 12, math.ceil(CELL_PEN_WIDTHS * pen_width_px))
+    lo, _ = _cell_percentile(ratio[None], cell, 20)
+    hi, cell = _cell_percentile(ratio[None], cell, 80)
+    return ratio, lo, hi, cell
+
+
+def crop_shade_step(planes: np.ndarray, pen_width_px: float) -> bool:
+    """Whether a crop (under ``SURFACE_MAX_SIDE``) lies across a shadow's hard edge: two
+    even cells (:func:`shadow_factor`'s, their spread within ``EVEN_CELL`` of the larger
+    of 1 and their level against the surface) one or two cells apart whose paper differs
+    by ``SHADE_STEP`` of the paper's level (a cell on the edge itself is not even)."""
+    if not LOCAL_BACKGROUND_MIN_SIDE <= min(planes.shape[1:]) < SURFACE_MAX_SIDE:
+        return False
+    surface = smooth_background(planes)
+    _, lo, hi, cell = _shadow_cells(planes, surface, pen_width_px)
+    even = ((hi - lo) < EVEN_CELL * np.maximum(hi, 1.0))[0]
+    lum = _luma(surface)
+    rows = np.minimum(np.arange(even.shape[0]) * cell + cell // 2, lum.shape[0] - 1)
+    cols = np.minimum(np.arange(even.shape[1]) * cell + cell // 2, lum.shape[1] - 1)
+    paper = hi[0] * lum[np.ix_(rows, cols)]
+    if not even.any():
+        return False
+    limit = SHADE_STEP * max(float(np.percentile(paper[even], 95)), 1e-3)
+    for axis in (0, 1):
+        for d in (1, 2):
+            n = even.shape[axis]
+            a = np.take(np.arange(n), np.arange(n - d))
+            both = np.take(even, a, axis) & np.take(even, a + d, axis)
+            jump = np.abs(np.take(paper, a, axis) - np.take(paper, a + d, axis)) >= limit
+            if (both & jump).any():
+                return True
+    return False
 
 
 def rough_pen_width(planes: np.ndarray) -> float:
@@ -1597,14 +1646,38 @@ def paper_ink(
     if not polarity:
         a = 1.0 - a
     pen = rough_pen_width(a)
-    bg, cell = background(a, pen)
+    found = _ink_found(levels, a, desk, polarity, pen, keep_steps)
+    if crop_shade_step(a, pen):  # read with cells too (CROP_STEP_GAIN)
+        again = _ink_found(levels, a, desk, polarity, pen, keep_steps, cells=True)
+        if again is not None and _lost_to_band(found, again):
+            return again
+    return found
+
+
+def _lost_to_band(smooth: PaperInk | None, cells: PaperInk) -> bool:
+    """Whether a crop's smooth reading (None: no ink) lost the strokes in a shadow that
+    its reading with cells keeps, dropping fewer faint marks (``CROP_STEP_GAIN``,
+    ``CROP_STEP_FAINT``)."""
+    faint = cells.removed["faint_components"]
+    if smooth is None:  # a character's ink, not a few pieces of the edge's band
+        return bool(cells.mask.sum() >= CROP_STEP_INK_PEN2 * cells.pen_width_px**2)
+    more = cells.mask.sum() > CROP_STEP_GAIN * smooth.mask.sum()
+    return bool(more and smooth.removed["faint_components"] - faint >= CROP_STEP_FAINT)
+
+
+def _ink_found(levels, a: np.ndarray, desk, polarity: bool, pen: float, keep_steps: bool,
+               cells: bool = False) -> PaperInk | None:  # fmt: skip
+    """:func:`paper_ink`'s steps from the background on, for dark-on-light planes ``a``
+    (the desk painted over), with cells for a crop too when ``cells``."""
+    bg, cell = background(a, pen, cells)
     channels = channel_darkness(a, bg)
     dark = np.max(channels, axis=0)
     local = min(a.shape[1:]) >= LOCAL_BACKGROUND_MIN_SIDE  # not one level for the image
     on_sheet = None if desk is None else desk.mask  # not the desk painted smooth
     noise = _noise(a, bg, on_sheet) if local else 0.0
     dark = without_shade_bands(dark, bg, cell, pen)
-    sheet = sheet_mask(bg, cell, dark, pen, noise)  # a shadow across the page stays
+    crop = min(a.shape[1:]) < SURFACE_MAX_SIDE  # a crop has no table beyond the sheet
+    sheet = sheet_mask(bg, 0 if crop else cell, dark, pen, noise)  # a shadow across the page stays
     if desk is not None:
         sheet &= desk.mask
     dark = np.where(sheet, dark, 0.0).astype(np.float32)
@@ -1635,6 +1708,7 @@ def paper_ink(
 __all__ = [
     "PaperInk",
     "background",
+    "crop_shade_step",
     "dark_on_light",
     "darkness",
     "dominant_angle",
