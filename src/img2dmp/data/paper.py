@@ -452,21 +452,29 @@ def background(planes: np.ndarray, pen_width_px: float | None = None,
     levels), per channel, and the cell side used (0 for no cells: one level per channel,
     the border's median, for a tiny image, then ``[C, 1, 1]``; or the smooth surface of
     a character's crop, unless ``cells``)."""
+    return _background(planes, pen_width_px, cells)[:2]
+
+
+def _background(planes: np.ndarray, pen_width_px: float | None,
+                cells: bool) -> tuple[np.ndarray, int, bool]:  # fmt: skip
+    """:func:`background`, and whether a crop read with its smooth surface lies across a
+    shadow's hard edge (:func:`crop_shade_step`; False for any other image)."""
     from scipy.ndimage import gaussian_filter, grey_closing
 
     if min(planes.shape[1:]) < LOCAL_BACKGROUND_MIN_SIDE:
-        return np.median(_ring(planes), axis=-1).astype(np.float32)[:, None, None], 0
+        return np.median(_ring(planes), axis=-1).astype(np.float32)[:, None, None], 0, False
     width = rough_pen_width(planes) if pen_width_px is None else pen_width_px
     if min(planes.shape[1:]) < SURFACE_MAX_SIDE and not cells:
         surface = smooth_background(planes)
-        return surface * shadow_factor(planes, surface, width), 0
+        ratio, lo, hi, cell = _shadow_cells(planes, surface, width)
+        return surface * _factor(ratio.shape, lo, hi, cell), 0, _stepped(surface, lo, hi, cell)
     # A cell must hold paper beside a stroke: at least a few pen widths (a thick pen in a
     # small crop), and the closing over 3 x 3 cells then covers a cell full of ink.
     cell = max(2, min(planes.shape[1:]) // BACKGROUND_CELLS, math.ceil(CELL_PEN_WIDTHS * width))
     grid, cell = _cell_paper(planes, cell)
     grid = grey_closing(grid, size=(1, 3, 3))
     grid = gaussian_filter(grid, sigma=(0, 0.7, 0.7), mode="nearest")
-    return _upsample(grid, cell, planes.shape[1:]), cell
+    return _upsample(grid, cell, planes.shape[1:]), cell, False
 
 
 def _surface_terms(h: int, w: int, rows, cols) -> np.ndarray:
@@ -508,15 +516,20 @@ def shadow_factor(planes: np.ndarray, surface: np.ndarray, pen_width_px: float) 
     20th and 80th percentiles within ``EVEN_CELL`` of each other: paper, lit or in
     shadow), spread into the cells that hold ink by normalised convolution; 1 where no
     even cell is near."""
+    ratio, lo, hi, cell = _shadow_cells(planes, surface, pen_width_px)
+    return _factor(ratio.shape, lo, hi, cell)
+
+
+def _factor(shape, lo: np.ndarray, hi: np.ndarray, cell: int) -> np.ndarray:
+    """:func:`shadow_factor` from its cells' percentiles (:func:`_shadow_cells`)."""
     from scipy.ndimage import gaussian_filter
 
-    ratio, lo, hi, cell = _shadow_cells(planes, surface, pen_width_px)
     even = ((hi - lo) < EVEN_CELL)[0].astype(np.float32)
     weight = gaussian_filter(even, 1.0, mode="nearest")
     value = gaussian_filter(even * hi[0], 1.0, mode="nearest")
     factor = np.where(weight > 0.05, value / np.maximum(weight, 1e-6), 1.0)
     factor = np.clip(factor, 0.3, 1.0).astype(np.float32)
-    return _upsample(factor[None], cell, ratio.shape)[0]
+    return _upsample(factor[None], cell, shape)[0]
 
 
 def _shadow_cells(planes: np.ndarray, surface: np.ndarray, pen_width_px: float):
@@ -539,6 +552,12 @@ def crop_shade_step(planes: np.ndarray, pen_width_px: float) -> bool:
         return False
     surface = smooth_background(planes)
     _, lo, hi, cell = _shadow_cells(planes, surface, pen_width_px)
+    return _stepped(surface, lo, hi, cell)
+
+
+def _stepped(surface: np.ndarray, lo: np.ndarray, hi: np.ndarray, cell: int) -> bool:
+    """:func:`crop_shade_step` from the crop's smooth ``surface`` and its cells'
+    percentiles against it (:func:`_shadow_cells`)."""
     even = ((hi - lo) < EVEN_CELL * np.maximum(hi, 1.0))[0]
     lum = _luma(surface)
     rows = np.minimum(np.arange(even.shape[0]) * cell + cell // 2, lum.shape[0] - 1)
@@ -1646,9 +1665,9 @@ def paper_ink(
     if not polarity:
         a = 1.0 - a
     pen = rough_pen_width(a)
-    found = _ink_found(levels, a, desk, polarity, pen, keep_steps)
-    if crop_shade_step(a, pen):  # read with cells too (CROP_STEP_GAIN)
-        again = _ink_found(levels, a, desk, polarity, pen, keep_steps, cells=True)
+    found, stepped = _ink_found(levels, a, desk, polarity, pen, keep_steps)
+    if stepped:  # a crop across a shadow's hard edge: read with cells too (CROP_STEP_GAIN)
+        again = _ink_found(levels, a, desk, polarity, pen, keep_steps, cells=True)[0]
         if again is not None and _lost_to_band(found, again):
             return again
     return found
@@ -1666,10 +1685,11 @@ def _lost_to_band(smooth: PaperInk | None, cells: PaperInk) -> bool:
 
 
 def _ink_found(levels, a: np.ndarray, desk, polarity: bool, pen: float, keep_steps: bool,
-               cells: bool = False) -> PaperInk | None:  # fmt: skip
+               cells: bool = False) -> tuple[PaperInk | None, bool]:  # fmt: skip
     """:func:`paper_ink`'s steps from the background on, for dark-on-light planes ``a``
-    (the desk painted over), with cells for a crop too when ``cells``."""
-    bg, cell = background(a, pen, cells)
+    (the desk painted over), with cells for a crop too when ``cells``; and whether the
+    crop lies across a shadow's hard edge (:func:`crop_shade_step`)."""
+    bg, cell, stepped = _background(a, pen, cells)
     channels = channel_darkness(a, bg)
     dark = np.max(channels, axis=0)
     local = min(a.shape[1:]) >= LOCAL_BACKGROUND_MIN_SIDE  # not one level for the image
@@ -1684,25 +1704,25 @@ def _ink_found(levels, a: np.ndarray, desk, polarity: bool, pen: float, keep_ste
     lv = thresholds(dark, noise)
     steps = {"input": np.asarray(levels), "background": bg, "darkness": dark, "sheet": sheet}
     if lv is None:
-        return None
+        return None, stepped
     weak = dark >= lv.weak
     ruled = _sheet_rules(weak, sheet, dark, pen, channels, desk)
     edge = _border_marks(weak & ~ruled) if local else np.zeros_like(weak)
     if ruled.any() or edge.any():  # the pen's own level: many rules pull it down, the edge up
         lv = thresholds(dark, noise, exclude=ruled | edge)
         if lv is None:
-            return None
+            return None, stepped
         weak = dark >= lv.weak
     kept, width, removed = _kept_strokes(weak & ~ruled, dark, lv, local, pen, ruled,
                                          None if desk is None else desk.band)  # fmt: skip
     if not kept.any():
-        return None
+        return None, stepped
     halo = dilate3(kept) & ~ruled
     ink = np.where(halo, np.clip(dark / lv.ink, 0.0, 1.0), 0.0).astype(np.float32)
     removed.update(rule_px=int(ruled.sum()), off_sheet_px=int((~sheet).sum()),
                    desk_px=0 if desk is None else desk.desk_px)  # fmt: skip
     steps.update(rules=ruled, candidates=weak, ink=ink)
-    return PaperInk(ink, kept, width, polarity, removed, steps if keep_steps else {})
+    return PaperInk(ink, kept, width, polarity, removed, steps if keep_steps else {}), stepped
 
 
 __all__ = [
