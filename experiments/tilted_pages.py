@@ -57,9 +57,12 @@ def true_lines(folder: Path) -> dict[str, list[int]]:
 
 def _as_read(seg, x: float, y: float) -> tuple[float, float]:
     """A photo point (pixel edges) in the pixels of the page as read (turned level when
-    it was): the boxes there are level, so a tilted character's box holds no neighbour."""
+    it was; only the part that holds the writing when a large photo was read finer, from
+    ``origin``): the boxes there are level, so a tilted character's box holds no
+    neighbour."""
     turn = getattr(seg, "turn", np.eye(3))
-    u, v, _ = turn @ (x / seg.reduction, y / seg.reduction, 1.0)
+    ox, oy = getattr(seg, "origin", (0.0, 0.0))
+    u, v, _ = turn @ ((x - ox) / seg.reduction, (y - oy) / seg.reduction, 1.0)
     return u, v
 
 

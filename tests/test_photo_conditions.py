@@ -189,3 +189,21 @@ def test_a_shaken_photo_s_ink_level_is_the_pen_s_not_the_sheet_s_edge():
     shaken = np.stack([convolve(rgb[..., c], kernel) for c in range(3)], -1)
     seg = segment_page(Image.fromarray(np.clip(shaken + 0.5, 0, 255).astype(np.uint8)))
     assert [len(line) for line in seg.layout.lines] == [7, 7]
+
+
+def test_a_photo_point_is_placed_on_a_page_read_finer_from_its_origin(experiment_script):
+    """The experiments score boxes against the photo's points moved into the page as read
+    (``tilted_pages._as_read``): a large photo read again finer holds only the part with
+    the writing, from ``origin``; the point lands where the segmentation's own map puts
+    it (it ignored the origin before)."""
+    from types import SimpleNamespace
+
+    from img2dmp.page import PageSegmentation
+
+    c, s = np.cos(0.2), np.sin(0.2)
+    turn = np.array([[c, -s, 5.0], [s, c, -3.0], [0.0, 0.0, 1.0]])
+    seg = SimpleNamespace(reduction=1.5, origin=(300.0, 120.0), turn=turn)
+    to_levels = PageSegmentation.photo_to_levels(seg)
+    want = turn @ to_levels @ np.array([700.0, 410.0, 1.0])
+    got = experiment_script("tilted_pages")._as_read(seg, 700.0, 410.0)
+    np.testing.assert_allclose(got, want[:2], atol=1e-9)
