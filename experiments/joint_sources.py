@@ -21,13 +21,14 @@ planned pen-down path (RMS / max, mm; the path densified to 20 um), the share of
 path inked (within ``INK_TOLERANCE_M``, weighted by stroke length), the share of the
 steps with the pen down, the contact force's mean over those and its share within
 +-20 % of the set force, and the tracking (replayed tip to the commanded point, RMS /
-max, mm). Of the exported positions: the peak acceleration (second differences at the
-control rate, and its joint), the peak and the 99th percentile of the jerk (third
-differences, max over the joints per sample), and ``JointTrajectory.acceleration_peak``
-(the JSON's). Of the run: the jitter of the controller's qdd_d (qd_d's differences)
-over the writing phase, its high-frequency part (minus its centred 25 ms box mean):
-RMS and peak, with the peak of qdd_d itself; and the same of the measured joints'
-accelerations.
+max, mm); and over the whole run, the steps on which the pen touched the paper in one but
+not the other (the replay against the run: where it lands and lifts). Of the exported
+positions: the peak acceleration (second differences at the control rate, and its
+joint), the peak and the 99th percentile of the jerk (third differences, max over the
+joints per sample), and ``JointTrajectory.acceleration_peak`` (the JSON's). Of the
+run: the jitter of the controller's qdd_d (qd_d's differences) over the writing phase,
+its high-frequency part (minus its centred 25 ms box mean): RMS and peak, with the peak
+of qdd_d itself; and the same of the measured joints' accelerations.
 
 ``write`` is run through the command line (:func:`img2dmp.cli.main`), with its result
 kept by wrapping ``img2dmp.commands.write._joint_trajectory`` for the run: the samples
@@ -166,6 +167,8 @@ def on_paper(tip_m, force_n, result, path) -> dict:
         "force_std_n": float(down.std()) if len(down) else 0.0,
         "force_max_n": float(f.max()),
         "force_in_band_share": float(np.mean(np.abs(f - f_set) <= FORCE_BAND * f_set)),
+        "contact_differs_steps": int(np.sum((force_n > 0) != (log.force_n > 0))),
+        "contact_steps": int(np.sum(force_n > 0)),
     }
 
 
@@ -247,13 +250,14 @@ def _rate(row: dict) -> str:
 
 
 def summary_cells(row: dict) -> list:
-    """docs/ROBOT.md's table: reference / measured (and q_d as solved's force)."""
+    """docs/ROBOT.md's table: reference / measured (ink), reference / measured / q_d as
+    solved (force, peak acceleration, jerk p99)."""
     s = row["sources"]
     ref, meas, qd = (s[k]["replay"] for k in SOURCES)
     ink = [f"{p['ink_to_path_rms_mm']:.3f} / {p['ink_to_path_max_mm']:.3f}" for p in (ref, meas)]
     force = " / ".join(f"{p['force_mean_n']:.2f}" for p in (ref, meas, qd))
-    acc = " / ".join(f"{s[k]['exported']['qdd_peak_rad_s2']:.1f}" for k in SOURCES[:2])
-    jerk = " / ".join(f"{s[k]['exported']['jerk_p99_rad_s3']:.0f}" for k in SOURCES[:2])
+    acc = " / ".join(f"{s[k]['exported']['qdd_peak_rad_s2']:.1f}" for k in SOURCES)
+    jerk = " / ".join(f"{s[k]['exported']['jerk_p99_rad_s3']:.0f}" for k in SOURCES)
     return [_input(row), _rate(row), *ink, force, acc, jerk]
 
 
@@ -267,6 +271,7 @@ def source_cells(row: dict, source: str) -> list:
         f"{p['pen_down_share']:.3f}", f"{p['inked_share']:.3f}",
         f"{p['force_mean_n']:.2f} ± {p['force_std_n']:.2f} ({p['force_max_n']:.2f})",
         f"{p['force_in_band_share']:.3f}",
+        f"{p['contact_differs_steps']} of {p['contact_steps']}",
         f"{e['qdd_peak_rad_s2']:.2f} (joint {e['qdd_peak_joint']})",
         f"{abs(a['acceleration_rad_s2']):.2f}",
         f"{e['jerk_peak_rad_s3']:.0f} / {e['jerk_p99_rad_s3']:.0f}",
@@ -285,20 +290,21 @@ def jitter_cells(row: dict) -> list:
 def markdown(report: dict) -> str:
     rows = report["rows"]
     out = [f"Joint sources: {format_record(report['run'])}; CPU {report['cpu']}", ""]
-    out += ["Replayed by position control; reference / measured (force: reference / measured "
-            "/ q_d as solved); ink to the planned pen-down path RMS / max; peak acceleration "
-            "and jerk p99 of the exported positions:", ""]  # fmt: skip
+    out += ["Replayed by position control; ink to the planned pen-down path RMS / max; "
+            "force, peak acceleration and jerk p99 of the exported positions: reference / "
+            "measured / q_d as solved:", ""]  # fmt: skip
     out += _table(["input", "rate", "ink to path, reference (mm)", "ink to path, measured (mm)",
-                   "force N: reference / measured / q_d as solved",
-                   "peak acceleration (rad/s²)", "jerk p99 (rad/s³)"],
+                   "force N", "peak acceleration (rad/s²)", "jerk p99 (rad/s³)"],
                   [summary_cells(r) for r in rows])  # fmt: skip
     out += ["Every source: ink to path and tracking RMS / max (mm), shares of the pen-down "
             "steps with the pen down and of the path inked, force mean ± std (max) and "
-            "share in ±20 % of the set force, peak acceleration of the positions (2nd "
-            "differences) and acceleration_peak (of the velocities), jerk peak / p99:",
+            "share in ±20 % of the set force, steps touching in the replay or the run but "
+            "not both (of the replay's touching steps), peak acceleration of the positions "
+            "(2nd differences) and acceleration_peak (of the velocities), jerk peak / p99:",
             ""]  # fmt: skip
     out += _table(["input", "rate", "source", "ink to path", "tracking", "pen down", "inked",
-                   "force N", "in band", "qdd peak", "acceleration_peak", "jerk"],
+                   "force N", "in band", "contact ≠ run", "qdd peak", "acceleration_peak",
+                   "jerk"],
                   [source_cells(r, s) for r in rows for s in SOURCES])  # fmt: skip
     out += ["The run's accelerations over the writing, high-frequency RMS / high-frequency "
             "peak / peak (rad/s²; high frequency: minus the centred 25 ms mean):", ""]  # fmt: skip

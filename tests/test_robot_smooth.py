@@ -214,3 +214,31 @@ def test_the_controllers_reference_accelerations_carry_no_ik_jitter_at_1khz():
     smooth = np.column_stack([np.convolve(qdd[:, j], kernel, mode="same") for j in range(7)])
     jitter = np.abs(qdd - smooth)[12:-12]  # the box mean is whole away from the ends
     assert jitter.max() < 1.0, jitter.max()
+
+
+def test_the_depth_offset_is_the_measured_one_while_touching_smooth_and_0_in_the_air():
+    from img2dmp.robot.joints import DEPTH_RAMP_S, depth_offset_m
+
+    dt = DT_S
+    n = 600
+    t = np.arange(n) * dt
+    touching = np.zeros(n, dtype=bool)
+    touching[150:450] = True
+    slow = 1.5e-4 + 1e-5 * np.sin(2 * np.pi * 0.5 * t)  # the depth, a slow course
+    rng = np.random.default_rng(0)
+    measured = slow + 2e-6 * rng.standard_normal(n)  # the contact's step noise
+    # in the air: the arm's lag, a bump with a kink at each end (up to 0.4 mm)
+    air = ~touching
+    measured[air] = 4e-4 * np.maximum(0.0, 1 - np.abs(t[air] - t[500]) / 0.1)
+    got = depth_offset_m(measured, touching, dt)
+    ramp = round(DEPTH_RAMP_S / dt)
+    # 0 well before the touch-down and after the lift-off's ramp (the bump dropped)
+    assert np.abs(got[: 150 - ramp - 20]).max() < 1e-6  # < 1 % of the depth
+    assert np.abs(got[450 + ramp + 20 :]).max() < 1e-6
+    # the measured depth while touching, away from its ends, without the noise
+    inner = slice(200, 400)
+    off = got[inner] - slow[inner]
+    assert np.sqrt(np.mean(off**2)) < 1e-6 and np.abs(off).max() < 2e-6  # the noise: 2 um RMS
+    raw_jolt = np.abs(np.diff(measured[inner], 3)).max()
+    assert np.abs(np.diff(got, 3)).max() < raw_jolt / 20, raw_jolt
+    assert not depth_offset_m(measured, np.zeros(n, dtype=bool), dt).any()
