@@ -242,3 +242,20 @@ def test_the_depth_offset_is_the_measured_one_while_touching_smooth_and_0_in_the
     raw_jolt = np.abs(np.diff(measured[inner], 3)).max()
     assert np.abs(np.diff(got, 3)).max() < raw_jolt / 20, raw_jolt
     assert not depth_offset_m(measured, np.zeros(n, dtype=bool), dt).any()
+
+
+def test_the_depth_low_pass_is_scipys_butterworth_forwards_and_backwards():
+    """The reference's depth is low-passed by a hand-written 2nd-order Butterworth run
+    both ways (``scipy.signal`` would add about 48 MB to a ``write``): the same as
+    ``sosfiltfilt`` of ``butter(2, ...)`` to rounding, short and long, at both rates."""
+    signal = pytest.importorskip("scipy.signal")
+    from img2dmp.robot.joints import _low_pass_both_ways
+
+    rng = np.random.default_rng(3)
+    for fs, n in ((240.0, 7), (240.0, 3000), (1000.0, 12), (1000.0, 20000)):
+        x = np.cumsum(rng.normal(size=n)) * 1e-4
+        sos = signal.butter(2, 10.0, fs=fs, output="sos")
+        padlen = min(9, n - 1)
+        want = signal.sosfiltfilt(sos, x, padlen=padlen)
+        got = _low_pass_both_ways(x, 10.0 / fs, padlen)
+        assert np.abs(got - want).max() <= 1e-12 * max(1e-9, np.abs(want).max())

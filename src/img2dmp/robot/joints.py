@@ -350,8 +350,6 @@ def depth_offset_m(offset_m, touching, dt_s: float) -> np.ndarray:
     spring and the admittance loop; 1.1 um RMS third differences at 240 Hz) and the
     rise at touch-down: the replayed pen lands, presses the set force and lifts as in
     the run. No contact at all: 0."""
-    from scipy.signal import butter, sosfiltfilt
-
     offset_m = np.asarray(offset_m, dtype=float)
     n = len(offset_m)
     out = np.zeros(n)  # [S]
@@ -376,10 +374,48 @@ def depth_offset_m(offset_m, touching, dt_s: float) -> np.ndarray:
         end, value = b, offset_m[b]
     i = np.arange(end + 1, n)
     out[i] = value * (1.0 - _smootherstep((i - end) / ramp))
-    sos = butter(2, DEPTH_CUTOFF_HZ, fs=1.0 / dt_s, output="sos")
     padded = np.concatenate([[0.0], out])  # from the start posture
-    padlen = min(3 * (2 * len(sos) + 1), len(padded) - 1)
-    return sosfiltfilt(sos, padded, padlen=padlen)[1:]
+    return _low_pass_both_ways(padded, DEPTH_CUTOFF_HZ * dt_s, min(9, len(padded) - 1))[1:]
+
+
+def _butterworth2(cutoff: float) -> tuple[np.ndarray, np.ndarray]:
+    """The 2nd-order Butterworth low-pass at ``cutoff`` (cycles per sample, below 0.5):
+    ``(b, a)`` of the bilinear transform with the cut-off prewarped, as
+    ``scipy.signal.butter(2, cutoff, fs=1)`` designs it (whose import alone would add
+    about 48 MB to a ``write``)."""
+    k = math.tan(math.pi * cutoff)
+    norm = 1.0 / (1.0 + math.sqrt(2.0) * k + k * k)
+    b = np.array([k * k, 2.0 * k * k, k * k]) * norm
+    a = np.array([1.0, 2.0 * (k * k - 1.0) * norm, (1.0 - math.sqrt(2.0) * k + k * k) * norm])
+    return b, a
+
+
+def _biquad(b: np.ndarray, a: np.ndarray, x: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """``x`` through the biquad ``(b, a)`` (transposed direct form II) from state ``z``."""
+    y = np.empty_like(x)
+    z0, z1 = float(z[0]), float(z[1])
+    b0, b1, b2, a1, a2 = float(b[0]), float(b[1]), float(b[2]), float(a[1]), float(a[2])
+    for i, v in enumerate(x.tolist()):
+        out = b0 * v + z0
+        z0 = b1 * v - a1 * out + z1
+        z1 = b2 * v - a2 * out
+        y[i] = out
+    return y
+
+
+def _low_pass_both_ways(x: np.ndarray, cutoff: float, padlen: int) -> np.ndarray:
+    """``x`` low-passed forwards and backwards (no delay; :func:`_butterworth2`), as
+    ``scipy.signal.sosfiltfilt`` does: ``padlen`` samples of odd extension at each end,
+    each pass started from the filter's steady state for its first sample."""
+    b, a = _butterworth2(cutoff)
+    # the state that a constant input of 1 leaves (scipy.signal.lfilter_zi)
+    companion = np.array([[-a[1], 1.0], [-a[2], 0.0]])
+    zi = np.linalg.solve(np.eye(2) - companion, b[1:] - a[1:] * b[0])
+    if padlen > 0:
+        x = np.concatenate([2 * x[0] - x[padlen:0:-1], x, 2 * x[-1] - x[-2 : -padlen - 2 : -1]])
+    y = _biquad(b, a, x, zi * x[0])
+    y = _biquad(b, a, y[::-1].copy(), zi * y[-1])[::-1]
+    return y[padlen : len(y) - padlen] if padlen > 0 else y
 
 
 def reference_at_tip_depth(
