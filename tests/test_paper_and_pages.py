@@ -434,6 +434,31 @@ def test_a_photographed_character_half_in_a_shadow_keeps_its_strokes(level):
     assert found is not None and _kept(found, truth) > 0.9
 
 
+def test_squared_paper_in_a_deep_shadow_is_paper_though_its_grid_joins_the_writing():
+    """Squared paper half in a hard shadow of 0.3: the shaded half looks like a table
+    beyond the sheet (``TABLE_LEVEL``) until it is seen to hold writing. Its grid, as
+    dark as the pen's strong level there, joined every stroke into one net, one mark
+    where ``holds_writing`` wants two: the half was off the sheet and 4 of the 9
+    characters lost. Counted again at the pen's own level, the lighter grid no longer
+    joins them: all nine, nothing more."""
+    from PIL import Image
+    from scipy.ndimage import gaussian_filter
+
+    lines = [[("1", 40), ("7", 110), ("0", 190), ("5", 270), ("7", 350)],
+             [("0", 60), ("5", 150), ("7", 240), ("1", 330)]]  # fmt: skip
+    ink, boxes = _page(lines)
+    img = _on_paper(ink, _ruled(ink.shape, 20.0, vertical=True, colour=(0.45, 0.45, 0.5),
+                                width=1.2))  # fmt: skip
+    im = Image.fromarray((img * 255).astype(np.uint8)).resize((780, 450), Image.Resampling.BICUBIC)
+    img = np.asarray(im, np.float32) / 255.0
+    centres = [(0.75 * (b[0] + b[2]), 0.75 * (b[1] + b[3])) for b in boxes]
+    cols = np.mgrid[: img.shape[0], : img.shape[1]][1]
+    shade = gaussian_filter(np.where(cols > img.shape[1] // 2, 0.3, 1.0), 1.0)
+    found, got, ok = _found_at((img * shade[..., None]).astype(np.float32), centres)
+    assert ok, (len(got), got)
+    assert found.removed["off_sheet_px"] == 0
+
+
 @pytest.mark.parametrize(("level", "soft", "slope"), [(0.3, 1.0, 0.0), (0.25, 1.5, -0.5),
                                                      (0.3, 6.0, 0.0)])  # fmt: skip
 def test_a_small_page_across_a_deep_shadow_is_read_with_cells(level, soft, slope):

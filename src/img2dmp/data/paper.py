@@ -674,7 +674,17 @@ def holds_writing(dark: np.ndarray, region: np.ndarray, lv: _Levels, pen: float,
     textured, rest = (float(np.mean(dark[m] >= lv.weak)) for m in (inner, ~region))
     if textured > max(SHADE_TEXTURE, SHADE_TEXTURE_RATIO * rest):
         return False  # a table's grain or pattern, not paper
-    labels, area, boundary, _ = _components(inner & strong, dark, lv.strong)
+    for level in (lv.strong, lv.ink):  # at the pen's own level: the lines of squared
+        # paper, lighter than the pen, no longer join its marks into one net
+        if _shade_marks(inner & (dark >= level), dark, level, depth, pen, cell) >= SHADE_MARKS:
+            return True
+    return False
+
+
+def _shade_marks(mask, dark, level: float, depth, pen: float, cell: int) -> int:
+    """:func:`holds_writing`'s marks in ``mask``: components of ``SHADE_MARK_PEN2`` pen
+    widths squared, thin, and not a line along the region's outline."""
+    labels, area, boundary, _ = _components(mask, dark, level)
     thin = 2.0 * area / np.maximum(boundary, 1) <= SHADE_THIN * pen
     # not a line along its outline (the sheet's edge beside a desk, where the paper's
     # level read across it lags)
@@ -682,7 +692,7 @@ def holds_writing(dark: np.ndarray, region: np.ndarray, lv: _Levels, pen: float,
                         minlength=len(area)) >= SHADE_ALONG * area  # fmt: skip
     marks = (area >= SHADE_MARK_PEN2 * pen**2) & thin & ~along
     marks[0] = False
-    return int(np.count_nonzero(marks)) >= SHADE_MARKS
+    return int(np.count_nonzero(marks))
 
 
 def shade_test(planes: np.ndarray):
