@@ -559,20 +559,17 @@ def _stepped(surface: np.ndarray, lo: np.ndarray, hi: np.ndarray, cell: int) -> 
     """:func:`crop_shade_step` from the crop's smooth ``surface`` and its cells'
     percentiles against it (:func:`_shadow_cells`)."""
     even = ((hi - lo) < EVEN_CELL * np.maximum(hi, 1.0))[0]
+    if not even.any():
+        return False
     lum = _luma(surface)
     rows = np.minimum(np.arange(even.shape[0]) * cell + cell // 2, lum.shape[0] - 1)
     cols = np.minimum(np.arange(even.shape[1]) * cell + cell // 2, lum.shape[1] - 1)
-    paper = hi[0] * lum[np.ix_(rows, cols)]
-    if not even.any():
-        return False
+    paper = hi[0] * lum[np.ix_(rows, cols)]  # the paper's level in each cell
     limit = SHADE_STEP * max(float(np.percentile(paper[even], 95)), 1e-3)
-    for axis in (0, 1):
-        for d in (1, 2):
-            n = even.shape[axis]
-            a = np.take(np.arange(n), np.arange(n - d))
-            both = np.take(even, a, axis) & np.take(even, a + d, axis)
-            jump = np.abs(np.take(paper, a, axis) - np.take(paper, a + d, axis)) >= limit
-            if (both & jump).any():
+    for d in (1, 2):  # down the columns, then along the rows
+        for e, p in ((even.T, paper.T), (even, paper)):
+            jump = np.abs(p[:, d:] - p[:, :-d]) >= limit
+            if (e[:, d:] & e[:, :-d] & jump).any():
                 return True
     return False
 
