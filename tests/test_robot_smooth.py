@@ -246,7 +246,7 @@ def test_the_depth_offset_is_the_measured_one_while_touching_smooth_and_0_in_the
 
 def test_the_depth_low_pass_is_scipys_butterworth_forwards_and_backwards():
     """The reference's depth is low-passed by a hand-written 2nd-order Butterworth run
-    both ways (``scipy.signal`` would add about 48 MB to a ``write``): the same as
+    both ways (importing ``scipy.signal`` cost a ``write`` 20 MiB): the same as
     ``sosfiltfilt`` of ``butter(2, ...)`` to rounding, short and long, at both rates."""
     signal = pytest.importorskip("scipy.signal")
     from img2dmp.robot.joints import _low_pass_both_ways
