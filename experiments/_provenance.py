@@ -1,8 +1,9 @@
 """When, at which revision and by which command an experiment ran, to go with its results.
 
 A dated table in ``experiments/RESULTS.md`` can be traced when the run that made it
-recorded these three things beside its numbers. The experiment scripts import this
-module from their own directory (Python puts a script's directory on ``sys.path``).
+recorded these three things beside its numbers, and the CPU it ran on. The experiment
+scripts import this module from their own directory (Python puts a script's directory
+on ``sys.path``); it also writes their reports and markdown tables.
 """
 
 from __future__ import annotations
@@ -73,3 +74,20 @@ def write_report(out, name: str, report: dict, text: str | None = None) -> None:
         tmp.replace(folder / file)
     if text is not None:
         print(text + (f"({report['wall_s']:.0f} s)" if "wall_s" in report else ""))
+
+
+def cpu_name() -> str:
+    """The CPU's model name (``/proc/cpuinfo``), or ``"unknown"``."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "unknown"
+
+
+def markdown_table(head: list[str], rows: list[list]) -> list[str]:
+    """A markdown table's lines, then a blank one."""
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    return lines + ["| " + " | ".join(str(v) for v in r) + " |" for r in rows] + [""]

@@ -57,8 +57,8 @@ import time
 
 import numpy as np
 
-from _provenance import ROOT, format_record, run_record, write_report
-from scanned_pages import cpu_name
+from _provenance import ROOT, cpu_name, format_record, run_record, write_report
+from _provenance import markdown_table as _table
 
 #: The samples and the arguments ``img2dmp write`` takes for each (paths relative to the
 #: repository's root).
@@ -233,11 +233,6 @@ def measure(case: str, rate_hz: float) -> dict:
             "exported": smoothness(trajectory),
         }
     return row
-
-
-def _table(head: list[str], rows: list[list]) -> list[str]:
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    return lines + ["| " + " | ".join(str(c) for c in r) + " |" for r in rows] + [""]
 
 
 def _input(row: dict) -> str:

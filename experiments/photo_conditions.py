@@ -58,10 +58,10 @@ from pathlib import Path
 
 import numpy as np
 
-from _provenance import format_record, run_record, write_report
+from _provenance import cpu_name, format_record, run_record, write_report
+from _provenance import markdown_table as _table
 from page_reading import generated_pages, miscounted, page_sources
 from page_segmentation import CLASSES, classify
-from scanned_pages import cpu_name
 from sheet_on_desk import score, shipped_photos
 from tilted_pages import _as_read, true_lines
 
@@ -331,11 +331,6 @@ def summarise(rows: list[dict], keys, by: str) -> list[dict]:
 
 PHOTO_KEYS = ("reference", "boxes", "matched", "extra", "miscounted")
 PAGE_KEYS = ("characters", "boxes", "found", "merged", "split", "missed", "extra")
-
-
-def _table(head: list[str], rows: list[list]) -> list[str]:
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    return lines + ["| " + " | ".join(str(v) for v in r) + " |" for r in rows] + [""]
 
 
 def _photo_cells(e: dict) -> list:

@@ -52,7 +52,8 @@ from pathlib import Path
 
 import numpy as np
 
-from _provenance import format_record, run_record, write_report
+from _provenance import cpu_name, format_record, run_record, write_report
+from _provenance import markdown_table as _table
 from page_reading import generated_pages, miscounted, page_sources
 from page_segmentation import CLASSES, classify
 from sheet_on_desk import score, shipped_photos
@@ -72,17 +73,6 @@ PHOTO_SHEETS = {
     "page_white_black_ink.png": (12, 12, 580, 330),
     "page_yellow_blue_ink.png": (50, 20, 580, 395),
 }
-
-
-def cpu_name() -> str:
-    """The CPU's model name (``/proc/cpuinfo``), or ``"unknown"``."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return "unknown"
 
 
 def bilevel(grey: np.ndarray, threshold: float):
@@ -211,12 +201,6 @@ def photo_rows(folder: str, thresholds) -> list[dict]:
                              "miscounted": miscounted(true[file], lines),
                              "wall_s": round(wall, 4)})  # fmt: skip
     return rows
-
-
-def _table(head: list[str], rows: list[list]) -> list[str]:
-    """A markdown table's lines, then a blank one."""
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    return lines + ["| " + " | ".join(str(v) for v in r) + " |" for r in rows] + [""]
 
 
 def markdown(report: dict) -> str:
