@@ -27,7 +27,10 @@ drops the rest, in named steps (each kept for a picture with ``keep_steps``;
 3. **darkness**: how much light the ink absorbs relative to that paper, the largest of
    the channels (blue ink on yellow paper is dark in red and green, black ink in all),
    each channel's against the paper's brightest (the blue that yellow paper hardly
-   reflects carries the same noise as the others, not several times it);
+   reflects carries the same noise as the others, not several times it); under a glare
+   (a spot where paper and ink are brought towards white, the ink keeping a share of
+   its contrast) the darkness is multiplied back, where the paper's grain is flattened
+   as a glare flattens it (:func:`glare_gain`, ``GLARE_*``);
 4. **sheet**: cells much darker than the paper and connected to the image's border are
    the table beyond the sheet's edge; nothing there is ink;
 5. **rules**: thin straight lines along the page's two directions (the dominant angle of
@@ -85,6 +88,29 @@ EVEN_CELL = 0.08
 CROP_STEP_GAIN = 2.0
 CROP_STEP_FAINT = 5
 CROP_STEP_INK_PEN2 = 20
+#: A glare (a lamp's or a window's reflection) brings the paper and the ink towards
+#: white by a share ``s`` of the way: the paper's level rises from ``b0`` (the median of
+#: the paper's cells) to ``b = b0 + s (1 - b0)`` and the ink keeps ``1 - s`` of its
+#: contrast. Where a cell is brighter than ``b0``, its darkness is multiplied back by up
+#: to ``b (1 - b0) / (b0 (1 - b))``, at most ``GLARE_MAX_GAIN``, when the paper's own
+#: grain confirms it: a glare flattens the grain by ``1 - s`` as well, while light that
+#: is merely brighter (a lamp's gradient, a window's side of the page) leaves it. The
+#: cells whose share is at least ``GLARE_STRONG_SHARE`` vote, at least
+#: ``GLARE_MIN_CELLS`` of them and ``GLARE_MIN_SHARE`` of the paper's cells: each the
+#: share of the expected flattening its grain shows (against the paper's median cell's,
+#: a brighter cell's sensor noise allowed for); their median is the share of the gain
+#: applied; none when it is under ``GLARE_CONFIRMED`` (a lamp's brighter side, the
+#: lit part of a page in shade: 0.0-0.3 on the shared photos and generated pages) or
+#: their upper quartile exceeds ``GLARE_SPREAD`` (grain gone far beyond any glare's
+#: doing: a JPEG's or a denoiser's flat paper). A crop (no cells) gets none.
+GLARE_MAX_GAIN = 5.0
+GLARE_STRONG_SHARE = 0.5
+GLARE_MIN_CELLS = 5
+GLARE_MIN_SHARE = 0.01
+GLARE_SPREAD = 2.0
+GLARE_CONFIRMED = 0.3
+#: ... the grain of a cell measured no finer than this (8-bit levels' steps).
+GLARE_GRAIN_FLOOR = 0.002
 #: Cells of the polarity's local median: this many along the shorter side.
 POLARITY_CELLS = 16
 #: ... of which those whose median grey is within this of the typical cell's.
@@ -532,6 +558,64 @@ def _factor(shape, lo: np.ndarray, hi: np.ndarray, cell: int) -> np.ndarray:
     return _upsample(factor[None], cell, shape)[0]
 
 
+def glare_gain(planes: np.ndarray, bg: np.ndarray, cell: int, where=None) -> np.ndarray | None:
+    """How much a glare has taken from the ink's contrast at every pixel (``GLARE_*``),
+    ``float32 [H, W]`` of at least 1, from the paper ``bg`` read in cells of ``cell``
+    pixels; None where there is no glare (or no cells). With ``where`` (``bool [H, W]``:
+    the sheet, a desk painted over with the paper's colour beside it) only the cells
+    wholly on it are read: the painted desk has no grain."""
+    if cell <= 0:
+        return None
+    grid = _luma(bg[:, cell // 2 :: cell, cell // 2 :: cell]).astype(np.float64)
+    paper = grid >= TABLE_LEVEL * np.percentile(grid, 95)
+    if where is not None:
+        paper &= _cells_within(where, cell, grid.shape)
+        if not paper.any():
+            return None
+    b0 = min(float(np.median(grid[paper])), 0.999)
+    share = np.clip((grid - b0) / (1.0 - b0), 0.0, 0.95)
+    lost = 1.0 / (1.0 - share) - 1.0  # the contrast a glare of that share takes, less 1
+    vote = (share >= GLARE_STRONG_SHARE) & paper
+    if vote.sum() < max(GLARE_MIN_CELLS, GLARE_MIN_SHARE * paper.sum()):
+        return None
+    grain = _cell_grain(planes, bg, cell, grid.shape)
+    flat = float(np.median(grain[paper])) / grain * b0 / np.maximum(grid, b0)
+    shown = (flat[vote] - 1.0) / lost[vote]  # 1: flattened as a glare would
+    confirmed, spread = np.percentile(shown, [50, 75])
+    if spread > GLARE_SPREAD or confirmed < GLARE_CONFIRMED:
+        return None
+    gain = np.clip(grid * (1.0 - b0) / (b0 * np.maximum(1.0 - grid, 1e-3)), 1.0, GLARE_MAX_GAIN)
+    gain = 1.0 + min(float(confirmed), 1.0) * (gain - 1.0)
+    return _upsample(gain[None].astype(np.float32), cell, planes.shape[1:])[0]
+
+
+def _cells_within(mask: np.ndarray, cell: int, shape) -> np.ndarray:
+    """Whether every pixel of each ``cell x cell`` block (``shape``: the cells') lies in
+    ``mask`` (``bool [H, W]``; beyond the image: no)."""
+    gh, gw = shape
+    m = np.zeros((gh * cell, gw * cell), bool)
+    h, w = min(mask.shape[0], gh * cell), min(mask.shape[1], gw * cell)
+    m[:h, :w] = mask[:h, :w]
+    return m.reshape(gh, cell, gw, cell).all(axis=(1, 3))
+
+
+def _cell_grain(planes: np.ndarray, bg: np.ndarray, cell: int, shape) -> np.ndarray:
+    """The paper's grain in every cell (``shape``: the cells'): the robust spread (MAD)
+    of the relative brightness ``1 - luma / luma(bg)``, median-filtered over 3 x 3 cells,
+    at least ``GLARE_GRAIN_FLOOR``. Large cells are sampled every second pixel."""
+    from scipy.ndimage import median_filter
+
+    rel = 1.0 - _luma(planes) / np.maximum(_luma(bg), 1e-3)
+    gh, gw = shape
+    pad = ((0, max(0, gh * cell - rel.shape[0])), (0, max(0, gw * cell - rel.shape[1])))
+    rel = np.pad(rel.astype(np.float32), pad, mode="reflect")[: gh * cell, : gw * cell]
+    step = 2 if cell >= 16 else 1
+    blocks = rel.reshape(gh, cell, gw, cell)[:, ::step, :, ::step]
+    blocks = blocks.transpose(0, 2, 1, 3).reshape(gh, gw, -1)
+    mad = np.median(np.abs(blocks - np.median(blocks, axis=-1, keepdims=True)), axis=-1)
+    return np.maximum(median_filter(1.4826 * mad, 3, mode="nearest"), GLARE_GRAIN_FLOOR)
+
+
 def _shadow_cells(planes: np.ndarray, surface: np.ndarray, pen_width_px: float):
     """The brightness against the smooth ``surface`` (``[H, W]``), its 20th and 80th
     percentiles in cells of at least ``CELL_PEN_WIDTHS`` pen widths (``[1, gh, gw]``
@@ -631,14 +715,17 @@ def channel_darkness(planes: np.ndarray, bg: np.ndarray) -> np.ndarray:
     return np.clip(out, 0.0, 1.0, out=out)
 
 
-def _noise(planes: np.ndarray, bg: np.ndarray, where=None) -> float:
+def _noise(planes: np.ndarray, bg: np.ndarray, where=None, gain=None) -> float:
     """Robust standard deviation of the paper's relative brightness (luma, MAD), from a
     strided sample of about 200,000 pixels (of ``where``, ``bool [H, W]``, when given:
-    the sheet, not the desk painted smooth)."""
+    the sheet, not the desk painted smooth), times a glare's ``gain`` (``[H, W]``,
+    :func:`glare_gain`) where given, as the darkness is."""
     step = max(1, planes[0].size // 200_000)
     lum = _luma(planes.reshape(len(planes), -1)[:, ::step])
     lb = _luma(np.broadcast_to(bg, planes.shape).reshape(len(planes), -1)[:, ::step])
     s = 1.0 - lum / np.maximum(lb, 1e-3)
+    if gain is not None:
+        s = s * gain.ravel()[::step]
     if where is not None and where.any():
         s = s[where.ravel()[::step]]
     return float(1.4826 * np.median(np.abs(s - np.median(s))))
@@ -1698,10 +1785,13 @@ def _ink_found(levels, a: np.ndarray, desk, polarity: bool, pen: float, keep_ste
     crop lies across a shadow's hard edge (:func:`crop_shade_step`)."""
     bg, cell, stepped = _background(a, pen, cells)
     channels = channel_darkness(a, bg)
+    on_sheet = None if desk is None else desk.mask  # not the desk painted smooth
+    gain = glare_gain(a, bg, cell, on_sheet)
+    if gain is not None:  # a glare's lost contrast given back (GLARE_*)
+        np.clip(np.multiply(channels, gain, out=channels), 0.0, 1.0, out=channels)
     dark = np.max(channels, axis=0)
     local = min(a.shape[1:]) >= LOCAL_BACKGROUND_MIN_SIDE  # not one level for the image
-    on_sheet = None if desk is None else desk.mask  # not the desk painted smooth
-    noise = _noise(a, bg, on_sheet) if local else 0.0
+    noise = _noise(a, bg, on_sheet, gain) if local else 0.0
     dark = without_shade_bands(dark, bg, cell, pen)
     crop = min(a.shape[1:]) < SURFACE_MAX_SIDE  # a crop has no table beyond the sheet
     sheet = sheet_mask(bg, 0 if crop else cell, dark, pen, noise)  # a shadow across the page stays
@@ -1739,6 +1829,7 @@ __all__ = [
     "dark_on_light",
     "darkness",
     "dominant_angle",
+    "glare_gain",
     "holds_writing",
     "paper_ink",
     "pen_width",
