@@ -77,3 +77,36 @@ def page(lines, height=40.0, angle_deg=0.0, size=(300, 520)):
             pts = np.concatenate(parts)
             boxes.append((pts[:, 0].min(), pts[:, 1].min(), pts[:, 0].max(), pts[:, 1].max()))
     return ink(size, strokes), boxes
+
+
+def grainy_page(light=None, seed=0):
+    """The two lines of :func:`page` on grey paper with a grain (5 % noise, smoothed
+    over a pixel, as a sheet's fibres and a phone's noise), enlarged to 450 x 780 (read
+    with cells), times ``light`` (``[H, W]``) when given; the image and the true boxes'
+    centres."""
+    from PIL import Image
+    from scipy.ndimage import gaussian_filter
+
+    lines = [[("1", 40), ("7", 110), ("0", 190), ("5", 270), ("7", 350)],
+             [("0", 60), ("5", 150), ("7", 240), ("1", 330)]]  # fmt: skip
+    ink, boxes = page(lines)
+    im = Image.fromarray((ink * 255).astype(np.uint8)).resize((780, 450), Image.Resampling.BICUBIC)
+    ink = np.asarray(im, np.float32) / 255.0
+    grain = gaussian_filter(np.random.default_rng(seed).normal(0.0, 0.05, ink.shape), 0.7)
+    paper = (0.78 * (1.0 + grain))[..., None] * np.array([1.0, 0.98, 0.94])
+    img = on_paper(ink, paper.astype(np.float32))
+    if light is not None:
+        img = img * light[..., None]
+    centres = [(0.75 * (b[0] + b[2]), 0.75 * (b[1] + b[3])) for b in boxes]
+    return np.clip(img, 0.0, 1.0).astype(np.float32), centres
+
+
+def glare(img, strength: float, at=(0.55, 0.45), radius=0.3):
+    """``img`` brought towards white by ``strength`` at the centre of a Gaussian spot
+    (``at``: its centre as shares of the width and height; ``radius``: its sigma as a
+    share of the shorter side)."""
+    h, w = img.shape[:2]
+    rows, cols = np.mgrid[:h, :w].astype(np.float32)
+    r = radius * min(h, w)
+    spot = strength * np.exp(-((cols - at[0] * w) ** 2 + (rows - at[1] * h) ** 2) / (2 * r * r))
+    return (img * (1.0 - spot[..., None]) + spot[..., None]).astype(np.float32)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from drawn import on_paper, page, ruled
+from drawn import glare, grainy_page, on_paper, page, ruled
 from img2dmp.cli import main
 from img2dmp.data.dmpfile import check_dmp_document
 from img2dmp.predict import load_model
@@ -81,6 +81,13 @@ def test_the_page_document_and_picture_are_written_and_read_back_by_the_robot(tm
     assert Image.open(files[1]).width >= 1000
     read = read_page(files[0])
     assert len(read.characters) == 5 and read.image_size_px == (520, 300)
+
+
+def test_the_page_document_says_how_much_contrast_a_glare_was_given_back(run):
+    img, _ = grainy_page()
+    for photo, glared in ((img, False), (glare(img, 0.8), True)):
+        doc = json.loads(load_model(run).predict_page((photo * 255).astype(np.uint8)).to_json())
+        assert (doc["glare_gain"] > 2.0) if glared else (doc["glare_gain"] == 1.0)
 
 
 def test_boxes_are_in_the_upright_photo_s_frame(tmp_path, run):

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from drawn import ellipse as _ellipse
+from drawn import glare, grainy_page
 from drawn import ink as _ink
 from drawn import on_paper as _on_paper
 from drawn import page as _page
@@ -640,39 +641,6 @@ def test_a_blue_stroke_along_a_red_margin_as_dark_as_the_pen_is_kept():
     assert (found.ink[far] > 0.2).mean() < 0.002, "the margin left as ink"
 
 
-def _grainy_page(light=None, seed=0):
-    """The two lines of :func:`_page` on grey paper with a grain (5 % noise, smoothed
-    over a pixel, as a sheet's fibres and a phone's noise), enlarged to 450 x 780 (read
-    with cells), times ``light`` (``[H, W]``) when given; the image and the true boxes'
-    centres."""
-    from PIL import Image
-    from scipy.ndimage import gaussian_filter
-
-    lines = [[("1", 40), ("7", 110), ("0", 190), ("5", 270), ("7", 350)],
-             [("0", 60), ("5", 150), ("7", 240), ("1", 330)]]  # fmt: skip
-    ink, boxes = _page(lines)
-    im = Image.fromarray((ink * 255).astype(np.uint8)).resize((780, 450), Image.Resampling.BICUBIC)
-    ink = np.asarray(im, np.float32) / 255.0
-    grain = gaussian_filter(np.random.default_rng(seed).normal(0.0, 0.05, ink.shape), 0.7)
-    paper = (0.78 * (1.0 + grain))[..., None] * np.array([1.0, 0.98, 0.94])
-    img = _on_paper(ink, paper.astype(np.float32))
-    if light is not None:
-        img = img * light[..., None]
-    centres = [(0.75 * (b[0] + b[2]), 0.75 * (b[1] + b[3])) for b in boxes]
-    return np.clip(img, 0.0, 1.0).astype(np.float32), centres
-
-
-def _glare(img, strength: float, at=(0.55, 0.45), radius=0.3):
-    """``img`` brought towards white by ``strength`` at the centre of a Gaussian spot
-    (``at``: its centre as shares of the width and height; ``radius``: its sigma as a
-    share of the shorter side)."""
-    h, w = img.shape[:2]
-    rows, cols = np.mgrid[:h, :w].astype(np.float32)
-    r = radius * min(h, w)
-    spot = strength * np.exp(-((cols - at[0] * w) ** 2 + (rows - at[1] * h) ** 2) / (2 * r * r))
-    return (img * (1.0 - spot[..., None]) + spot[..., None]).astype(np.float32)
-
-
 @pytest.mark.parametrize("strength", [0.8, 0.85])
 def test_a_glare_s_washed_out_strokes_are_given_back_their_contrast(strength, monkeypatch):
     """A glare across the page's middle, the paper and ink brought towards white by 0.8
@@ -682,16 +650,17 @@ def test_a_glare_s_washed_out_strokes_are_given_back_their_contrast(strength, mo
     strokes fall under the page's ink level and are lost."""
     from img2dmp.data import paper
 
-    img, centres = _grainy_page()
-    washed = _glare(img, strength)
+    img, centres = grainy_page()
+    washed = glare(img, strength)
     found, boxes, ok = _found_at(washed, centres)
     assert ok, (len(boxes), boxes)
+    assert found.glare_gain > 2.0 and paper_ink(img).glare_gain == 1.0  # said, for the page
     monkeypatch.setattr(paper, "glare_gain", lambda *a: None)
     found, boxes, ok = _found_at(washed, centres)
     assert not ok  # the test can fail: without the gain the glare loses characters
 
 
-def test_light_that_is_only_brighter_or_paper_without_grain_is_no_glare():
+def test_light_that_is_only_brighter_or_paper_without_grain_is_noglare():
     """A page lit brighter on one side (a lamp's gradient: the grain keeps its share of
     the light) and a page whose bright spot has no grain left to confirm a glare (a
     denoiser's or a JPEG's flat paper) get no gain: it would raise whatever is faint there."""
@@ -701,10 +670,10 @@ def test_light_that_is_only_brighter_or_paper_without_grain_is_no_glare():
 
     h, w = 450, 780
     lamp = np.linspace(0.75, 1.25, w, dtype=np.float32)[None, :].repeat(h, 0)
-    img, _ = _grainy_page(light=lamp)
-    flat, _ = _grainy_page()
-    spot = (_glare(np.zeros_like(flat), 1.0) > 0.3).all(axis=2)[..., None]
-    flat = _glare(np.where(spot, gaussian_filter(flat, (4, 4, 0)), flat), 0.8)  # grain gone
+    img, _ = grainy_page(light=lamp)
+    flat, _ = grainy_page()
+    spot = (glare(np.zeros_like(flat), 1.0) > 0.3).all(axis=2)[..., None]
+    flat = glare(np.where(spot, gaussian_filter(flat, (4, 4, 0)), flat), 0.8)  # grain gone
     for page in (img, flat):
         a = _planes(page)
         bg, cell, _ = _background(a, rough_pen_width(a), False)

@@ -221,6 +221,9 @@ class PagePrediction:
         flagged.
     removed : dict
         What the preparation dropped (:attr:`img2dmp.data.paper.PaperInk.removed`).
+    glare_gain : float
+        The largest factor a glare's lost contrast was given back by
+        (:attr:`img2dmp.data.paper.PaperInk.glare_gain`; 1: no glare found).
     preview : uint8 [h, w, 3] or None
         The photo (upright, not turned), at most ``PICTURE_SIDE_PX`` on a side, for its
         picture.
@@ -238,8 +241,9 @@ class PagePrediction:
 
     def __init__(self, characters, layout, image_size, reduction, source, flags, removed,
                  user_image=None, refine_steps=0, refine_unfamiliar=None,
-                 turn_deg=0.0, turn=None, origin=(0.0, 0.0)):  # fmt: skip
+                 turn_deg=0.0, turn=None, origin=(0.0, 0.0), glare_gain=1.0):  # fmt: skip
         self.characters = list(characters)
+        self.glare_gain = float(glare_gain)
         self.origin = (float(origin[0]), float(origin[1]))
         self.turn_deg = float(turn_deg)
         self.turn = np.eye(3) if turn is None else np.asarray(turn, np.float64)
@@ -301,6 +305,7 @@ class PagePrediction:
             "refinement": self._refinement(),
             "flags": self.flags,
             "removed": self.removed,
+            "glare_gain": round(self.glare_gain, 3),
             "lines": [{"index": i, "characters": idx} for i, idx in enumerate(lines)],
             "characters": entries,
         }
@@ -813,7 +818,8 @@ def _read_segmentation(predictor, seg, image, n_points, match_stroke_width) -> P
     page = PagePrediction([], seg.layout, size, reduction, source, page_flags,
                           {} if found is None else found.removed, refine_steps=steps,
                           refine_unfamiliar=unfamiliar, turn_deg=seg.turn_deg,
-                          turn=seg.turn, origin=seg.origin)  # fmt: skip
+                          turn=seg.turn, origin=seg.origin,
+                          glare_gain=1.0 if found is None else found.glare_gain)  # fmt: skip
     page.preview = _preview(seg.whole())
     if found is None or not page.layout.characters:
         return page

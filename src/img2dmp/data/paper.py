@@ -308,7 +308,12 @@ class PaperInk:
         sheet, :func:`img2dmp.data.sheet.find_sheet`; 0 when none was found).
     steps : dict of name -> array
         With ``keep_steps``: ``input`` (RGB or grey), ``background``, ``darkness``,
-        ``sheet``, ``rules``, ``ink`` (see the module docstring); else empty.
+        ``sheet``, ``rules``, ``ink`` (see the module docstring), and ``glare`` (the gain
+        :func:`glare_gain` gave the darkness, ``[H, W]``) where a glare was found; else
+        empty.
+    glare_gain : float
+        The largest factor a glare's lost contrast was given back by (:func:`glare_gain`;
+        1: no glare found).
     """
 
     ink: np.ndarray
@@ -317,6 +322,7 @@ class PaperInk:
     dark_on_light: bool
     removed: dict = field(default_factory=dict)
     steps: dict = field(default_factory=dict)
+    glare_gain: float = 1.0
 
     @property
     def core(self) -> np.ndarray:
@@ -1800,6 +1806,8 @@ def _ink_found(levels, a: np.ndarray, desk, polarity: bool, pen: float, keep_ste
     dark = np.where(sheet, dark, 0.0).astype(np.float32)
     lv = thresholds(dark, noise)
     steps = {"input": np.asarray(levels), "background": bg, "darkness": dark, "sheet": sheet}
+    if gain is not None:
+        steps["glare"] = gain
     if lv is None:
         return None, stepped
     weak = dark >= lv.weak
@@ -1819,7 +1827,10 @@ def _ink_found(levels, a: np.ndarray, desk, polarity: bool, pen: float, keep_ste
     removed.update(rule_px=int(ruled.sum()), off_sheet_px=int((~sheet).sum()),
                    desk_px=0 if desk is None else desk.desk_px)  # fmt: skip
     steps.update(rules=ruled, candidates=weak, ink=ink)
-    return PaperInk(ink, kept, width, polarity, removed, steps if keep_steps else {}), stepped
+    glare = 1.0 if gain is None else float(gain.max())
+    return PaperInk(
+        ink, kept, width, polarity, removed, steps if keep_steps else {}, glare
+    ), stepped
 
 
 __all__ = [

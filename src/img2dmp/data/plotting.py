@@ -406,6 +406,12 @@ def _shown(a: np.ndarray) -> np.ndarray:
     return np.clip(a, 0.0, 1.0)
 
 
+def _glare_note(found) -> str:
+    """The darkness panel's note of a glare's contrast given back, if any."""
+    gain = float(getattr(found, "glare_gain", 1.0))
+    return f"\n(a glare's contrast given back, up to {gain:.1f}x)" if gain > 1.0 else ""
+
+
 def paper_steps_figure(path: str | os.PathLike, found, boxes=None, title: str = "") -> Path:
     """The steps of :func:`img2dmp.data.paper.paper_ink` (kept with ``keep_steps``) as one
     PNG: the image, the paper's estimated colour, the ink's darkness against it, what
@@ -421,7 +427,7 @@ def paper_steps_figure(path: str | os.PathLike, found, boxes=None, title: str = 
     shape = dark.shape
     bg = np.broadcast_to(s["background"], (len(s["background"]), *shape))
     panels = [("image", _shown(s["input"])), ("paper (background estimate)", _shown(bg)),
-              ("darkness against the paper", 1.0 - dark),
+              ("darkness against the paper" + _glare_note(found), 1.0 - dark),
               ("removed: rules red, faint marks, specks, edges orange, off the sheet grey",
                removed),
               (f"ink the model reads (pen {found.pen_width_px:.1f} px)", 1.0 - ink)]  # fmt: skip
