@@ -679,3 +679,22 @@ def test_light_that_is_only_brighter_or_paper_without_grain_is_noglare():
         bg, cell, _ = _background(a, rough_pen_width(a), False)
         assert cell > 0
         assert glare_gain(a, bg, cell) is None
+
+
+def test_the_shared_photos_have_no_glare_until_one_is_put_on_them():
+    """The two shared phone photos as they are: no glare found (the white one's top is
+    lit brighter, which raises its paper's level as a glare would, but not its grain).
+    Under a 0.8 glare, large or small: found, and the gain given. Skips, saying so,
+    without ``../shared/data/photos``."""
+    from pathlib import Path
+
+    from PIL import Image
+
+    photos = Path(__file__).resolve().parents[2] / "shared" / "data" / "photos"
+    if not (photos / "photos.json").is_file():
+        pytest.skip(f"the shared phone photos are not at {photos} (../shared/data/photos)")
+    for name in ("page_white_black_ink.png", "page_yellow_blue_ink.png"):
+        img = np.asarray(Image.open(photos / name).convert("RGB"), np.float32) / 255.0
+        assert paper_ink(img).glare_gain == 1.0, name
+        for at, radius in (((0.6, 0.45), 0.4), ((0.3, 0.45), 0.25)):
+            assert paper_ink(glare(img, 0.8, at, radius)).glare_gain > 1.5, (name, at)
