@@ -83,11 +83,16 @@ def test_the_page_document_and_picture_are_written_and_read_back_by_the_robot(tm
     assert len(read.characters) == 5 and read.image_size_px == (520, 300)
 
 
-def test_the_page_document_says_how_much_contrast_a_glare_was_given_back(run):
+def test_the_page_document_says_how_much_contrast_a_glare_was_given_back(tmp_path, run, capsys):
     img, _ = grainy_page()
     for photo, glared in ((img, False), (glare(img, 0.8), True)):
         doc = json.loads(load_model(run).predict_page((photo * 255).astype(np.uint8)).to_json())
         assert (doc["glare_gain"] > 2.0) if glared else (doc["glare_gain"] == 1.0)
+        Image.fromarray((photo * 255).astype(np.uint8)).save(tmp_path / "g.png")
+        capsys.readouterr()
+        assert main(["predict", str(tmp_path / "g.png"), "--page", "--model", str(run),
+                     "--out", str(tmp_path / "out"), "--force"]) == 0  # fmt: skip
+        assert ("a glare's washed-out ink" in capsys.readouterr().out) == glared
 
 
 def test_boxes_are_in_the_upright_photo_s_frame(tmp_path, run):

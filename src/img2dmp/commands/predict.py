@@ -181,8 +181,11 @@ def _run_pages(args, predictor) -> int:
         way = "clockwise" if d < 0 else "counter-clockwise"
         why = "to level them" if abs(d) < 45.0 else "to read it upright"  # sideways, upside down
         turned = f" (turned {abs(d):.1f} degrees {way} {why})" if d else ""
-        print(f"{path}: {len(page.characters)} characters{n} in {len(page.lines)} lines{turned}, "
-              f"{len(flagged)} flagged -> " + ", ".join(str(f) for f in files))  # fmt: skip
+        glare = (f" (a glare's washed-out ink given back its contrast, up to "
+                 f"{page.glare_gain:.1f}x)") if page.glare_gain > 1.0 else ""  # fmt: skip
+        written = ", ".join(str(f) for f in files)
+        print(f"{path}: {len(page.characters)} characters{n} in {len(page.lines)} lines{turned}"
+              f"{glare}, {len(flagged)} flagged -> {written}")  # fmt: skip
     return 0
 
 
