@@ -3,8 +3,9 @@
 :func:`read_page` (``load_model(run).predict_page(photo)``, ``img2dmp predict PHOTO
 --page``) runs in four steps:
 
-1. the photo is read upright at most ``PAGE_WORK_PIXELS`` (area average) and its ink
-   separated from the paper (:func:`img2dmp.data.paper.paper_ink`); a page whose
+1. the photo is read upright at most ``PAGE_WORK_PIXELS`` (area average), a shake's
+   blur along its rows or columns undone (:func:`img2dmp.data.shake.steadied`), and its
+   ink separated from the paper (:func:`img2dmp.data.paper.paper_ink`); a page whose
    characters come out under ``PAGE_SMALL_HEIGHT_PX`` tall (photographed from far away)
    is read again: a large photo reduced to ``PAGE_WORK_PIXELS`` from its file at a finer
    reduction, only the part that holds the characters found, then (either) enlarged if
@@ -38,6 +39,7 @@ from ._files import atomic_write_bytes, atomic_write_text, check_stem
 from .data import images as _images
 from .data.pages import PageCharacter, PageLayout, find_characters
 from .data.paper import paper_ink
+from .data.shake import steadied
 from .data.sheet import sheet_factor
 
 #: The page document's format name and version.
@@ -632,6 +634,7 @@ def segment_page(image, *, name: str | None = None, cut: bool = True, join_sides
     """
     read = _images._read_levels(image, name, PAGE_WORK_PIXELS)
     levels, reduction, size, label = read.levels, read.reduction, read.size, read.label
+    levels = steadied(levels)  # a shaken photo's blur undone (img2dmp.data.shake)
     found = paper_ink(levels)
     if found is None:
         return PageSegmentation(levels, reduction, size, label, None,
@@ -675,11 +678,12 @@ def _finer(seg: PageSegmentation, image, name, white: float, cut: bool,
     if PAGE_FINER_GAIN * finer > seg.reduction:
         return seg
     read = _images._read_levels(image, name, PAGE_WORK_PIXELS, box, white)
-    found = paper_ink(read.levels)
+    levels = steadied(read.levels)
+    found = paper_ink(levels)
     layout = None if found is None else _find_on(found, cut, join_sides)
     if layout is None or not layout.characters:
         return seg
-    return PageSegmentation(read.levels, read.reduction, seg.size, seg.label, found, layout,
+    return PageSegmentation(levels, read.reduction, seg.size, seg.label, found, layout,
                             origin=read.origin, overview=seg.levels)  # fmt: skip
 
 

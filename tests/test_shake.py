@@ -1,0 +1,60 @@
+"""A shaken photo's blur, along a row or a column, found and undone (img2dmp.data.shake)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter, uniform_filter1d
+
+from drawn import on_paper, page
+from img2dmp.data.shake import shake, steadied
+
+# two lines of characters 4-12 px apart: a blur of 7-9 px along the line joins them
+LINES = [[("1", 40), ("7", 62), ("0", 92), ("5", 124), ("7", 156), ("1", 184)],
+         [("0", 40), ("5", 72), ("7", 104), ("1", 132), ("0", 150)]]  # fmt: skip
+
+
+def _tight_page():
+    """The two tight lines on grainy paper (4 % grain); the image and the true boxes."""
+    ink, boxes = page(LINES, height=40.0)
+    grain = gaussian_filter(np.random.default_rng(0).normal(0.0, 0.04, ink.shape), 0.7)
+    paper = (0.8 * (1.0 + grain))[..., None] * np.array([1.0, 0.97, 0.92])
+    return np.clip(on_paper(ink, paper.astype(np.float32)), 0.0, 1.0).astype(np.float32), boxes
+
+
+def _one_box_each(seg, boxes) -> bool:
+    found = [c.box for c in seg.layout.characters]
+    centres = [((b[0] + b[2]) / 2, (b[1] + b[3]) / 2) for b in boxes]
+    inside = [[f[0] <= x < f[2] and f[1] <= y < f[3] for f in found] for x, y in centres]
+    return len(found) == len(boxes) and all(sum(row) == 1 for row in inside)
+
+
+@pytest.mark.parametrize(("length", "axis"), [(9, 1), (5, 1), (7, 0), (9, 0)])
+def test_a_shake_along_a_row_or_a_column_is_found_with_its_length(length, axis):
+    img, _ = _tight_page()
+    assert shake(uniform_filter1d(img, length, axis=axis)) == (length, axis)
+
+
+def test_a_photo_in_focus_or_out_of_it_or_tiny_has_no_shake():
+    img, _ = _tight_page()
+    for sharp in (img, gaussian_filter(img, (2.0, 2.0, 0.0)), img[:40, :40], img.mean(axis=2)):
+        assert shake(sharp) is None
+        assert steadied(sharp) is sharp  # as it is, not a copy
+
+
+@pytest.mark.parametrize(("length", "axis"), [(9, 1), (7, 0)])
+def test_a_shaken_page_s_characters_are_read_one_by_one_once_steadied(length, axis, monkeypatch):
+    """Shaken 9 px along its lines, two characters ran together (10 boxes for 11); 7 px
+    across them, one split (12). Steadied: one box each. Without it, not (the test can
+    fail)."""
+    import img2dmp.page as page_module
+    from img2dmp.page import segment_page
+
+    img, boxes = _tight_page()
+    shaken = uniform_filter1d(img, length, axis=axis)
+    assert _one_box_each(segment_page(shaken), boxes)
+    steady = steadied(shaken)
+    assert steady.shape == shaken.shape and steady.dtype == np.float32
+    assert 0.0 <= steady.min() and steady.max() <= 1.0
+    monkeypatch.setattr(page_module, "steadied", lambda levels: levels)
+    assert not _one_box_each(segment_page(shaken), boxes)
