@@ -80,19 +80,21 @@ def steadied(levels, found: tuple[int, int] | None = None) -> np.ndarray:
     a = np.asarray(levels, np.float32)
     planes = a[..., None] if a.ndim == 2 else a
     pad = 2 * length
-    widths = [(pad, pad) if k == axis else (0, 0) for k in (0, 1)] + [(0, 0)]
-    padded = np.pad(planes, widths, mode="reflect").astype(np.float64)
-    n = padded.shape[axis]
+    n = planes.shape[axis] + 2 * pad
     box = np.zeros(n)
     box[:length] = 1.0 / length
     otf = np.fft.rfft(np.roll(box, -(length // 2)))
-    wiener = np.conj(otf) / (np.abs(otf) ** 2 + SHAKE_WIENER)
-    shape = [1, 1, 1]
-    shape[axis] = len(wiener)
-    out = np.fft.irfft(np.fft.rfft(padded, axis=axis) * wiener.reshape(shape), n=n, axis=axis)
-    keep = [slice(None)] * 3
+    wiener = (np.conj(otf) / (np.abs(otf) ** 2 + SHAKE_WIENER)).astype(np.complex64)
+    wiener = wiener.reshape((-1, 1) if axis == 0 else (1, -1))
+    widths = [(pad, pad) if k == axis else (0, 0) for k in (0, 1)]
+    keep = [slice(None), slice(None)]
     keep[axis] = slice(pad, pad + planes.shape[axis])
-    out = np.clip(out[tuple(keep)], 0.0, 1.0).astype(np.float32)
+    out = np.empty(planes.shape, np.float32)
+    for c in range(planes.shape[2]):  # a channel at a time: a third of the memory
+        spectrum = np.fft.rfft(np.pad(planes[..., c], widths, mode="reflect"), axis=axis)
+        spectrum *= wiener
+        out[..., c] = np.fft.irfft(spectrum, n=n, axis=axis)[tuple(keep)]
+    np.clip(out, 0.0, 1.0, out=out)
     return out[..., 0] if a.ndim == 2 else out
 
 
