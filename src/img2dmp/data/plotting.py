@@ -408,7 +408,7 @@ def _shown(a: np.ndarray) -> np.ndarray:
 
 def _glare_note(found) -> str:
     """The darkness panel's note of a glare's contrast given back, if any."""
-    gain = float(getattr(found, "glare_gain", 1.0))
+    gain = found.glare_gain
     return f"\n(a glare's contrast given back, up to {gain:.1f}x)" if gain > 1.0 else ""
 
 

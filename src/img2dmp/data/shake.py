@@ -43,9 +43,7 @@ def _grey(levels: np.ndarray) -> np.ndarray:
 
 def _correlation(d: np.ndarray, axis: int, lag: int) -> float:
     """The correlation of ``d`` with itself ``lag`` pixels along ``axis``."""
-    n = d.shape[axis]
-    a = np.take(d, np.arange(n - lag), axis=axis)
-    b = np.take(d, np.arange(lag, n), axis=axis)
+    a, b = (d[:-lag], d[lag:]) if axis == 0 else (d[:, :-lag], d[:, lag:])  # views
     return float(np.mean(a * b, dtype=np.float64))
 
 
