@@ -13,6 +13,10 @@ images as the full run):
   0.4 at 0.6), the image brought towards white by 0.5 or 0.8 at its centre, so that the
   ink keeps 50 or 20 % of its contrast there;
 - **motion** blur, horizontal or vertical, 5 or 9 px (a box along the line);
+- **slant**: a motion blur at 15, 30 or 120 degrees from the rows (9 px) or at 45 (5 or
+  9 px): the image moved along a straight line, a copy every tenth of a pixel, each
+  shifted by bilinear interpolation (:func:`slanted`; conditions added after the others,
+  so that the others' generators are as they were);
 - **defocus**: a Gaussian of sigma 1, 1.5 or 2 px;
 - **far** away: the photo scaled by 0.5, 0.35, 0.25 or 0.18 (Lanczos; the shared photos'
   digits about 10 px tall at 0.25);
@@ -144,6 +148,25 @@ def motion(length: int, axis: int):
     return apply
 
 
+def slanted(length: float, degrees: float):
+    def apply(rgb, rng):
+        from scipy.ndimage import convolve
+
+        t = np.linspace(-length / 2, length / 2, round(10 * length) + 1)
+        theta = np.deg2rad(degrees)
+        reach = int(np.ceil(length / 2)) + 1
+        y, x = reach + 1 + t * np.sin(theta), reach + 1 + t * np.cos(theta)
+        kernel = np.zeros((2 * reach + 3, 2 * reach + 3))  # its centre at (reach + 1) * 2
+        y0, x0 = np.floor(y).astype(int), np.floor(x).astype(int)
+        for dy, dx in ((0, 0), (0, 1), (1, 0), (1, 1)):  # each copy's bilinear weights
+            weight = np.abs(1 - dy - (y - y0)) * np.abs(1 - dx - (x - x0))
+            np.add.at(kernel, (y0 + dy, x0 + dx), weight)
+        kernel = (kernel / kernel.sum())[..., None]
+        return convolve(rgb, kernel, mode="nearest")  # the line is symmetric
+
+    return apply
+
+
 def defocus(sigma: float):
     def apply(rgb, rng):
         from scipy.ndimage import gaussian_filter
@@ -219,6 +242,8 @@ def _conditions() -> list[Condition]:
     out.append(Condition("pencil", "pen", pencil))
     out.append(Condition("marker", "pen", marker))
     out.append(Condition("warm-dim-noisy", "light", warm_dim_noisy))
+    for degrees, length in ((15, 9), (30, 9), (45, 5), (45, 9), (120, 9)):
+        out.append(Condition(f"slant-{degrees}-{length}", "slant", slanted(length, degrees)))
     return out
 
 
