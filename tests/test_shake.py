@@ -1,13 +1,14 @@
-"""A shaken photo's blur, along a row or a column, found and undone (img2dmp.data.shake)."""
+"""A shaken photo's blur, along a row, a column or at a slant, found and undone
+(img2dmp.data.shake)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.ndimage import gaussian_filter, uniform_filter1d
+from scipy.ndimage import gaussian_filter, shift, uniform_filter1d
 
 from drawn import on_paper, page
-from img2dmp.data.shake import shake, steadied
+from img2dmp.data.shake import Shake, line, shake, steadied
 
 # two lines of characters 4-12 px apart: a blur of 7-9 px along the line joins them
 LINES = [[("1", 40), ("7", 62), ("0", 92), ("5", 124), ("7", 156), ("1", 184)],
@@ -22,6 +23,16 @@ def _tight_page():
     return np.clip(on_paper(ink, paper.astype(np.float32)), 0.0, 1.0).astype(np.float32), boxes
 
 
+def _moved(img, length: float, degrees: float):
+    """``img`` as a camera moving ``length`` px at ``degrees`` sees it: the mean of copies
+    shifted every tenth of a pixel along the line (bilinear), not :func:`line`'s drawing."""
+    theta = np.deg2rad(degrees)
+    steps = np.linspace(-length / 2, length / 2, round(10 * length) + 1)
+    copies = [shift(img, (t * np.sin(theta), t * np.cos(theta), 0.0), order=1, mode="nearest")
+              for t in steps]  # fmt: skip
+    return np.mean(copies, axis=0).astype(np.float32)
+
+
 def _one_box_each(seg, boxes) -> bool:
     found = [c.box for c in seg.layout.characters]
     centres = [((b[0] + b[2]) / 2, (b[1] + b[3]) / 2) for b in boxes]
@@ -32,7 +43,26 @@ def _one_box_each(seg, boxes) -> bool:
 @pytest.mark.parametrize(("length", "axis"), [(9, 1), (5, 1), (7, 0), (9, 0)])
 def test_a_shake_along_a_row_or_a_column_is_found_with_its_length(length, axis):
     img, _ = _tight_page()
-    assert shake(uniform_filter1d(img, length, axis=axis)) == (length, axis)
+    assert shake(uniform_filter1d(img, length, axis=axis)) == Shake(length, 90.0 * (1 - axis))
+
+
+@pytest.mark.parametrize(("length", "degrees"), [(9, 30), (7, 45), (9, 120), (11, 165)])
+def test_a_shake_at_a_slant_is_found_with_its_length_and_direction(length, degrees):
+    img, _ = _tight_page()
+    found = shake(_moved(img, length, degrees))
+    assert found is not None
+    assert abs(found.length - length) <= 1.0 and abs(found.degrees - degrees) <= 3.0
+
+
+def test_a_line_is_drawn_by_the_share_of_it_in_each_pixel():
+    box = line(5, 0)
+    assert np.allclose(box[4], [0, 0, 0.2, 0.2, 0.2, 0.2, 0.2, 0, 0]) and box.sum() == box[4].sum()
+    assert np.array_equal(line(5, 90), box.T)
+    slant = line(9.4, 31.5)
+    assert slant.shape == (13, 13) and np.isclose(slant.sum(), 1.0)
+    assert np.allclose(slant, slant[::-1, ::-1])  # symmetric about its centre
+    ys, xs = np.nonzero(slant)
+    assert abs(np.polyfit(xs - 6, ys - 6, 1, w=slant[ys, xs])[0] - np.tan(np.deg2rad(31.5))) < 0.05
 
 
 def test_a_photo_in_focus_or_out_of_it_or_tiny_has_no_shake():
@@ -42,16 +72,20 @@ def test_a_photo_in_focus_or_out_of_it_or_tiny_has_no_shake():
         assert steadied(sharp) is sharp  # as it is, not a copy
 
 
-@pytest.mark.parametrize(("length", "axis"), [(9, 1), (7, 0)])
-def test_a_shaken_page_s_characters_are_read_one_by_one_once_steadied(length, axis, monkeypatch):
+@pytest.mark.parametrize(("length", "degrees"), [(9, 0), (7, 90), (9, 20)])
+def test_a_shaken_page_s_characters_are_read_one_by_one_once_steadied(length, degrees,
+                                                                      monkeypatch):  # fmt: skip
     """Shaken 9 px along its lines, two characters ran together (10 boxes for 11); 7 px
-    across them, one split (12). Steadied: one box each. Without it, not (the test can
-    fail)."""
+    across them, one split (12); 9 px at 20 degrees, ... Steadied: one box each. Without
+    it, not (the test can fail)."""
     import img2dmp.page as page_module
     from img2dmp.page import segment_page
 
     img, boxes = _tight_page()
-    shaken = uniform_filter1d(img, length, axis=axis)
+    if degrees in (0, 90):
+        shaken = uniform_filter1d(img, length, axis=1 if degrees == 0 else 0)
+    else:
+        shaken = _moved(img, length, degrees)
     assert _one_box_each(segment_page(shaken), boxes)
     steady = steadied(shaken)
     assert steady.shape == shaken.shape and steady.dtype == np.float32

@@ -4,8 +4,8 @@
 --page``) runs in four steps:
 
 1. the photo is read upright at most ``PAGE_WORK_PIXELS`` (area average), a shake's
-   blur along its rows or columns undone (:func:`img2dmp.data.shake.steadied`), and its
-   ink separated from the paper (:func:`img2dmp.data.paper.paper_ink`); a page whose
+   blur undone (:func:`img2dmp.data.shake.steadied`, in any direction), and its ink
+   separated from the paper (:func:`img2dmp.data.paper.paper_ink`); a page whose
    characters come out under ``PAGE_SMALL_HEIGHT_PX`` tall (photographed from far away)
    is read again: a large photo reduced to ``PAGE_WORK_PIXELS`` from its file at a finer
    reduction, only the part that holds the characters found, then (either) enlarged if
