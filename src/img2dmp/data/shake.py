@@ -54,7 +54,7 @@ SHAKE_MIN_PX = 3
 SHAKE_MAX_PX = 25
 #: The cepstrum's trough, at least this many robust standard deviations below its ring's
 #: median. This and the next three were chosen together on 792 validation images not
-#: shaken (none passes) and 872 shaken 4-15 px in every direction (832 pass, with the
+#: shaken (none passes) and 872 shaken 4-15 px in every direction (826 pass, with the
 #: row and column reading; experiments/RESULTS.md 7.23).
 SHAKE_CEPSTRUM_Z = 18.0
 #: The directional derivative's correlation two pixels along the blur above the one
