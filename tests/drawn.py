@@ -101,6 +101,19 @@ def grainy_page(light=None, seed=0):
     return np.clip(img, 0.0, 1.0).astype(np.float32), centres
 
 
+def moved(img, length: float, degrees: float):
+    """``img`` as a camera moving ``length`` px at ``degrees`` (from the rows, down the
+    image positive) sees it: the mean of copies shifted every tenth of a pixel along the
+    line (bilinear), not :func:`img2dmp.data.shake.line`'s drawing of it."""
+    from scipy.ndimage import shift
+
+    theta = np.deg2rad(degrees)
+    steps = np.linspace(-length / 2, length / 2, round(10 * length) + 1)
+    offsets = [(t * np.sin(theta), t * np.cos(theta)) + (0.0,) * (img.ndim - 2) for t in steps]
+    copies = [shift(img, o, order=1, mode="nearest") for o in offsets]
+    return np.mean(copies, axis=0).astype(np.float32)
+
+
 def glare(img, strength: float, at=(0.55, 0.45), radius=0.3):
     """``img`` brought towards white by ``strength`` at the centre of a Gaussian spot
     (``at``: its centre as shares of the width and height; ``radius``: its sigma as a

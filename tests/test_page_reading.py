@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from drawn import glare, grainy_page, on_paper, page, ruled
+from drawn import glare, grainy_page, moved, on_paper, page, ruled
 from img2dmp.cli import main
 from img2dmp.data.dmpfile import check_dmp_document
 from img2dmp.predict import load_model
@@ -93,6 +93,29 @@ def test_the_page_document_says_how_much_contrast_a_glare_was_given_back(tmp_pat
         assert main(["predict", str(tmp_path / "g.png"), "--page", "--model", str(run),
                      "--out", str(tmp_path / "out"), "--force"]) == 0  # fmt: skip
         assert ("a glare's washed-out ink" in capsys.readouterr().out) == glared
+
+
+def test_the_page_document_and_its_pictures_say_which_shake_was_undone(tmp_path, run, capsys):
+    from img2dmp.data.images import paper_steps
+
+    img, _ = grainy_page()
+    for photo, shaken in ((img, False), (moved(img, 9, 30), True)):
+        doc = json.loads(load_model(run).predict_page((photo * 255).astype(np.uint8)).to_json())
+        if shaken:
+            assert (
+                abs(doc["shake"]["length_px"] - 9) < 1
+                and abs(doc["shake"]["direction_deg"] - 30) < 3
+            )
+        else:
+            assert doc["shake"] is None
+        Image.fromarray((photo * 255).astype(np.uint8)).save(tmp_path / "s.png")
+        steps = paper_steps(tmp_path / "s.png", steady=True)[0].steps
+        assert (steps["shake"] is not None) == shaken  # what --explain's picture notes
+        capsys.readouterr()
+        assert main(["predict", str(tmp_path / "s.png"), "--page", "--model", str(run),
+                     "--out", str(tmp_path / "out"), "--force", "--explain"]) == 0  # fmt: skip
+        assert ("a shake of 9." in capsys.readouterr().out) == shaken
+        assert (tmp_path / "out" / "s_explain.png").is_file()
 
 
 def test_boxes_are_in_the_upright_photo_s_frame(tmp_path, run):

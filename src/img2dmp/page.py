@@ -39,7 +39,7 @@ from ._files import atomic_write_bytes, atomic_write_text, check_stem
 from .data import images as _images
 from .data.pages import PageCharacter, PageLayout, find_characters
 from .data.paper import paper_ink
-from .data.shake import steadied
+from .data.shake import shake, steadied
 from .data.sheet import sheet_factor
 
 #: The page document's format name and version.
@@ -226,6 +226,8 @@ class PagePrediction:
     glare_gain : float
         The largest factor a glare's lost contrast was given back by
         (:attr:`img2dmp.data.paper.PaperInk.glare_gain`; 1: no glare found).
+    shake : (length_px, degrees) or None
+        The shake undone before the ink was separated (:attr:`PageSegmentation.shake`).
     preview : uint8 [h, w, 3] or None
         The photo (upright, not turned), at most ``PICTURE_SIDE_PX`` on a side, for its
         picture.
@@ -243,9 +245,11 @@ class PagePrediction:
 
     def __init__(self, characters, layout, image_size, reduction, source, flags, removed,
                  user_image=None, refine_steps=0, refine_unfamiliar=None,
-                 turn_deg=0.0, turn=None, origin=(0.0, 0.0), glare_gain=1.0):  # fmt: skip
+                 turn_deg=0.0, turn=None, origin=(0.0, 0.0), glare_gain=1.0,
+                 shake=None):  # fmt: skip
         self.characters = list(characters)
         self.glare_gain = float(glare_gain)
+        self.shake = None if shake is None else (float(shake[0]), float(shake[1]))
         self.origin = (float(origin[0]), float(origin[1]))
         self.turn_deg = float(turn_deg)
         self.turn = np.eye(3) if turn is None else np.asarray(turn, np.float64)
@@ -280,6 +284,12 @@ class PagePrediction:
             entry["unfamiliar_steps"] = self.refine_unfamiliar
         return entry
 
+    def _shake_entry(self) -> dict | None:
+        """The document's ``shake``: the one undone, in the photo's pixels, or None."""
+        if self.shake is None:
+            return None
+        return {"length_px": round(self.shake[0], 2), "direction_deg": round(self.shake[1], 1)}
+
     def to_document(self, dmps: bool = True) -> dict:
         """The page document (format ``img2dmp-page`` version 1; docs/PAGE.md); without
         the characters' ``"dmp"`` documents unless ``dmps``. Read by a stroke model, its
@@ -308,6 +318,7 @@ class PagePrediction:
             "flags": self.flags,
             "removed": self.removed,
             "glare_gain": round(self.glare_gain, 3),
+            "shake": self._shake_entry(),
             "lines": [{"index": i, "characters": idx} for i, idx in enumerate(lines)],
             "characters": entries,
         }
@@ -453,6 +464,10 @@ class PageSegmentation:
     overview : float array [h, w] or [h, w, 3] or None
         The whole photo as first read, when ``levels`` is a part of it (for the page's
         picture); else None (``levels`` is the whole photo).
+    shake : (length_px, degrees) or None
+        The shake undone before the ink was separated (:func:`img2dmp.data.shake.shake`),
+        its length in the photo's pixels, its direction in degrees from the photo's rows
+        (down the photo positive, ``[0, 180)``); None when none was read.
     """
 
     levels: np.ndarray
@@ -468,6 +483,7 @@ class PageSegmentation:
     too_small: bool = False
     origin: tuple[float, float] = (0.0, 0.0)
     overview: np.ndarray | None = None
+    shake: tuple[float, float] | None = None
 
     def photo_to_levels(self) -> np.ndarray:
         """The map ``[3, 3]`` of pixel-edge positions from the photo's own pixels to
@@ -634,12 +650,15 @@ def segment_page(image, *, name: str | None = None, cut: bool = True, join_sides
     """
     read = _images._read_levels(image, name, PAGE_WORK_PIXELS)
     levels, reduction, size, label = read.levels, read.reduction, read.size, read.label
-    levels = steadied(levels)  # a shaken photo's blur undone (img2dmp.data.shake)
+    moved = shake(levels)
+    levels = steadied(levels, moved)  # a shaken photo's blur undone (img2dmp.data.shake)
     found = paper_ink(levels)
     if found is None:
         return PageSegmentation(levels, reduction, size, label, None,
-                                PageLayout(shape=levels.shape[:2]))  # fmt: skip
-    seg = PageSegmentation(levels, reduction, size, label, found, _find_on(found, cut, join_sides))
+                                PageLayout(shape=levels.shape[:2]),
+                                shake=_in_photo(moved, reduction))  # fmt: skip
+    seg = PageSegmentation(levels, reduction, size, label, found, _find_on(found, cut, join_sides),
+                           shake=_in_photo(moved, reduction))  # fmt: skip
     seg = _finer(seg, image, name, read.white, cut, join_sides)
     seg = _enlarged(seg, cut, join_sides)
     if seg.layout.characters and seg.layout.height_px * seg.reduction < PAGE_MIN_HEIGHT_PX:
@@ -648,6 +667,11 @@ def segment_page(image, *, name: str | None = None, cut: bool = True, join_sides
     if turn_deg is None:
         turn_deg, seg.sideways = _page_turn(seg.layout)
     return _turned_segmentation(seg, turn_deg, cut, join_sides) if turn_deg else seg
+
+
+def _in_photo(moved, reduction: float) -> tuple[float, float] | None:
+    """A :class:`img2dmp.data.shake.Shake` read at ``reduction``, in the photo's pixels."""
+    return None if moved is None else (float(moved.length) * reduction, float(moved.degrees))
 
 
 def _writing_box(seg: PageSegmentation) -> tuple[float, float, float, float]:
@@ -678,13 +702,15 @@ def _finer(seg: PageSegmentation, image, name, white: float, cut: bool,
     if PAGE_FINER_GAIN * finer > seg.reduction:
         return seg
     read = _images._read_levels(image, name, PAGE_WORK_PIXELS, box, white)
-    levels = steadied(read.levels)
+    moved = shake(read.levels)
+    levels = steadied(read.levels, moved)
     found = paper_ink(levels)
     layout = None if found is None else _find_on(found, cut, join_sides)
     if layout is None or not layout.characters:
         return seg
     return PageSegmentation(levels, read.reduction, seg.size, seg.label, found, layout,
-                            origin=read.origin, overview=seg.levels)  # fmt: skip
+                            origin=read.origin, overview=seg.levels,
+                            shake=_in_photo(moved, read.reduction))  # fmt: skip
 
 
 def _enlargement(height_px: float, pixels: int) -> int:
@@ -713,7 +739,7 @@ def _enlarged(seg: PageSegmentation, cut: bool, join_sides: bool) -> PageSegment
         return seg
     return PageSegmentation(levels, seg.reduction / factor, seg.size, seg.label, found,
                             _find_on(found, cut, join_sides), origin=seg.origin,
-                            overview=seg.overview)  # fmt: skip
+                            overview=seg.overview, shake=seg.shake)  # fmt: skip
 
 
 def _turned_segmentation(seg: PageSegmentation, turn_deg: float, cut: bool,
@@ -731,7 +757,7 @@ def _turned_segmentation(seg: PageSegmentation, turn_deg: float, cut: bool,
     return PageSegmentation(seg.levels, seg.reduction, seg.size, seg.label, found,
                             _find_on(found, cut, join_sides), turn, float(turn_deg),
                             ink_as_it_stands=stands, origin=seg.origin,
-                            overview=seg.overview)  # fmt: skip
+                            overview=seg.overview, shake=seg.shake)  # fmt: skip
 
 
 def _page_turn(layout: PageLayout) -> tuple[float, float | None]:
@@ -823,7 +849,8 @@ def _read_segmentation(predictor, seg, image, n_points, match_stroke_width) -> P
                           {} if found is None else found.removed, refine_steps=steps,
                           refine_unfamiliar=unfamiliar, turn_deg=seg.turn_deg,
                           turn=seg.turn, origin=seg.origin,
-                          glare_gain=1.0 if found is None else found.glare_gain)  # fmt: skip
+                          glare_gain=1.0 if found is None else found.glare_gain,
+                          shake=seg.shake)  # fmt: skip
     page.preview = _preview(seg.whole())
     if found is None or not page.layout.characters:
         return page

@@ -137,7 +137,7 @@ def _explain(args, path, photo_boxes=None) -> Path:
     from ..page import PAGE_WORK_PIXELS
 
     if args.page:
-        found, reduction = paper_steps(path, max_pixels=PAGE_WORK_PIXELS)
+        found, reduction = paper_steps(path, max_pixels=PAGE_WORK_PIXELS, steady=True)
     else:
         found, reduction = paper_steps(path)
     out = Path(args.out) / f"{Path(path).stem}_explain.png"
@@ -177,16 +177,26 @@ def _run_pages(args, predictor) -> int:
             files.append(_explain(args, path, [c.box_image for c in page.characters]))
         strokes = [getattr(c.prediction, "n_strokes", None) for c in page.characters]
         n = "" if None in strokes or not strokes else f" ({sum(strokes)} strokes)"
-        d = page.turn_deg  # < 0: lines rising to the right, turned clockwise to lie level
-        way = "clockwise" if d < 0 else "counter-clockwise"
-        why = "to level them" if abs(d) < 45.0 else "to read it upright"  # sideways, upside down
-        turned = f" (turned {abs(d):.1f} degrees {way} {why})" if d else ""
-        glare = (f" (a glare's washed-out ink given back its contrast, up to "
-                 f"{page.glare_gain:.1f}x)") if page.glare_gain > 1.0 else ""  # fmt: skip
         written = ", ".join(str(f) for f in files)
-        print(f"{path}: {len(page.characters)} characters{n} in {len(page.lines)} lines{turned}"
-              f"{glare}, {len(flagged)} flagged -> {written}")  # fmt: skip
+        print(f"{path}: {len(page.characters)} characters{n} in {len(page.lines)} lines"
+              f"{_page_notes(page)}, {len(flagged)} flagged -> {written}")  # fmt: skip
     return 0
+
+
+def _page_notes(page) -> str:
+    """What the summary line of a page says was done to read it: turned, a glare's
+    contrast given back, a shake undone."""
+    d = page.turn_deg  # < 0: lines rising to the right, turned clockwise to lie level
+    way = "clockwise" if d < 0 else "counter-clockwise"
+    why = "to level them" if abs(d) < 45.0 else "to read it upright"  # sideways, upside down
+    notes = [f"turned {abs(d):.1f} degrees {way} {why}"] if d else []
+    if page.glare_gain > 1.0:
+        notes.append(f"a glare's washed-out ink given back its contrast, up to "
+                     f"{page.glare_gain:.1f}x")  # fmt: skip
+    if page.shake is not None:
+        length, degrees = page.shake
+        notes.append(f"a shake of {length:.1f} px at {degrees:.0f} degrees undone")
+    return "".join(f" ({note})" for note in notes)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -923,15 +923,24 @@ def ink_view(source, max_side: int = 600, *, name: str | None = None, clean: boo
     return view.astype(np.float32), 1.0 / (reduction * factor)
 
 
-def paper_steps(source, *, name: str | None = None, max_pixels: int = MAX_WORK_PIXELS):
+def paper_steps(source, *, name: str | None = None, max_pixels: int = MAX_WORK_PIXELS,
+                steady: bool = False):  # fmt: skip
     """Every step of the ink's separation from the paper for ``source`` (a path, PIL
     image or array, read as :func:`prepare_image` reads it, at most ``max_pixels``):
     :func:`img2dmp.data.paper.paper_ink` with ``keep_steps`` (None when nothing stands
-    out from the paper), and the reduction (the source's pixels per pixel of the steps)."""
+    out from the paper), and the reduction (the source's pixels per pixel of the steps).
+    ``steady``: a shake's blur undone first, as a page's is
+    (:func:`img2dmp.data.shake.steadied`); its steps then hold ``shake``, the
+    :class:`img2dmp.data.shake.Shake` undone (None: none read)."""
     from .paper import paper_ink
+    from .shake import shake, steadied
 
     levels, reduction, _, _ = _levels_framed(source, name, max_pixels)
-    return paper_ink(levels, keep_steps=True), reduction
+    moved = shake(levels) if steady else None
+    found = paper_ink(steadied(levels, moved) if moved else levels, keep_steps=True)
+    if found is not None and steady:
+        found.steps["shake"] = moved
+    return found, reduction
 
 
 def _output_size(image_size) -> tuple[int, int]:

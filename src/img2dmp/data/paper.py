@@ -310,7 +310,8 @@ class PaperInk:
         With ``keep_steps``: ``input`` (RGB or grey), ``background``, ``darkness``,
         ``sheet``, ``rules``, ``ink`` (see the module docstring), and ``glare`` (the gain
         :func:`glare_gain` gave the darkness, ``[H, W]``) where a glare was found; else
-        empty.
+        empty. :func:`img2dmp.data.images.paper_steps` adds ``shake`` when asked to
+        steady the image first.
     glare_gain : float
         The largest factor a glare's lost contrast was given back by (:func:`glare_gain`;
         1: no glare found).

@@ -412,6 +412,14 @@ def _glare_note(found) -> str:
     return f"\n(a glare's contrast given back, up to {gain:.1f}x)" if gain > 1.0 else ""
 
 
+def _shake_note(steps) -> str:
+    """The image panel's note of a shake undone first, if any (its pixels as read)."""
+    moved = steps.get("shake")
+    if moved is None:
+        return ""
+    return f"\n(a shake of {moved.length:.1f} px at {moved.degrees:.0f} degrees undone)"
+
+
 def paper_steps_figure(path: str | os.PathLike, found, boxes=None, title: str = "") -> Path:
     """The steps of :func:`img2dmp.data.paper.paper_ink` (kept with ``keep_steps``) as one
     PNG: the image, the paper's estimated colour, the ink's darkness against it, what
@@ -426,7 +434,8 @@ def paper_steps_figure(path: str | os.PathLike, found, boxes=None, title: str = 
     removed[s["rules"]] = (0.85, 0.1, 0.1)
     shape = dark.shape
     bg = np.broadcast_to(s["background"], (len(s["background"]), *shape))
-    panels = [("image", _shown(s["input"])), ("paper (background estimate)", _shown(bg)),
+    panels = [("image" + _shake_note(s), _shown(s["input"])),
+              ("paper (background estimate)", _shown(bg)),
               ("darkness against the paper" + _glare_note(found), 1.0 - dark),
               ("removed: rules red, faint marks, specks, edges orange, off the sheet grey",
                removed),
