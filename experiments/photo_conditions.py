@@ -17,6 +17,9 @@ images as the full run):
   9 px): the image moved along a straight line, a copy every tenth of a pixel, each
   shifted by bilinear interpolation (:func:`slanted`; conditions added after the others,
   so that the others' generators are as they were);
+- **dim shake**: the motion of 9 px along the rows, or the slant of 9 px at 30 degrees,
+  then the warm, dim and noisy light (a shake is likeliest where the light is dim and
+  the exposure long);
 - **defocus**: a Gaussian of sigma 1, 1.5 or 2 px;
 - **far** away: the photo scaled by 0.5, 0.35, 0.25 or 0.18 (Lanczos; the shared photos'
   digits about 10 px tall at 0.25);
@@ -244,7 +247,14 @@ def _conditions() -> list[Condition]:
     out.append(Condition("warm-dim-noisy", "light", warm_dim_noisy))
     for degrees, length in ((15, 9), (30, 9), (45, 5), (45, 9), (120, 9)):
         out.append(Condition(f"slant-{degrees}-{length}", "slant", slanted(length, degrees)))
+    for name, moved in (("motion-h9", motion(9, 1)), ("slant-30-9", slanted(9, 30))):
+        out.append(Condition(f"{name}+dim", "dim shake", _then(moved, warm_dim_noisy)))
     return out
+
+
+def _then(first, second):
+    """A condition that applies ``first``, then ``second``."""
+    return lambda rgb, rng: second(first(rgb, rng), rng)
 
 
 #: Every condition, in the tables' order.
