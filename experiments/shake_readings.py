@@ -156,6 +156,8 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.pages < 0 or args.more < 0:
         p.error("--pages and --more: give 0 or more")
+    if not (args.photos or args.pages or args.more):
+        p.error("nothing to read: give --photos, --pages or --more")
     if (args.pages or args.more) and not (Path(args.data) / "ijs-mnist-trajectories").is_dir():
         sys.exit(f"no {Path(args.data) / 'ijs-mnist-trajectories'}: --data names the shared "
                  "data folder (or --pages 0 --more 0)")  # fmt: skip

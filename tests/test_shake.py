@@ -82,3 +82,20 @@ def test_a_shaken_page_s_characters_are_read_one_by_one_once_steadied(length, de
     assert 0.0 <= steady.min() and steady.max() <= 1.0
     monkeypatch.setattr(page_module, "steadied", lambda levels, found=None: levels)
     assert not _one_box_each(segment_page(shaken), boxes)
+
+
+def test_the_readings_experiment_scores_a_shake_s_length_and_direction(experiment_script):
+    """experiments/shake_readings.py: a page moved 9 px at 30 degrees is read within its
+    errors, the page as it is is not read as shaken, and the summary counts both."""
+    sr = experiment_script("shake_readings")
+    img, _ = _tight_page()
+    rgb = (np.clip(img, 0, 1) * 255).astype(np.uint8)
+    shaken = (moved(img, 9, 30) * 255).astype(np.uint8)
+    rows = [{"image": "p", "kind": "page", "condition": c, **sr.reading(x, a)}
+            for c, x, a in (("as-is", rgb, None), ("moved", shaken, (9, 30)))]  # fmt: skip
+    assert rows[0]["found"] is None and "length_error" not in rows[0]
+    assert rows[1]["length_error"] < 1 and rows[1]["direction_error"] < 3
+    summary = {s["shaken"]: s for s in sr.summarise(rows)}
+    assert summary[False]["read as shaken"] == 0 and summary[True]["read as shaken"] == 1
+    with pytest.raises(SystemExit):
+        sr.main(["--photos", "", "--pages", "0", "--more", "0", "--out", "unused"])
