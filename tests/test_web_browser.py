@@ -584,6 +584,33 @@ def test_a_page_photographed_askew_says_it_was_turned(page, server, tmp_path):
             assert page.locator("#page-turned").count() == 0
 
 
+def test_a_page_says_which_shake_was_undone_and_what_glare_was_given_back(page, server, tmp_path):
+    """The document's ``shake`` and ``glare_gain`` said beside the counts; a page read as
+    it was says neither."""
+    from PIL import Image
+
+    from drawn import glare, grainy_page, moved
+
+    img, _ = grainy_page()
+    for name, photo, said in (("plain", img, ()), ("shaken", moved(img, 9, 30), ("shake",)),
+                              ("glared", glare(img, 0.8), ("glare",))):  # fmt: skip
+        path = tmp_path / f"{name}.png"
+        Image.fromarray((np.clip(photo, 0, 1) * 255).astype(np.uint8)).save(path)
+        page.goto(server["url"] + "/page")
+        page.locator("#photo-file").set_input_files(str(path))
+        page.locator('#page-card[data-characters="9"]').wait_for()
+        if "shake" in said:
+            text = page.locator("#page-shake").inner_text()
+            assert re.fullmatch(r"a shake of (8\.\d|9\.\d)\u00a0px at 3[01]\u00b0 undone", text), (
+                text
+            )
+        if "glare" in said:
+            text = page.locator("#page-glare").inner_text()
+            assert re.fullmatch(r"a glare's contrast given back, up to \d\.\d\u00d7", text), text
+        for kind in ("shake", "glare"):
+            assert (page.locator(f"#page-{kind}").count() == 1) == (kind in said), (name, kind)
+
+
 def test_a_page_photo_is_boxed_counted_written_and_its_flagged_character_marked(
     page, server, shots, tmp_path, handwritten_page
 ):

@@ -187,7 +187,25 @@ function showSummary(answer, nFlagged) {
   const refined = r.steps || r.unfamiliar_steps ? ` \u00b7 refined ${r.steps} steps${unfamiliar}` : "";
   const rest = ` \u00b7 photo ${w}\u00d7${h}\u00a0px \u00b7 model ${answer.model}${refined}` +
     ` \u00b7 read in ${(answer.elapsed_ms / 1000).toFixed(2)}\u00a0s`;
-  ui.summary.replaceChildren(counts, n ? " \u00b7 " : "", flags, ...turnedText(page), rest);
+  ui.summary.replaceChildren(counts, n ? " \u00b7 " : "", flags, ...turnedText(page),
+    ...restoredText(page), rest);
+}
+
+/** " · a glare's contrast given back, up to 2.4×" and " · a shake of 9.3 px at 31° undone"
+ * for a page whose photo was mended before its ink was read (the document's glare_gain
+ * and shake); nothing for one read as it was. */
+function restoredText(page) {
+  const out = [];
+  if ((page.glare_gain || 1) > 1) {
+    out.push(" \u00b7 ", el("span", { id: "page-glare" },
+      `a glare's contrast given back, up to ${page.glare_gain.toFixed(1)}\u00d7`));
+  }
+  if (page.shake) {
+    const { length_px: length, direction_deg: direction } = page.shake;
+    out.push(" \u00b7 ", el("span", { id: "page-shake" },
+      `a shake of ${length.toFixed(1)}\u00a0px at ${Math.round(direction)}\u00b0 undone`));
+  }
+  return out;
 }
 
 /** " · turned 14.4° clockwise to level its lines" for a page read turned (a photo taken
