@@ -403,12 +403,18 @@ def markdown(report: dict) -> str:
     return "\n".join(out).rstrip("\n") + "\n"
 
 
-def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def add_photo_arguments(p: argparse.ArgumentParser) -> None:
+    """``--photos`` (the two shared photos' folder, '' for none) and ``--data`` (the
+    shared data folder, for generated pages), as the photo experiments take them."""
     p.add_argument("--photos", default="../shared/data/photos",
                    help="the folder of the two shared photos ('' for none)")  # fmt: skip
     p.add_argument("--data", default="../shared/data")
+
+
+def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    add_photo_arguments(p)
     p.add_argument("--pages", type=int, default=4, help="generated pages (0: none)")
     p.add_argument("--split", choices=("validation", "test"), default="validation",
                    help="the generated pages' digits and seed (test: figures only)")  # fmt: skip

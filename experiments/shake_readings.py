@@ -36,7 +36,7 @@ import numpy as np
 from _provenance import cpu_name, format_record, run_record, write_report
 from _provenance import markdown_table as _table
 from page_reading import generated_pages, page_sources
-from photo_conditions import CONDITIONS, apply, slanted
+from photo_conditions import CONDITIONS, add_photo_arguments, apply, slanted
 
 #: The line shakes applied to the photos and the ``--pages`` pages: lengths (px) ...
 LENGTHS = (5, 9, 15)
@@ -146,9 +146,7 @@ def markdown(report: dict) -> str:
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--photos", default="../shared/data/photos",
-                   help="the folder of the two shared photos ('' for none)")  # fmt: skip
-    p.add_argument("--data", default="../shared/data")
+    add_photo_arguments(p)
     p.add_argument("--pages", type=int, default=12, help="pages under every condition")
     p.add_argument("--more", type=int, default=200, help="pages as they are and moved once")
     p.add_argument("--seed", type=int, default=7, help="the --more pages' shakes")
