@@ -5,13 +5,14 @@ Images, each read as ``segment_page`` reads a page (at most 2,000,000 pixels):
 
 - **not shaken**: the two shared photos (``--photos``) and ``--pages`` generated
   validation pages (:func:`page_reading.generated_pages`, seed 100) under every condition
-  of ``photo_conditions.py`` but its motion and slant families (as they are, shadows,
-  glare, defocus, far away, JPEG, pencil, marker, warm light); and ``--more`` further
-  generated pages (from seed ``100 + --pages``), each on its paper and on plain white;
-- **shaken**: the same photos and pages under ``photo_conditions.py``'s motion and slant
-  families, and moved along a line (:func:`photo_conditions.slanted`) of 5, 9 and 15 px
-  at 13 directions (10-170 degrees); each of the ``--more`` pages moved once, its length
-  (4-15 px) and direction (0-180 degrees) drawn from ``--seed``.
+  of ``photo_conditions.py`` but its motion, slant and dim shake families (as they are,
+  shadows, glare, defocus, far away, JPEG, pencil, marker, warm light); and ``--more``
+  further generated pages (from seed ``100 + --pages``), each on its paper and on plain
+  white;
+- **shaken**: the same photos and pages under ``photo_conditions.py``'s motion, slant and
+  dim shake families, and moved along a line (:func:`photo_conditions.slanted`) of 5, 9
+  and 15 px at 13 directions (10-170 degrees); each of the ``--more`` pages moved once,
+  its length (4-15 px) and direction (0-180 degrees) drawn from ``--seed``.
 
 Per image: the cepstrum's trough (its depth ``z``, length and direction), the directional
 derivatives' correlations along and across it, and what :func:`shake` reads. The summary
@@ -47,7 +48,8 @@ MORE_LENGTH, MORE_DIRECTION = (4.0, 15.0), (0.0, 180.0)
 #: ``photo_conditions.py``'s conditions that shake, and the shake each applies.
 SHAKEN = {"motion-h5": (5, 0), "motion-h9": (9, 0), "motion-v5": (5, 90), "motion-v9": (9, 90),
           "slant-15-9": (9, 15), "slant-30-9": (9, 30), "slant-45-5": (5, 45),
-          "slant-45-9": (9, 45), "slant-120-9": (9, 120)}  # fmt: skip
+          "slant-45-9": (9, 45), "slant-120-9": (9, 120),
+          "motion-h9+dim": (9, 0), "slant-30-9+dim": (9, 30)}  # fmt: skip
 
 
 def reading(image, applied: tuple[float, float] | None) -> dict:
