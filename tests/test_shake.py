@@ -99,3 +99,21 @@ def test_the_readings_experiment_scores_a_shake_s_length_and_direction(experimen
     assert summary[False]["read as shaken"] == 0 and summary[True]["read as shaken"] == 1
     with pytest.raises(SystemExit):
         sr.main(["--photos", "", "--pages", "0", "--more", "0", "--out", "unused"])
+
+
+@pytest.mark.parametrize("found", [(0, 0), (-3, 10), (float("nan"), 0), (9, float("inf")),
+                                   (500, 0), ("long", 0), (9,), 9.0])  # fmt: skip
+def test_a_shake_given_that_cannot_be_undone_is_refused_by_name(found):
+    img, _ = _tight_page()
+    with pytest.raises(ValueError, match="shake"):
+        steadied(img, found)
+
+
+def test_a_shake_given_by_hand_is_undone_as_the_one_read():
+    img, _ = _tight_page()
+    shaken = moved(img, 9, 30)
+    read = shake(shaken)
+    assert np.array_equal(steadied(shaken, (read.length, read.degrees)), steadied(shaken))
+    assert np.array_equal(steadied(shaken, (read.length, read.degrees - 180)), steadied(shaken))
+    with pytest.raises(ValueError, match="length must be 1 to"):
+        line(0.5, 0)

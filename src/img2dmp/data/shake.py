@@ -215,10 +215,25 @@ def shake(levels) -> Shake | None:
     return found if found is not None else _along_row_or_column(grey, longest)
 
 
+def _checked(length, degrees, longest: float = math.inf) -> tuple[float, float]:
+    """``(length, degrees)`` as floats; ``ValueError`` naming a length that is not a
+    number from 1 to ``longest`` pixels, or a direction that is not a finite number."""
+    try:
+        length, degrees = float(length), float(degrees)
+    except (TypeError, ValueError):
+        raise ValueError(f"a shake is (length_px, degrees), got {(length, degrees)!r}") from None
+    if not (math.isfinite(length) and 1.0 <= length <= longest):
+        raise ValueError(f"a shake's length must be 1 to {longest:g} px, got {length!r}")
+    if not math.isfinite(degrees):
+        raise ValueError(f"a shake's direction must be a finite number of degrees, got {degrees!r}")
+    return length, degrees
+
+
 def line(length: float, degrees: float) -> np.ndarray:
-    """A line of ``length`` pixels at ``degrees`` (:class:`Shake`) centred on the middle
-    of an odd square array, each pixel weighed by the share of the line inside it; sums
-    to 1."""
+    """A line of ``length`` pixels (at least 1) at ``degrees`` (:class:`Shake`) centred
+    on the middle of an odd square array, each pixel weighed by the share of the line
+    inside it; sums to 1."""
+    length, degrees = _checked(length, degrees)
     theta = math.radians(degrees)
     reach = math.ceil(length / 2) + 1
     n = max(2, round(length * _LINE_SAMPLES))
@@ -273,14 +288,21 @@ def _at_a_slant(planes: np.ndarray, length: float, degrees: float) -> np.ndarray
 
 
 def steadied(levels, found: Shake | None = None) -> np.ndarray:
-    """``levels`` with the shake :func:`shake` finds (or ``found``) undone, ``float32``
-    in [0, 1] and of the same shape; ``levels`` as they are when there is none."""
+    """``levels`` with the shake :func:`shake` finds (or ``found``, a :class:`Shake` or
+    ``(length_px, degrees)``, its length at most half the image's shorter side) undone,
+    ``float32`` in [0, 1] and of the same shape; ``levels`` as they are when there is
+    none."""
     found = shake(levels) if found is None else found
     if found is None:
         return levels
     a = np.asarray(levels, np.float32)
     planes = a[..., None] if a.ndim == 2 else a
-    length, degrees = found
+    try:
+        length, degrees = found
+    except (TypeError, ValueError):
+        raise ValueError(f"a shake is (length_px, degrees), got {found!r}") from None
+    length, degrees = _checked(length, degrees, min(planes.shape[:2]) / 2)
+    degrees %= 180.0
     if degrees in (0.0, 90.0) and float(length).is_integer():
         out = _along_axis(planes, int(length), 1 if degrees == 0.0 else 0)
     else:
