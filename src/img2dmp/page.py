@@ -650,8 +650,8 @@ def segment_page(image, *, name: str | None = None, cut: bool = True, join_sides
     """
     read = _images._read_levels(image, name, PAGE_WORK_PIXELS)
     levels, reduction, size, label = read.levels, read.reduction, read.size, read.label
-    moved = shake(levels)
-    levels = steadied(levels, moved)  # a shaken photo's blur undone (img2dmp.data.shake)
+    moved = shake(levels)  # a shaken photo's blur undone (img2dmp.data.shake)
+    levels = levels if moved is None else steadied(levels, moved)
     found = paper_ink(levels)
     if found is None:
         return PageSegmentation(levels, reduction, size, label, None,
@@ -703,7 +703,7 @@ def _finer(seg: PageSegmentation, image, name, white: float, cut: bool,
         return seg
     read = _images._read_levels(image, name, PAGE_WORK_PIXELS, box, white)
     moved = shake(read.levels)
-    levels = steadied(read.levels, moved)
+    levels = read.levels if moved is None else steadied(read.levels, moved)
     found = paper_ink(levels)
     layout = None if found is None else _find_on(found, cut, join_sides)
     if layout is None or not layout.characters:

@@ -937,7 +937,7 @@ def paper_steps(source, *, name: str | None = None, max_pixels: int = MAX_WORK_P
 
     levels, reduction, _, _ = _levels_framed(source, name, max_pixels)
     moved = shake(levels) if steady else None
-    found = paper_ink(steadied(levels, moved) if moved else levels, keep_steps=True)
+    found = paper_ink(levels if moved is None else steadied(levels, moved), keep_steps=True)
     if found is not None and steady:
         found.steps["shake"] = moved
     return found, reduction
