@@ -159,7 +159,7 @@ def slanted(length: float, degrees: float):
         theta = np.deg2rad(degrees)
         reach = int(np.ceil(length / 2)) + 1
         y, x = reach + 1 + t * np.sin(theta), reach + 1 + t * np.cos(theta)
-        kernel = np.zeros((2 * reach + 3, 2 * reach + 3))  # its centre at (reach + 1) * 2
+        kernel = np.zeros((2 * reach + 3, 2 * reach + 3))  # odd: its centre at reach + 1
         y0, x0 = np.floor(y).astype(int), np.floor(x).astype(int)
         for dy, dx in ((0, 0), (0, 1), (1, 0), (1, 1)):  # each copy's bilinear weights
             weight = np.abs(1 - dy - (y - y0)) * np.abs(1 - dx - (x - x0))
