@@ -117,3 +117,12 @@ def test_a_shake_given_by_hand_is_undone_as_the_one_read():
     assert np.array_equal(steadied(shaken, (read.length, read.degrees - 180)), steadied(shaken))
     with pytest.raises(ValueError, match="length must be 1 to"):
         line(0.5, 0)
+
+
+def test_a_flat_image_has_no_shake_and_no_warning():
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a log of zero power warned, and read NaNs
+        for flat in (np.ones((200, 300, 3), np.float32), np.zeros((200, 300), np.float32)):
+            assert shake(flat) is None and steadied(flat) is flat

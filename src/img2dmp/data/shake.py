@@ -112,6 +112,8 @@ def _trough(grey: np.ndarray, longest: int) -> tuple[float, float, float]:
     h, w = grey.shape
     window = np.outer(np.hanning(h).astype(np.float32), np.hanning(w).astype(np.float32))
     power = np.abs(scipy.fft.rfft2((grey - grey.mean()) * window, workers=-1)) ** 2
+    if not float(power.mean()) > 0.0:  # a flat image: nothing to read
+        return 0.0, 0.0, 0.0
     reach = longest + 1
     cep = _centred(np.log(power + 1e-3 * float(power.mean())), grey.shape, reach)
     dy, dx = _lags(reach)
