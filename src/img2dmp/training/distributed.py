@@ -27,6 +27,8 @@ def process_group():
         created = True
     try:
         yield _rank_and_world()
+        if created:  # every rank done with the group before any tears it down
+            torch.distributed.barrier()
     finally:
         if created:
             torch.distributed.destroy_process_group()
