@@ -540,6 +540,56 @@ def test_the_sheet_s_edge_cut_into_pieces_by_rules_is_not_a_character():
     assert not edge[labels[150, 101]], "a character cut by the border is no edge"
 
 
+def test_the_sheet_s_corner_beside_the_border_is_not_a_character():
+    """The two thin lines of a sheet's corner, an L beside two borders (as the yellow
+    shared photo's top right keeps once the desk's band above it is gone), are its edge;
+    not as a whole (an L is as thick as it is long), but along each border. A 7 cut by
+    the right border near that corner, and a 7 lying in the corner's band, stay."""
+    from scipy.ndimage import label
+
+    from img2dmp.data.paper import _edge_lines
+
+    size = (410, 594)
+    marks = np.zeros(size, bool)
+    marks[8, 556:594] = True  # the top line, 8 px below the border
+    marks[8:43, 593] = True  # the right one, on the border
+    marks[150, 570:594] = True  # a 7's bar, cut by the right border ...
+    for t in range(30):  # ... and its downstroke
+        marks[150 + t, 590 - t // 3] = True
+    marks[300, 582:594] = True  # a small 7 lying in the band beside the right border
+    for t in range(25):
+        marks[300 + t, 593 - t // 3] = True
+    labels, n = label(marks, structure=np.ones((3, 3), bool))
+    assert n == 3
+    edge = _edge_lines(labels)
+    assert edge[labels[8, 560]], "the corner's L is the sheet's edge"
+    assert not edge[labels[150, 580]] and not edge[labels[300, 570]], "a 7 is no edge"
+    marks[8:43, 593] = False  # one line alone, a piece of the edge: as it was
+    labels, n = label(marks, structure=np.ones((3, 3), bool))
+    assert _edge_lines(labels)[labels[8, 560]]
+
+
+def test_the_yellow_photo_s_corner_is_no_character():
+    """The yellow shared photo: its 64 digits in three lines of two numbers, and nothing
+    in its top right corner (the sheet's corner, two thin lines, read as two characters
+    before). Skips, saying so, without ``../shared/data/photos``."""
+    import json
+    from pathlib import Path
+
+    from img2dmp.page import segment_page
+
+    photos = Path(__file__).resolve().parents[2] / "shared" / "data" / "photos"
+    if not (photos / "photos.json").is_file():
+        pytest.skip(f"the shared phone photos are not at {photos} (../shared/data/photos)")
+    listed = json.loads((photos / "photos.json").read_text())["photos"]
+    lines = {p["file"]: p["lines"] for p in listed}
+    truth = sum(len(line.replace(" ", "")) for line in lines["page_yellow_blue_ink.png"])
+    seg = segment_page(photos / "page_yellow_blue_ink.png")
+    boxes = [c.box for c in seg.layout.characters]
+    assert not [b for b in boxes if b[1] < 40 and b[2] > 500], "a character in the corner"
+    assert len(boxes) == truth
+
+
 def _grid_cover(size, spacing: float, width: float = 1.6, columns: bool = True) -> np.ndarray:
     """The share ``[H, W]`` of every pixel covered by lines every ``spacing`` pixels along
     the rows (and the columns)."""

@@ -283,7 +283,8 @@ EDGE_LINE_NEAR = 0.03
 EDGE_LINE_INSIDE = 0.8
 EDGE_LINE_THIN = 12.0
 #: ... and one lying in that band (``EDGE_LINE_INSIDE``) from this share, when it is this
-#: many times as long as thick (a piece of the edge's line that the margin cut).
+#: many times as long as thick (a piece of the edge's line that the margin cut), as a
+#: whole or along each border it lies beside (the sheet's corner: two lines, an L).
 EDGE_PIECE_SHARE = 0.08
 EDGE_PIECE_THIN = 4.0
 
@@ -1704,6 +1705,9 @@ def _edge_lines(labels: np.ndarray, band=None, ruled=None) -> np.ndarray:
         (inside >= EDGE_LINE_INSIDE * count) | (length >= EDGE_LINE_THIN * thick)
     )
     piece = (length >= EDGE_PIECE_SHARE * min(h, w)) & (length >= EDGE_PIECE_THIN * thick)
+    # or the sheet's corner: straight along each border it lies beside, not as a whole
+    length, thick = _along_sides(rows, cols, lab, k, (h, w), m)
+    piece |= (length >= EDGE_PIECE_SHARE * min(h, w)) & (length >= EDGE_PIECE_THIN * thick)
     piece &= inside >= EDGE_LINE_INSIDE * count
     if joined is not labels:  # joined by the rules: pieces of a line lying in the band
         pairs = np.unique(np.stack([lab, labels[rows, cols]]), axis=1)
@@ -1714,6 +1718,40 @@ def _edge_lines(labels: np.ndarray, band=None, ruled=None) -> np.ndarray:
     marks = labels > 0  # each mark takes its group's answer
     out[labels[marks]] = edge[joined[marks]]
     return out
+
+
+def _along_sides(rows, cols, lab, k: int, shape, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per label (``k + 1``): the length and thickness of a mark (its pixels ``rows``,
+    ``cols`` with labels ``lab``) read along the image's borders that it comes within
+    ``m`` pixels of: each pixel taken by the side it lies nearest to, counted from the
+    mark's own nearest pixel to that side (the two lines of a sheet's corner, an L, each
+    go to their own side); the lengths (the spread along each side, as a uniform line's)
+    added, the thickness the largest spread across one (at least 1). A mark beside no
+    border: length 0."""
+    h, w = shape
+    n = k + 1
+    far = np.stack([rows, h - 1 - rows, cols, w - 1 - cols]).astype(np.float64)  # [4, P]
+    nearest = np.full((4, n), np.inf)
+    for s in range(4):
+        np.minimum.at(nearest[s], lab, far[s])
+    offset = far - nearest[:, lab]
+    offset[nearest[:, lab] >= m] = np.inf  # a side the mark does not come near
+    side = np.argmin(offset, axis=0)
+    beside = np.isfinite(offset[side, np.arange(side.size)])
+    along = np.where(side < 2, cols, rows).astype(np.float64)
+    across = far[side, np.arange(side.size)]
+    group = (lab * 4 + side)[beside]
+    count = np.bincount(group, minlength=4 * n).astype(np.float64)
+    c = np.maximum(count, 1)
+
+    def spread(values: np.ndarray) -> np.ndarray:  # a uniform line's length: sqrt(12 var)
+        v = values[beside]
+        mean = np.bincount(group, v, 4 * n) / c
+        return np.sqrt(12 * np.bincount(group, (v - mean[group]) ** 2, 4 * n) / c)
+
+    length = np.where(count >= 2, spread(along), 0.0).reshape(n, 4).sum(axis=1)
+    thick = np.maximum(np.where(count >= 2, spread(across), 0.0).reshape(n, 4).max(axis=1), 1.0)
+    return length, thick
 
 
 def _sheet_rules(weak, sheet, dark, pen: float, channels, desk) -> np.ndarray:
