@@ -243,3 +243,48 @@ def test_a_16_bit_scan_is_reduced_a_strip_at_a_time_to_the_same_levels(tmp_path,
             assert reduction == factor and levels.shape == want.shape
             assert np.abs(levels - want).max() <= 1e-6
             assert max(converted, default=0) <= 2_000 + a.shape[1] * factor
+
+
+@pytest.mark.parametrize("mode", ["L", "RGB", "I;16"])
+def test_a_reduced_file_is_reduced_once_whatever_its_bits(tmp_path, mode):
+    """A file over the work size is reduced ``factor`` times once: its levels are the
+    file's size over the reduction it reports, for 8-bit grey as for colour and 16 bits
+    (8-bit grey was reduced twice at c711c0a: a 1600-px page of Omniglot characters read
+    at a quarter, its characters cut into pieces), and the levels are the area average
+    of the file's."""
+    from img2dmp.data import images
+
+    rng = np.random.default_rng(2)
+    a = rng.integers(0, 256, (301, 203)).astype(np.uint8)
+    a[0, 0] = 255
+    stored = a.astype(np.uint16) * 257 if mode == "I;16" else a
+    im = Image.fromarray(stored)
+    path = tmp_path / f"page_{mode.replace(';', '')}.png"
+    (im.convert("RGB") if mode == "RGB" else im).save(path)
+    for factor in (2, 3):
+        levels, reduction, _, _ = images._levels_framed(path, None, a.size // factor**2 + 1)
+        assert reduction == factor
+        assert levels.shape[:2] == (-(-301 // factor), -(-203 // factor))
+        grey = levels if levels.ndim == 2 else levels.mean(axis=2)
+        want = np.asarray(Image.fromarray(a.astype(np.float32), mode="F").reduce(factor)) / 255
+        assert np.abs(grey - want).max() <= 1.0 / 255 + 1e-6
+
+
+@pytest.mark.parametrize("mode", ["L", "1"])
+def test_a_grey_or_1_bit_page_file_over_the_work_size_reads_as_its_colour_twin(
+    small_work, tmp_path, mode
+):
+    """A page stored in 8-bit grey (or 1 bit) and reduced to the work size finds the
+    characters its colour file does, in the file's pixels (read at a quarter before:
+    none of a 300-dpi scan's characters found, scanned_pages.py)."""
+    canvas, true = _far_sheet(1.0)
+    canvas.save(tmp_path / "rgb.png")
+    grey = canvas.convert("L")
+    (grey if mode == "L" else grey.point(lambda v: 255 if v > 128 else 0).convert("1")).save(
+        tmp_path / "grey.png"
+    )
+    rgb, other = (small_work.segment_page(tmp_path / f) for f in ("rgb.png", "grey.png"))
+    assert rgb.reduction == other.reduction == 3.0
+    assert other.levels.shape[:2] == rgb.levels.shape[:2]
+    found = [other.box_in_image(c) for c in other.layout.characters]
+    assert _centres_inside(found, true) == len(true) == 11

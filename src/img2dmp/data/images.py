@@ -408,7 +408,7 @@ def _pil_levels(im, label: str, max_pixels: int = MAX_WORK_PIXELS, box=None,
     if colour:
         levels, white = np.asarray(im, dtype=np.float32) / np.float32(255.0), 255.0
     else:
-        if factor > 1:  # wide
+        if factor > 1 and wide:  # 8-bit grey was reduced above, as 8 bits
             levels = _reduced_wide(im, factor)
         else:
             levels = np.array(im.convert("F"), dtype=np.float32)  # a copy: divided in place
