@@ -540,6 +540,31 @@ def test_the_sheet_s_edge_cut_into_pieces_by_rules_is_not_a_character():
     assert not edge[labels[150, 101]], "a character cut by the border is no edge"
 
 
+def test_a_line_of_digits_most_of_which_touch_is_cut_into_them():
+    """Written with a marker, most digits of a line touch: runs of 4, 3 and 3 zeros and
+    three digits alone. The usual width is read from the marks about one digit wide
+    (``ALONE_WIDTH``), not from the runs (the upper quartile of all widths is a run's:
+    the run of 4 was kept whole); a page of letters still counts every mark."""
+    from scipy.ndimage import label
+
+    from img2dmp.data import pages
+
+    runs = [20, 43, 66, 89, 150, 173, 196, 260, 283, 306]
+    line = [("0", x) for x in runs] + [("1", 370), ("0", 410), ("7", 460)]
+    ink, boxes = _page([line], size=(220, 520))
+    mask = ink > 0.5
+    assert label(mask, np.ones((3, 3)))[1] == 6  # three runs of touching zeros, three alone
+    layout = find_characters(mask)
+    assert len(layout.characters) == len(line) == 13
+    assert _matches(layout, boxes, tol=8.0), [c.box for c in layout.characters]
+    everything = pages.ALONE_WIDTH
+    try:
+        pages.ALONE_WIDTH = float("inf")  # every mark counts, as before
+        assert len(find_characters(mask).characters) < 13
+    finally:
+        pages.ALONE_WIDTH = everything
+
+
 def test_the_sheet_s_corner_beside_the_border_is_not_a_character():
     """The two thin lines of a sheet's corner, an L beside two borders (as the yellow
     shared photo's top right keeps once the desk's band above it is gone), are its edge;

@@ -19,7 +19,8 @@ into text lines and ordered for reading:
    new line begins where the next character's middle row is more than ``LINE_GAP``
    heights past the current line's;
 4. **touching characters**: the pitch (the median distance between neighbouring
-   characters' centres in a line) and the usual character width say how many
+   characters' centres in a line) and the usual character width (on a page of digits,
+   of the marks at most ``ALONE_WIDTH`` heights wide) say how many
    characters a wide mark holds; it is cut near equal divisions at the columns that
    cross the fewest strokes, at least ``MIN_CUT_PITCH`` divisions apart; and a mark (or
    piece) of any width is cut at a column that crosses a single stroke with ink at least
@@ -62,6 +63,16 @@ LINE_GAP = 0.55
 #: A mark holds one more character for every character width it spans beyond this many
 #: (widths: the upper quartile of the page's characters', so narrow 1s do not count).
 SPLIT_WIDTHS = 1.7
+#: On a page of digits (not ``join_sides``) that width is read from the marks at most
+#: this many character heights wide: a wider mark holds several (written with a marker,
+#: most of a line's digits may touch, and the width of such marks would make each look
+#: like one character). Chosen on the validation pages, ``page_segmentation.py`` (200
+#: pages, found on cluttered + plain paper of 7,678) and ``photo_conditions.py --pages 12``
+#: (as they are, far, pencil and marker, of 1,491), every mark / 2.0 / 1.5 / 1.3 / 1.2:
+#: 7,581 / 7,581 / 7,589 / 7,593 / 7,587 and 1,425 / 1,438 / 1,443 / 1,443 / 1,446; the
+#: shared photos under a marker and far-0.18 matched 111 / 114 / 114 / 122 / 122 of 156
+#: (RESULTS 7.26). A page of letters counts every mark (an m, a Korean syllable's pieces).
+ALONE_WIDTH = 1.3
 #: Cuts through touching characters are at least this share of the pitch apart.
 MIN_CUT_PITCH = 0.45
 #: A mark is two touching characters, whatever its width, where one column crosses a
@@ -673,6 +684,9 @@ def _find(mask: np.ndarray, angle_deg: float | None, cut: bool = True,
                range(int(line.max()) + 1)]  # fmt: skip
     pitch = _pitch(by_line, along, height)
     tall = [m.width for m in marks if m.height >= 0.5 * height]
+    alone = [w for w in tall if w <= ALONE_WIDTH * height]
+    if not join_sides and len(alone) >= 3:  # digits: a wider mark holds several
+        tall = alone
     width = float(np.percentile(tall, 75)) if tall else height
     if join_sides:
         n_before = len(marks)
