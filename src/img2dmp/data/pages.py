@@ -109,7 +109,7 @@ SIDE_GAP = 0.3
 #: quartile of the page's characters' widths, as for ``SPLIT_WIDTHS``). Scanned on the same
 #: pages (RESULTS 8.10): 1.1 / 1.3 / 1.6 / 2.0 found 1,027 / 1,048 / 1,058 / 1,054 whole,
 #: joined two neighbours 0 / 0 / 0 / 4 times; 1.6 joined two more pairs of digits on the
-#: yellow photo (61 characters found with 1.3, 59 with 1.6; it has 63 digits and a mark).
+#: yellow photo (61 characters found with 1.3, 59 with 1.6; it has 64 digits).
 SIDE_WIDTH = 1.3
 #: A mark smaller than this share of a character height on its longer side is not a
 #: character (what the paper left: a rule's crossing, a speck at the page's scale).
