@@ -94,3 +94,28 @@ def test_a_1_bit_or_16_bit_png_or_tiff_page_is_read_like_its_grey_version(tmp_pa
         found = [seg.box_in_image(c) for c in seg.layout.characters]
         assert len(found) == 4, (name, found)
         assert np.abs(np.array(found) - np.array(boxes)).max() <= 3, (name, found, boxes)
+
+
+def test_two_letters_whose_ends_nearly_meet_stay_two_on_a_page_of_letters():
+    """Two letters 80 px tall and 65 wide written close, the first's bar ending 3 px from the
+    second's: ends facing across the break gap. A page of digits joins them (and cuts
+    the pair at the pitch afterwards); a page of letters, which cuts nothing, keeps
+    them two (``BREAK_WIDE``), and still mends a broken stroke of its own letters."""
+    from scipy.ndimage import label
+
+    letters = [
+        stroke([(60, 90), (125, 90)]),
+        stroke([(92, 90), (92, 170)]),  # a T
+        stroke([(128, 90), (193, 90)]),
+        stroke([(193, 90), (140, 170)]),
+    ]  # a 7
+    letters += [stroke([(x, 90), (x, 170)]) for x in (300, 360, 420)]  # three ls
+    mask = ink(SIZE, letters, width=3.0) > 0.5
+    assert label(mask, np.ones((3, 3)))[1] == 5
+    pair = find_characters(mask, cut=False)
+    assert len(pair.characters) == 4  # a page of digits: the T and the 7 joined
+    apart = find_characters(mask, cut=False, join_sides=True)
+    assert len(apart.characters) == 5, [c.box for c in apart.characters]
+    broken = _cut(mask, slice(128, 130), slice(150, 180))  # the 7's downstroke broken
+    assert label(broken, np.ones((3, 3)))[1] == 6
+    assert len(find_characters(broken, cut=False, join_sides=True).characters) == 5
