@@ -159,29 +159,53 @@ def run(args: argparse.Namespace) -> int:
         names = ", ".join(args.allowed_host) or "none: give --allowed-host NAME"
         print(f"img2dmp serve: note: listening on {host}: other machines can reach this server "
               f"by the names it answers to ({host}, {names})")  # fmt: skip
-    previous = _stop_on_sigterm()  # first: a stop may come as soon as the line is out
+    server = _server_class(uvicorn)(config)
+    previous = _stop_on_signals(server)  # first: a stop may come as soon as the line is out
     try:
         print(f"img2dmp serve: listening on http://{shown}:{port}/ (Ctrl+C stops)", flush=True)
-        uvicorn.Server(config).run(sockets=[sock])
-    except KeyboardInterrupt:  # uvicorn raises Ctrl+C (or SIGTERM) again once shut down
+        server.run(sockets=[sock])
+    except KeyboardInterrupt:  # outside the main thread uvicorn's own handling stands
         pass
     finally:
         sock.close()
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     print("img2dmp serve: stopped", flush=True)
     return 0
 
 
-def _stop_on_sigterm():
-    """SIGTERM (``kill``, a service manager) stops the server as Ctrl+C does: uvicorn
-    shuts down on it, then raises it again under the handler it found, which was the
-    default one (the process died there, before its clean-up: no "stopped", temporary
-    folders left). The handler before, or None outside the main thread."""
+def _server_class(uvicorn):
+    """uvicorn's server without its own signal handlers: serve's (:func:`_stop_on_signals`)
+    stand from before the listening line to the end."""
+    import contextlib
+
+    class Server(uvicorn.Server):
+        @contextlib.contextmanager
+        def capture_signals(self):
+            if threading.current_thread() is not threading.main_thread():
+                with super().capture_signals():
+                    yield
+            else:
+                yield
+
+    return Server
+
+
+def _stop_on_signals(server) -> dict:
+    """Ctrl+C and SIGTERM (``kill``, a service manager) ask ``server`` to stop, at any
+    moment from here on: before it has started it stops as soon as it has, a second one
+    stops it without waiting for its connections. No KeyboardInterrupt is raised, so a
+    stop takes one path whenever it comes (a Ctrl+C right after the listening line,
+    raised while uvicorn and asyncio were still setting up, once left the process running
+    in a CI run), and SIGTERM does not kill the process before its clean-up (no
+    "stopped", temporary folders left). The handlers before, to put back; none outside
+    the main thread."""
     if threading.current_thread() is not threading.main_thread():
-        return None
+        return {}
 
-    def interrupt(signum, frame):
-        raise KeyboardInterrupt
+    def stop(signum, frame):
+        if server.should_exit:
+            server.force_exit = True
+        server.should_exit = True
 
-    return signal.signal(signal.SIGTERM, interrupt)
+    return {sig: signal.signal(sig, stop) for sig in (signal.SIGINT, signal.SIGTERM)}
