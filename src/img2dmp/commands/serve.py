@@ -164,8 +164,6 @@ def run(args: argparse.Namespace) -> int:
     try:
         print(f"img2dmp serve: listening on http://{shown}:{port}/ (Ctrl+C stops)", flush=True)
         server.run(sockets=[sock])
-    except KeyboardInterrupt:  # outside the main thread uvicorn's own handling stands
-        pass
     finally:
         sock.close()
         for sig, handler in previous.items():
@@ -181,12 +179,8 @@ def _server_class(uvicorn):
 
     class Server(uvicorn.Server):
         @contextlib.contextmanager
-        def capture_signals(self):
-            if threading.current_thread() is not threading.main_thread():
-                with super().capture_signals():
-                    yield
-            else:
-                yield
+        def capture_signals(self):  # (uvicorn's installs none outside the main thread)
+            yield
 
     return Server
 
