@@ -311,11 +311,6 @@ def join_breaks(labels: np.ndarray, marks: list[_Mark], height: float,
     cache: dict[int, np.ndarray] = {}
     box = {i: (m.x0, m.x1) for i, m in enumerate(marks)}  # each group's columns
 
-    def too_wide(i: int, j: int) -> bool:  # two letters' pieces, not one stroke's
-        (a0, a1), (b0, b1) = box[root(i)], box[root(j)]
-        narrow = min(a1 - a0, b1 - b0) <= MIN_CHARACTER * height
-        return letters and not narrow and max(a1, b1) - min(a0, b0) > BREAK_WIDE * height
-
     def coords(i: int) -> np.ndarray:
         if i not in cache:
             m = marks[i]
@@ -333,15 +328,16 @@ def join_breaks(labels: np.ndarray, marks: list[_Mark], height: float,
                 continue
             if max(a.width, a.height, b.width, b.height) < MIN_CHARACTER * height:
                 continue  # two crumbs (of a rule, of the paper's grain): no stroke to mend
+            (a0, a1), (b0, b1) = box[root(i)], box[root(j)]
+            wide = min(a1 - a0, b1 - b0) > MIN_CHARACTER * height
+            if letters and wide and max(a1, b1) - min(a0, b0) > BREAK_WIDE * height:
+                continue  # two letters' pieces, not one stroke's (nothing cuts them later)
             pa, pb = coords(i), coords(j)
             near = _nearest(_near_box(pa, b, limit), _near_box(pb, a, limit), limit)
             if near is None:
                 continue
             at_a, at_b = near
             if _end_facing(pa, at_a, at_b, reach) and _end_facing(pb, at_b, at_a, reach):
-                if too_wide(i, j):
-                    continue
-                (a0, a1), (b0, b1) = box[root(i)], box[root(j)]
                 parent[root(j)] = root(i)
                 box[root(i)] = (min(a0, b0), max(a1, b1))
     groups: dict[int, _Mark] = {}

@@ -1706,8 +1706,8 @@ def _edge_lines(labels: np.ndarray, band=None, ruled=None) -> np.ndarray:
     )
     piece = (length >= EDGE_PIECE_SHARE * min(h, w)) & (length >= EDGE_PIECE_THIN * thick)
     # or the sheet's corner: straight along each border it lies beside, not as a whole
-    length, thick = _along_sides(rows, cols, lab, k, (h, w), m)
-    piece |= (length >= EDGE_PIECE_SHARE * min(h, w)) & (length >= EDGE_PIECE_THIN * thick)
+    sides, across = _along_sides(rows, cols, lab, k, (h, w), m)
+    piece |= (sides >= EDGE_PIECE_SHARE * min(h, w)) & (sides >= EDGE_PIECE_THIN * across)
     piece &= inside >= EDGE_LINE_INSIDE * count
     if joined is not labels:  # joined by the rules: pieces of a line lying in the band
         pairs = np.unique(np.stack([lab, labels[rows, cols]]), axis=1)
